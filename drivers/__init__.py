@@ -1,0 +1,1 @@
+"""Hardware components behind hild's contract: mock, mujoco (the twin), can."""

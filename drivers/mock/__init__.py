@@ -1,0 +1,89 @@
+"""The mock driver: a drive without physics, for tests and for trying configs without a model.
+
+It mirrors the servo command into the state (optionally through a first-order lag) and reports the torque the
+drive law would produce. Fault-injection hooks make the supervisor's fault paths testable: silence a servo,
+raise a drive fault code, fail reads, or report a component-level problem.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Literal
+
+import numpy as np
+
+from hild.arrays import JointState, ServoCommand
+from hild.config.params import Field, Params
+from hild.hardware import HardwareComponent, HardwareContext, HardwareError
+
+
+class MockParams(Params):
+    initial_positions: dict[str, float] = Field(default_factory=dict, description="Start pose (rad); default 0.")
+    dynamics: Literal["mirror", "first_order"] = Field(
+        default="mirror", description="mirror: state = command. first_order: state follows with time_constant."
+    )
+    time_constant: float = Field(default=0.02, gt=0.0, description="Seconds, for first_order dynamics.")
+
+
+class MockHardware(HardwareComponent):
+    Params = MockParams
+
+    def __init__(self, context: HardwareContext, params: MockParams) -> None:
+        super().__init__(context, params)
+        unknown = set(params.initial_positions) - set(context.joints)
+        if unknown:
+            raise HardwareError(f"initial_positions names unknown joints {sorted(unknown)}")
+        n = len(context.joints)
+        self.position = np.array([params.initial_positions.get(j, 0.0) for j in context.joints])
+        self.velocity = np.zeros(n)
+        self.effort = np.zeros(n)
+        self.enabled = False
+        self.writes = 0
+        self.last_command = ServoCommand.zeros(n)
+        # Fault injection (set from tests; plain attribute writes are atomic under the GIL).
+        self.silent = np.zeros(n, dtype=bool)
+        self.fault_codes = np.zeros(n, dtype=np.int64)
+        self.read_error: str | None = None
+        self.write_error: str | None = None
+        self.health_problem: str | None = None
+
+    def activate(self) -> None:
+        self.enabled = True
+
+    def deactivate(self) -> None:
+        self.enabled = False
+
+    def read(self, t: float, dt: float, state: JointState) -> None:
+        if self.read_error:
+            raise HardwareError(self.read_error)
+        fresh = ~self.silent
+        np.copyto(state.position, self.position, where=fresh)
+        np.copyto(state.velocity, self.velocity, where=fresh)
+        np.copyto(state.effort, self.effort, where=fresh)
+        np.copyto(state.fresh, fresh)
+        np.copyto(state.fault, self.fault_codes)
+
+    def write(self, t: float, dt: float, command: ServoCommand) -> None:
+        if self.write_error:
+            raise HardwareError(self.write_error)
+        self.writes += 1
+        self.last_command.copy_from(command)
+        if not self.enabled or dt <= 0.0:
+            return
+        q, qd = self.position, self.velocity
+        torque = command.kp * (command.position - q) + command.kd * (command.velocity - qd) + command.effort
+        stiff = command.kp > 0.0
+        target = np.where(stiff, command.position, q + np.where(command.kd > 0.0, command.velocity, qd) * dt)
+        if self.params.dynamics == "first_order":
+            alpha = 1.0 - math.exp(-dt / self.params.time_constant)
+            target = q + alpha * (target - q)
+        self.velocity[:] = (target - q) / dt
+        self.position[:] = target
+        self.effort[:] = torque
+
+    def health(self) -> str | None:
+        return self.health_problem
+
+    def clear_faults(self) -> None:
+        self.fault_codes[:] = 0
+        self.health_problem = None

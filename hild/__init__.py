@@ -1,0 +1,1 @@
+"""hild: a hardware-in-the-loop bridge daemon for robot arms."""

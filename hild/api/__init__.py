@@ -1,0 +1,1 @@
+"""The Zenoh room: server, message schemas, Python client."""

@@ -1,0 +1,98 @@
+"""Joint state and servo command as preallocated struct-of-arrays.
+
+Every backend, controller and the supervisor exchange these two shapes. They are allocated once at start-up
+and then only written in place (``arr[:] = …`` or ``np.copyto``), so the cycle thread never allocates for them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+FloatArray = np.ndarray
+
+
+@dataclass(slots=True)
+class JointState:
+    """Measured state per joint (or per actuator, before transmissions are applied).
+
+    ``fault`` is the driver's raw fault code (0 = healthy); ``fresh`` says whether the driver received new
+    feedback for that joint in this cycle, which is how the supervisor detects a servo that stops answering.
+    """
+
+    position: FloatArray
+    velocity: FloatArray
+    effort: FloatArray
+    temperature: FloatArray
+    fault: np.ndarray
+    fresh: np.ndarray
+
+    @classmethod
+    def zeros(cls, n: int) -> JointState:
+        return cls(
+            position=np.zeros(n),
+            velocity=np.zeros(n),
+            effort=np.zeros(n),
+            temperature=np.full(n, np.nan),
+            fault=np.zeros(n, dtype=np.int64),
+            fresh=np.ones(n, dtype=bool),
+        )
+
+    def copy_from(self, other: JointState) -> None:
+        for f in fields(self):
+            np.copyto(getattr(self, f.name), getattr(other, f.name))
+
+    def __len__(self) -> int:
+        return len(self.position)
+
+
+@dataclass(slots=True)
+class ServoCommand:
+    """The servo command of DESIGN.md §2: ``τ = kp·(position − q) + kd·(velocity − q̇) + effort``.
+
+    ``written`` is only meaningful on the controllers' side of the supervisor: a controller sets it for each
+    joint it commanded in this cycle. A joint nobody wrote goes to hold, so silence is always safe.
+    """
+
+    position: FloatArray
+    velocity: FloatArray
+    effort: FloatArray
+    kp: FloatArray
+    kd: FloatArray
+    written: np.ndarray
+
+    @classmethod
+    def zeros(cls, n: int) -> ServoCommand:
+        return cls(
+            position=np.zeros(n),
+            velocity=np.zeros(n),
+            effort=np.zeros(n),
+            kp=np.zeros(n),
+            kd=np.zeros(n),
+            written=np.zeros(n, dtype=bool),
+        )
+
+    def copy_from(self, other: ServoCommand) -> None:
+        for f in fields(self):
+            np.copyto(getattr(self, f.name), getattr(other, f.name))
+
+    def __len__(self) -> int:
+        return len(self.position)
+
+
+def gather_state(src: JointState, index: np.ndarray, dst: JointState) -> None:
+    """Copy the joints ``index`` of ``src`` into the (smaller) ``dst`` without allocating."""
+    for f in fields(src):
+        np.take(getattr(src, f.name), index, out=getattr(dst, f.name))
+
+
+def scatter_state(src: JointState, index: np.ndarray, dst: JointState) -> None:
+    """Write the (smaller) ``src`` into the joints ``index`` of ``dst``."""
+    for f in fields(src):
+        getattr(dst, f.name)[index] = getattr(src, f.name)
+
+
+def gather_command(src: ServoCommand, index: np.ndarray, dst: ServoCommand) -> None:
+    for f in fields(src):
+        np.take(getattr(src, f.name), index, out=getattr(dst, f.name))

@@ -1,0 +1,315 @@
+"""Load and check a robot config: YAML → schema → plugin parameters → cross-references.
+
+Every problem is collected (not just the first) and reported as ``file:line: key.path: what was expected, what
+was found``, so one ``hild check`` run shows all that is wrong with a file.
+"""
+
+from __future__ import annotations
+
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+from pydantic import BaseModel, ValidationError
+
+from hild import plugins
+from hild.config.model import RobotConfig
+from hild.config.params import Params
+from hild.interfaces import FIELDS, ClaimError, parse_interface
+
+Loc = tuple[str | int, ...]
+_UNION_TYPES = (typing.Union, types.UnionType)
+
+
+@dataclass(frozen=True)
+class ConfigIssue:
+    file: str
+    line: int | None
+    path: str
+    message: str
+
+    def __str__(self) -> str:
+        where = f"{self.file}:{self.line}" if self.line else self.file
+        return f"{where}: {self.path or '<top>'}: {self.message}"
+
+
+class ConfigError(ValueError):
+    def __init__(self, issues: list[ConfigIssue]) -> None:
+        self.issues = issues
+        super().__init__("\n".join(str(i) for i in issues))
+
+
+@dataclass
+class LoadedConfig:
+    """A validated config plus the plugin classes and parameter objects it names."""
+
+    path: Path
+    config: RobotConfig
+    driver_classes: dict[str, type] = field(default_factory=dict)
+    driver_params: dict[str, Params] = field(default_factory=dict)
+    controller_classes: dict[str, type] = field(default_factory=dict)
+    controller_params: dict[str, Params] = field(default_factory=dict)
+
+    @property
+    def directory(self) -> Path:
+        return self.path.parent
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return tuple(self.config.joints)
+
+    def summary(self) -> str:
+        c = self.config
+        lines = [
+            f"{self.path}: robot {c.robot.name!r} at {c.update_rate:g} Hz, {c.clock.source} clock",
+            f"  joints ({len(c.joints)}): {', '.join(c.joints)}",
+        ]
+        for name, hw in c.hardware.items():
+            lines.append(f"  hardware {name}: driver {hw.driver}, joints {', '.join(hw.joints)}")
+        for name, ctl in c.controllers.items():
+            auto = " (autostart)" if ctl.autostart else ""
+            lines.append(f"  controller {name}: {ctl.type}{auto}")
+        lines.append(f"  zenoh: {c.zenoh.mode}, listen {c.zenoh.listen or '[]'}, connect {c.zenoh.connect or '[]'}")
+        return "\n".join(lines)
+
+
+# ---- YAML with line numbers ---------------------------------------------------------------------------------
+
+
+def _line_map(text: str, file: str, issues: list[ConfigIssue]) -> dict[Loc, int]:
+    """Map every key path to its 1-based line; report duplicate keys (PyYAML would silently keep the last)."""
+    lines: dict[Loc, int] = {}
+    root = yaml.compose(text, Loader=yaml.SafeLoader)
+
+    def walk(node: yaml.Node, loc: Loc) -> None:
+        lines[loc] = node.start_mark.line + 1
+        if isinstance(node, yaml.MappingNode):
+            seen: set[str] = set()
+            for key, value in node.value:
+                name = key.value
+                if name in seen:
+                    issues.append(ConfigIssue(file, key.start_mark.line + 1, _fmt(loc + (name,)), "duplicate key"))
+                seen.add(name)
+                lines[loc + (name,)] = key.start_mark.line + 1
+                walk(value, loc + (name,))
+                lines[loc + (name,)] = key.start_mark.line + 1
+        elif isinstance(node, yaml.SequenceNode):
+            for i, item in enumerate(node.value):
+                walk(item, loc + (i,))
+
+    if root is not None:
+        walk(root, ())
+    return lines
+
+
+def _fmt(loc: Loc) -> str:
+    out = ""
+    for part in loc:
+        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
+    return out
+
+
+def _line(lines: dict[Loc, int], loc: Loc) -> int | None:
+    while loc not in lines and loc:
+        loc = loc[:-1]
+    return lines.get(loc)
+
+
+def _found(value: Any) -> str:
+    text = repr(value)
+    if len(text) > 60:
+        text = text[:57] + "..."
+    return f"{text} ({type(value).__name__})"
+
+
+def _allowed_keys(model: type[BaseModel], loc: Loc) -> list[str] | None:
+    """Walk the schema along ``loc`` (a path to an unknown key) and list the keys its parent allows."""
+    current: Any = model
+    for part in loc[:-1]:
+        if isinstance(current, type) and issubclass(current, BaseModel):
+            info = current.model_fields.get(str(part))
+            if info is None:
+                return None
+            current = info.annotation
+        else:  # dict[str, X], list[X] or X | None: step into the value type
+            args = [a for a in typing.get_args(current) if a is not type(None)]
+            if not args:
+                return None
+            current = args[-1]
+        while typing.get_origin(current) in _UNION_TYPES:
+            current = next(a for a in typing.get_args(current) if a is not type(None))
+    if isinstance(current, type) and issubclass(current, BaseModel):
+        return list(current.model_fields)
+    return None
+
+
+def _pydantic_issues(
+    exc: ValidationError, model: type[BaseModel], prefix: Loc, file: str, lines: dict[Loc, int]
+) -> list[ConfigIssue]:
+    issues = []
+    for err in exc.errors():
+        loc = prefix + tuple(err["loc"])
+        kind = err["type"]
+        if kind == "missing":
+            message = "missing required key"
+        elif kind == "extra_forbidden":
+            allowed = _allowed_keys(model, tuple(err["loc"]))
+            message = "unknown key" + (f" (allowed: {', '.join(allowed)})" if allowed else "")
+        else:
+            msg = err["msg"].removeprefix("Value error, ")
+            message = f"expected: {msg[0].lower() + msg[1:]}; found {_found(err['input'])}"
+        issues.append(ConfigIssue(file, _line(lines, loc), _fmt(loc), message))
+    return issues
+
+
+# ---- the loader ---------------------------------------------------------------------------------------------
+
+
+def load_config(path: str | Path) -> LoadedConfig:
+    """Load, validate and cross-check a robot config; raises ConfigError listing every problem."""
+    path = Path(path)
+    file = str(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise ConfigError([ConfigIssue(file, None, "", f"cannot read the file: {exc.strerror or exc}")]) from None
+    issues: list[ConfigIssue] = []
+    try:
+        lines = _line_map(text, file, issues)
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        line = mark.line + 1 if mark else None
+        raise ConfigError([ConfigIssue(file, line, "", f"not valid YAML: {exc}")]) from None
+    if not isinstance(data, dict):
+        raise ConfigError([ConfigIssue(file, 1, "", f"expected: a mapping at the top; found {_found(data)}")])
+    try:
+        config = RobotConfig.model_validate(data)
+    except ValidationError as exc:
+        raise ConfigError(issues + _pydantic_issues(exc, RobotConfig, (), file, lines)) from None
+
+    loaded = LoadedConfig(path=path.resolve(), config=config)
+    _load_plugins(loaded, file, lines, issues)
+    _cross_check(loaded, file, lines, issues)
+    if issues:
+        raise ConfigError(issues)
+    return loaded
+
+
+def _load_plugins(loaded: LoadedConfig, file: str, lines: dict[Loc, int], issues: list[ConfigIssue]) -> None:
+    c = loaded.config
+    groups = (
+        (
+            "hardware",
+            plugins.DRIVERS,
+            {n: (h.driver, h.params) for n, h in c.hardware.items()},
+            "driver",
+            loaded.driver_classes,
+            loaded.driver_params,
+        ),
+        (
+            "controllers",
+            plugins.CONTROLLERS,
+            {n: (s.type, s.params) for n, s in c.controllers.items()},
+            "type",
+            loaded.controller_classes,
+            loaded.controller_params,
+        ),
+    )
+    for section, group, entries, key, classes, params in groups:
+        for name, (plugin_name, raw) in entries.items():
+            try:
+                cls = plugins.load(group, plugin_name)
+            except plugins.PluginError as exc:
+                loc = (section, name, key)
+                issues.append(ConfigIssue(file, _line(lines, loc), _fmt(loc), str(exc)))
+                continue
+            classes[name] = cls
+            try:
+                params[name] = cls.Params.model_validate(raw)
+            except ValidationError as exc:
+                issues.extend(_pydantic_issues(exc, cls.Params, (section, name, "params"), file, lines))
+
+
+def _cross_check(loaded: LoadedConfig, file: str, lines: dict[Loc, int], issues: list[ConfigIssue]) -> None:
+    c = loaded.config
+
+    def report(loc: Loc, message: str) -> None:
+        issues.append(ConfigIssue(file, _line(lines, loc), _fmt(loc), message))
+
+    owner: dict[str, str] = {}
+    for hw_name, hw in c.hardware.items():
+        for joint in hw.joints:
+            loc = ("hardware", hw_name, "joints", joint)
+            if joint not in c.joints:
+                report(loc, f"joint {joint!r} is not defined under joints (defined: {', '.join(c.joints)})")
+            elif joint in owner:
+                report(loc, f"joint {joint!r} already belongs to hardware {owner[joint]!r}; each joint has one")
+            else:
+                owner[joint] = hw_name
+    for joint in c.joints:
+        if joint not in owner:
+            report(("joints", joint), f"joint {joint!r} belongs to no hardware component")
+
+    if c.robot.model is not None and not (loaded.directory / c.robot.model).is_file():
+        report(("robot", "model"), f"file not found: {loaded.directory / c.robot.model}")
+
+    available = set()
+    for joint, hw_name in owner.items():
+        fields = getattr(loaded.driver_classes.get(hw_name), "COMMAND_FIELDS", FIELDS)
+        available.update(f"{joint}/{f}" for f in FIELDS if f in fields)
+
+    autostart_claims: dict[str, str] = {}
+    for name, spec in c.controllers.items():
+        cls, params = loaded.controller_classes.get(name), loaded.controller_params.get(name)
+        if cls is None or params is None:
+            continue
+        for i, joint in enumerate(cls.joints_for(params)):
+            if joint not in c.joints:
+                report(("controllers", name, "params", "joints", i), f"unknown joint {joint!r}")
+        for claim in cls.claims_for(params):
+            try:
+                joint, _ = parse_interface(claim)
+            except ClaimError as exc:
+                report(("controllers", name, "params"), str(exc))
+                continue
+            if joint in c.joints and claim not in available:
+                driver = c.hardware[owner[joint]].driver if joint in owner else "?"
+                report(("controllers", name, "params"), f"claims {claim!r}, which driver {driver!r} does not offer")
+            if spec.autostart:
+                other = autostart_claims.setdefault(claim, name)
+                if other != name:
+                    report(("controllers", name, "autostart"), f"claims {claim!r} like {other!r}; both autostart")
+        for i, fallback in enumerate(spec.fallback_controllers):
+            loc = ("controllers", name, "fallback_controllers", i)
+            if fallback not in c.controllers:
+                report(loc, f"unknown controller {fallback!r}")
+            elif fallback == name:
+                report(loc, "a controller cannot be its own fallback")
+
+
+def json_schema() -> dict[str, Any]:
+    """JSON Schema of the config file, with each known driver's and controller's params filled in."""
+    schema = RobotConfig.model_json_schema()
+    schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
+    schema["title"] = "hild robot config"
+    defs = schema.setdefault("$defs", {})
+    for section, group, key in (
+        ("HardwareSection", plugins.DRIVERS, "driver"),
+        ("ControllerSection", plugins.CONTROLLERS, "type"),
+    ):
+        variants = []
+        for name in plugins.available(group):
+            params_schema = plugins.load(group, name).Params.model_json_schema(ref_template="#/$defs/{model}")
+            defs.update(params_schema.pop("$defs", {}))
+            variants.append(
+                {
+                    "if": {"properties": {key: {"const": name}}, "required": [key]},
+                    "then": {"properties": {"params": params_schema}},
+                }
+            )
+        defs[section]["allOf"] = variants
+    return schema

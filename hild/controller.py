@@ -1,0 +1,110 @@
+"""The controller contract.
+
+A controller is found by type name in the ``hild.controllers`` entry-point group, built from its validated
+``Params``, and driven by the controller manager through ``configure → activate → update* → deactivate →
+cleanup``. It only ever sees joint space and the cycle clock ``(t, dt)``; it writes the servo-command fields it
+claimed and marks the joints it commanded in ``command.written``. A joint it leaves unwritten is held by the
+supervisor, so a controller that has nothing to say simply says nothing.
+
+Inputs (commands from Zenoh) arrive on the asyncio side through ``inputs()``: each callable validates a decoded
+JSON payload, raises ``ValueError`` with a reason on bad input, and hands the result to the cycle through a
+:class:`~hild.mailbox.LatestSlot`. Outputs (e.g. joint states) leave through :class:`~hild.ring.SampleRing`\\ s.
+"""
+
+from __future__ import annotations
+
+import enum
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+
+from hild.arrays import JointState, ServoCommand
+from hild.config.params import Params
+from hild.ring import SampleRing
+
+
+class ControllerState(enum.StrEnum):
+    UNCONFIGURED = "unconfigured"
+    INACTIVE = "inactive"
+    ACTIVE = "active"
+    FAILED = "failed"  # raised in update(); inactive until switched on again
+
+
+@dataclass(frozen=True, slots=True)
+class JointLimitArrays:
+    lower: np.ndarray
+    upper: np.ndarray
+    soft_lower: np.ndarray
+    soft_upper: np.ndarray
+    velocity: np.ndarray
+    effort: np.ndarray
+
+
+@dataclass(frozen=True)
+class ControllerContext:
+    robot: str
+    name: str
+    joints: tuple[str, ...]  # every joint of the robot, in the robot's order
+    limits: JointLimitArrays
+    update_rate: float
+    emit_event: Callable[[str, str], None]  # (level, message); events only, never per cycle
+    notify: Callable[[], None]  # rings the asyncio side after writing an output
+
+    def index_of(self, names: Sequence[str]) -> np.ndarray:
+        lookup = {j: i for i, j in enumerate(self.joints)}
+        missing = [n for n in names if n not in lookup]
+        if missing:
+            raise ValueError(f"unknown joints {missing} (robot joints: {list(self.joints)})")
+        return np.array([lookup[n] for n in names], dtype=np.intp)
+
+
+class Controller:
+    """Base class; override what you need. ``claims`` must not change while the controller is loaded."""
+
+    Params: ClassVar[type[Params]] = Params
+
+    def __init__(self, context: ControllerContext, params: Params) -> None:
+        self.context = context
+        self.params = params
+
+    @property
+    def name(self) -> str:
+        return self.context.name
+
+    @classmethod
+    def claims_for(cls, params: Params) -> list[str]:
+        """Command interfaces this controller claims with these params (checked when the config loads)."""
+        return []
+
+    @classmethod
+    def joints_for(cls, params: Params) -> list[str]:
+        """Joints this controller refers to (checked against the robot when the config loads)."""
+        return list(getattr(params, "joints", []) or [])
+
+    def claims(self) -> list[str]:
+        return self.claims_for(self.params)
+
+    def on_configure(self) -> None:
+        """Allocate what update() needs."""
+
+    def on_activate(self, state: JointState, last_command: ServoCommand) -> None:
+        """Start from the measured state (or ``last_command``, by option): a switch never steps the command."""
+
+    def on_deactivate(self) -> None:
+        """Stop; the supervisor already holds the joints this controller leaves."""
+
+    def on_cleanup(self) -> None:
+        """Release what on_configure took."""
+
+    def update(self, t: float, dt: float, state: JointState, command: ServoCommand) -> None:
+        """Write claimed fields for the joints commanded now and set ``command.written`` for them."""
+
+    def inputs(self) -> Mapping[str, Callable[[Any], None]]:
+        """Named command inputs (asyncio side). Each raises ValueError with a reason on bad input."""
+        return {}
+
+    def outputs(self) -> Mapping[str, SampleRing]:
+        """Named outputs the API publishes; the key is ``hild/<robot>/<name>``."""
+        return {}

@@ -1,0 +1,1 @@
+"""Built-in controllers (found through the hild.controllers entry-point group)."""

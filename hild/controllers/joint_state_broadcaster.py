@@ -1,0 +1,58 @@
+"""joint_state_broadcaster: publishes every joint's measured state at ``publish_rate``.
+
+It claims nothing, so it runs alongside any controller and survives an e-stop. Samples go into a preallocated
+ring; the API publishes them on ``hild/<robot>/joint_states`` from the asyncio side.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+
+from hild.arrays import JointState, ServoCommand
+from hild.config.params import Field, Params
+from hild.controller import Controller, ControllerContext
+from hild.ring import SampleRing
+
+STATE_FIELDS = ("position", "velocity", "effort")
+
+
+class BroadcasterParams(Params):
+    publish_rate: float = Field(default=100.0, gt=0.0, description="Hz; at most the update rate.")
+
+
+class JointStateBroadcaster(Controller):
+    Params = BroadcasterParams
+
+    def __init__(self, context: ControllerContext, params: BroadcasterParams) -> None:
+        super().__init__(context, params)
+        self.ring = SampleRing(len(context.joints), STATE_FIELDS)
+        self._interval = 1.0 / min(params.publish_rate, context.update_rate)
+        self._next = 0.0
+
+    @classmethod
+    def joints_for(cls, params: Params) -> list[str]:
+        return []
+
+    def on_activate(self, state: JointState, last_command: ServoCommand) -> None:
+        self._next = -np.inf  # publish on the first cycle
+
+    def update(self, t: float, dt: float, state: JointState, command: ServoCommand) -> None:
+        # Keep the phase (exact rate on a jittery wall clock); resync after a gap instead of bursting.
+        # The small tolerance absorbs floating-point error in an accumulated sim clock.
+        if t + 1e-9 < self._next:
+            return
+        self._next += self._interval
+        if self._next <= t:
+            self._next = t + self._interval
+        ring = self.ring
+        i = ring.slot()
+        ring.data["position"][i] = state.position
+        ring.data["velocity"][i] = state.velocity
+        ring.data["effort"][i] = state.effort
+        ring.commit(t)
+        self.context.notify()
+
+    def outputs(self) -> Mapping[str, SampleRing]:
+        return {"joint_states": self.ring}

@@ -1,0 +1,133 @@
+"""Rigid-body dynamics of the arm model: gravity feed-forward for hold and controllers.
+
+This and ``drivers/mujoco`` are the only places that import mujoco (DESIGN.md §5). The supervisor and controllers
+use :class:`GravityModel` to add the torque that balances gravity at the held position, so a hold does not sag by
+``τ_gravity / kp``.
+
+The model is MuJoCo's: ``load_model`` reads MJCF (``.xml``) or URDF (``.urdf``) with MuJoCo's own loader, so the
+twin and the feed-forward always agree on the same file.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+__all__ = ["GravityModel", "load_model"]
+
+# Joint types that own exactly one position and one velocity coordinate.
+_SCALAR_JOINTS = (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE)
+
+
+def load_model(path: Path) -> mujoco.MjModel:
+    """Load and compile an MJCF (``.xml``) or URDF (``.urdf``) model with MuJoCo's loader.
+
+    Raises ``ValueError`` naming the file, with MuJoCo's own message, when the file is missing or does not compile.
+    """
+    path = Path(path)
+    if path.suffix.lower() not in (".xml", ".urdf", ".mjcf"):
+        raise ValueError(f"model {path}: expected an MJCF (.xml) or URDF (.urdf) file")
+    if not path.is_file():
+        raise ValueError(f"model {path}: file not found")
+    try:
+        return mujoco.MjModel.from_xml_path(str(path))
+    except Exception as exc:  # mujoco raises ValueError; be robust to other binding errors
+        raise ValueError(f"model {path}: MuJoCo could not load it: {exc}") from exc
+
+
+def joint_names(model: mujoco.MjModel) -> list[str]:
+    """Names of the model's joints, in model order (unnamed joints as ``<unnamed #i>``)."""
+    return [model.joint(i).name or f"<unnamed #{i}>" for i in range(model.njnt)]
+
+
+def scalar_joint_addresses(
+    model: mujoco.MjModel, names: Sequence[str], what: str = "model"
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Map joint names to ``(joint ids, qpos addresses, dof addresses)``.
+
+    Every name must be a hinge or slide joint of ``model``; otherwise ``ValueError`` lists the names that are
+    missing (or of the wrong type) and the model's joint names.
+    """
+    ids: list[int] = []
+    missing: list[str] = []
+    wrong_type: list[str] = []
+    for name in names:
+        jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
+        if jid < 0:
+            missing.append(name)
+        elif model.jnt_type[jid] not in _SCALAR_JOINTS:
+            wrong_type.append(name)
+        else:
+            ids.append(jid)
+    if missing or wrong_type:
+        parts = []
+        if missing:
+            parts.append(f"joints not in the {what}: {', '.join(missing)}")
+        if wrong_type:
+            parts.append(f"not hinge/slide joints: {', '.join(wrong_type)}")
+        raise ValueError(f"{'; '.join(parts)} (the {what} has joints: {', '.join(joint_names(model)) or 'none'})")
+    if len(set(ids)) != len(ids):
+        raise ValueError(f"joint names repeat: {', '.join(names)}")
+    jid = np.asarray(ids, dtype=np.intp)
+    return jid, model.jnt_qposadr[jid].astype(np.intp), model.jnt_dofadr[jid].astype(np.intp)
+
+
+class GravityModel:
+    """Joint torques that balance gravity at a given pose (``qvel = 0``, ``qacc = 0``).
+
+    ``compute`` runs on the cycle thread: it writes into a caller-owned array and allocates nothing. It uses a
+    private ``MjData`` whose velocities stay zero, and runs only position kinematics (``mj_kinematics``,
+    ``mj_comPos``) and recursive Newton–Euler without the inertial term (``mj_rne(flg_acc=0)``); with zero
+    velocity that is exactly the gravity term of ``qfrc_bias``. Joints of the model that are not in
+    ``joint_names`` stay at the model's ``qpos0``.
+    """
+
+    def __init__(self, model_path: Path, joint_names: Sequence[str]) -> None:
+        self.model = load_model(Path(model_path))
+        self.joint_names = tuple(joint_names)
+        try:
+            _, self._qposadr, self._dofadr = scalar_joint_addresses(self.model, self.joint_names)
+        except ValueError as exc:
+            raise ValueError(f"model {model_path}: {exc}") from None
+        self._data = mujoco.MjData(self.model)
+        d = self._data
+        d.qpos[:] = self.model.qpos0
+        # mj_rne reads qvel, cvel and cdof_dot: keep them zero forever (mj_comVel is never called on this data).
+        d.qvel[:] = 0.0
+        d.cvel[:] = 0.0
+        d.cdof_dot[:] = 0.0
+        self._qpos = d.qpos  # cached view: attribute access on MjData builds a new ndarray each time
+        self._result = np.zeros(self.model.nv)
+        n = len(self.joint_names)
+        # When the joints are one contiguous block in model order (the usual case), copy through prebuilt slice
+        # views, which is cheaper than take/put; otherwise gather/scatter by address.
+        qb, db = _block(self._qposadr, n), _block(self._dofadr, n)
+        self._qpos_view = self._qpos[qb] if qb is not None else None
+        self._result_view = self._result[db] if db is not None else None
+
+    def __len__(self) -> int:
+        return len(self.joint_names)
+
+    def compute(self, q: np.ndarray, out: np.ndarray) -> None:
+        """Write into ``out`` (one entry per joint, ``joint_names`` order) the torque balancing gravity at ``q``."""
+        m, d = self.model, self._data
+        if self._qpos_view is not None:
+            np.copyto(self._qpos_view, q)
+        else:
+            np.put(self._qpos, self._qposadr, q)
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_comPos(m, d)
+        mujoco.mj_rne(m, d, 0, self._result)
+        if self._result_view is not None:
+            np.copyto(out, self._result_view)
+        else:
+            np.take(self._result, self._dofadr, out=out)
+
+
+def _block(addresses: np.ndarray, n: int) -> slice | None:
+    if n and np.array_equal(addresses, np.arange(addresses[0], addresses[0] + n)):
+        return slice(int(addresses[0]), int(addresses[0]) + n)
+    return None

@@ -1,0 +1,414 @@
+"""The engine: one robot's hardware, supervisor and controllers, advanced one cycle per ``step(t, dt)``.
+
+``step`` is the whole real-time cycle of DESIGN.md §1:
+
+    apply queued requests → read → transmissions → supervisor.check → controllers → supervisor.command
+    → transmissions → write
+
+It is driven by the cycle thread (``hild.cycle``) in the daemon, or called directly by tests in lockstep, which
+makes control tests deterministic. Everything else talks to the engine through ``submit`` (requests applied at
+the start of the next cycle, answered through a ``concurrent.futures.Future``) and reads it back through
+``status()`` and the controllers' output rings.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from hild import plugins
+from hild.arrays import JointState, ServoCommand, gather_command, scatter_state
+from hild.config.loader import LoadedConfig
+from hild.controller import ControllerContext, JointLimitArrays
+from hild.events import EventLog
+from hild.hardware import HardwareComponent, HardwareContext, Lifecycle
+from hild.mailbox import BoundedQueue
+from hild.manager import ControllerManager, SwitchResult
+from hild.stats import LoopStats
+from hild.supervisor import MODE_NAMES, Action, Fault, JointGains, JointMode, SafetySettings, Supervisor
+from hild.transmission import Transmissions
+
+REQUEST_QUEUE = 64
+HEALTH_POLL_HZ = 20.0
+
+
+class RequestRejected(RuntimeError):
+    pass
+
+
+@dataclass
+class HardwareSlot:
+    name: str
+    driver: str
+    component: HardwareComponent
+    index: np.ndarray
+    state: JointState
+    command: ServoCommand
+    lifecycle: Lifecycle = Lifecycle.UNCONFIGURED
+    fault: str = ""
+
+
+class Engine:
+    def __init__(self, loaded: LoadedConfig) -> None:
+        cfg = loaded.config
+        self.loaded = loaded
+        self.robot = cfg.robot.name
+        self.joints: tuple[str, ...] = tuple(cfg.joints)
+        self.update_rate = cfg.update_rate
+        self.period = 1.0 / cfg.update_rate
+        self.clock_source = cfg.clock.source
+        n = len(self.joints)
+        index = {j: i for i, j in enumerate(self.joints)}
+
+        self.events = EventLog()
+        self.events.now = lambda: self.t
+        self.doorbell: Callable[[], None] = lambda: None  # set by the daemon: wakes the asyncio side
+        self.events.doorbell = self._ring
+        self.stats = LoopStats()
+        self.t = 0.0
+        self.cycle = 0
+        self.started = False
+        self.realtime_report: dict[str, str] = {}
+
+        self.limits = self._limits(cfg)
+        self.state = JointState.zeros(n)  # joint space, what controllers see
+        self.command = ServoCommand.zeros(n)  # controllers' output
+        self.final = ServoCommand.zeros(n)  # the supervisor's output, joint space
+        self._actuator_state = JointState.zeros(n)
+        self._actuator_command = ServoCommand.zeros(n)
+        self.transmissions = self._transmissions(cfg, index)
+        self.hardware = self._build_hardware(loaded, index)
+        self._joint_slot = np.zeros(n, dtype=np.intp)
+        for k, slot in enumerate(self.hardware):
+            self._joint_slot[slot.index] = k
+
+        gravity = None
+        if cfg.robot.model and cfg.safety.gravity_compensation:
+            from hild.dynamics import GravityModel  # mujoco stays behind this seam
+
+            gravity = GravityModel(loaded.directory / cfg.robot.model, self.joints).compute
+        s = cfg.safety
+        self.supervisor = Supervisor(
+            self.joints,
+            self.limits,
+            self._gains(cfg),
+            SafetySettings(
+                s.stale_feedback_cycles,
+                s.overspeed_factor,
+                Action[s.fault_action.upper()],
+                Action[s.estop_action.upper()],
+            ),
+            self.events,
+            gravity=gravity,
+            describe_fault=self._describe_fault,
+        )
+        self.max_consecutive_overruns = s.max_consecutive_overruns
+        available = [
+            f"{j}/{f}" for slot in self.hardware for j in slot.component.joints for f in slot.component.COMMAND_FIELDS
+        ]
+        self.manager = ControllerManager(self.joints, available, self.events)
+        self.manager.on_claims = self.supervisor.set_claims
+        self._requests: BoundedQueue[tuple[Callable[[], Any], concurrent.futures.Future[Any]]] = BoundedQueue(
+            REQUEST_QUEUE
+        )
+        self._health_every = max(1, round(self.update_rate / HEALTH_POLL_HZ))
+        for name, spec in cfg.controllers.items():
+            self.load_controller(name, spec.type, loaded.controller_params[name], spec.fallback_controllers)
+
+    # ---- construction ---------------------------------------------------------------------------------------
+    def _limits(self, cfg: Any) -> JointLimitArrays:
+        js = list(cfg.joints.values())
+        lower = np.array([j.limits.position.lower for j in js])
+        upper = np.array([j.limits.position.upper for j in js])
+        margin = np.array([j.limits.soft_margin for j in js])
+        return JointLimitArrays(
+            lower=lower,
+            upper=upper,
+            soft_lower=lower + margin,
+            soft_upper=upper - margin,
+            velocity=np.array([j.limits.velocity for j in js]),
+            effort=np.array([j.limits.effort for j in js]),
+        )
+
+    @staticmethod
+    def _gains(cfg: Any) -> JointGains:
+        js = list(cfg.joints.values())
+        pos = [j.position_gains or j.hold for j in js]
+        return JointGains(
+            hold_kp=np.array([j.hold.kp for j in js]),
+            hold_kd=np.array([j.hold.kd for j in js]),
+            position_kp=np.array([g.kp for g in pos]),
+            position_kd=np.array([g.kd for g in pos]),
+            velocity_kd=np.array([(j.velocity_gains.kd if j.velocity_gains else j.hold.kd) for j in js]),
+        )
+
+    def _transmissions(self, cfg: Any, index: dict[str, int]) -> Transmissions:
+        n = len(self.joints)
+        reduction, direction, offset = np.ones(n), np.ones(n), np.zeros(n)
+        for hw in cfg.hardware.values():
+            for joint, tr in hw.joints.items():
+                i = index[joint]
+                reduction[i], direction[i], offset[i] = tr.reduction, tr.direction, tr.offset
+        return Transmissions(reduction, direction, offset)
+
+    def _build_hardware(self, loaded: LoadedConfig, index: dict[str, int]) -> list[HardwareSlot]:
+        slots = []
+        for name, hw in loaded.config.hardware.items():
+            joints = tuple(hw.joints)
+            context = HardwareContext(
+                name=name,
+                joints=joints,
+                config_dir=loaded.directory,
+                update_rate=self.update_rate,
+                clock_source=self.clock_source,
+                emit_event=lambda level, msg, src=name: self.events.emit(level, src, msg),
+            )
+            component = loaded.driver_classes[name](context, loaded.driver_params[name])
+            slots.append(
+                HardwareSlot(
+                    name,
+                    hw.driver,
+                    component,
+                    np.array([index[j] for j in joints], dtype=np.intp),
+                    JointState.zeros(len(joints)),
+                    ServoCommand.zeros(len(joints)),
+                )
+            )
+        return slots
+
+    def controller_context(self, name: str) -> ControllerContext:
+        return ControllerContext(
+            robot=self.robot,
+            name=name,
+            joints=self.joints,
+            limits=self.limits,
+            update_rate=self.update_rate,
+            emit_event=lambda level, msg: self.events.emit(level, name, msg),
+            notify=self._ring,
+        )
+
+    def load_controller(self, name: str, type_name: str, params: Any, fallbacks: Sequence[str] = ()) -> None:
+        """Load and configure a controller (non real-time; call before start or through ``submit``)."""
+        cls = plugins.load(plugins.CONTROLLERS, type_name)
+        if not isinstance(params, cls.Params):
+            params = cls.Params.model_validate(params)
+        self.manager.load(name, type_name, cls(self.controller_context(name), params), fallbacks)
+        self.manager.configure(name)
+
+    def _describe_fault(self, joint: int, code: int) -> str:
+        slot = self.hardware[self._joint_slot[joint]]
+        return f"{slot.name}: {slot.component.describe_fault(code)}"
+
+    # ---- lifecycle --------------------------------------------------------------------------------------------
+    def start(self) -> None:
+        """Configure hardware, read once so hold starts where the arm is, enable drives, start controllers."""
+        for slot in self.hardware:
+            slot.component.configure()
+            slot.lifecycle = Lifecycle.INACTIVE
+        self._read(0.0, self.period)
+        self.supervisor.start(self.state)
+        for slot in self.hardware:
+            slot.component.activate()
+            slot.lifecycle = Lifecycle.ACTIVE
+        autostart = [n for n, s in self.loaded.config.controllers.items() if s.autostart]
+        if autostart:
+            result = self.manager.switch(autostart, [], True, self.state, self.final)
+            if not result.ok:
+                self.events.emit("error", "engine", f"autostart failed: {result.error}")
+        self.started = True
+        self.events.emit("info", "engine", f"{self.robot} started: {len(self.joints)} joints held where they are")
+
+    def stop(self) -> None:
+        """Hold every joint, then leave the hardware in its safe state and release it."""
+        if not self.started:
+            return
+        self.manager.deactivate_commanding("shutdown")
+        for rec in list(self.manager.active):
+            self.manager._deactivate(rec)
+        self.step(self.t + self.period, self.period)  # one last cycle: every joint in hold
+        for slot in self.hardware:
+            for hook in (slot.component.deactivate, slot.component.cleanup):
+                try:
+                    hook()
+                except Exception as exc:
+                    self.events.emit("error", slot.name, f"{hook.__name__} failed: {exc}")
+            slot.lifecycle = Lifecycle.UNCONFIGURED
+        self.started = False
+        self.events.emit("info", "engine", "stopped: hardware released")
+
+    # ---- the cycle ----------------------------------------------------------------------------------------------
+    def step(self, t: float, dt: float) -> None:
+        self.t = t
+        self.cycle += 1
+        self._apply_requests()
+        self._read(t, dt)
+        sup = self.supervisor
+        sup.check(self.state)
+        if self.cycle % self._health_every == 0:
+            self._poll_health()
+        if self.max_consecutive_overruns and self.stats.consecutive_overruns >= self.max_consecutive_overruns:
+            sup.trip_all(Fault.OVERRUN, f"{self.stats.consecutive_overruns} consecutive overruns", self.state.position)
+        self.manager.update(t, dt, self.state, self.command)
+        sup.command(dt, self.state, self.command, self.final)
+        if sup.bad_command_owners:
+            self.manager.fail_slots(
+                sup.bad_command_owners, "non-finite or negative-gain command", self.state, self.command
+            )
+        self._write(t, dt)
+
+    def run_cycles(self, count: int) -> None:
+        """Lockstep helper: advance ``count`` cycles of the sim clock (tests, tools)."""
+        for _ in range(count):
+            self.step(round(self.t + self.period, 12), self.period)
+
+    def _read(self, t: float, dt: float) -> None:
+        act = self._actuator_state
+        for slot in self.hardware:
+            try:
+                slot.component.read(t, dt, slot.state)
+            except Exception as exc:
+                slot.state.fresh.fill(False)
+                self._hardware_fault(slot, f"read failed: {type(exc).__name__}: {exc}")
+            scatter_state(slot.state, slot.index, act)
+        self.transmissions.to_joint(act, self.state)
+
+    def _write(self, t: float, dt: float) -> None:
+        self.transmissions.to_actuator(self.final, self._actuator_command)
+        for slot in self.hardware:
+            gather_command(self._actuator_command, slot.index, slot.command)
+            try:
+                slot.component.write(t, dt, slot.command)
+            except Exception as exc:
+                self._hardware_fault(slot, f"write failed: {type(exc).__name__}: {exc}")
+
+    def _poll_health(self) -> None:
+        for slot in self.hardware:
+            problem = slot.component.health()
+            if problem:
+                self._hardware_fault(slot, problem)
+
+    def _hardware_fault(self, slot: HardwareSlot, text: str) -> None:
+        if slot.lifecycle is not Lifecycle.FAULT:
+            slot.lifecycle = Lifecycle.FAULT
+            slot.fault = text
+            self.events.emit("error", slot.name, text)
+        for i in slot.index:
+            self.supervisor.trip(int(i), Fault.HARDWARE, f"{slot.name}: {text}", self.state.position)
+
+    # ---- requests (asyncio side → cycle) ---------------------------------------------------------------------
+    def submit(self, action: Callable[[], Any]) -> concurrent.futures.Future[Any]:
+        """Run ``action`` on the cycle thread at the start of the next cycle; refused when the queue is full."""
+        future: concurrent.futures.Future[Any] = concurrent.futures.Future()
+        if not self._requests.offer((action, future)):
+            future.set_exception(RequestRejected("too many pending requests; try again"))
+        return future
+
+    def _apply_requests(self) -> None:
+        while (item := self._requests.poll()) is not None:
+            action, future = item
+            if not future.set_running_or_notify_cancel():
+                continue
+            try:
+                future.set_result(action())
+            except Exception as exc:
+                future.set_exception(exc)
+
+    def switch(self, activate: Sequence[str], deactivate: Sequence[str], strict: bool = True) -> SwitchResult:
+        """Switch controllers now (call on the cycle thread, i.e. through ``submit``, or before start)."""
+        refuse = "e-stop is engaged; reset first" if self.supervisor.estop else ""
+        return self.manager.switch(activate, deactivate, strict, self.state, self.final, refuse)
+
+    def estop(self) -> dict[str, Any]:
+        self.supervisor.engage_estop()
+        stopped = self.manager.deactivate_commanding("e-stop")
+        return {"deactivated": stopped}
+
+    def reset(self) -> dict[str, Any]:
+        for slot in self.hardware:
+            if slot.lifecycle is Lifecycle.FAULT:
+                slot.component.clear_faults()
+                problem = slot.component.health()
+                if problem:
+                    return {"cleared": [], "error": f"{slot.name} still faulted: {problem}"}
+                slot.lifecycle, slot.fault = Lifecycle.ACTIVE, ""
+        self.stats.consecutive_overruns = 0
+        return {"cleared": self.supervisor.reset()}
+
+    def _ring(self) -> None:
+        self.doorbell()
+
+    # ---- reading back (any thread) ----------------------------------------------------------------------------
+    @property
+    def change_seq(self) -> int:
+        return self.supervisor.change_seq + self.manager.change_seq
+
+    def overall_mode(self) -> str:
+        sup = self.supervisor
+        if sup.estop:
+            return "estop"
+        if sup.fault.any():
+            return "fault"
+        if any(rec.claims for rec in self.manager.active):
+            return "active"
+        return "hold"
+
+    def status(self) -> dict[str, Any]:
+        sup = self.supervisor
+        owner = self.manager.masks.owner
+        names = {rec.slot: rec.name for rec in self.manager.records.values()}
+        joints = []
+        for i, name in enumerate(self.joints):
+            slot = int(owner[i])
+            joints.append(
+                {
+                    "name": name,
+                    "mode": MODE_NAMES[int(sup.mode[i])],
+                    "owner": names.get(slot) if slot >= 0 else None,
+                    "fault": sup.fault_text[i] or None,
+                    "limits": [
+                        w for bit, w in ((1, "position"), (2, "velocity"), (4, "effort")) if sup.limit_flags[i] & bit
+                    ],
+                }
+            )
+        return {
+            "robot": self.robot,
+            "stamp": self.t,
+            "mode": self.overall_mode(),
+            "joints": joints,
+            "controllers": [c.as_dict() for c in self.manager.snapshot],
+            "hardware": [
+                {"name": s.name, "driver": s.driver, "state": str(s.lifecycle), "fault": s.fault or None}
+                for s in self.hardware
+            ],
+            "loop": {"update_rate": self.update_rate, "clock": self.clock_source, **self.stats.summary()},
+            "realtime": dict(self.realtime_report),
+        }
+
+    def interfaces(self) -> list[dict[str, Any]]:
+        owner_of = {c: rec.name for rec in self.manager.active for c in rec.claims}
+        return [
+            {"name": f"{j}/{f}", "claimed_by": owner_of.get(f"{j}/{f}")}
+            for slot in self.hardware
+            for j in slot.component.joints
+            for f in slot.component.COMMAND_FIELDS
+        ]
+
+    def hardware_info(self) -> list[dict[str, Any]]:
+        return [
+            {
+                "name": s.name,
+                "driver": s.driver,
+                "state": str(s.lifecycle),
+                "fault": s.fault or None,
+                "joints": list(s.component.joints),
+                "command_fields": sorted(s.component.COMMAND_FIELDS),
+            }
+            for s in self.hardware
+        ]
+
+    def joint_mode(self, name: str) -> JointMode:
+        return JointMode(int(self.supervisor.mode[self.joints.index(name)]))

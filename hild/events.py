@@ -1,0 +1,55 @@
+"""Events: mode changes, faults, switches — one record each, never one per cycle.
+
+The cycle thread appends to a bounded deque (atomic under the GIL) and rings a doorbell; the asyncio side drains
+it, logs each event once and publishes it. If nobody drains, the oldest events are dropped, never the cycle.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+
+log = logging.getLogger("hild.events")
+
+LEVELS = ("debug", "info", "warning", "error")
+_LOG_LEVEL = {"debug": logging.DEBUG, "info": logging.INFO, "warning": logging.WARNING, "error": logging.ERROR}
+
+
+@dataclass(frozen=True, slots=True)
+class Event:
+    stamp: float  # cycle clock time (s)
+    level: str
+    source: str
+    message: str
+    wall: float  # wall clock (UNIX s), for logs
+
+    def as_dict(self) -> dict[str, object]:
+        return {"stamp": self.stamp, "level": self.level, "source": self.source, "message": self.message}
+
+
+class EventLog:
+    def __init__(self, capacity: int = 4096) -> None:
+        self._events: deque[Event] = deque(maxlen=capacity)
+        self.now: Callable[[], float] = lambda: 0.0  # cycle clock, set by the engine
+        self.doorbell: Callable[[], None] = lambda: None
+        self.total = 0
+
+    def emit(self, level: str, source: str, message: str) -> None:
+        self._events.append(Event(self.now(), level, source, message, time.time()))
+        self.total += 1
+        self.doorbell()
+
+    def drain(self) -> list[Event]:
+        out: list[Event] = []
+        while True:
+            try:
+                out.append(self._events.popleft())
+            except IndexError:
+                return out
+
+
+def log_event(event: Event) -> None:
+    log.log(_LOG_LEVEL.get(event.level, logging.INFO), "[%s] %s", event.source, event.message)

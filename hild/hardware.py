@@ -1,0 +1,110 @@
+"""The hardware contract: what every backend (CAN servos, MuJoCo twin, mock) implements.
+
+A component drives a fixed list of joints in *actuator space* (transmissions are applied by the engine, outside
+drivers). The engine owns the lifecycle and calls the hooks in order:
+``configure → read (once, so hold starts where the arm is) → activate → {read, write}* → deactivate → cleanup``.
+``read`` and ``write`` run on the cycle thread: they must not block, log, or allocate needlessly.
+"""
+
+from __future__ import annotations
+
+import abc
+import enum
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import ClassVar
+
+from hild.arrays import JointState, ServoCommand
+from hild.config.params import Params
+
+ALL_COMMAND_FIELDS: frozenset[str] = frozenset({"position", "velocity", "effort", "kp", "kd"})
+
+
+class Lifecycle(enum.StrEnum):
+    UNCONFIGURED = "unconfigured"
+    INACTIVE = "inactive"
+    ACTIVE = "active"
+    FAULT = "fault"
+
+
+@dataclass(frozen=True, slots=True)
+class HardwareContext:
+    """What a component may know about the daemon it runs in."""
+
+    name: str
+    joints: tuple[str, ...]
+    config_dir: Path
+    update_rate: float
+    clock_source: str  # "wall" or "sim"
+    emit_event: Callable[[str, str], None]  # (level, message); never call it per cycle
+
+    @property
+    def period(self) -> float:
+        return 1.0 / self.update_rate
+
+
+class HardwareError(RuntimeError):
+    """A component-level failure with a message meant for the operator (bus down, model mismatch, …)."""
+
+
+class HardwareComponent(abc.ABC):
+    """Base class of every driver, found by name in the ``hild.drivers`` entry-point group.
+
+    Class attributes a driver sets:
+    - ``Params``: its parameter model (validated when the config is loaded).
+    - ``COMMAND_FIELDS``: the servo-command fields the drive really uses; controllers may only claim these.
+    """
+
+    Params: ClassVar[type[Params]] = Params
+    COMMAND_FIELDS: ClassVar[frozenset[str]] = ALL_COMMAND_FIELDS
+
+    def __init__(self, context: HardwareContext, params: Params) -> None:
+        self.context = context
+        self.params = params
+
+    @property
+    def joints(self) -> tuple[str, ...]:
+        return self.context.joints
+
+    # Lifecycle hooks (non real-time; may block briefly, may raise HardwareError).
+    def configure(self) -> None:
+        """Open buses or load models and check the hardware matches the config. Drives stay disabled."""
+
+    def activate(self) -> None:
+        """Enable the drives. Called after one ``read`` so the first command is a hold where the arm is."""
+
+    def deactivate(self) -> None:
+        """Leave the drives in their safe state (disabled, or holding when the drive can do it alone)."""
+
+    def cleanup(self) -> None:
+        """Release buses, files and threads."""
+
+    # Cycle hooks (real time).
+    @abc.abstractmethod
+    def read(self, t: float, dt: float, state: JointState) -> None:
+        """Fill ``state`` (actuator space, in ``joints`` order) with the newest feedback.
+
+        Set ``state.fresh[i] = False`` when joint ``i`` had no new feedback this cycle and ``state.fault[i]`` to the
+        drive's fault code (0 = healthy).
+        """
+
+    @abc.abstractmethod
+    def write(self, t: float, dt: float, command: ServoCommand) -> None:
+        """Send ``command`` (actuator space) to the drives."""
+
+    # Reporting.
+    def health(self) -> str | None:
+        """A component-level fault still present (e.g. ``"bus off"``), or None when healthy."""
+        return None
+
+    def describe_fault(self, code: int) -> str:
+        """Turn a per-joint fault code from ``read`` into words for events and status."""
+        return f"drive fault code {code:#x}"
+
+    def clear_faults(self) -> None:
+        """Clear drive-side faults on an operator ``reset``. Must not re-enable a drive by itself."""
+
+
+def joint_index(joints: Sequence[str]) -> dict[str, int]:
+    return {name: i for i, name in enumerate(joints)}

@@ -1,0 +1,313 @@
+"""The controller manager: lifecycle, exclusive claims, atomic switches, failure handling.
+
+Every method that changes which controllers run is called on the cycle thread between two cycles (the engine
+applies queued requests at the start of a cycle), so a switch is atomic: no cycle ever sees half of it.
+A switch is validated in full before anything changes; in strict mode any problem refuses the whole switch,
+in best-effort mode the failing controllers are dropped. If an ``on_activate`` raises mid-switch, everything the
+switch did is rolled back (strict) or that controller alone is dropped (best effort).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from hild.arrays import JointState, ServoCommand
+from hild.controller import Controller, ControllerState
+from hild.events import EventLog
+from hild.interfaces import ClaimError, ClaimMasks, build_masks, check_claims, parse_interface
+
+
+@dataclass
+class ControllerRecord:
+    slot: int
+    name: str
+    type: str
+    instance: Controller
+    claims: tuple[str, ...]
+    fallbacks: tuple[str, ...]
+    state: ControllerState = ControllerState.UNCONFIGURED
+    error: str = ""
+    joint_index: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.intp))
+
+
+@dataclass(frozen=True)
+class ControllerInfo:
+    name: str
+    type: str
+    state: str
+    claimed: tuple[str, ...]
+    error: str
+
+    def as_dict(self) -> dict[str, object]:
+        return {
+            "name": self.name,
+            "type": self.type,
+            "state": self.state,
+            "claimed": list(self.claimed),
+            "error": self.error,
+        }
+
+
+@dataclass
+class SwitchResult:
+    ok: bool
+    error: str = ""
+    activated: list[str] = field(default_factory=list)
+    deactivated: list[str] = field(default_factory=list)
+
+    def as_dict(self) -> dict[str, object]:
+        return {
+            "ok": self.ok,
+            "error": self.error or None,
+            "activated": self.activated,
+            "deactivated": self.deactivated,
+        }
+
+
+class SwitchError(ValueError):
+    pass
+
+
+class ControllerManager:
+    def __init__(self, joints: Sequence[str], available: Iterable[str], events: EventLog) -> None:
+        self.joints = tuple(joints)
+        self._joint_index = {j: i for i, j in enumerate(self.joints)}
+        self.available = set(available)
+        self.events = events
+        self.records: dict[str, ControllerRecord] = {}
+        self._slots = 0
+        self.active: list[ControllerRecord] = []  # in load order: the update order
+        self.masks = ClaimMasks.empty(len(self.joints))
+        self.snapshot: tuple[ControllerInfo, ...] = ()
+        self.change_seq = 0
+        self.on_claims: Callable[[ClaimMasks], None] = lambda masks: None  # the supervisor listens here
+
+    # ---- lifecycle ------------------------------------------------------------------------------------------
+    def load(self, name: str, type_name: str, controller: Controller, fallbacks: Sequence[str] = ()) -> None:
+        if name in self.records:
+            raise SwitchError(f"controller {name!r} is already loaded")
+        claims = tuple(controller.claims())
+        check_claims(name, claims, self.available)
+        joints = sorted({self._joint_index[parse_interface(c)[0]] for c in claims})
+        self.records[name] = ControllerRecord(
+            slot=self._slots,
+            name=name,
+            type=type_name,
+            instance=controller,
+            claims=claims,
+            fallbacks=tuple(fallbacks),
+            joint_index=np.array(joints, dtype=np.intp),
+        )
+        self._slots += 1
+        self._changed()
+
+    def configure(self, name: str) -> None:
+        rec = self._get(name)
+        if rec.state is not ControllerState.UNCONFIGURED:
+            raise SwitchError(f"controller {name!r} is {rec.state}, not unconfigured")
+        rec.instance.on_configure()
+        rec.state = ControllerState.INACTIVE
+        self._changed()
+
+    def unload(self, name: str) -> None:
+        rec = self._get(name)
+        if rec.state is ControllerState.ACTIVE:
+            raise SwitchError(f"controller {name!r} is active; deactivate it first")
+        if rec.state is not ControllerState.UNCONFIGURED:
+            rec.instance.on_cleanup()
+        del self.records[name]
+        self._changed()
+
+    # ---- switching --------------------------------------------------------------------------------------------
+    def switch(
+        self,
+        activate: Sequence[str],
+        deactivate: Sequence[str],
+        strict: bool,
+        state: JointState,
+        last_command: ServoCommand,
+        refuse_activation: str = "",
+    ) -> SwitchResult:
+        """Deactivate then activate, atomically between two cycles; see the module docstring for the rules."""
+        try:
+            to_stop, to_start = self._plan(list(activate), list(deactivate), strict, refuse_activation)
+        except SwitchError as exc:
+            return SwitchResult(False, str(exc))
+        dropped = [n for n in activate if n not in {r.name for r in to_start}]
+        dropped += [n for n in deactivate if n not in {r.name for r in to_stop}]
+
+        for rec in to_stop:
+            self._deactivate(rec)
+        started: list[ControllerRecord] = []
+        for rec in to_start:
+            try:
+                rec.instance.on_activate(state, last_command)
+            except Exception as exc:  # a plugin's bug must not take the daemon down
+                reason = f"{rec.name}: on_activate raised {type(exc).__name__}: {exc}"
+                self.events.emit("error", "controller_manager", reason)
+                if strict:
+                    for done in started:
+                        self._deactivate(done)
+                    for back in to_stop:
+                        self._reactivate(back, state, last_command)
+                    self._apply_claims()
+                    return SwitchResult(False, reason + "; switch rolled back")
+                dropped.append(rec.name)
+                continue
+            rec.state = ControllerState.ACTIVE
+            rec.error = ""
+            started.append(rec)
+            self.active.append(rec)
+        self.active.sort(key=lambda r: r.slot)
+        self._apply_claims()
+        result = SwitchResult(
+            ok=bool(started or to_stop) or not (activate or deactivate),
+            error=f"not switched: {', '.join(dropped)}" if dropped else "",
+            activated=[r.name for r in started],
+            deactivated=[r.name for r in to_stop],
+        )
+        if started or to_stop:
+            self.events.emit(
+                "info",
+                "controller_manager",
+                f"switch: activated {result.activated or '[]'}, deactivated {result.deactivated or '[]'}",
+            )
+        return result
+
+    def _plan(
+        self, activate: list[str], deactivate: list[str], strict: bool, refuse_activation: str
+    ) -> tuple[list[ControllerRecord], list[ControllerRecord]]:
+        problems: list[str] = []
+        to_stop: list[ControllerRecord] = []
+        for name in deactivate:
+            rec = self.records.get(name)
+            if rec is None:
+                problems.append(f"unknown controller {name!r}")
+            elif rec.state is not ControllerState.ACTIVE:
+                problems.append(f"{name} is not active ({rec.state})")
+            else:
+                to_stop.append(rec)
+        candidates: list[ControllerRecord] = []
+        for name in activate:
+            rec = self.records.get(name)
+            if rec is None:
+                problems.append(f"unknown controller {name!r}")
+            elif refuse_activation and rec.claims:
+                problems.append(f"{name}: {refuse_activation}")
+            elif rec.state is ControllerState.ACTIVE and rec not in to_stop:
+                problems.append(f"{name} is already active")
+            elif rec.state is ControllerState.UNCONFIGURED:
+                problems.append(f"{name} is not configured")
+            else:
+                candidates.append(rec)
+        if strict and problems:
+            raise SwitchError("; ".join(problems))
+
+        remaining = [r for r in self.active if r not in to_stop]
+        to_start: list[ControllerRecord] = []
+        for rec in candidates:
+            trial = remaining + to_start + [rec]
+            try:
+                build_masks(self._joint_index, {r.slot: r.claims for r in trial}, {r.slot: r.name for r in trial})
+            except ClaimError as exc:
+                if strict:
+                    raise SwitchError(str(exc)) from None
+                continue
+            to_start.append(rec)
+        if not strict and not to_start and not to_stop and (activate or deactivate):
+            raise SwitchError("nothing to switch: " + ("; ".join(problems) or "claims conflict"))
+        return to_stop, to_start
+
+    def _deactivate(self, rec: ControllerRecord, new_state: ControllerState = ControllerState.INACTIVE) -> None:
+        try:
+            rec.instance.on_deactivate()
+        except Exception as exc:
+            self.events.emit("error", "controller_manager", f"{rec.name}: on_deactivate raised {exc!r}")
+        rec.state = new_state
+        if rec in self.active:
+            self.active.remove(rec)
+
+    def _reactivate(self, rec: ControllerRecord, state: JointState, last_command: ServoCommand) -> None:
+        try:
+            rec.instance.on_activate(state, last_command)
+        except Exception as exc:
+            self.events.emit("error", "controller_manager", f"{rec.name}: rollback re-activation raised {exc!r}")
+            return
+        rec.state = ControllerState.ACTIVE
+        self.active.append(rec)
+        self.active.sort(key=lambda r: r.slot)
+
+    def deactivate_commanding(self, reason: str) -> list[str]:
+        """Stop every active controller that claims command interfaces (e-stop); broadcasters keep running."""
+        stopped = [r for r in self.active if r.claims]
+        for rec in stopped:
+            self._deactivate(rec)
+        if stopped:
+            self._apply_claims()
+            self.events.emit("warning", "controller_manager", f"{reason}: deactivated {[r.name for r in stopped]}")
+        return [r.name for r in stopped]
+
+    # ---- the cycle ---------------------------------------------------------------------------------------------
+    def update(self, t: float, dt: float, state: JointState, command: ServoCommand) -> None:
+        command.written.fill(False)
+        failed: list[tuple[ControllerRecord, BaseException]] | None = None
+        for rec in self.active:
+            try:
+                rec.instance.update(t, dt, state, command)
+            except Exception as exc:
+                failed = failed or []
+                failed.append((rec, exc))
+                command.written[rec.joint_index] = False  # nothing it wrote this cycle is used
+        if failed:
+            for rec, exc in failed:
+                self.fail(rec, f"update raised {type(exc).__name__}: {exc}", state, command)
+
+    def fail_slots(self, slots: Sequence[int], reason: str, state: JointState, command: ServoCommand) -> None:
+        for rec in [r for r in self.active if r.slot in slots]:
+            self.fail(rec, reason, state, command)
+
+    def fail(self, rec: ControllerRecord, reason: str, state: JointState, command: ServoCommand) -> None:
+        """Deactivate a failed controller, hold its joints (they go unwritten), then start its fallbacks."""
+        self._deactivate(rec, ControllerState.FAILED)
+        rec.error = reason
+        self._apply_claims()
+        joints = [self.joints[i] for i in rec.joint_index]
+        self.events.emit("error", rec.name, f"{reason}; deactivated, joints {joints} held")
+        if rec.fallbacks:
+            result = self.switch(list(rec.fallbacks), [], True, state, command)
+            level = "info" if result.ok and not result.error else "error"
+            self.events.emit(
+                level,
+                "controller_manager",
+                f"fallbacks of {rec.name} {rec.fallbacks}: " + (result.error or "activated"),
+            )
+
+    # ---- bookkeeping -------------------------------------------------------------------------------------------
+    def _apply_claims(self) -> None:
+        self.masks = build_masks(
+            self._joint_index, {r.slot: r.claims for r in self.active}, {r.slot: r.name for r in self.active}
+        )
+        self.on_claims(self.masks)
+        self._changed()
+
+    def owner_name(self, slot: int) -> str | None:
+        for rec in self.records.values():
+            if rec.slot == slot:
+                return rec.name
+        return None
+
+    def _changed(self) -> None:
+        self.snapshot = tuple(
+            ControllerInfo(r.name, r.type, str(r.state), r.claims, r.error) for r in self.records.values()
+        )
+        self.change_seq += 1
+
+    def _get(self, name: str) -> ControllerRecord:
+        try:
+            return self.records[name]
+        except KeyError:
+            known = ", ".join(self.records) or "none"
+            raise SwitchError(f"unknown controller {name!r} (loaded: {known})") from None
