@@ -101,10 +101,9 @@ class GravityModel:
         d.cdof_dot[:] = 0.0
         self._qpos = d.qpos  # cached view: attribute access on MjData builds a new ndarray each time
         self._result = np.zeros(self.model.nv)
-        n = len(self.joint_names)
         # When the joints are one contiguous block in model order (the usual case), copy through prebuilt slice
         # views, which is cheaper than take/put; otherwise gather/scatter by address.
-        qb, db = _block(self._qposadr, n), _block(self._dofadr, n)
+        qb, db = contiguous_slice(self._qposadr), contiguous_slice(self._dofadr)
         self._qpos_view = self._qpos[qb] if qb is not None else None
         self._result_view = self._result[db] if db is not None else None
 
@@ -127,7 +126,9 @@ class GravityModel:
             np.take(self._result, self._dofadr, out=out)
 
 
-def _block(addresses: np.ndarray, n: int) -> slice | None:
+def contiguous_slice(addresses: np.ndarray) -> slice | None:
+    """``slice(a, a + n)`` when ``addresses`` are ``a, a+1, …, a+n-1`` (views are cheaper than take/put), else None."""
+    n = len(addresses)
     if n and np.array_equal(addresses, np.arange(addresses[0], addresses[0] + n)):
         return slice(int(addresses[0]), int(addresses[0]) + n)
     return None

@@ -29,7 +29,16 @@ from hild.hardware import HardwareComponent, HardwareContext, Lifecycle
 from hild.mailbox import BoundedQueue
 from hild.manager import ControllerManager, SwitchResult
 from hild.stats import LoopStats
-from hild.supervisor import MODE_NAMES, Action, Fault, JointGains, JointMode, SafetySettings, Supervisor
+from hild.supervisor import (
+    MODE_NAMES,
+    Action,
+    Fault,
+    JointGains,
+    JointMode,
+    SafetySettings,
+    Supervisor,
+    limit_names,
+)
 from hild.transmission import Transmissions
 
 REQUEST_QUEUE = 64
@@ -369,9 +378,7 @@ class Engine:
                     "mode": MODE_NAMES[int(sup.mode[i])],
                     "owner": names.get(slot) if slot >= 0 else None,
                     "fault": sup.fault_text[i] or None,
-                    "limits": [
-                        w for bit, w in ((1, "position"), (2, "velocity"), (4, "effort")) if sup.limit_flags[i] & bit
-                    ],
+                    "limits": limit_names(int(sup.limit_flags[i])),
                 }
             )
         return {

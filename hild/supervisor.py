@@ -64,6 +64,10 @@ LIMIT_POSITION, LIMIT_VELOCITY, LIMIT_EFFORT = 1, 2, 4
 _LIMIT_WORDS = ((LIMIT_POSITION, "position"), (LIMIT_VELOCITY, "velocity"), (LIMIT_EFFORT, "effort"))
 
 
+def limit_names(flags: int) -> list[str]:
+    return [word for bit, word in _LIMIT_WORDS if flags & bit]
+
+
 @dataclass(frozen=True)
 class JointGains:
     hold_kp: np.ndarray

@@ -91,14 +91,14 @@ def _line_map(text: str, file: str, issues: list[ConfigIssue]) -> dict[Loc, int]
             for key, value in node.value:
                 name = key.value
                 if name in seen:
-                    issues.append(ConfigIssue(file, key.start_mark.line + 1, _fmt(loc + (name,)), "duplicate key"))
+                    issues.append(ConfigIssue(file, key.start_mark.line + 1, _fmt((*loc, name)), "duplicate key"))
                 seen.add(name)
-                lines[loc + (name,)] = key.start_mark.line + 1
-                walk(value, loc + (name,))
-                lines[loc + (name,)] = key.start_mark.line + 1
+                lines[(*loc, name)] = key.start_mark.line + 1
+                walk(value, (*loc, name))
+                lines[(*loc, name)] = key.start_mark.line + 1
         elif isinstance(node, yaml.SequenceNode):
             for i, item in enumerate(node.value):
-                walk(item, loc + (i,))
+                walk(item, (*loc, i))
 
     if root is not None:
         walk(root, ())
