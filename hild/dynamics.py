@@ -16,10 +16,17 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-__all__ = ["GravityModel", "load_model"]
+__all__ = [
+    "SCALAR_JOINT_TYPES",
+    "GravityModel",
+    "contiguous_slice",
+    "joint_names",
+    "load_model",
+    "scalar_joint_addresses",
+]
 
 # Joint types that own exactly one position and one velocity coordinate.
-_SCALAR_JOINTS = (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE)
+SCALAR_JOINT_TYPES = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
 
 
 def load_model(path: Path) -> mujoco.MjModel:
@@ -58,7 +65,7 @@ def scalar_joint_addresses(
         jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
         if jid < 0:
             missing.append(name)
-        elif model.jnt_type[jid] not in _SCALAR_JOINTS:
+        elif int(model.jnt_type[jid]) not in SCALAR_JOINT_TYPES:
             wrong_type.append(name)
         else:
             ids.append(jid)

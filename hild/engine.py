@@ -205,7 +205,11 @@ class Engine:
         cls = plugins.load(plugins.CONTROLLERS, type_name)
         if not isinstance(params, cls.Params):
             params = cls.Params.model_validate(params)
-        self.manager.load(name, type_name, cls(self.controller_context(name), params), fallbacks)
+        self.add_controller(name, type_name, cls(self.controller_context(name), params), fallbacks)
+
+    def add_controller(self, name: str, type_name: str, controller: Any, fallbacks: Sequence[str] = ()) -> None:
+        """Load and configure an already built controller instance."""
+        self.manager.load(name, type_name, controller, fallbacks)
         self.manager.configure(name)
 
     def _describe_fault(self, joint: int, code: int) -> str:
@@ -220,6 +224,7 @@ class Engine:
             slot.lifecycle = Lifecycle.INACTIVE
         self._read(0.0, self.period)
         self.supervisor.start(self.state)
+        np.copyto(self.final.position, self.supervisor.latched)  # the "last command" before any cycle: hold
         for slot in self.hardware:
             slot.component.activate()
             slot.lifecycle = Lifecycle.ACTIVE
@@ -235,9 +240,7 @@ class Engine:
         """Hold every joint, then leave the hardware in its safe state and release it."""
         if not self.started:
             return
-        self.manager.deactivate_commanding("shutdown")
-        for rec in list(self.manager.active):
-            self.manager._deactivate(rec)
+        self.manager.deactivate_all("shutdown")
         self.step(self.t + self.period, self.period)  # one last cycle: every joint in hold
         for slot in self.hardware:
             for hook in (slot.component.deactivate, slot.component.cleanup):

@@ -250,6 +250,14 @@ class ControllerManager:
             self.events.emit("warning", "controller_manager", f"{reason}: deactivated {[r.name for r in stopped]}")
         return [r.name for r in stopped]
 
+    def deactivate_all(self, reason: str) -> None:
+        stopped = list(self.active)
+        for rec in stopped:
+            self._deactivate(rec)
+        self._apply_claims()
+        if stopped:
+            self.events.emit("info", "controller_manager", f"{reason}: deactivated {[r.name for r in stopped]}")
+
     # ---- the cycle ---------------------------------------------------------------------------------------------
     def update(self, t: float, dt: float, state: JointState, command: ServoCommand) -> None:
         command.written.fill(False)

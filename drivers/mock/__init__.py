@@ -85,5 +85,5 @@ class MockHardware(HardwareComponent):
         return self.health_problem
 
     def clear_faults(self) -> None:
+        """Drive fault codes clear on request; an injected health problem persists until the test lifts it."""
         self.fault_codes[:] = 0
-        self.health_problem = None

@@ -1,0 +1,99 @@
+"""The cycle thread: paces ``engine.step`` at ``update_rate`` on the wall clock or the sim clock (DESIGN.md §1, §4).
+
+asyncio cannot pace below 1 ms (its epoll wait rounds up to whole milliseconds), so the cycle has its own thread.
+It sleeps to an absolute deadline minus a short spin, then busy-waits the rest: deadlines never drift, and the
+wake-up is accurate to microseconds instead of the kernel's timer slack. A cycle that overruns its period skips
+the missed periods (no burst to catch up) and counts them.
+
+Clocks: ``wall`` gives controllers the measured time since start; ``sim`` gives ``t = k · period`` exactly, paced
+at ``real_time_factor`` × real time, or as fast as possible when it is 0 (lockstep twin).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+from hild.config.model import RealtimeSection
+from hild.engine import Engine
+from hild.realtime import apply_thread_settings
+
+SPIN_NS = 200_000
+
+
+def _wait_until(deadline_ns: int) -> None:
+    remaining = deadline_ns - time.perf_counter_ns() - SPIN_NS
+    if remaining > 0:
+        time.sleep(remaining / 1e9)
+    while time.perf_counter_ns() < deadline_ns:
+        pass
+
+
+class CycleThread(threading.Thread):
+    def __init__(self, engine: Engine, clock_source: str, real_time_factor: float, realtime: RealtimeSection) -> None:
+        super().__init__(name="hild-cycle", daemon=True)
+        self.engine = engine
+        self.clock_source = clock_source
+        self.real_time_factor = real_time_factor
+        self.realtime = realtime
+        self.error: BaseException | None = None
+        self._stop_requested = threading.Event()
+
+    def stop(self) -> None:
+        self._stop_requested.set()
+
+    def run(self) -> None:
+        engine = self.engine
+        engine.realtime_report.update(apply_thread_settings(self.realtime))
+        try:
+            if self.clock_source == "sim":
+                self._run_sim()
+            else:
+                self._run_wall()
+        except BaseException as exc:  # a bug in the cycle itself: report it, then still release the hardware
+            self.error = exc
+            engine.events.emit("error", "cycle", f"cycle thread crashed: {type(exc).__name__}: {exc}")
+        finally:
+            engine.stop()
+
+    def _run_wall(self) -> None:
+        engine, stats, stopping = self.engine, self.engine.stats, self._stop_requested
+        period_ns = round(engine.period * 1e9)
+        start = time.perf_counter_ns()
+        deadline = start
+        prev_wake = start - period_ns
+        while not stopping.is_set():
+            deadline += period_ns
+            _wait_until(deadline)
+            wake = time.perf_counter_ns()
+            engine.step((wake - start) / 1e9, (wake - prev_wake) / 1e9)
+            end = time.perf_counter_ns()
+            overrun = end > deadline + period_ns
+            if overrun:
+                deadline += ((end - deadline) // period_ns) * period_ns
+            stats.record(end - wake, abs(wake - prev_wake - period_ns), overrun)
+            prev_wake = wake
+
+    def _run_sim(self) -> None:
+        engine, stats, stopping = self.engine, self.engine.stats, self._stop_requested
+        period = engine.period
+        rtf = self.real_time_factor
+        period_ns = round(period * 1e9)
+        start = time.perf_counter_ns()
+        t0 = engine.t
+        k = 0
+        prev_wake = start
+        while not stopping.is_set():
+            k += 1
+            deadline = start + round(k * period_ns / rtf) if rtf > 0 else 0
+            if rtf > 0:
+                _wait_until(deadline)
+            wake = time.perf_counter_ns()
+            engine.step(t0 + k * period, period)
+            end = time.perf_counter_ns()
+            overrun = rtf > 0 and end > deadline + round(period_ns / rtf)
+            if overrun:  # fell behind real time: re-sync instead of bursting to catch up
+                start += end - deadline
+            error = abs(wake - prev_wake - round(period_ns / rtf)) if rtf > 0 else 0
+            stats.record(end - wake, error, overrun)
+            prev_wake = wake

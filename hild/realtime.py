@@ -1,0 +1,76 @@
+"""Optional real-time settings, applied when permitted and reported either way (DESIGN.md §1).
+
+Per-thread settings (SCHED_FIFO, CPU affinity, timer slack) are applied from inside the cycle thread, so the
+asyncio side and Zenoh's threads keep normal scheduling. ``mlockall`` always carries ``MCL_ONFAULT``: without it,
+locking a process that loaded rerun and MuJoCo balloons its resident memory by gigabytes and stalls for seconds.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import gc
+import os
+import sys
+
+from hild.config.model import RealtimeSection
+
+MCL_CURRENT, MCL_FUTURE, MCL_ONFAULT = 1, 2, 4
+PR_SET_TIMERSLACK = 29
+
+
+def _libc() -> ctypes.CDLL:
+    return ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+
+
+def apply_process_settings(settings: RealtimeSection) -> dict[str, str]:
+    """Settings for the whole process: GIL switch interval and locked memory."""
+    report = {}
+    sys.setswitchinterval(settings.switch_interval)
+    report["switch_interval"] = f"{settings.switch_interval * 1e3:g} ms"
+    if settings.lock_memory:
+        if _libc().mlockall(MCL_CURRENT | MCL_FUTURE | MCL_ONFAULT) == 0:
+            report["lock_memory"] = "locked (MCL_CURRENT|MCL_FUTURE|MCL_ONFAULT)"
+        else:
+            err = ctypes.get_errno()
+            report["lock_memory"] = f"not permitted: {os.strerror(err)} (needs CAP_IPC_LOCK or LimitMEMLOCK=infinity)"
+    else:
+        report["lock_memory"] = "off"
+    return report
+
+
+def freeze_heap(settings: RealtimeSection) -> str:
+    """Move every start-up object out of the collector's reach so a full collection cannot stall the cycle."""
+    if not settings.gc_freeze:
+        return "off"
+    gc.collect()
+    gc.freeze()
+    return f"frozen {gc.get_freeze_count()} objects"
+
+
+def apply_thread_settings(settings: RealtimeSection) -> dict[str, str]:
+    """Settings for the calling thread (the cycle thread)."""
+    report = {}
+    if settings.priority > 0:
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(settings.priority))
+            report["priority"] = f"SCHED_FIFO {settings.priority}"
+        except (PermissionError, OSError) as exc:
+            report["priority"] = (
+                f"not permitted: {exc.strerror or exc} (needs CAP_SYS_NICE or LimitRTPRIO>={settings.priority})"
+            )
+    else:
+        report["priority"] = "normal (SCHED_OTHER)"
+    if settings.cpu_affinity:
+        try:
+            os.sched_setaffinity(0, set(settings.cpu_affinity))
+            report["cpu_affinity"] = ",".join(map(str, sorted(settings.cpu_affinity)))
+        except OSError as exc:
+            report["cpu_affinity"] = f"not applied: {exc.strerror or exc}"
+    else:
+        report["cpu_affinity"] = "any"
+    if _libc().prctl(PR_SET_TIMERSLACK, settings.timer_slack_ns, 0, 0, 0) == 0:
+        report["timer_slack"] = f"{settings.timer_slack_ns} ns"
+    else:
+        report["timer_slack"] = f"not applied: {os.strerror(ctypes.get_errno())}"
+    return report
