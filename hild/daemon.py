@@ -8,6 +8,7 @@ cycle thread starts. Shutdown runs the other way: stop accepting commands, hold,
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import os
 import signal
@@ -91,10 +92,8 @@ class Daemon:
     async def _wait_for_stop(self) -> int:
         assert self.cycle is not None
         while not self._stopping.is_set():
-            try:
+            with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(self._stopping.wait(), timeout=0.2)
-            except TimeoutError:
-                pass
             if not self.cycle.is_alive():
                 log.error("the cycle thread ended unexpectedly: %s", self.cycle.error)
                 return 1
