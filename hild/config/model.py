@@ -148,6 +148,13 @@ class ZenohSection(Params):
 class TelemetrySection(Params):
     enabled: bool = Field(default=False, description="rerun telemetry (see docs/config.md).")
 
+    @field_validator("enabled")
+    @classmethod
+    def _not_yet(cls, v: bool) -> bool:
+        if v:
+            raise ValueError("false: rerun telemetry is not implemented in this version")
+        return v
+
 
 class RealtimeSection(Params):
     priority: int = Field(default=0, ge=0, le=99, description="SCHED_FIFO priority of the cycle thread; 0 = off.")
