@@ -25,7 +25,7 @@ from hild.arrays import JointState, ServoCommand, gather_command, scatter_state
 from hild.config.loader import LoadedConfig
 from hild.controller import ControllerContext, JointLimitArrays
 from hild.events import EventLog
-from hild.hardware import HardwareComponent, HardwareContext, Lifecycle
+from hild.hardware import HardwareComponent, HardwareContext, HardwareError, Lifecycle
 from hild.mailbox import BoundedQueue
 from hild.manager import ControllerManager, SwitchResult
 from hild.stats import LoopStats
@@ -218,16 +218,24 @@ class Engine:
 
     # ---- lifecycle --------------------------------------------------------------------------------------------
     def start(self) -> None:
-        """Configure hardware, read once so hold starts where the arm is, enable drives, start controllers."""
-        for slot in self.hardware:
-            slot.component.configure()
-            slot.lifecycle = Lifecycle.INACTIVE
-        self._read(0.0, self.period)
-        self.supervisor.start(self.state)
-        np.copyto(self.final.position, self.supervisor.latched)  # the "last command" before any cycle: hold
-        for slot in self.hardware:
-            slot.component.activate()
-            slot.lifecycle = Lifecycle.ACTIVE
+        """Configure hardware, read once so hold starts where the arm is, enable drives, start controllers.
+
+        If any component fails to come up, the ones already configured are released again and the error is raised
+        with the component's name: a half-started robot is never left behind.
+        """
+        try:
+            for slot in self.hardware:
+                slot.lifecycle = Lifecycle.INACTIVE
+                self._hook(slot, "configure", slot.component.configure)
+            self._read(0.0, self.period)
+            self.supervisor.start(self.state)
+            np.copyto(self.final.position, self.supervisor.latched)  # the "last command" before any cycle: hold
+            for slot in self.hardware:
+                self._hook(slot, "activate", slot.component.activate)
+                slot.lifecycle = Lifecycle.ACTIVE
+        except HardwareError:
+            self._release_hardware()
+            raise
         autostart = [n for n, s in self.loaded.config.controllers.items() if s.autostart]
         if autostart:
             result = self.manager.switch(autostart, [], True, self.state, self.final)
@@ -236,21 +244,40 @@ class Engine:
         self.started = True
         self.events.emit("info", "engine", f"{self.robot} started: {len(self.joints)} joints held where they are")
 
+    @staticmethod
+    def _hook(slot: HardwareSlot, what: str, hook: Callable[[], None]) -> None:
+        try:
+            hook()
+        except Exception as exc:
+            raise HardwareError(f"hardware {slot.name!r} ({slot.driver}): {what} failed: {exc}") from exc
+
     def stop(self) -> None:
-        """Hold every joint, then leave the hardware in its safe state and release it."""
+        """Hold every joint, then leave the hardware in its safe state and release it.
+
+        Runs on the cycle thread after its last cycle, also after a crash: the hardware is released even when
+        the final hold cycle itself fails.
+        """
         if not self.started:
             return
+        self.started = False
         self.manager.deactivate_all("shutdown")
-        self.step(self.t + self.period, self.period)  # one last cycle: every joint in hold
+        try:
+            self.step(self.t + self.period, self.period)  # one last cycle: every joint in hold
+        except Exception as exc:
+            self.events.emit("error", "engine", f"final hold cycle failed: {type(exc).__name__}: {exc}")
+        self._release_hardware()
+        self.events.emit("info", "engine", "stopped: hardware released")
+
+    def _release_hardware(self) -> None:
         for slot in self.hardware:
+            if slot.lifecycle is Lifecycle.UNCONFIGURED:
+                continue
             for hook in (slot.component.deactivate, slot.component.cleanup):
                 try:
                     hook()
                 except Exception as exc:
                     self.events.emit("error", slot.name, f"{hook.__name__} failed: {exc}")
             slot.lifecycle = Lifecycle.UNCONFIGURED
-        self.started = False
-        self.events.emit("info", "engine", "stopped: hardware released")
 
     # ---- the cycle ----------------------------------------------------------------------------------------------
     def step(self, t: float, dt: float) -> None:
@@ -364,14 +391,16 @@ class Engine:
             return "estop"
         if sup.fault.any():
             return "fault"
-        if any(rec.claims for rec in self.manager.active):
+        if any(c.state == "active" and c.claimed for c in self.manager.snapshot):
             return "active"
         return "hold"
 
     def status(self) -> dict[str, Any]:
+        """A snapshot for the API; built from immutable views, so it is safe from any thread."""
         sup = self.supervisor
+        controllers = self.manager.snapshot
         owner = self.manager.masks.owner
-        names = {rec.slot: rec.name for rec in self.manager.records.values()}
+        names = {c.slot: c.name for c in controllers}
         joints = []
         for i, name in enumerate(self.joints):
             slot = int(owner[i])
@@ -389,7 +418,7 @@ class Engine:
             "stamp": self.t,
             "mode": self.overall_mode(),
             "joints": joints,
-            "controllers": [c.as_dict() for c in self.manager.snapshot],
+            "controllers": [c.as_dict() for c in controllers],
             "hardware": [
                 {"name": s.name, "driver": s.driver, "state": str(s.lifecycle), "fault": s.fault or None}
                 for s in self.hardware
@@ -399,12 +428,12 @@ class Engine:
         }
 
     def interfaces(self) -> list[dict[str, Any]]:
-        owner_of = {c: rec.name for rec in self.manager.active for c in rec.claims}
+        owner_of = {c: info.name for info in self.manager.snapshot if info.state == "active" for c in info.claimed}
         return [
             {"name": f"{j}/{f}", "claimed_by": owner_of.get(f"{j}/{f}")}
             for slot in self.hardware
             for j in slot.component.joints
-            for f in slot.component.COMMAND_FIELDS
+            for f in sorted(slot.component.COMMAND_FIELDS)
         ]
 
     def hardware_info(self) -> list[dict[str, Any]]:

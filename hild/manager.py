@@ -35,6 +35,9 @@ class ControllerRecord:
 
 @dataclass(frozen=True)
 class ControllerInfo:
+    """An immutable view of one controller, safe to read from any thread."""
+
+    slot: int
     name: str
     type: str
     state: str
@@ -301,15 +304,9 @@ class ControllerManager:
         self.on_claims(self.masks)
         self._changed()
 
-    def owner_name(self, slot: int) -> str | None:
-        for rec in self.records.values():
-            if rec.slot == slot:
-                return rec.name
-        return None
-
     def _changed(self) -> None:
         self.snapshot = tuple(
-            ControllerInfo(r.name, r.type, str(r.state), r.claims, r.error) for r in self.records.values()
+            ControllerInfo(r.slot, r.name, r.type, str(r.state), r.claims, r.error) for r in self.records.values()
         )
         self.change_seq += 1
 
