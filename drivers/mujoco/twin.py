@@ -1,0 +1,327 @@
+"""The MuJoCo digital twin: a simulated arm behind the same hardware contract as the CAN servos.
+
+Each joint behaves like an MIT-mode servo drive (DESIGN.md §2). The drive law
+``τ = kp·(position − q) + kd·(velocity − q̇) + effort`` is evaluated inside the physics, once per physics step
+(``substeps`` per cycle), from the simulated ``q, q̇`` of that step — as a real drive runs its own inner loop faster
+than the bus. The torque is saturated to the joint's torque limit and applied as a generalized force on the joint's
+degree of freedom (``qfrc_applied``); the model needs no ``<actuator>`` elements.
+
+Timing: ``write`` advances the physics by exactly one cycle period (``substeps`` steps of ``period / substeps``), so
+the simulation time is locked to the cycle clock whatever paces the cycle (wall clock for a real-time twin, the sim
+clock for lockstep tests; DESIGN.md §4). ``read`` returns the state at the end of the last ``write``.
+
+Lifecycle: like a real drive, the twin applies zero torque until ``activate`` and again after ``deactivate``; the
+physics keeps running (the arm falls under gravity while disabled, as a real unbraked arm would).
+
+Latency: with ``command_latency_cycles = N`` the command written in cycle k is applied during the physics of cycle
+k + N (a preallocated ring of N + 1 commands). The ring starts empty (zero torque) at every ``activate``, so an
+enabled drive applies zero torque for its first N cycles, as a drive that has not yet received a command.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Annotated
+
+import mujoco
+import numpy as np
+
+from hild.arrays import JointState, ServoCommand
+from hild.config.params import Field, Params
+from hild.dynamics import SCALAR_JOINT_TYPES, contiguous_slice, joint_names, load_model, scalar_joint_addresses
+from hild.hardware import ALL_COMMAND_FIELDS, HardwareComponent, HardwareContext, HardwareError
+
+__all__ = ["MujocoTwin", "MujocoTwinParams"]
+
+_COMMAND_FIELDS = ("position", "velocity", "effort", "kp", "kd")
+_BAD_QACC = int(mujoco.mjtWarning.mjWARN_BADQACC)
+
+NonNegative = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
+Positive = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+
+
+class MujocoTwinParams(Params):
+    model: str = Field(description="MJCF (.xml) or URDF (.urdf) of the arm, relative to the config file.")
+    substeps: int = Field(
+        default=1, ge=1, le=1000, description="Physics steps per cycle; the timestep is set to period / substeps."
+    )
+    command_latency_cycles: int = Field(
+        default=0, ge=0, le=1000, description="A command takes effect this many cycles after it is written."
+    )
+    keyframe: str | None = Field(default=None, description="Model keyframe for the start pose (default: qpos0).")
+    initial_positions: dict[str, Finite] = Field(
+        default_factory=dict, description="Start position per joint (rad or m), overriding qpos0 / the keyframe."
+    )
+    torque_limits: dict[str, Positive] = Field(
+        default_factory=dict,
+        description="Drive torque limit per joint (N·m or N, symmetric). Default: the joint's actuatorfrcrange.",
+    )
+    friction: dict[str, NonNegative] = Field(
+        default_factory=dict, description="Coulomb friction per joint (MuJoCo frictionloss), overriding the model."
+    )
+    armature: dict[str, NonNegative] = Field(
+        default_factory=dict, description="Reflected rotor inertia per joint (kg·m²), overriding the model."
+    )
+    damping: dict[str, NonNegative] = Field(
+        default_factory=dict, description="Viscous joint damping (N·m·s/rad), overriding the model."
+    )
+    gravity: bool = Field(default=True, description="False disables gravity in the simulation.")
+
+
+class MujocoTwin(HardwareComponent):
+    """A MuJoCo simulation of the arm that speaks the servo command of every hild backend.
+
+    Joints are matched to model joints by name (hinge or slide joints). Actuator space is the model's joint space:
+    give the twin's joints identity transmissions unless the model itself is built in actuator coordinates.
+    """
+
+    Params = MujocoTwinParams
+    COMMAND_FIELDS = ALL_COMMAND_FIELDS
+
+    def __init__(self, context: HardwareContext, params: MujocoTwinParams) -> None:
+        super().__init__(context, params)
+        self.params: MujocoTwinParams = params
+        self.model: mujoco.MjModel | None = None
+        self.data: mujoco.MjData | None = None
+        self._active = False
+
+    # ------------------------------------------------------------------ lifecycle (non real-time)
+
+    def configure(self) -> None:
+        p = self.params
+        path = self.context.config_dir / p.model
+        try:
+            model = load_model(path)
+        except ValueError as exc:
+            raise HardwareError(f"{self.context.name}: {exc}") from None
+        self._check_names()
+        try:
+            jid, qposadr, dofadr = scalar_joint_addresses(model, self.joints)
+        except ValueError as exc:
+            raise HardwareError(
+                f"{self.context.name}: joints do not match the model {path.name}: {exc}; "
+                f"configured joints: {', '.join(self.joints)}"
+            ) from None
+        passive = [
+            name
+            for i, name in enumerate(joint_names(model))
+            if int(model.jnt_type[i]) in SCALAR_JOINT_TYPES and i not in jid
+        ]
+        if passive:
+            self.context.emit_event(
+                "warning", f"{self.context.name}: model joints not driven by this component move freely: {passive}"
+            )
+        if model.nu:
+            self.context.emit_event(
+                "warning",
+                f"{self.context.name}: the model's {model.nu} <actuator> elements are not used by the twin and stay "
+                "at ctrl = 0 (a position actuator then pulls its joint towards 0): remove them from the model",
+            )
+
+        for name, value in p.friction.items():
+            model.dof_frictionloss[dofadr[self.joints.index(name)]] = value
+        for name, value in p.armature.items():
+            model.dof_armature[dofadr[self.joints.index(name)]] = value
+        for name, value in p.damping.items():
+            model.dof_damping[dofadr[self.joints.index(name)]] = value
+        self._tau_lo, self._tau_hi = self._torque_limits(model, jid)
+
+        model.opt.timestep = self.context.period / p.substeps
+        if not p.gravity:
+            model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_GRAVITY)
+
+        self._keyframe = -1
+        if p.keyframe is not None:
+            self._keyframe = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, p.keyframe)
+            if self._keyframe < 0:
+                keys = [model.key(i).name for i in range(model.nkey)]
+                raise HardwareError(f"{self.context.name}: model {path.name} has no keyframe {p.keyframe!r} ({keys})")
+        for name, value in p.initial_positions.items():
+            j = jid[self.joints.index(name)]
+            if model.jnt_limited[j] and not model.jnt_range[j, 0] <= value <= model.jnt_range[j, 1]:
+                lo, hi = model.jnt_range[j]
+                raise HardwareError(
+                    f"{self.context.name}: initial position {value} of {name} is outside its range [{lo}, {hi}]"
+                )
+
+        self.model, self.data = model, mujoco.MjData(model)
+        self._qposadr, self._dofadr = qposadr, dofadr
+        self._allocate()
+        self.reset()
+
+    def activate(self) -> None:
+        self._clear_commands()
+        self._active = True
+
+    def deactivate(self) -> None:
+        self._active = False
+        self._clear_commands()
+        self._tau.fill(0.0)
+        self._frc_all.fill(0.0)
+
+    def cleanup(self) -> None:
+        self._active = False
+        self.model = self.data = None
+        self._q = self._qd = self._frc = self._qpos_all = self._qvel_all = self._frc_all = None  # views on the data
+
+    def reset(self) -> None:
+        """Put the twin back to its start pose at rest, sim time 0, no pending commands (non real-time)."""
+        m, d = self.model, self.data
+        if m is None or d is None:
+            raise HardwareError(f"{self.context.name}: reset() before configure()")
+        if self._keyframe >= 0:
+            mujoco.mj_resetDataKeyframe(m, d, self._keyframe)
+        else:
+            mujoco.mj_resetData(m, d)
+        for name, value in self.params.initial_positions.items():
+            d.qpos[self._qposadr[self.joints.index(name)]] = value
+        d.qvel[:] = 0.0
+        d.time = 0.0
+        self._clear_commands()
+        self._tau.fill(0.0)
+        mujoco.mj_forward(m, d)
+
+    @property
+    def sim_time(self) -> float:
+        """Simulation time in seconds: advances by one cycle period per ``write``."""
+        return 0.0 if self.data is None else float(self.data.time)
+
+    def health(self) -> str | None:
+        if self.data is not None and self.data.warning[_BAD_QACC].number > 0:
+            return (
+                f"simulation diverged (bad acceleration, {self.data.warning[_BAD_QACC].number}×) and MuJoCo reset "
+                "its state: lower the gains or raise substeps, then reset() the twin"
+            )
+        return None
+
+    # ------------------------------------------------------------------ cycle (real time)
+
+    def read(self, t: float, dt: float, state: JointState) -> None:
+        """Position and velocity from the simulation, effort = the torque applied in the last physics step."""
+        if self._gather:
+            np.take(self._qpos_all, self._qposadr, out=state.position)
+            np.take(self._qvel_all, self._dofadr, out=state.velocity)
+        else:
+            np.copyto(state.position, self._q)
+            np.copyto(state.velocity, self._qd)
+        np.copyto(state.effort, self._tau)
+        state.temperature.fill(math.nan)
+        state.fault.fill(0)
+        state.fresh.fill(True)
+
+    def write(self, t: float, dt: float, command: ServoCommand) -> None:
+        """Queue ``command`` and advance the physics by one cycle, running the drive law in every substep."""
+        m, d = self.model, self.data
+        if not self._active:
+            self._tau.fill(0.0)
+            self._frc_all.fill(0.0)
+            mujoco.mj_step(m, d, self.params.substeps)
+            return
+
+        # The drive applies the command written command_latency_cycles ago. Commands wait in a ring of
+        # latency + 1 slots: the one due now is the slot the next write will overwrite. Without latency the
+        # command is used directly.
+        slots = self._slots
+        if slots:
+            head = self._head
+            pos, vel, eff, kp, kd = slots[head]
+            np.copyto(pos, command.position)
+            np.copyto(vel, command.velocity)
+            np.copyto(eff, command.effort)
+            np.copyto(kp, command.kp)
+            np.copyto(kd, command.kd)
+            head += 1
+            self._head = head = 0 if head == len(slots) else head
+            pos, vel, eff, kp, kd = slots[head]
+        else:
+            pos, vel, eff, kp, kd = command.position, command.velocity, command.effort, command.kp, command.kd
+
+        q, qd, tau, tmp = self._q, self._qd, self._tau, self._tmp
+        for _ in range(self.params.substeps):
+            if self._gather:
+                np.take(self._qpos_all, self._qposadr, out=q)
+                np.take(self._qvel_all, self._dofadr, out=qd)
+            # τ = kp·(position − q) + kd·(velocity − q̇) + effort, saturated to the drive's limits.
+            np.subtract(pos, q, out=tau)
+            np.multiply(tau, kp, out=tau)
+            np.subtract(vel, qd, out=tmp)
+            np.multiply(tmp, kd, out=tmp)
+            np.add(tau, tmp, out=tau)
+            np.add(tau, eff, out=tau)
+            np.maximum(tau, self._tau_lo, out=tau)
+            np.minimum(tau, self._tau_hi, out=tau)
+            if math.isnan(tau.dot(tau)):  # e.g. 0·inf in a bad command: a drive rejects it, applies nothing
+                tau[np.isnan(tau)] = 0.0
+            if self._gather:
+                np.put(self._frc_all, self._dofadr, tau)
+            else:
+                np.copyto(self._frc, tau)
+            mujoco.mj_step(m, d)
+
+    # ------------------------------------------------------------------ helpers
+
+    def _check_names(self) -> None:
+        known = set(self.joints)
+        p = self.params
+        for label, table in (
+            ("initial_positions", p.initial_positions),
+            ("torque_limits", p.torque_limits),
+            ("friction", p.friction),
+            ("armature", p.armature),
+            ("damping", p.damping),
+        ):
+            unknown = sorted(set(table) - known)
+            if unknown:
+                raise HardwareError(
+                    f"{self.context.name}: params.{label} names unknown joints {unknown} "
+                    f"(this component drives: {', '.join(self.joints)})"
+                )
+
+    def _torque_limits(self, model: mujoco.MjModel, jid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        n = len(self.joints)
+        lo, hi = np.empty(n), np.empty(n)
+        for i, name in enumerate(self.joints):
+            if name in self.params.torque_limits:
+                limit = self.params.torque_limits[name]
+                lo[i], hi[i] = -limit, limit
+                continue
+            j = jid[i]
+            if not model.jnt_actfrclimited[j]:
+                raise HardwareError(
+                    f"{self.context.name}: no torque limit for joint {name}: set params.torque_limits.{name} or "
+                    'actuatorfrcrange (with actuatorfrclimited="true") on the joint in the model '
+                    "(URDF: <limit effort=...>)"
+                )
+            lo[i], hi[i] = model.jnt_actfrcrange[j]
+            if not lo[i] <= 0.0 <= hi[i] or lo[i] == hi[i]:
+                raise HardwareError(
+                    f"{self.context.name}: actuatorfrcrange [{lo[i]}, {hi[i]}] of joint {name} must contain 0"
+                )
+        return lo, hi
+
+    def _allocate(self) -> None:
+        """Preallocate every buffer and view the cycle uses (views on MjData stay valid for its lifetime)."""
+        d, n = self.data, len(self.joints)
+        self._qpos_all, self._qvel_all, self._frc_all = d.qpos, d.qvel, d.qfrc_applied
+        self._frc_all.fill(0.0)
+        self._tau = np.zeros(n)
+        self._tmp = np.zeros(n)
+        qb, db = contiguous_slice(self._qposadr), contiguous_slice(self._dofadr)
+        # The usual case: the joints are one contiguous block in model order, so work on views directly.
+        self._gather = qb is None or db is None
+        if self._gather:
+            self._q, self._qd, self._frc = np.zeros(n), np.zeros(n), None
+        else:
+            self._q, self._qd, self._frc = d.qpos[qb], d.qvel[db], d.qfrc_applied[db]
+        latency = self.params.command_latency_cycles
+        ring = latency + 1 if latency else 0
+        self._ring = {name: np.zeros((ring, n)) for name in _COMMAND_FIELDS}
+        self._slots = [tuple(self._ring[name][k] for name in _COMMAND_FIELDS) for k in range(ring)]
+        self._head = 0
+
+    def _clear_commands(self) -> None:
+        """Forget queued commands: the drive applies zero torque until the new ones come through."""
+        for buf in self._ring.values():
+            buf.fill(0.0)
+        self._head = 0
