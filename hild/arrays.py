@@ -40,8 +40,8 @@ class JointState:
         )
 
     def copy_from(self, other: JointState) -> None:
-        for f in fields(self):
-            np.copyto(getattr(self, f.name), getattr(other, f.name))
+        for name in STATE_FIELDS:
+            np.copyto(getattr(self, name), getattr(other, name))
 
     def __len__(self) -> int:
         return len(self.position)
@@ -74,25 +74,24 @@ class ServoCommand:
         )
 
     def copy_from(self, other: ServoCommand) -> None:
-        for f in fields(self):
-            np.copyto(getattr(self, f.name), getattr(other, f.name))
+        for name in COMMAND_FIELDS:
+            np.copyto(getattr(self, name), getattr(other, name))
 
     def __len__(self) -> int:
         return len(self.position)
 
 
-def gather_state(src: JointState, index: np.ndarray, dst: JointState) -> None:
-    """Copy the joints ``index`` of ``src`` into the (smaller) ``dst`` without allocating."""
-    for f in fields(src):
-        np.take(getattr(src, f.name), index, out=getattr(dst, f.name))
+STATE_FIELDS = tuple(f.name for f in fields(JointState))
+COMMAND_FIELDS = tuple(f.name for f in fields(ServoCommand))
 
 
 def scatter_state(src: JointState, index: np.ndarray, dst: JointState) -> None:
-    """Write the (smaller) ``src`` into the joints ``index`` of ``dst``."""
-    for f in fields(src):
-        getattr(dst, f.name)[index] = getattr(src, f.name)
+    """Write a component's (smaller) state into the joints ``index`` of the robot's state."""
+    for name in STATE_FIELDS:
+        getattr(dst, name)[index] = getattr(src, name)
 
 
 def gather_command(src: ServoCommand, index: np.ndarray, dst: ServoCommand) -> None:
-    for f in fields(src):
-        np.take(getattr(src, f.name), index, out=getattr(dst, f.name))
+    """Copy the joints ``index`` of the robot's command into a component's (smaller) command, in place."""
+    for name in COMMAND_FIELDS:
+        getattr(src, name).take(index, out=getattr(dst, name))

@@ -129,6 +129,13 @@ class Supervisor:
         self._controlled = np.zeros(n, dtype=bool)
         self._b = np.zeros(n, dtype=bool)
         self._b2 = np.zeros(n, dtype=bool)
+        self._b3 = np.zeros(n, dtype=bool)
+        self._claimed = np.zeros(n, dtype=bool)
+        self._neg_velocity = -limits.velocity
+        self._neg_effort = -limits.effort
+        self._new_mode = np.zeros(n, dtype=np.int64)
+        self._neg_step = np.zeros(n)
+        self._stale_limit = np.zeros(n, dtype=np.int64)
         self._s = np.zeros(n)
         self._s2 = np.zeros(n)
         self._flags = np.zeros(n, dtype=np.int64)
@@ -148,6 +155,7 @@ class Supervisor:
     def set_claims(self, masks: ClaimMasks) -> None:
         """Recompute per-joint mode defaults from the active claims (called at each switch)."""
         self._masks = masks
+        np.greater_equal(masks.owner, 0, out=self._claimed)
         g = self.gains
         position_mode = masks.position
         velocity_mode = masks.velocity & ~position_mode
@@ -159,12 +167,13 @@ class Supervisor:
     # ---- fault detection (after read) ---------------------------------------------------------------------
     def check(self, state: JointState) -> None:
         q, qd = state.position, state.velocity
-        stale, b = self._stale, self._b
+        stale, b, b3 = self._stale, self._b, self._b3
         if state.fresh.all():
             stale.fill(0)
         else:
             np.add(stale, 1, out=stale)
-            np.multiply(stale, ~state.fresh, out=stale)
+            np.logical_not(state.fresh, out=b)
+            np.multiply(stale, b, out=stale)
             limit = self.safety.stale_feedback_cycles
             if stale.max() >= limit:
                 self._trip_where(stale >= limit, Fault.STALE_FEEDBACK, f"no feedback for {limit} cycles", q)
@@ -173,12 +182,14 @@ class Supervisor:
                 if self.fault[i] == Fault.NONE:
                     self.trip(int(i), Fault.DRIVE, self.describe_fault(int(i), int(state.fault[i])), q)
         np.isfinite(q, out=b)
-        np.logical_and(b, np.isfinite(qd), out=b)
+        np.isfinite(qd, out=b3)
+        np.logical_and(b, b3, out=b)
         if not b.all():
             self._trip_where(~b, Fault.INVALID_FEEDBACK, "non-finite position or velocity feedback", q)
         lim = self.limits
         np.less(q, lim.lower, out=b)
-        np.logical_or(b, np.greater(q, lim.upper), out=b)
+        np.greater(q, lim.upper, out=b3)
+        np.logical_or(b, b3, out=b)
         if b.any():
             self._trip_where(b, Fault.POSITION_LIMIT, "measured position outside the hard limits", q)
         np.abs(qd, out=self._s)
@@ -239,21 +250,25 @@ class Supervisor:
 
     # ---- the final command (after the controllers) --------------------------------------------------------
     def command(self, dt: float, state: JointState, ctrl: ServoCommand, out: ServoCommand) -> None:
-        q, qd = state.position, state.velocity
-        masks, mode, b, b2 = self._masks, self.mode, self._b, self._b2
-        safe = b2
+        q = state.position
+        masks, mode, b, b3 = self._masks, self.mode, self._b, self._b3
+        safe = self._b2
         np.greater_equal(mode, JointMode.FAULT, out=safe)
 
         # Who is controlled this cycle: claimed, written, not faulted or stopped, and a finite command.
         controlled = self._controlled
-        np.logical_and(ctrl.written, masks.owner >= 0, out=controlled)
-        np.logical_and(controlled, ~safe, out=controlled)
+        np.logical_and(ctrl.written, self._claimed, out=controlled)
+        np.logical_not(safe, out=b)
+        np.logical_and(controlled, b, out=controlled)
         self._reject_bad_commands(ctrl, controlled)
 
-        # Latch joints entering hold (lost their controller), at start-up, after reset or e-stop.
-        np.logical_and(mode == JointMode.CONTROLLED, ~controlled, out=b)
+        # Latch joints entering hold (lost their controller), after reset or e-stop.
+        np.equal(mode, JointMode.CONTROLLED, out=b)
+        np.logical_not(controlled, out=b3)
+        np.logical_and(b, b3, out=b)
         np.logical_or(b, self._relatch, out=b)
-        np.logical_and(b, np.isfinite(q), out=b)
+        np.isfinite(q, out=b3)
+        np.logical_and(b, b3, out=b)
         np.copyto(self.latched, q, where=b)
         self._relatch.fill(False)
 
@@ -280,27 +295,29 @@ class Supervisor:
 
         flags = self._flags
         flags.fill(0)
-        self._limit_commands(dt, q, qd, controlled, out, flags)
+        self._limit_commands(dt, state, controlled, out, flags)
         np.copyto(self._prev_position, out.position)
 
         self._update_modes(controlled, safe, flags)
 
     def _reject_bad_commands(self, ctrl: ServoCommand, controlled: np.ndarray) -> None:
         """A non-finite or negative-gain command from a controller never reaches a drive."""
-        b = self._b
-        b.fill(True)
-        for field in FIELDS:
-            np.logical_and(b, np.isfinite(getattr(ctrl, field)), out=b)
-        np.logical_and(b, ctrl.kp >= 0.0, out=b)
-        np.logical_and(b, ctrl.kd >= 0.0, out=b)
-        np.logical_or(b, ~controlled, out=b)
-        if b.all():
+        ok, b3 = self._b, self._b3
+        np.greater_equal(ctrl.kp, 0.0, out=ok)  # False for NaN too
+        np.greater_equal(ctrl.kd, 0.0, out=b3)
+        np.logical_and(ok, b3, out=ok)
+        for field in ("position", "velocity", "effort"):
+            np.isfinite(getattr(ctrl, field), out=b3)
+            np.logical_and(ok, b3, out=ok)
+        np.logical_not(controlled, out=b3)
+        np.logical_or(ok, b3, out=ok)
+        if ok.all():
             if self.bad_command_owners:
-                self.bad_command_owners.clear()
+                self.bad_command_owners = []
             return
-        bad = ~b
+        bad = ~ok  # rare path: a controller bug
         self.bad_command_owners = sorted({int(self._masks.owner[i]) for i in np.flatnonzero(bad)})
-        np.logical_and(controlled, b, out=controlled)
+        np.logical_and(controlled, ok, out=controlled)
 
     def _apply_safe_actions(self, q: np.ndarray, safe: np.ndarray, out: ServoCommand) -> None:
         gains = self.gains
@@ -320,60 +337,68 @@ class Supervisor:
                 out.effort[i] = 0.0
 
     def _limit_commands(
-        self, dt: float, q: np.ndarray, qd: np.ndarray, controlled: np.ndarray, out: ServoCommand, flags: np.ndarray
+        self, dt: float, state: JointState, controlled: np.ndarray, out: ServoCommand, flags: np.ndarray
     ) -> None:
-        lim, s, b = self.limits, self._s, self._b
+        lim, s, s2, b, b3 = self.limits, self._s, self._s2, self._b, self._b3
         # Soft position limits, on controller commands only: hold never pulls the arm anywhere.
-        np.clip(out.position, lim.soft_lower, lim.soft_upper, out=s)
+        np.minimum(out.position, lim.soft_upper, out=s)
+        np.maximum(s, lim.soft_lower, out=s)
         np.not_equal(s, out.position, out=b)
         np.logical_and(b, controlled, out=b)
         np.copyto(out.position, s, where=controlled)
-        flags[b] |= LIMIT_POSITION
+        np.bitwise_or(flags, LIMIT_POSITION, out=flags, where=b)
         # Velocity command limit.
-        np.clip(out.velocity, -lim.velocity, lim.velocity, out=s)
+        np.minimum(out.velocity, lim.velocity, out=s)
+        np.maximum(s, self._neg_velocity, out=s)
         np.not_equal(s, out.velocity, out=b)
         np.logical_and(b, controlled, out=b)
         np.copyto(out.velocity, s)
-        flags[b] |= LIMIT_VELOCITY
+        np.bitwise_or(flags, LIMIT_VELOCITY, out=flags, where=b)
         # Slew: a stiff (kp > 0) position command moves at most velocity_limit·dt per cycle.
-        step = self._step
+        step, neg_step = self._step, self._neg_step
         np.multiply(lim.velocity, dt, out=step)
+        np.negative(step, out=neg_step)
         np.subtract(out.position, self._prev_position, out=s)
-        np.clip(s, -step, step, out=self._s2)
-        np.not_equal(self._s2, s, out=b)
-        np.logical_and(b, out.kp > 0.0, out=b)
-        np.add(self._prev_position, self._s2, out=s)
+        np.minimum(s, step, out=s2)
+        np.maximum(s2, neg_step, out=s2)
+        np.not_equal(s2, s, out=b)
+        np.greater(out.kp, 0.0, out=b3)
+        np.logical_and(b, b3, out=b)
+        np.add(self._prev_position, s2, out=s)
         np.copyto(out.position, s, where=b)
         np.logical_and(b, controlled, out=b)
-        flags[b] |= LIMIT_VELOCITY
+        np.bitwise_or(flags, LIMIT_VELOCITY, out=flags, where=b)
         # Effort: predict the drive's torque and trim the feed-forward so it stays within ±effort.
         tau = s
-        np.subtract(out.position, q, out=tau)
+        np.subtract(out.position, state.position, out=tau)
         np.multiply(tau, out.kp, out=tau)
-        np.subtract(out.velocity, qd, out=self._s2)
-        np.multiply(self._s2, out.kd, out=self._s2)
-        np.add(tau, self._s2, out=tau)
+        np.subtract(out.velocity, state.velocity, out=s2)
+        np.multiply(s2, out.kd, out=s2)
+        np.add(tau, s2, out=tau)
         np.add(tau, out.effort, out=tau)
-        np.clip(tau, -lim.effort, lim.effort, out=self._s2)
-        np.subtract(tau, self._s2, out=tau)  # excess torque
-        np.nan_to_num(tau, copy=False, nan=0.0)
+        np.minimum(tau, lim.effort, out=s2)
+        np.maximum(s2, self._neg_effort, out=s2)
+        np.subtract(tau, s2, out=tau)  # the excess torque
+        np.isnan(tau, out=b)  # unknown state (faulted feedback): nothing to trim
+        np.copyto(tau, 0.0, where=b)
         np.not_equal(tau, 0.0, out=b)
         if b.any():
             np.subtract(out.effort, tau, out=out.effort)
-            flags[b] |= LIMIT_EFFORT
+            np.bitwise_or(flags, LIMIT_EFFORT, out=flags, where=b)
 
     def _update_modes(self, controlled: np.ndarray, safe: np.ndarray, flags: np.ndarray) -> None:
-        mode = self.mode
-        new_mode = self._s2  # reuse a float scratch for the comparison
+        mode, new_mode, b = self.mode, self._new_mode, self._b
         new_mode.fill(JointMode.HOLD)
-        np.copyto(new_mode, float(JointMode.CONTROLLED), where=controlled)
+        np.copyto(new_mode, JointMode.CONTROLLED, where=controlled)
         np.copyto(new_mode, mode, where=safe)
-        if not np.array_equal(new_mode, mode):
-            mode[:] = new_mode
+        np.not_equal(new_mode, mode, out=b)
+        if b.any():
+            np.copyto(mode, new_mode)
             self.change_seq += 1
-        if not np.array_equal(flags, self.limit_flags):
+        np.not_equal(flags, self.limit_flags, out=b)
+        if b.any():
             self._report_limits(flags)
-            self.limit_flags[:] = flags
+            np.copyto(self.limit_flags, flags)
             self.change_seq += 1
 
     def _report_limits(self, flags: np.ndarray) -> None:
