@@ -18,11 +18,16 @@ from hild.config.loader import LoadedConfig
 from hild.cycle import CycleThread
 from hild.engine import Engine
 from hild.events import log_event
+from hild.hardware import HardwareError
 from hild.realtime import apply_process_settings, freeze_heap
 
 log = logging.getLogger("hild.daemon")
 
 CYCLE_JOIN_TIMEOUT = 5.0
+
+
+class StartupError(RuntimeError):
+    pass
 
 
 class Daemon:
@@ -70,8 +75,13 @@ class Daemon:
         self.engine.doorbell = self._doorbell
         self.engine.realtime_report.update(apply_process_settings(cfg.realtime))
         self.engine.start()
-        self.api = ApiServer(self.engine, cfg.zenoh, self.listen)
-        await self.api.start()
+        try:
+            self.api = ApiServer(self.engine, cfg.zenoh, self.listen)
+            await self.api.start()
+        except Exception as exc:  # e.g. the listen port is taken: release the hardware we just enabled
+            self.api = None
+            self.engine.stop()
+            raise StartupError(f"cannot open the Zenoh API ({self.listen or cfg.zenoh.listen}): {exc}") from exc
         for sig in (signal.SIGINT, signal.SIGTERM):
             self._loop.add_signal_handler(sig, self._on_signal, sig)
         self.engine.realtime_report["gc"] = freeze_heap(cfg.realtime)
@@ -112,6 +122,18 @@ class Daemon:
 
 
 def run_daemon(loaded: LoadedConfig, listen: list[str] | None = None) -> int:
+    """Run until a signal; returns the process exit code. Start-up failures are reported, not raised."""
     if threading.current_thread() is not threading.main_thread():
         raise RuntimeError("the daemon must run on the main thread (it owns the signal handlers)")
-    return asyncio.run(Daemon(loaded, listen).run())
+    try:
+        daemon = Daemon(loaded, listen)
+    except (HardwareError, ValueError) as exc:  # a driver or model that cannot be built from this config
+        log.error("cannot build %s: %s", loaded.path, exc)
+        return 1
+    try:
+        return asyncio.run(daemon.run())
+    except (HardwareError, StartupError) as exc:
+        for event in daemon.engine.events.drain():
+            log_event(event)
+        log.error("start-up failed; the hardware was released: %s", exc)
+        return 1
