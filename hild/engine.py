@@ -14,6 +14,7 @@ the start of the next cycle, answered through a ``concurrent.futures.Future``) a
 from __future__ import annotations
 
 import concurrent.futures
+from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -124,6 +125,8 @@ class Engine:
         self._requests: BoundedQueue[tuple[Callable[[], Any], concurrent.futures.Future[Any]]] = BoundedQueue(
             REQUEST_QUEUE
         )
+        self._estop_requested = False
+        self._estop_waiters: deque[concurrent.futures.Future[Any]] = deque(maxlen=256)
         self._health_every = max(1, round(self.update_rate / HEALTH_POLL_HZ))
         for name, spec in cfg.controllers.items():
             self.load_controller(name, spec.type, loaded.controller_params[name], spec.fallback_controllers)
@@ -283,6 +286,8 @@ class Engine:
     def step(self, t: float, dt: float) -> None:
         self.t = t
         self.cycle += 1
+        if self._estop_requested:
+            self._apply_estop()
         self._apply_requests()
         self._read(t, dt)
         sup = self.supervisor
@@ -355,6 +360,21 @@ class Engine:
                 future.set_result(action())
             except Exception as exc:
                 future.set_exception(exc)
+
+    def request_estop(self) -> concurrent.futures.Future[Any]:
+        """E-stop from any thread. Never refused (it bypasses the request queue); applied at the next cycle."""
+        future: concurrent.futures.Future[Any] = concurrent.futures.Future()
+        self._estop_waiters.append(future)
+        self._estop_requested = True
+        return future
+
+    def _apply_estop(self) -> None:
+        self._estop_requested = False
+        result = self.estop()
+        while self._estop_waiters:
+            future = self._estop_waiters.popleft()
+            if future.set_running_or_notify_cancel():
+                future.set_result(result)
 
     def switch(self, activate: Sequence[str], deactivate: Sequence[str], strict: bool = True) -> SwitchResult:
         """Switch controllers now (call on the cycle thread, i.e. through ``submit``, or before start)."""

@@ -346,3 +346,19 @@ def test_forward_command_rejects_bad_input(make_engine: MakeEngine) -> None:
             fwd.accept(payload)
     engine.run_cycles(10)
     assert modes(engine) == ["hold"] * 3
+
+
+def test_estop_is_never_refused_even_with_a_full_request_queue(make_engine: MakeEngine) -> None:
+    from hild.engine import REQUEST_QUEUE, RequestRejected
+
+    engine = make_engine()
+    engine.switch(["fwd"], [])
+    queued = [engine.submit(lambda: None) for _ in range(REQUEST_QUEUE)]
+    with pytest.raises(RequestRejected):
+        engine.submit(lambda: None).result(timeout=0)
+    stop = engine.request_estop()
+    assert not stop.done()
+    engine.run_cycles(1)
+    assert stop.result(timeout=0) == {"deactivated": ["fwd"]}
+    assert engine.status()["mode"] == "estop"
+    assert all(f.done() for f in queued)

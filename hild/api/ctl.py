@@ -1,0 +1,166 @@
+"""``hild ctl``: the operator's command line over :class:`~hild.api.client.HildClient`.
+
+Exit codes: 0 ok, 1 the daemon refused (service error), 2 the daemon cannot be reached. ``--json`` prints the
+daemon's reply as one JSON document (errors too, as ``{"ok": false, "error": ...}``) for scripts.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import sys
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+from hild.api import render
+from hild.api.client import HildClient, HildError, HildUnreachable
+from hild.api.session import DEFAULT_CONNECT
+
+EXIT_OK, EXIT_SERVICE, EXIT_UNREACHABLE = 0, 1, 2
+CLEAR = "\x1b[H\x1b[2J"
+
+
+def _common() -> argparse.ArgumentParser:
+    """Options accepted both before and after the subcommand (SUPPRESS: the later one wins, absent ones vanish)."""
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--robot", default=argparse.SUPPRESS, help="robot name (default: the one alive)")
+    common.add_argument(
+        "--connect",
+        action="append",
+        default=argparse.SUPPRESS,
+        metavar="ENDPOINT",
+        help=f"Zenoh endpoint of the daemon, repeatable (default: {DEFAULT_CONNECT[0]})",
+    )
+    common.add_argument("--timeout", type=float, default=argparse.SUPPRESS, help="seconds per request (default 2)")
+    common.add_argument("--json", action="store_true", default=argparse.SUPPRESS, help="machine-readable output")
+    return common
+
+
+def add_ctl_parser(subparsers: Any) -> None:
+    """Add ``ctl`` and its subcommands to an argparse subparsers object; dispatch with :func:`run_ctl`."""
+    common = _common()
+    ctl = subparsers.add_parser(
+        "ctl",
+        parents=[common],
+        help="talk to a running daemon",
+        description="Inspect and command a running hild daemon over Zenoh.",
+    )
+    sub = ctl.add_subparsers(dest="ctl_command", metavar="COMMAND", required=True)
+    sub.add_parser("status", parents=[common], help="overall mode, joints, controllers, hardware, loop")
+    sub.add_parser("controllers", parents=[common], help="loaded controllers and their claims")
+    sub.add_parser("interfaces", parents=[common], help="command interfaces and who claims them")
+    sub.add_parser("hardware", parents=[common], help="hardware components")
+    switch = sub.add_parser("switch", parents=[common], help="activate/deactivate controllers atomically")
+    switch.add_argument("--activate", nargs="+", action="extend", default=[], metavar="NAME", help="start these")
+    switch.add_argument("--deactivate", nargs="+", action="extend", default=[], metavar="NAME", help="stop these")
+    switch.add_argument(
+        "--best-effort", action="store_true", help="switch what can be switched instead of refusing the whole switch"
+    )
+    sub.add_parser("estop", parents=[common], help="engage the e-stop (only reset leaves it)")
+    sub.add_parser("reset", parents=[common], help="clear latched faults and the e-stop")
+    watch = sub.add_parser("watch", parents=[common], help="live joint table (Ctrl-C to leave)")
+    watch.add_argument("--once", action="store_true", help="print one table and exit")
+    watch.add_argument("--rate", type=float, default=10.0, help="redraws per second (default 10)")
+
+
+def run_ctl(args: argparse.Namespace) -> int:
+    as_json = bool(getattr(args, "json", False))
+    try:
+        client = HildClient(
+            getattr(args, "robot", None),
+            getattr(args, "connect", None) or list(DEFAULT_CONNECT),
+            getattr(args, "timeout", 2.0),
+        )
+    except HildUnreachable as exc:
+        return _fail(exc, as_json, EXIT_UNREACHABLE)
+    try:
+        return COMMANDS[args.ctl_command](client, args, as_json)
+    except HildUnreachable as exc:
+        return _fail(exc, as_json, EXIT_UNREACHABLE)
+    except HildError as exc:
+        return _fail(exc, as_json, EXIT_SERVICE)
+    except KeyboardInterrupt:
+        return EXIT_OK
+    finally:
+        with contextlib.suppress(KeyboardInterrupt):  # a second Ctrl-C while closing
+            client.close()
+
+
+def _fail(exc: Exception, as_json: bool, code: int) -> int:
+    if as_json:
+        print(json.dumps({"ok": False, "error": str(exc)}))
+    else:
+        print(f"hild ctl: {exc}", file=sys.stderr)
+    return code
+
+
+def _service(
+    service: str, text: Callable[[dict[str, Any]], str], request: Callable[[argparse.Namespace], dict[str, Any]]
+) -> Callable[[HildClient, argparse.Namespace, bool], int]:
+    def command(client: HildClient, args: argparse.Namespace, as_json: bool) -> int:
+        reply = client.call(service, request(args), check=False)
+        if as_json:
+            print(json.dumps(reply, indent=2))
+        elif reply.get("ok"):
+            print(text(reply))
+        else:
+            print(f"hild ctl: {service}: {reply.get('error')}", file=sys.stderr)
+        return EXIT_OK if reply.get("ok") else EXIT_SERVICE
+
+    return command
+
+
+def _no_request(args: argparse.Namespace) -> dict[str, Any]:
+    return {}
+
+
+def _switch_request(args: argparse.Namespace) -> dict[str, Any]:
+    return {"activate": args.activate, "deactivate": args.deactivate, "strict": not args.best_effort}
+
+
+def _watch(client: HildClient, args: argparse.Namespace, as_json: bool) -> int:
+    latest: dict[str, dict[str, Any]] = {"status": client.status()}
+    latest["status"].pop("ok", None)
+    latest["status"].pop("error", None)
+    received = {"status": time.monotonic()}
+    got_state = threading.Event()
+
+    def keep(topic: str) -> Callable[[dict[str, Any]], None]:
+        def on_message(message: dict[str, Any]) -> None:
+            latest[topic] = message
+            received[topic] = time.monotonic()
+            if topic == "joint_states":
+                got_state.set()
+
+        return on_message
+
+    with client.subscribe("status", keep("status")), client.subscribe("joint_states", keep("joint_states")):
+        if args.once:
+            got_state.wait(client.timeout)
+            if as_json:
+                print(json.dumps({"status": latest["status"], "joint_states": latest.get("joint_states")}, indent=2))
+            else:
+                print(render.watch_text(latest["status"], latest.get("joint_states")))
+            return EXIT_OK
+        period = 1.0 / max(args.rate, 0.1)
+        while True:
+            age = time.monotonic() - received["status"]
+            note = f"(no status for {age:.1f} s: is the daemon still running?)" if age > 2.0 else ""
+            sys.stdout.write(CLEAR + render.watch_text(latest["status"], latest.get("joint_states"), note) + "\n")
+            sys.stdout.flush()
+            time.sleep(period)
+
+
+COMMANDS: dict[str, Callable[[HildClient, argparse.Namespace, bool], int]] = {
+    "status": _service("status", render.status_text, _no_request),
+    "controllers": _service("list_controllers", lambda r: render.controllers_text(r["controllers"]), _no_request),
+    "interfaces": _service("list_interfaces", lambda r: render.interfaces_text(r["interfaces"]), _no_request),
+    "hardware": _service("list_hardware", lambda r: render.hardware_text(r["hardware"]), _no_request),
+    "switch": _service("switch_controllers", render.switch_text, _switch_request),
+    "estop": _service("estop", lambda r: f"e-stop engaged; deactivated {r.get('deactivated') or []}", _no_request),
+    "reset": _service("reset", lambda r: f"reset; cleared {r.get('cleared') or []}", _no_request),
+    "watch": _watch,
+}

@@ -1,0 +1,108 @@
+"""Plain-text views of daemon replies for ``hild ctl``: pure functions from dicts to strings, easy to test."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+
+def table(headers: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
+    """Left-aligned columns, two spaces apart; ``None`` shows as ``-``."""
+    cells = [[("-" if v is None else str(v)) for v in row] for row in rows]
+    widths = [max(len(h), *(len(r[i]) for r in cells)) if cells else len(h) for i, h in enumerate(headers)]
+    lines = ["  ".join(h.ljust(w) for h, w in zip(headers, widths, strict=True)).rstrip()]
+    lines += ["  ".join(c.ljust(w) for c, w in zip(row, widths, strict=True)).rstrip() for row in cells]
+    return "\n".join(lines)
+
+
+def _us(stats: dict[str, Any], key: str) -> str:
+    window = stats.get(key) or {}
+    return f"{window.get('p50', 0):g}/{window.get('p99', 0):g}/{window.get('max', 0):g}"
+
+
+def headline(status: dict[str, Any]) -> str:
+    loop = status.get("loop") or {}
+    return (
+        f"{status.get('robot', '?')}: {str(status.get('mode', '?')).upper()}  t={status.get('stamp', 0):.3f} s  "
+        f"{loop.get('update_rate', 0):g} Hz {loop.get('clock', '')} clock  cycles {loop.get('cycles', 0)}  "
+        f"overruns {loop.get('overruns', 0)}  cycle µs p50/p99/max {_us(loop, 'duration_us')}  "
+        f"period error µs {_us(loop, 'period_error_us')}"
+    )
+
+
+def _limits(joint: dict[str, Any]) -> str | None:
+    return ",".join(joint.get("limits") or []) or None
+
+
+def status_text(status: dict[str, Any]) -> str:
+    joints = table(
+        ["JOINT", "MODE", "OWNER", "LIMITS", "FAULT"],
+        [[j["name"], j["mode"], j.get("owner"), _limits(j), j.get("fault")] for j in status.get("joints", [])],
+    )
+    hardware = table(
+        ["HARDWARE", "DRIVER", "STATE", "FAULT"],
+        [[h["name"], h["driver"], h["state"], h.get("fault")] for h in status.get("hardware", [])],
+    )
+    return "\n\n".join([headline(status), joints, controllers_text(status.get("controllers", [])), hardware])
+
+
+def controllers_text(controllers: Sequence[dict[str, Any]]) -> str:
+    return table(
+        ["CONTROLLER", "TYPE", "STATE", "CLAIMED", "ERROR"],
+        [
+            [c["name"], c["type"], c["state"], ",".join(c.get("claimed") or []) or None, c.get("error") or None]
+            for c in controllers
+        ],
+    )
+
+
+def interfaces_text(interfaces: Sequence[dict[str, Any]]) -> str:
+    return table(["INTERFACE", "CLAIMED BY"], [[i["name"], i.get("claimed_by")] for i in interfaces])
+
+
+def hardware_text(hardware: Sequence[dict[str, Any]]) -> str:
+    return table(
+        ["HARDWARE", "DRIVER", "STATE", "JOINTS", "COMMAND FIELDS", "FAULT"],
+        [
+            [
+                h["name"],
+                h["driver"],
+                h["state"],
+                ",".join(h.get("joints", [])),
+                ",".join(h.get("command_fields", [])),
+                h.get("fault"),
+            ]
+            for h in hardware
+        ],
+    )
+
+
+def switch_text(reply: dict[str, Any]) -> str:
+    done = f"activated {reply.get('activated') or []}, deactivated {reply.get('deactivated') or []}"
+    return done + (f"\n{reply['error']}" if reply.get("error") else "")
+
+
+def _number(values: Sequence[Any] | None, i: int) -> str | None:
+    if values is None or i >= len(values) or values[i] is None:
+        return None
+    return f"{values[i]:+.4f}"
+
+
+def watch_text(status: dict[str, Any], joint_states: dict[str, Any] | None, note: str = "") -> str:
+    """The ``watch`` table: per joint its mode, owner, state and fault, under the status headline."""
+    by_name: dict[str, int] = {}
+    if joint_states is not None:
+        by_name = {n: i for i, n in enumerate(joint_states.get("name") or [])}
+    rows = []
+    for joint in status.get("joints", []):
+        i = by_name.get(joint["name"], -1)
+        state = [
+            _number(joint_states.get(f), i) if i >= 0 and joint_states else None
+            for f in ("position", "velocity", "effort")
+        ]
+        rows.append([joint["name"], joint["mode"], joint.get("owner"), *state, joint.get("fault")])
+    lines = [headline(status)]
+    if note:
+        lines.append(note)
+    lines += ["", table(["JOINT", "MODE", "OWNER", "POSITION", "VELOCITY", "EFFORT", "FAULT"], rows)]
+    return "\n".join(lines)

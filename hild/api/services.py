@@ -1,0 +1,168 @@
+"""The control-plane services, independent of Zenoh: bytes in, a reply dict out, on the asyncio thread.
+
+Every reply carries ``ok`` and ``error`` (null when ok); nothing a client sends can raise out of
+:meth:`Services.handle`.
+Read-only services read the engine directly (its read-back methods are safe from any thread), so they keep
+answering even when the cycle is stuck, which is when an operator needs them most. Services that change
+state run on the cycle thread through ``engine.submit``, between two cycles, and give up after ``timeout``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import concurrent.futures
+import logging
+from collections.abc import Awaitable, Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from hild.api.codec import PayloadError, decode
+from hild.engine import Engine, RequestRejected
+
+log = logging.getLogger("hild.api")
+
+DEFAULT_TIMEOUT = 1.0  # s; below the client's default 2 s so the client sees our error, not its own timeout
+MAX_NAMES = 256
+
+
+class RequestError(Exception):
+    """A request that cannot be served; the message is the reply's ``error``."""
+
+
+Validator = Callable[[str, Any], Any]
+Reply = dict[str, Any]
+
+
+def names(field: str, value: Any) -> list[str]:
+    """A list of distinct, non-empty controller names."""
+    if not isinstance(value, list):
+        raise RequestError(f"{field} must be a list of controller names, not {type(value).__name__}")
+    if len(value) > MAX_NAMES:
+        raise RequestError(f"{field} lists {len(value)} names; at most {MAX_NAMES}")
+    seen: set[str] = set()
+    for item in value:
+        if not isinstance(item, str) or not item:
+            raise RequestError(f"{field} must contain non-empty strings, found {item!r}")
+        if item in seen:
+            raise RequestError(f"{field} lists {item!r} twice")
+        seen.add(item)
+    return value
+
+
+def boolean(field: str, value: Any) -> bool:
+    if not isinstance(value, bool):
+        raise RequestError(f"{field} must be true or false, not {value!r}")
+    return value
+
+
+def parse_request(raw: bytes, fields: Mapping[str, Validator]) -> dict[str, Any]:
+    """Decode a request object and check every field; an empty payload is an empty object."""
+    if not raw.strip():
+        return {}
+    try:
+        request = decode(raw)
+    except PayloadError as exc:
+        raise RequestError(str(exc)) from None
+    if not isinstance(request, dict):
+        raise RequestError(f"request must be a JSON object, not {type(request).__name__}")
+    unknown = sorted(set(request) - set(fields))
+    if unknown:
+        allowed = ", ".join(sorted(fields)) if fields else "none"
+        raise RequestError(f"unknown field(s) {', '.join(map(repr, unknown))} (allowed: {allowed})")
+    return {key: fields[key](key, value) for key, value in request.items()}
+
+
+@dataclass(frozen=True)
+class Service:
+    fields: Mapping[str, Validator]
+    run: Callable[[dict[str, Any]], Awaitable[Reply]]
+
+
+class Services:
+    def __init__(self, engine: Engine, timeout: float = DEFAULT_TIMEOUT) -> None:
+        self.engine = engine
+        self.timeout = timeout
+        self.table: dict[str, Service] = {
+            "status": Service({}, self._status),
+            "list_controllers": Service({}, self._list_controllers),
+            "switch_controllers": Service({"activate": names, "deactivate": names, "strict": boolean}, self._switch),
+            "list_interfaces": Service({}, self._list_interfaces),
+            "list_hardware": Service({}, self._list_hardware),
+            "estop": Service({}, self._estop),
+            "reset": Service({}, self._reset),
+        }
+
+    async def handle(self, name: str, raw: bytes) -> Reply:
+        """Serve one request; always returns a reply with ``ok`` and ``error``."""
+        service = self.table.get(name)
+        try:
+            if service is None:
+                raise RequestError(f"unknown service {name!r} (known: {', '.join(self.table)})")
+            body = await service.run(parse_request(raw, service.fields))
+        except RequestError as exc:
+            return {"ok": False, "error": str(exc)}
+        except Exception as exc:  # a bug must cost one reply, not the daemon
+            log.exception("service %s failed", name)
+            return {"ok": False, "error": f"internal error: {type(exc).__name__}: {exc}"}
+        return {"ok": True, "error": None, **body}  # a body may carry its own ok/error (switch, reset)
+
+    # ---- the cycle hop ------------------------------------------------------------------------------------------
+    async def on_cycle(self, action: Callable[[], Any]) -> Any:
+        """Run ``action`` between two cycles and return its result, or raise RequestError after ``timeout``."""
+        try:
+            future = self.engine.submit(action)
+        except RequestRejected as exc:
+            raise RequestError(str(exc)) from None
+        return await self.wait_cycle(future)
+
+    async def wait_cycle(self, future: concurrent.futures.Future[Any]) -> Any:
+        """Await a request the cycle will apply; withdraw it if the cycle does not get to it in time."""
+        try:
+            return await asyncio.wait_for(asyncio.wrap_future(future), self.timeout)
+        except RequestRejected as exc:
+            raise RequestError(str(exc)) from None
+        except TimeoutError:
+            # wait_for's cancellation reaches the engine's future: if it was still queued it is withdrawn.
+            if not (future.cancel() or future.cancelled()):
+                raise RequestError(
+                    f"the cycle took more than {self.timeout:g} s to apply the request; it may still apply"
+                ) from None
+            raise RequestError(
+                f"cycle not running: the request was not applied within {self.timeout:g} s and was withdrawn"
+            ) from None
+
+    # ---- services ---------------------------------------------------------------------------------------------
+    async def _status(self, request: dict[str, Any]) -> Reply:
+        return self.engine.status()
+
+    async def _list_controllers(self, request: dict[str, Any]) -> Reply:
+        return {"controllers": [c.as_dict() for c in self.engine.manager.snapshot]}
+
+    async def _list_interfaces(self, request: dict[str, Any]) -> Reply:
+        return {"interfaces": self.engine.interfaces()}
+
+    async def _list_hardware(self, request: dict[str, Any]) -> Reply:
+        return {"hardware": self.engine.hardware_info()}
+
+    async def _switch(self, request: dict[str, Any]) -> Reply:
+        activate = request.get("activate", [])
+        deactivate = request.get("deactivate", [])
+        strict = request.get("strict", True)
+        if not activate and not deactivate:
+            raise RequestError("nothing to switch: give activate and/or deactivate")
+        if strict:
+            loaded = {c.name for c in self.engine.manager.snapshot}
+            unknown = [n for n in (*activate, *deactivate) if n not in loaded]
+            if unknown:
+                known = ", ".join(sorted(loaded)) or "none"
+                raise RequestError(f"unknown controller(s) {', '.join(map(repr, unknown))} (loaded: {known})")
+        result = await self.on_cycle(lambda: self.engine.switch(activate, deactivate, strict))
+        return result.as_dict()  # carries its own ok/error, plus what was switched
+
+    async def _estop(self, request: dict[str, Any]) -> Reply:
+        # Bypasses the request queue, so a flood of other requests can never delay or refuse an e-stop.
+        return dict(await self.wait_cycle(self.engine.request_estop()))
+
+    async def _reset(self, request: dict[str, Any]) -> Reply:
+        result = dict(await self.on_cycle(self.engine.reset))
+        return {**result, "ok": not result.get("error"), "error": result.get("error") or None}

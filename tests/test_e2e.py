@@ -1,0 +1,163 @@
+"""End to end: ``hild run configs/arm6_twin.yaml`` as a subprocess, talked to only over Zenoh on loopback.
+
+The daemon runs the real-time twin on the wall clock, so every check waits for a condition with a generous
+timeout instead of sleeping a fixed time and hoping.
+"""
+
+from __future__ import annotations
+
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from hild.api.client import HildClient, HildError, HildUnreachable
+from tests.conftest import CONFIGS
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def wait_for(condition: Callable[[], bool], timeout: float, what: str, tick: Callable[[], None] | None = None) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if condition():
+            return
+        if tick:
+            tick()
+        time.sleep(0.01)
+    raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+
+
+class Recorder:
+    """Keeps the messages of one subscription, thread-safely."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.messages: list[dict[str, Any]] = []
+
+    def __call__(self, message: dict[str, Any]) -> None:
+        with self.lock:
+            self.messages.append(message)
+
+    def last(self) -> dict[str, Any] | None:
+        with self.lock:
+            return self.messages[-1] if self.messages else None
+
+    def texts(self) -> list[str]:
+        with self.lock:
+            return [m.get("message", "") for m in self.messages]
+
+
+def connect_when_up(proc: subprocess.Popen[bytes], endpoint: str, log: Path, timeout: float) -> HildClient:
+    """The daemon imports MuJoCo and Zenoh before it listens: retry until it does (or dies)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            return HildClient(robot="arm6", connect=[endpoint], timeout=5.0)
+        except HildUnreachable:
+            if proc.poll() is not None or time.monotonic() > deadline:
+                pytest.fail(f"daemon never came up (exit {proc.poll()}):\n{log.read_text()}")
+            time.sleep(0.2)
+
+
+@pytest.fixture
+def daemon(tmp_path: Path) -> Iterator[tuple[subprocess.Popen[bytes], str, Path]]:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    log = tmp_path / "daemon.log"
+    with log.open("wb") as out:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "hild.cli", "run", str(CONFIGS / "arm6_twin.yaml"), "--listen", endpoint],
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            cwd=tmp_path,
+        )
+    try:
+        yield proc, endpoint, log
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+
+
+def test_daemon_over_zenoh_only(daemon: tuple[subprocess.Popen[bytes], str, Path]) -> None:
+    proc, endpoint, log = daemon
+    with connect_when_up(proc, endpoint, log, timeout=60.0) as arm:
+        arm.wait_alive(timeout=30.0)
+        states, events = Recorder(), Recorder()
+        arm.subscribe("joint_states", states)
+        arm.subscribe("events", events)
+        wait_for(lambda: states.last() is not None, 10.0, "joint_states")
+        sample = states.last()
+        assert sample is not None
+        assert sample["name"] == ["shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3"]
+        assert {"stamp", "seq", "position", "velocity", "effort"} <= set(sample)
+
+        status = arm.status()
+        assert status["ok"] and status["mode"] == "hold"
+        assert all(j["mode"] == "hold" for j in status["joints"])
+        controllers = {c["name"]: c["state"] for c in arm.list_controllers()}
+        assert controllers == {"joint_state_broadcaster": "active", "forward_position": "inactive"}
+
+        # Hold under gravity: a second of joint states stays within a milliradian of the start.
+        start = np.array(sample["position"])
+        time.sleep(1.0)
+        latest = states.last()
+        assert latest is not None
+        assert np.abs(np.array(latest["position"]) - start).max() < 1e-3
+
+        # Activate the forward controller and stream until the arm is at the target.
+        assert arm.switch(activate=["forward_position"])["activated"] == ["forward_position"]
+        target = start + np.array([0.2, 0.0, 0.0, 0.0, 0.0, 0.2])
+
+        def at_target() -> bool:
+            last = states.last()
+            return last is not None and np.abs(np.array(last["position"]) - target).max() < 5e-3
+
+        wait_for(
+            at_target,
+            15.0,
+            "the arm to reach the streamed target",
+            tick=lambda: arm.send("forward_position", target.tolist()),
+        )
+        assert arm.status()["mode"] == "active"
+
+        # Deactivate: the arm stays exactly where it was.
+        assert arm.switch(deactivate=["forward_position"])["deactivated"] == ["forward_position"]
+        at_release = np.array(states.last()["position"])  # type: ignore[index]
+        time.sleep(1.0)
+        assert np.abs(np.array(states.last()["position"]) - at_release).max() < 2e-3  # type: ignore[index]
+        assert all(j["mode"] == "hold" for j in arm.status()["joints"])
+
+        # Bad input: clear errors, nothing moves, the daemon keeps answering.
+        bad = arm.call("switch_controllers", {"activate": "forward_position"}, check=False)
+        assert bad["ok"] is False and bad["error"]
+        with pytest.raises(HildError, match="ghost"):
+            arm.switch(activate=["ghost"])
+        arm.put("forward_position", {"values": "not a list"})
+        wait_for(lambda: any("dropped command" in t for t in events.texts()), 10.0, "a dropped-command event")
+
+        # E-stop, then reset.
+        arm.estop()
+        wait_for(lambda: arm.status()["mode"] == "estop", 10.0, "e-stop")
+        with pytest.raises(HildError, match="e-stop"):
+            arm.switch(activate=["forward_position"])
+        arm.reset()
+        wait_for(lambda: arm.status()["mode"] == "hold", 10.0, "hold after reset")
+
+    # Ctrl-C: hold, release the hardware, exit 0.
+    proc.send_signal(signal.SIGINT)
+    assert proc.wait(20) == 0, log.read_text()
+    text = log.read_text()
+    assert "stopped: hardware released" in text
