@@ -28,7 +28,7 @@ import zenoh
 
 from hild.api.codec import encode
 from hild.api.keys import ALIVE_ANY, Keys, check_chunk, robot_of_alive_key
-from hild.api.session import DEFAULT_CONNECT, client_config, open_session, zenoh_error_text
+from hild.api.session import DEFAULT_CONNECT, client_config, declare_json_publisher, open_session, zenoh_error_text
 
 log = logging.getLogger("hild.api.client")
 
@@ -210,12 +210,8 @@ class HildClient:
         with self._lock:
             publisher = self._publishers.get(key)
             if publisher is None:
-                publisher = self.session.declare_publisher(
-                    key,
-                    encoding=zenoh.Encoding.APPLICATION_JSON,
-                    congestion_control=zenoh.CongestionControl.DROP,
-                    priority=zenoh.Priority.INTERACTIVE_HIGH,
-                    express=True,
+                publisher = declare_json_publisher(
+                    self.session, key, priority=zenoh.Priority.INTERACTIVE_HIGH, express=True
                 )
                 self._publishers[key] = publisher
         publisher.put(encode(payload))

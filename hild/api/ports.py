@@ -23,6 +23,7 @@ import zenoh
 
 from hild.api.codec import MAX_PAYLOAD, PayloadError, decode, encode
 from hild.api.keys import RESERVED, Keys, check_chunk
+from hild.api.session import declare_json_publisher
 from hild.engine import Engine
 from hild.ring import RingReader, SampleRing
 
@@ -146,13 +147,7 @@ class ControllerPorts:
                 topic = self.keys.topic(output_name)
                 if output_name in RESERVED or topic in taken:
                     raise ValueError(f"{topic} is already used")
-                publisher = self.session.declare_publisher(
-                    topic,
-                    encoding=zenoh.Encoding.APPLICATION_JSON,
-                    congestion_control=zenoh.CongestionControl.DROP,
-                    priority=zenoh.Priority.DATA_HIGH,
-                    express=True,
-                )
+                publisher = declare_json_publisher(self.session, topic, priority=zenoh.Priority.DATA_HIGH, express=True)
             except (ValueError, zenoh.ZError) as exc:
                 self.engine.events.emit(
                     "error", "api", f"controller {name}: output {output_name!r} not published: {exc}"

@@ -20,7 +20,7 @@ from hild.api.codec import MAX_PAYLOAD, encode
 from hild.api.keys import SERVICES, Keys
 from hild.api.ports import ControllerPorts, Counters
 from hild.api.services import DEFAULT_TIMEOUT, Reply, Services
-from hild.api.session import open_session, server_config
+from hild.api.session import declare_json_publisher, open_session, server_config
 from hild.config.model import ZenohSection
 from hild.engine import Engine
 from hild.events import Event
@@ -81,11 +81,7 @@ class ApiServer:
 
     def _declare(self, session: zenoh.Session, loop: asyncio.AbstractEventLoop) -> None:
         for name in (self.keys.status, self.keys.events):
-            self._publishers[name] = session.declare_publisher(
-                name,
-                encoding=zenoh.Encoding.APPLICATION_JSON,
-                congestion_control=zenoh.CongestionControl.DROP,
-            )
+            self._publishers[name] = declare_json_publisher(session, name)
         self._ports = ControllerPorts(session, self.engine, self.keys, loop, self.counters)
         self._ports.sync()
         self._last_change = self.engine.change_seq

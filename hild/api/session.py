@@ -83,3 +83,20 @@ def open_session(config: zenoh.Config) -> zenoh.Session:
         return zenoh.open(config)
     except zenoh.ZError as exc:
         raise ConnectionError(zenoh_error_text(exc)) from None
+
+
+def declare_json_publisher(
+    session: zenoh.Session, key: str, priority: zenoh.Priority = zenoh.Priority.DATA, express: bool = False
+) -> zenoh.Publisher:
+    """A JSON publisher that drops under congestion: a slow peer loses samples, it never stalls the sender.
+
+    Every hild publisher is one of these: state, status and events from the daemon, streamed commands from
+    clients (the next command replaces a lost one).
+    """
+    return session.declare_publisher(
+        key,
+        encoding=zenoh.Encoding.APPLICATION_JSON,
+        congestion_control=zenoh.CongestionControl.DROP,
+        priority=priority,
+        express=express,
+    )
