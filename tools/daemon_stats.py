@@ -25,6 +25,7 @@ from typing import Any
 import yaml
 
 from hild.api.client import HildClient, HildUnreachable
+from hild.stats import format_loop_table
 
 
 def free_port() -> int:
@@ -87,18 +88,8 @@ def main() -> int:
     if args.json:
         print(json.dumps(results, indent=2))
         return 0
-    print(
-        f"{'rate':>6} {'cycles':>7} {'dur p50':>8} {'p99':>7} {'p99.9':>7} {'max':>8} "
-        f"{'perr p50':>8} {'p99':>7} {'p99.9':>7} {'max':>8} {'ovr/10k':>8}"
-    )
-    for r in results:
-        d, p = r["duration_us"], r["period_error_us"]
-        per_10k = round(r["overruns"] * 10_000 / max(1, r["cycles"]), 1)
-        print(
-            f"{r['rate_hz']:>6g} {r['cycles']:>7} {d['p50']:>8} {d['p99']:>7} {d['p999']:>7} {d['max']:>8} "
-            f"{p['p50']:>8} {p['p99']:>7} {p['p999']:>7} {p['max']:>8} {per_10k:>8}"
-        )
-    print("(µs, from the daemon's srv/status: the last 10k cycles)")
+    print(format_loop_table(results))
+    print("(from the daemon's srv/status: the last 10k cycles)")
     return 0
 
 

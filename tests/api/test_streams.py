@@ -175,7 +175,7 @@ def test_a_flood_of_garbage_is_rate_limited_and_the_daemon_keeps_answering(daemo
     wait_for(lambda: daemon.server.counters.dropped == 300, what="every garbage sample to be seen")
     assert client.status()["ok"] is True
     reports = daemon.events_with(f"dropped command on {FWD_KEY}")
-    assert 1 <= len(reports) <= 20  # about ten per second, not 300
+    assert 0 < len(reports) <= 20  # about ten per second, not 300
 
 
 def test_close_answers_pending_requests(engine: Engine) -> None:
