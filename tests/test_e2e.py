@@ -161,3 +161,33 @@ def test_daemon_over_zenoh_only(daemon: tuple[subprocess.Popen[bytes], str, Path
     assert proc.wait(20) == 0, log.read_text()
     text = log.read_text()
     assert "stopped: hardware released" in text
+
+
+def test_bad_config_exits_1_with_its_message(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.yaml"
+    bad.write_text((CONFIGS / "rrbot_twin.yaml").read_text().replace("update_rate: 500", "update_rate: fast"))
+    run = subprocess.run(
+        [sys.executable, "-m", "hild.cli", "run", str(bad)], capture_output=True, text=True, timeout=120
+    )
+    assert run.returncode == 1
+    assert "update_rate: expected:" in run.stderr and "found 'fast' (str)" in run.stderr
+
+
+def test_taken_port_releases_the_hardware_and_exits_1(tmp_path: Path) -> None:
+    config = tmp_path / "rrbot.yaml"
+    config.write_text(
+        (CONFIGS / "rrbot_twin.yaml").read_text().replace("model: rrbot.urdf", f"model: {CONFIGS / 'rrbot.urdf'}")
+    )
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        run = subprocess.run(
+            [sys.executable, "-m", "hild.cli", "run", str(config), "--listen", f"tcp/127.0.0.1:{port}"],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+    assert run.returncode == 1, run.stderr
+    assert "cannot open the Zenoh API" in run.stderr
+    assert "stopped: hardware released" in run.stderr
