@@ -27,6 +27,7 @@ from hild.config.loader import LoadedConfig
 from hild.controller import ControllerContext, JointLimitArrays
 from hild.events import EventLog
 from hild.hardware import HardwareComponent, HardwareContext, HardwareError, Lifecycle
+from hild.interfaces import interface_name
 from hild.mailbox import BoundedQueue
 from hild.manager import ControllerManager, SwitchResult
 from hild.stats import LoopStats
@@ -117,10 +118,13 @@ class Engine:
             describe_fault=self._describe_fault,
         )
         self.max_consecutive_overruns = s.max_consecutive_overruns
-        available = [
-            f"{j}/{f}" for slot in self.hardware for j in slot.component.joints for f in slot.component.COMMAND_FIELDS
+        self.available_interfaces = [
+            interface_name(j, f)
+            for slot in self.hardware
+            for j in slot.component.joints
+            for f in sorted(slot.component.COMMAND_FIELDS)
         ]
-        self.manager = ControllerManager(self.joints, available, self.events)
+        self.manager = ControllerManager(self.joints, self.available_interfaces, self.events)
         self.manager.on_claims = self.supervisor.set_claims
         self._requests: BoundedQueue[tuple[Callable[[], Any], concurrent.futures.Future[Any]]] = BoundedQueue(
             REQUEST_QUEUE
@@ -449,12 +453,7 @@ class Engine:
 
     def interfaces(self) -> list[dict[str, Any]]:
         owner_of = {c: info.name for info in self.manager.snapshot if info.state == "active" for c in info.claimed}
-        return [
-            {"name": f"{j}/{f}", "claimed_by": owner_of.get(f"{j}/{f}")}
-            for slot in self.hardware
-            for j in slot.component.joints
-            for f in sorted(slot.component.COMMAND_FIELDS)
-        ]
+        return [{"name": name, "claimed_by": owner_of.get(name)} for name in self.available_interfaces]
 
     def hardware_info(self) -> list[dict[str, Any]]:
         return [

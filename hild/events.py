@@ -7,14 +7,12 @@ it, logs each event once and publishes it. If nobody drains, the oldest events a
 from __future__ import annotations
 
 import logging
-import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
 log = logging.getLogger("hild.events")
 
-LEVELS = ("debug", "info", "warning", "error")
 _LOG_LEVEL = {"debug": logging.DEBUG, "info": logging.INFO, "warning": logging.WARNING, "error": logging.ERROR}
 
 
@@ -24,7 +22,6 @@ class Event:
     level: str
     source: str
     message: str
-    wall: float  # wall clock (UNIX s), for logs
 
     def as_dict(self) -> dict[str, object]:
         return {"stamp": self.stamp, "level": self.level, "source": self.source, "message": self.message}
@@ -35,11 +32,9 @@ class EventLog:
         self._events: deque[Event] = deque(maxlen=capacity)
         self.now: Callable[[], float] = lambda: 0.0  # cycle clock, set by the engine
         self.doorbell: Callable[[], None] = lambda: None
-        self.total = 0
 
     def emit(self, level: str, source: str, message: str) -> None:
-        self._events.append(Event(self.now(), level, source, message, time.time()))
-        self.total += 1
+        self._events.append(Event(self.now(), level, source, message))
         self.doorbell()
 
     def drain(self) -> list[Event]:

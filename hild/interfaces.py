@@ -13,7 +13,6 @@ from dataclasses import dataclass
 import numpy as np
 
 FIELDS = ("position", "velocity", "effort", "kp", "kd")
-MOTION_FIELDS = ("position", "velocity", "effort")
 
 
 class ClaimError(ValueError):
@@ -29,11 +28,6 @@ def parse_interface(name: str) -> tuple[str, str]:
     if not sep or not joint or field not in FIELDS:
         raise ClaimError(f"bad interface name {name!r}: expected '<joint>/<{'|'.join(FIELDS)}>'")
     return joint, field
-
-
-def available_interfaces(joint_fields: Mapping[str, Iterable[str]]) -> list[str]:
-    """All command interfaces, given each joint's fields its hardware supports."""
-    return [interface_name(j, f) for j, fields in joint_fields.items() for f in FIELDS if f in set(fields)]
 
 
 def check_claims(claimant: str, claims: Iterable[str], available: set[str]) -> None:
@@ -57,10 +51,6 @@ class ClaimMasks:
     @classmethod
     def empty(cls, n: int) -> ClaimMasks:
         return cls(np.full(n, -1, dtype=np.int64), *(np.zeros(n, dtype=bool) for _ in FIELDS))
-
-    @property
-    def claimed(self) -> np.ndarray:
-        return self.owner >= 0
 
 
 def build_masks(

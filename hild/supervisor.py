@@ -130,7 +130,6 @@ class Supervisor:
         self._hold_kp, self._hold_kd = gains.hold_kp.tolist(), gains.hold_kd.tolist()
 
         # Per-joint claim view, rebuilt at each switch (set_claims).
-        self._masks = ClaimMasks.empty(n)
         self._owner = [-1] * n
         self._claims: list[tuple[bool, bool, bool, bool, bool]] = [(False,) * 5] * n  # type: ignore[list-item]
         self._default_kp = [0.0] * n
@@ -141,7 +140,7 @@ class Supervisor:
         self._relatch = [False] * n  # latch at the next command(): after reset and e-stop
         self._prev_position = np.zeros(n)
         self._g = np.zeros(n)
-        self.set_claims(self._masks)
+        self.set_claims(ClaimMasks.empty(n))
 
     # ---- configuration (between cycles) -------------------------------------------------------------------
     def start(self, state: JointState) -> None:
@@ -154,7 +153,6 @@ class Supervisor:
 
     def set_claims(self, masks: ClaimMasks) -> None:
         """Recompute per-joint mode defaults from the active claims (called at each switch)."""
-        self._masks = masks
         g = self.gains
         self._owner = masks.owner.tolist()
         self._claims = list(zip(*(getattr(masks, f).tolist() for f in FIELDS), strict=True))

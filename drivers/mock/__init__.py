@@ -38,7 +38,6 @@ class MockHardware(HardwareComponent):
         self.velocity = np.zeros(n)
         self.effort = np.zeros(n)
         self.enabled = False
-        self.writes = 0
         self.last_command = ServoCommand.zeros(n)
         # Fault injection (set from tests; plain attribute writes are atomic under the GIL).
         self.silent = np.zeros(n, dtype=bool)
@@ -66,7 +65,6 @@ class MockHardware(HardwareComponent):
     def write(self, t: float, dt: float, command: ServoCommand) -> None:
         if self.write_error:
             raise HardwareError(self.write_error)
-        self.writes += 1
         self.last_command.copy_from(command)
         if not self.enabled or dt <= 0.0:
             return

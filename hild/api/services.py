@@ -109,11 +109,7 @@ class Services:
     # ---- the cycle hop ------------------------------------------------------------------------------------------
     async def on_cycle(self, action: Callable[[], Any]) -> Any:
         """Run ``action`` between two cycles and return its result, or raise RequestError after ``timeout``."""
-        try:
-            future = self.engine.submit(action)
-        except RequestRejected as exc:
-            raise RequestError(str(exc)) from None
-        return await self.wait_cycle(future)
+        return await self.wait_cycle(self.engine.submit(action))
 
     async def wait_cycle(self, future: concurrent.futures.Future[Any]) -> Any:
         """Await a request the cycle will apply; withdraw it if the cycle does not get to it in time."""

@@ -18,7 +18,7 @@ from pydantic import BaseModel, ValidationError
 from hild import plugins
 from hild.config.model import RobotConfig
 from hild.config.params import Params
-from hild.interfaces import FIELDS, ClaimError, parse_interface
+from hild.interfaces import FIELDS, ClaimError, interface_name, parse_interface
 
 Loc = tuple[str | int, ...]
 _UNION_TYPES = (typing.Union, types.UnionType)
@@ -260,7 +260,7 @@ def _cross_check(loaded: LoadedConfig, file: str, lines: dict[Loc, int], issues:
     available = set()
     for joint, hw_name in owner.items():
         fields = getattr(loaded.driver_classes.get(hw_name), "COMMAND_FIELDS", FIELDS)
-        available.update(f"{joint}/{f}" for f in FIELDS if f in fields)
+        available.update(interface_name(joint, f) for f in FIELDS if f in fields)
 
     autostart_claims: dict[str, str] = {}
     for name, spec in c.controllers.items():

@@ -14,7 +14,6 @@ from pydantic import Field, PositiveFloat, field_validator, model_validator
 
 from hild.config.params import Params
 
-InterfaceKind = Literal["position", "velocity", "effort", "kp", "kd"]
 SafeAction = Literal["hold", "damp", "disable"]
 
 

@@ -16,6 +16,7 @@ import numpy as np
 from hild.arrays import JointState, ServoCommand
 from hild.config.params import Field, Params
 from hild.controller import Controller, ControllerContext
+from hild.interfaces import interface_name
 from hild.mailbox import LatestSlot
 
 
@@ -51,7 +52,7 @@ class ForwardCommandController(Controller):
     @classmethod
     def claims_for(cls, params: Params) -> list[str]:
         assert isinstance(params, ForwardCommandParams)
-        return [f"{j}/{params.interface}" for j in params.joints]
+        return [interface_name(j, params.interface) for j in params.joints]
 
     # ---- asyncio side -------------------------------------------------------------------------------------
     def inputs(self) -> Mapping[str, Callable[[Any], None]]:

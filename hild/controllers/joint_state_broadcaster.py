@@ -15,7 +15,7 @@ from hild.config.params import Field, Params
 from hild.controller import Controller, ControllerContext
 from hild.ring import SampleRing
 
-STATE_FIELDS = ("position", "velocity", "effort")
+PUBLISHED_FIELDS = ("position", "velocity", "effort")
 
 
 class BroadcasterParams(Params):
@@ -27,7 +27,7 @@ class JointStateBroadcaster(Controller):
 
     def __init__(self, context: ControllerContext, params: BroadcasterParams) -> None:
         super().__init__(context, params)
-        self.ring = SampleRing(len(context.joints), STATE_FIELDS)
+        self.ring = SampleRing(len(context.joints), PUBLISHED_FIELDS)
         self._interval = 1.0 / min(params.publish_rate, context.update_rate)
         self._next = 0.0
 
