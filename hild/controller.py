@@ -21,6 +21,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from hild.arrays import JointState, ServoCommand
+from hild.config.model import JointLimits
 from hild.config.params import Params
 from hild.ring import SampleRing
 
@@ -40,6 +41,8 @@ class JointLimitArrays:
     soft_upper: np.ndarray
     velocity: np.ndarray
     effort: np.ndarray
+    acceleration: np.ndarray  # NaN where the config gives none
+    jerk: np.ndarray  # NaN where the config gives none
 
 
 @dataclass(frozen=True)
@@ -82,6 +85,11 @@ class Controller:
     def joints_for(cls, params: Params) -> list[str]:
         """Joints this controller refers to (checked against the robot when the config loads)."""
         return list(getattr(params, "joints", []) or [])
+
+    @classmethod
+    def robot_problems(cls, params: Params, limits: Mapping[str, JointLimits]) -> list[str]:
+        """What this controller needs from the robot's joint limits and does not find (checked at load)."""
+        return []
 
     def claims(self) -> list[str]:
         return self.claims_for(self.params)

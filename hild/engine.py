@@ -148,6 +148,8 @@ class Engine:
             soft_upper=upper - margin,
             velocity=np.array([j.limits.velocity for j in js]),
             effort=np.array([j.limits.effort for j in js]),
+            acceleration=np.array([j.limits.acceleration or np.nan for j in js]),
+            jerk=np.array([j.limits.jerk or np.nan for j in js]),
         )
 
     @staticmethod

@@ -270,6 +270,9 @@ def _cross_check(loaded: LoadedConfig, file: str, lines: dict[Loc, int], issues:
         for i, joint in enumerate(cls.joints_for(params)):
             if joint not in c.joints:
                 report(("controllers", name, "params", "joints", i), f"unknown joint {joint!r}")
+        limits = {joint: section.limits for joint, section in c.joints.items()}
+        for problem in cls.robot_problems(params, limits):
+            report(("controllers", name, "params"), problem)
         for claim in cls.claims_for(params):
             try:
                 joint, _ = parse_interface(claim)

@@ -78,6 +78,12 @@ class JointLimits(Params):
     )
     velocity: PositiveFloat = Field(description="rad/s; also bounds how fast a commanded position may move.")
     effort: PositiveFloat = Field(description="N·m; the predicted drive torque is kept within ±effort.")
+    acceleration: PositiveFloat | None = Field(
+        default=None, description="rad/s²; needed by controllers that plan motion (joint_trajectory, servo)."
+    )
+    jerk: PositiveFloat | None = Field(
+        default=None, description="rad/s³; needed by controllers that plan motion (joint_trajectory, servo)."
+    )
 
     @model_validator(mode="after")
     def _margin_fits(self) -> JointLimits:
