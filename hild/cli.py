@@ -9,6 +9,7 @@ import os
 import sys
 from collections.abc import Sequence
 
+from hild import plugins
 from hild.config import ConfigError, json_schema, load_config
 
 # sd-daemon(3) priority prefixes: journald reads them from stderr and keeps its own timestamps.
@@ -86,6 +87,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_ctl_parser(sub)
     sub.choices["ctl"].set_defaults(func=run_ctl)
+    for register in plugins.commands():  # each calls sub.add_parser(...) and sets its own func
+        register(sub)
     return parser
 
 

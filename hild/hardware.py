@@ -44,6 +44,24 @@ class HardwareContext:
         return 1.0 / self.update_rate
 
 
+@dataclass(frozen=True, slots=True)
+class BusUsage:
+    """Traffic one component puts on a shared medium, so ``hild check`` can add up every component's share."""
+
+    bus: str  # a stable name of the medium, e.g. "socketcan:can0"
+    bits_per_second: float  # worst case (bit stuffing included) at the configured update rate
+    capacity: float  # bits per second the medium carries (nominal bitrate; data phase accounted by the driver)
+    ids: frozenset[int] = frozenset()  # identifiers this component uses on it; overlaps across components are errors
+
+
+@dataclass(frozen=True, slots=True)
+class Finding:
+    """A driver's verdict on its own params, shown by ``hild check``; errors refuse the config."""
+
+    level: str  # "error" | "warning" | "info"
+    message: str
+
+
 class HardwareError(RuntimeError):
     """A component-level failure with a message meant for the operator (bus down, model mismatch, …)."""
 
@@ -66,6 +84,17 @@ class HardwareComponent(abc.ABC):
     @property
     def joints(self) -> tuple[str, ...]:
         return self.context.joints
+
+    # Config review (class level: runs at load, before anything is opened).
+    @classmethod
+    def review(cls, params: Params, joints: Sequence[str], update_rate: float) -> list[Finding]:
+        """Check params against the joints and rate (e.g. overlapping ids); errors refuse the config."""
+        return []
+
+    @classmethod
+    def bus_usage(cls, params: Params, joints: Sequence[str], update_rate: float) -> list[BusUsage]:
+        """The shared media this component loads; the loader sums components per bus (>100 % refused)."""
+        return []
 
     # Lifecycle hooks (non real-time; may block briefly, may raise HardwareError).
     def configure(self) -> None:

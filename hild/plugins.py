@@ -12,6 +12,7 @@ from typing import Any
 
 DRIVERS = "hild.drivers"
 CONTROLLERS = "hild.controllers"
+COMMANDS = "hild.commands"  # extra `hild` sub-commands: a function ``register(subparsers)``
 
 
 class PluginError(LookupError):
@@ -32,3 +33,8 @@ def load(group: str, name: str) -> Any:
         kind = "driver" if group == DRIVERS else "controller type"
         raise PluginError(f"unknown {kind} {name!r} (known: {known})")
     return matches[0].load()
+
+
+def commands() -> list[Any]:
+    """``register(subparsers)`` functions of installed command plugins (e.g. ``hild emulate`` from drivers/can)."""
+    return [ep.load() for ep in sorted(entry_points(group=COMMANDS), key=lambda ep: ep.name)]

@@ -18,6 +18,7 @@ from pydantic import BaseModel, ValidationError
 from hild import plugins
 from hild.config.model import RobotConfig
 from hild.config.params import Params
+from hild.hardware import BusUsage
 from hild.interfaces import FIELDS, ClaimError, interface_name, parse_interface
 
 Loc = tuple[str | int, ...]
@@ -52,6 +53,7 @@ class LoadedConfig:
     driver_params: dict[str, Params] = field(default_factory=dict)
     controller_classes: dict[str, type] = field(default_factory=dict)
     controller_params: dict[str, Params] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)  # warnings and figures for `hild check` (e.g. bus load)
 
     @property
     def directory(self) -> Path:
@@ -73,6 +75,7 @@ class LoadedConfig:
             auto = " (autostart)" if ctl.autostart else ""
             lines.append(f"  controller {name}: {ctl.type}{auto}")
         lines.append(f"  zenoh: {c.zenoh.mode}, listen {c.zenoh.listen or '[]'}, connect {c.zenoh.connect or '[]'}")
+        lines.extend(f"  {note}" for note in self.notes)
         return "\n".join(lines)
 
 
@@ -194,6 +197,7 @@ def load_config(path: str | Path) -> LoadedConfig:
     loaded = LoadedConfig(path=path.resolve(), config=config)
     _load_plugins(loaded, file, lines, issues)
     _cross_check(loaded, file, lines, issues)
+    _review_hardware(loaded, file, lines, issues)
     if issues:
         raise ConfigError(issues)
     return loaded
@@ -292,6 +296,61 @@ def _cross_check(loaded: LoadedConfig, file: str, lines: dict[Loc, int], issues:
                 report(loc, f"unknown controller {fallback!r}")
             elif fallback == name:
                 report(loc, "a controller cannot be its own fallback")
+
+
+BUS_LOAD_WARNING = 0.70
+BUS_LOAD_LIMIT = 1.00
+
+
+def _review_hardware(loaded: LoadedConfig, file: str, lines: dict[Loc, int], issues: list[ConfigIssue]) -> None:
+    """Each driver's own findings, then shared media summed over components: load and identifier overlaps."""
+    c = loaded.config
+    buses: dict[str, list[tuple[str, BusUsage]]] = {}
+    for name, hw in c.hardware.items():
+        cls, params = loaded.driver_classes.get(name), loaded.driver_params.get(name)
+        if cls is None or params is None:
+            continue
+        loc = ("hardware", name, "params")
+        joints = list(hw.joints)
+        for finding in cls.review(params, joints, c.update_rate):
+            if finding.level == "error":
+                issues.append(ConfigIssue(file, _line(lines, loc), _fmt(loc), finding.message))
+            else:
+                loaded.notes.append(f"{finding.level}: hardware {name}: {finding.message}")
+        for usage in cls.bus_usage(params, joints, c.update_rate):
+            buses.setdefault(usage.bus, []).append((name, usage))
+    for bus, users in buses.items():
+        seen: dict[int, str] = {}
+        for name, usage in users:
+            for ident in sorted(usage.ids):
+                if ident in seen and seen[ident] != name:
+                    loc = ("hardware", name, "params")
+                    issues.append(
+                        ConfigIssue(
+                            file,
+                            _line(lines, loc),
+                            _fmt(loc),
+                            f"id {ident:#x} on {bus} is also used by hardware {seen[ident]!r}",
+                        )
+                    )
+                seen.setdefault(ident, name)
+        load = sum(u.bits_per_second for _, u in users) / min(u.capacity for _, u in users)
+        text = f"bus {bus}: worst-case load {load:.0%} at {c.update_rate:g} Hz ({', '.join(n for n, _ in users)})"
+        if load > BUS_LOAD_LIMIT:
+            loc = ("hardware", users[0][0], "params")
+            issues.append(
+                ConfigIssue(
+                    file,
+                    _line(lines, loc),
+                    _fmt(loc),
+                    f"{text}: over 100 %, frames would be "
+                    "late every cycle; lower update_rate or split the motors over more buses",
+                )
+            )
+        elif load > BUS_LOAD_WARNING:
+            loaded.notes.append(f"warning: {text}: above {BUS_LOAD_WARNING:.0%}, little headroom for retries")
+        else:
+            loaded.notes.append(text)
 
 
 def json_schema() -> dict[str, Any]:
