@@ -1,0 +1,5 @@
+"""Trajectory math and jerk-limited planning for the trajectory controllers.
+
+A pure library: no daemon, no threads. ``segments`` and ``trajectory`` are plain numpy and cheap to sample on the
+cycle thread; ``planning`` is the one module that talks to ruckig.
+"""
