@@ -20,6 +20,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from hild.action import ActionServer
 from hild.arrays import JointState, ServoCommand
 from hild.config.model import JointLimits
 from hild.config.params import Params
@@ -112,6 +113,10 @@ class Controller:
     def inputs(self) -> Mapping[str, Callable[[Any], None]]:
         """Named command inputs (asyncio side). Each raises ValueError with a reason on bad input."""
         return {}
+
+    def action_server(self) -> ActionServer[Any] | None:
+        """The goal endpoint (``goal``/``cancel``/``result``/``feedback`` keys) of controllers that run goals."""
+        return None
 
     def outputs(self) -> Mapping[str, SampleRing]:
         """Named outputs the API publishes; the key is ``hild/<robot>/<name>``."""

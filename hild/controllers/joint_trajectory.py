@@ -1,0 +1,359 @@
+"""joint_trajectory: executes timed and untimed trajectories and move_to goals, jump-free.
+
+At parity with ros2_controllers' JointTrajectoryController where it makes sense, and stricter where its users
+get hurt: every new goal starts from the current *desired* state (no jump on activation or preemption), a
+cancel or an abort decelerates jerk-limited to a stop instead of freezing the command, and a trajectory that
+ends while still moving gets a stop appended.
+
+Joints are driven by *tracks*: a trajectory, its start time and the joints it still owns. A full goal replaces
+every track; a partial goal (``allow_partial_joints_goal``) takes its joints and leaves the others to their
+current motion (``continue``) or brings them to a stop (``stop``). Joints without a track hold their desired
+position. Goal bookkeeping lives in :class:`~hild.action.ActionServer`; this module only executes.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+
+from hild.action import ActionServer, CancelRequest, ErrorCode, GoalRejected, GoalRequest, GoalStatus
+from hild.arrays import JointState, ServoCommand
+from hild.config.model import JointLimits
+from hild.config.params import Field, Params, model_validator
+from hild.controller import Controller, ControllerContext
+from hild.controllers.trajectory_goals import GoalContext, PreparedGoal, parse_goal
+from hild.interfaces import interface_name
+from hild.motion.limits import KinematicLimits
+from hild.motion.planning import PlanningError, plan_stop
+from hild.motion.trajectory import Trajectory
+
+INTERFACE_SETS = (("position",), ("position", "velocity"), ("effort",))
+PLAN_MARGIN = 1.0 - 1e-6  # ruckig plans exactly at the limits; stay a hair inside so the supervisor never clamps
+
+
+class JointConstraint(Params):
+    trajectory: float = Field(default=0.0, ge=0.0, description="Path position tolerance (rad); 0 = not checked.")
+    goal: float = Field(default=0.0, ge=0.0, description="Goal position tolerance (rad); 0 = not checked.")
+    trajectory_velocity: float = Field(default=0.0, ge=0.0, description="Path velocity tolerance; 0 = not checked.")
+
+
+class Constraints(Params):
+    goal_time: float = Field(
+        default=1.0, gt=0.0, description="s after the trajectory's end to get within the goal tolerance."
+    )
+    stopped_velocity_tolerance: float = Field(
+        default=0.01, ge=0.0, description="rad/s; at the goal every joint must move slower than this (0 = unchecked)."
+    )
+    joints: dict[str, JointConstraint] = Field(default_factory=dict)
+
+
+class PidGains(Params):
+    p: float = Field(ge=0.0)
+    i: float = Field(default=0.0, ge=0.0)
+    d: float = Field(default=0.0, ge=0.0)
+    i_clamp: float = Field(default=0.0, ge=0.0, description="Bound of the integral term (N·m).")
+    ff_velocity_scale: float = Field(default=0.0, description="Desired velocity × this is added to the effort.")
+
+
+class JointTrajectoryParams(Params):
+    joints: list[str] = Field(min_length=1)
+    command_interfaces: list[Literal["position", "velocity", "effort"]] = Field(
+        default_factory=lambda: ["position", "velocity"],
+        description="[position], [position, velocity] (velocity as feed-forward) or [effort] (PID).",
+    )
+    allow_partial_joints_goal: bool = False
+    partial_goal_other_joints: Literal["continue", "stop"] = Field(
+        default="continue", description="Joints a partial goal leaves out keep their current motion, or stop."
+    )
+    constraints: Constraints = Field(default_factory=Constraints)
+    gains: dict[str, PidGains] = Field(default_factory=dict, description="Per joint, for the effort interface.")
+    feedback_rate: float = Field(default=25.0, gt=0.0, description="Hz of the feedback topic while a goal runs.")
+    velocity_scale: float = Field(default=1.0, gt=0.0, le=1.0, description="Of the joints' limits, for planning.")
+    acceleration_scale: float = Field(default=1.0, gt=0.0, le=1.0, description="Jerk scales with it.")
+    start_tolerance: float = Field(
+        default=0.01, gt=0.0, description="A first point at time 0 must be this close to the current position."
+    )
+
+    @model_validator(mode="after")
+    def _consistent(self) -> JointTrajectoryParams:
+        if tuple(self.command_interfaces) not in INTERFACE_SETS:
+            raise ValueError(f"command_interfaces must be one of {[list(s) for s in INTERFACE_SETS]}")
+        if len(set(self.joints)) != len(self.joints):
+            raise ValueError(f"joints listed twice in {self.joints}")
+        for what, names in (("constraints.joints", self.constraints.joints), ("gains", self.gains)):
+            unknown = sorted(set(names) - set(self.joints))
+            if unknown:
+                raise ValueError(f"{what} names joints {unknown} that are not in joints")
+        if self.command_interfaces == ["effort"]:
+            missing = [j for j in self.joints if j not in self.gains]
+            if missing:
+                raise ValueError(f"the effort interface needs gains for {missing}")
+        return self
+
+
+@dataclass
+class Track:
+    """A trajectory over some of the controller's joints; ``owned`` shrinks as later goals take joints."""
+
+    trajectory: Trajectory
+    t0: float
+    cols: np.ndarray  # the trajectory's columns → controller joints
+    owned: np.ndarray  # bool per trajectory column
+    p: np.ndarray
+    v: np.ndarray
+    a: np.ndarray
+
+    @classmethod
+    def of(cls, trajectory: Trajectory, t0: float, cols: np.ndarray) -> Track:
+        n = len(cols)
+        return cls(trajectory, t0, cols, np.ones(n, dtype=bool), np.zeros(n), np.zeros(n), np.zeros(n))
+
+    def sample(self, t: float, pd: np.ndarray, vd: np.ndarray, ad: np.ndarray) -> None:
+        self.trajectory.sample(t - self.t0, self.p, self.v, self.a)
+        cols = self.cols[self.owned]
+        pd[cols], vd[cols], ad[cols] = self.p[self.owned], self.v[self.owned], self.a[self.owned]
+
+    def finished(self, t: float) -> bool:
+        return self.trajectory.finished(t - self.t0)
+
+
+class JointTrajectoryController(Controller):
+    Params = JointTrajectoryParams
+
+    def __init__(self, context: ControllerContext, params: JointTrajectoryParams) -> None:
+        super().__init__(context, params)
+        self.index = context.index_of(params.joints)
+        n = len(self.index)
+        self.goal_context = self._goal_context(params, context)
+        self.limits = self.goal_context.limits
+        self.interfaces = tuple(params.command_interfaces)
+        self.pd, self.vd, self.ad = np.zeros(n), np.zeros(n), np.zeros(n)
+        self.tracks: list[Track] = []
+        self.goal: GoalRequest[PreparedGoal] | None = None
+        self.goal_track: Track | None = None
+        self.canceling = False
+        self.active = False
+        self._feedback_interval = 1.0 / min(params.feedback_rate, context.update_rate)
+        self._next_feedback = 0.0
+        self._q = np.zeros(n)
+        self._qd = np.zeros(n)
+        gains = [params.gains.get(j) for j in params.joints]
+        self._pid = {k: np.array([getattr(g, k) if g else 0.0 for g in gains]) for k in ("p", "i", "d", "i_clamp")}
+        self._ff_velocity = np.array([g.ff_velocity_scale if g else 0.0 for g in gains])
+        self._integral = np.zeros(n)
+        self.action: ActionServer[PreparedGoal] = ActionServer(
+            params.joints, self._parse, self._accepting, context.notify
+        )
+
+    @staticmethod
+    def _goal_context(params: JointTrajectoryParams, context: ControllerContext) -> GoalContext:
+        idx = context.index_of(params.joints)
+        limits = context.limits
+        per_joint = [params.constraints.joints.get(j, JointConstraint()) for j in params.joints]
+        return GoalContext(
+            joints=tuple(params.joints),
+            soft_lower=limits.soft_lower[idx],
+            soft_upper=limits.soft_upper[idx],
+            limits=KinematicLimits(limits.velocity[idx], limits.acceleration[idx], limits.jerk[idx]).scaled(
+                params.velocity_scale * PLAN_MARGIN, params.acceleration_scale * PLAN_MARGIN
+            ),
+            allow_partial=params.allow_partial_joints_goal,
+            path_position=np.array([c.trajectory for c in per_joint]),
+            path_velocity=np.array([c.trajectory_velocity for c in per_joint]),
+            goal_position=np.array([c.goal for c in per_joint]),
+            goal_velocity=np.full(len(per_joint), params.constraints.stopped_velocity_tolerance),
+            goal_time=params.constraints.goal_time,
+            start_tolerance=params.start_tolerance,
+        )
+
+    # ---- contract ----------------------------------------------------------------------------------------------
+    @classmethod
+    def claims_for(cls, params: Params) -> list[str]:
+        assert isinstance(params, JointTrajectoryParams)
+        return [interface_name(j, f) for j in params.joints for f in params.command_interfaces]
+
+    @classmethod
+    def robot_problems(cls, params: Params, limits: Mapping[str, JointLimits]) -> list[str]:
+        assert isinstance(params, JointTrajectoryParams)
+        return [
+            f"joint {j} has no limits.{kind}: joint_trajectory plans moves and stops with it"
+            for j in params.joints
+            if j in limits
+            for kind in ("acceleration", "jerk")
+            if getattr(limits[j], kind) is None
+        ]
+
+    def action_server(self) -> ActionServer[PreparedGoal]:
+        return self.action
+
+    # ---- asyncio side --------------------------------------------------------------------------------------------
+    def _accepting(self) -> str | None:
+        return None if self.active else f"controller {self.name} is not active"
+
+    def _parse(self, payload: Any) -> PreparedGoal:
+        return parse_goal(payload, self.goal_context)
+
+    # ---- cycle side ----------------------------------------------------------------------------------------------
+    def on_activate(self, state: JointState, last_command: ServoCommand) -> None:
+        """Hold where the joints are: the first goal starts from here."""
+        self.pd[:] = state.position[self.index]
+        self.vd[:] = 0.0
+        self.ad[:] = 0.0
+        self.tracks.clear()
+        self.goal, self.goal_track, self.canceling = None, None, False
+        self._integral[:] = 0.0
+        self._next_feedback = 0.0
+        self.active = True
+
+    def on_deactivate(self) -> None:
+        self.active = False
+        if self.goal is not None:
+            self._finish(GoalStatus.ABORTED, ErrorCode.INVALID_GOAL, "the controller was deactivated")
+        while (request := self.action.requests.poll()) is not None:
+            if isinstance(request, GoalRequest):
+                self.action.finish(
+                    request.goal_id, GoalStatus.ABORTED, ErrorCode.INVALID_GOAL, "the controller was deactivated"
+                )
+        self.tracks.clear()
+
+    def update(self, t: float, dt: float, state: JointState, command: ServoCommand) -> None:
+        if len(self.action.requests):
+            self._take_requests(t)
+        for track in self.tracks:
+            track.sample(t, self.pd, self.vd, self.ad)
+        q, qd = self._q, self._qd
+        np.take(state.position, self.index, out=q)
+        np.take(state.velocity, self.index, out=qd)
+        if self.goal is not None:
+            self._supervise_goal(t, q, qd)
+            if self.goal is not None and t + 1e-9 >= self._next_feedback:
+                self._feedback(t, q, qd)
+        self._write(dt, q, qd, command)
+
+    # ---- goals ---------------------------------------------------------------------------------------------------
+    def _take_requests(self, t: float) -> None:
+        while (request := self.action.requests.poll()) is not None:
+            if isinstance(request, CancelRequest):
+                if self.goal is not None and request.goal_id == self.goal.goal_id and not self.canceling:
+                    self.canceling = True
+                    self._stop(self.goal.goal.cols, t)
+                    self.goal_track = self.tracks[-1]
+            else:
+                self._adopt(request, t)
+
+    def _adopt(self, request: GoalRequest[PreparedGoal], t: float) -> None:
+        goal = request.goal
+        cols = goal.cols
+        try:
+            trajectory = goal.trajectory(self.pd[cols], self.vd[cols], self.ad[cols])
+        except (GoalRejected, PlanningError) as exc:
+            self.action.finish(request.goal_id, GoalStatus.ABORTED, ErrorCode.INVALID_GOAL, str(exc))
+            return
+        if self.goal is not None:
+            self._finish(GoalStatus.PREEMPTED, ErrorCode.SUCCESSFUL, f"preempted by goal {request.goal_id}")
+        self._release(cols)
+        if self.params.partial_goal_other_joints == "stop" and len(cols) < len(self.index):
+            others = np.setdiff1d(np.arange(len(self.index)), cols)
+            self._stop(others, t)
+        track = Track.of(trajectory, t, cols)
+        self.tracks.append(track)
+        self.goal, self.goal_track, self.canceling = request, track, False
+        self._next_feedback = t
+
+    def _supervise_goal(self, t: float, q: np.ndarray, qd: np.ndarray) -> None:
+        assert self.goal is not None and self.goal_track is not None
+        track, tol = self.goal_track, self.goal.goal.tolerances
+        cols = self.goal.goal.cols
+        if self.canceling:
+            if track.finished(t):
+                self._finish(GoalStatus.CANCELED, ErrorCode.SUCCESSFUL, "canceled; stopped and holding")
+            return
+        error = np.abs(self.pd[cols] - q[cols])
+        if not track.finished(t):
+            bad = (tol.path_position > 0.0) & (error > tol.path_position)
+            vbad = (tol.path_velocity > 0.0) & (np.abs(self.vd[cols] - qd[cols]) > tol.path_velocity)
+            if bad.any() or vbad.any():
+                j = int(np.flatnonzero(bad | vbad)[0])
+                name = self.params.joints[cols[j]]
+                what = (
+                    f"position error {error[j]:.4g} rad > {tol.path_position[j]:g}"
+                    if bad[j]
+                    else f"velocity error {abs(self.vd[cols[j]] - qd[cols[j]]):.4g} rad/s > {tol.path_velocity[j]:g}"
+                )
+                self._abort(t, ErrorCode.PATH_TOLERANCE_VIOLATED, f"path tolerance violated on {name}: {what}")
+            return
+        off = (tol.goal_position > 0.0) & (error > tol.goal_position)
+        moving = (tol.goal_velocity > 0.0) & (np.abs(qd[cols]) > tol.goal_velocity)
+        if not (off.any() or moving.any()):
+            self._finish(GoalStatus.SUCCEEDED, ErrorCode.SUCCESSFUL, "")
+            return
+        late = t - track.t0 - track.trajectory.duration
+        if late > tol.goal_time:
+            j = int(np.flatnonzero(off | moving)[0])
+            name = self.params.joints[cols[j]]
+            detail = f"position error {error[j]:.4g} rad" if off[j] else f"still moving at {abs(qd[cols[j]]):.4g} rad/s"
+            self._abort(
+                t,
+                ErrorCode.GOAL_TOLERANCE_VIOLATED,
+                f"goal tolerance violated on {name} {tol.goal_time:g} s after the end: {detail}",
+            )
+
+    def _abort(self, t: float, code: ErrorCode, reason: str) -> None:
+        assert self.goal is not None
+        cols = self.goal.goal.cols
+        self._finish(GoalStatus.ABORTED, code, reason)
+        self.context.emit_event("warning", f"goal aborted: {reason}; decelerating to a stop")
+        self._stop(cols, t)
+
+    def _finish(self, status: GoalStatus, code: int, text: str) -> None:
+        assert self.goal is not None
+        self.action.finish(self.goal.goal_id, status, code, text)
+        self.goal, self.goal_track, self.canceling = None, None, False
+
+    def _release(self, cols: np.ndarray) -> None:
+        """Take ``cols`` away from the tracks that drive them; drop tracks left with nothing."""
+        taken = np.zeros(len(self.index), dtype=bool)
+        taken[cols] = True
+        for track in self.tracks:
+            track.owned &= ~taken[track.cols]
+        self.tracks = [track for track in self.tracks if track.owned.any()]
+
+    def _stop(self, cols: np.ndarray, t: float) -> None:
+        """Decelerate ``cols`` jerk-limited from their desired state to rest; they hold where they stop."""
+        segment = plan_stop(self.pd[cols], self.vd[cols], self.ad[cols], self.limits.subset(cols))
+        self._release(cols)
+        self.tracks.append(Track.of(Trajectory([segment], len(cols)), t, cols))
+
+    def _feedback(self, t: float, q: np.ndarray, qd: np.ndarray) -> None:
+        assert self.goal is not None
+        self._next_feedback += self._feedback_interval
+        if self._next_feedback <= t:
+            self._next_feedback = t + self._feedback_interval
+        ring = self.action.feedback
+        i = ring.slot()
+        data = ring.data
+        data["desired_positions"][i] = self.pd
+        data["desired_velocities"][i] = self.vd
+        data["actual_positions"][i] = q
+        data["actual_velocities"][i] = qd
+        data["serial"][i, 0] = self.goal.serial
+        ring.commit(t)
+        self.context.notify()
+
+    # ---- command -------------------------------------------------------------------------------------------------
+    def _write(self, dt: float, q: np.ndarray, qd: np.ndarray, command: ServoCommand) -> None:
+        idx = self.index
+        if self.interfaces[0] == "effort":
+            error = self.pd - q
+            self._integral += self._pid["i"] * error * dt
+            np.clip(self._integral, -self._pid["i_clamp"], self._pid["i_clamp"], out=self._integral)
+            effort = self._pid["p"] * error + self._integral + self._pid["d"] * (self.vd - qd)
+            command.effort[idx] = effort + self._ff_velocity * self.vd
+        else:
+            command.position[idx] = self.pd
+            if "velocity" in self.interfaces:
+                command.velocity[idx] = self.vd
+        command.written[idx] = True
