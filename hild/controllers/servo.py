@@ -1,0 +1,369 @@
+"""servo: follows a stream of targets (teleop, AI policies) with ruckig online tracking.
+
+Streamed targets arrive at the client's rate, with jitter, gaps and noise. Forwarding them would hand that
+roughness to the arm (ros2_controllers #1594, #1579); here ruckig plans from the current desired state
+``(p, v, a)`` to the latest target every time one arrives and steps that plan every cycle, so the command stays
+within the joints' velocity, acceleration and jerk limits whatever the stream does. Silence is safe: after
+``command_timeout`` (cycle clock) the joints brake, jerk-limited, to a stop and hold there.
+
+Phases: ``HOLD`` (at rest: before the first target and after a stop) → ``TRACK`` (ruckig position control
+toward the latest target) → ``CRUISE`` (a target with velocities was reached: keep its velocity until the next
+target, braking per joint in time for the soft limits) → ``STOP`` (ruckig velocity control to rest on timeout or
+planning error) → ``HOLD``. The asyncio side validates and clamps targets; the cycle only copies them into
+ruckig and steps it. The ruckig bindings return fresh lists, so a cycle costs a few small lists; nothing else.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+import sys
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+from ruckig import ControlInterface, InputParameter, OutputParameter, Result, Ruckig, RuckigError, Synchronization
+
+from hild.arrays import JointState, ServoCommand
+from hild.config.model import JointLimits
+from hild.config.params import Field, Params, model_validator
+from hild.controller import Controller, ControllerContext
+from hild.interfaces import interface_name
+from hild.mailbox import LatestSlot
+
+# Plan a hair inside the limits, so rounding in ruckig's profiles never trips the supervisor's velocity, slew
+# or soft position limits (which compare with no tolerance and would report a limit that is not really hit).
+VELOCITY_MARGIN = 1e-6  # relative
+POSITION_MARGIN = 1e-6  # rad
+# A new clamping event only after this long (cycle clock) without a clamped target: one event per episode.
+CLAMP_EVENT_QUIET = 1.0  # s
+# Cycles of travel allowed for when deciding to brake before a soft limit (one cycle may run late).
+BRAKE_LOOKAHEAD_CYCLES = 2.0
+
+ALLOWED_INTERFACES = ({"position"}, {"position", "velocity"})
+
+
+class ServoParams(Params):
+    joints: list[str] = Field(min_length=1, description="Joints commanded, in the order of the target values.")
+    command_interfaces: list[Literal["position", "velocity"]] = Field(
+        default_factory=lambda: ["position", "velocity"],
+        description="[position, velocity] (planned velocity as feed-forward) or [position].",
+    )
+    command_timeout: float = Field(
+        default=0.5, gt=0.0, description="Seconds without a target after which the joints brake to a stop and hold."
+    )
+    velocity_scale: float = Field(default=1.0, gt=0.0, le=1.0, description="Fraction of the joints' velocity limits.")
+    acceleration_scale: float = Field(
+        default=1.0, gt=0.0, le=1.0, description="Fraction of the acceleration limits; jerk scales with it."
+    )
+
+    @model_validator(mode="after")
+    def _consistent(self) -> ServoParams:
+        if len(set(self.joints)) != len(self.joints):
+            raise ValueError(f"joints listed twice in {self.joints}")
+        kinds = set(self.command_interfaces)
+        if len(kinds) != len(self.command_interfaces) or kinds not in ALLOWED_INTERFACES:
+            raise ValueError(f"command_interfaces must be [position, velocity] or [position], not {kinds}")
+        return self
+
+
+class Phase(enum.IntEnum):
+    HOLD = 0
+    TRACK = 1
+    CRUISE = 2
+    STOP = 3
+
+
+@dataclass(frozen=True, slots=True)
+class ServoTarget:
+    """A validated target, ready for ruckig (plain lists: the bindings copy them without numpy overhead)."""
+
+    positions: list[float]
+    velocities: list[float]  # zeros when the client gave none
+    moving: bool  # some velocity is non-zero: keep going once reached
+    clamped: str  # what was clamped, "" if nothing: the cycle reports it once per clamping episode
+
+
+def stopping_distance(speed: float, acceleration: float, jerk: float) -> float:
+    """Distance to brake from ``speed`` (at zero acceleration) to rest, jerk-limited and time-optimal.
+
+    The velocity profile of such a stop is point-symmetric about its middle, so the distance is speed·T/2.
+    """
+    if speed * jerk <= acceleration * acceleration:  # never reaches full deceleration
+        return speed * math.sqrt(speed / jerk)
+    return 0.5 * speed * (speed / acceleration + acceleration / jerk)
+
+
+def speed_to_stop_within(distance: float, acceleration: float, jerk: float) -> float:
+    """The highest speed (at zero acceleration) that ``stopping_distance`` brings to rest within ``distance``."""
+    if distance <= 0.0:
+        return 0.0
+    if distance * jerk * jerk <= acceleration**3:
+        return (distance * distance * jerk) ** (1.0 / 3.0)
+    ratio = acceleration * acceleration / (2.0 * jerk)
+    return -ratio + math.sqrt(ratio * ratio + 2.0 * distance * acceleration)
+
+
+class ServoController(Controller):
+    Params = ServoParams
+
+    def __init__(self, context: ControllerContext, params: ServoParams) -> None:
+        super().__init__(context, params)
+        self._index = context.index_of(params.joints)
+        n = len(self._index)
+        lim = context.limits
+        missing = [
+            j
+            for j, k in zip(params.joints, self._index, strict=True)
+            if not _positive(lim.acceleration[k], lim.jerk[k])
+        ]
+        if missing:
+            raise ValueError(f"{context.name}: servo needs limits.acceleration and limits.jerk for joints {missing}")
+        first = int(self._index[0])
+        contiguous = bool((np.diff(self._index) == 1).all())
+        self._where: slice | np.ndarray = slice(first, first + n) if contiguous else self._index
+        self._writes_velocity = "velocity" in params.command_interfaces
+        self._period = 1.0 / context.update_rate
+
+        # Per-joint constants as Python floats: the per-cycle braking check reads them without numpy overhead.
+        self._vlimit = (lim.velocity[self._index] * params.velocity_scale).tolist()  # what clients are told
+        self._vmax = [v * (1.0 - VELOCITY_MARGIN) for v in self._vlimit]  # what ruckig plans with
+        self._amax = (lim.acceleration[self._index] * params.acceleration_scale).tolist()
+        self._jmax = (lim.jerk[self._index] * params.acceleration_scale).tolist()
+        self._soft_lower, self._soft_upper = lim.soft_lower[self._index].tolist(), lim.soft_upper[self._index].tolist()
+        self._lo = [p + POSITION_MARGIN for p in self._soft_lower]
+        self._hi = [p - POSITION_MARGIN for p in self._soft_upper]
+        self._lookahead = BRAKE_LOOKAHEAD_CYCLES * self._period
+
+        self._slot: LatestSlot[ServoTarget] = LatestSlot()
+        self._zeros = [0.0] * n
+        self._otg: Ruckig | None = None
+        self._inp = InputParameter(n)
+        self._out = OutputParameter(n)
+        self._p: list[float] = list(self._zeros)  # desired state written each cycle
+        self._v: list[float] = self._zeros
+        self._cruise_velocity = list(self._zeros)  # per-joint target velocity while cruising (0 once braking)
+        self._moving = False
+        self.phase = Phase.HOLD
+        self._last_target = -math.inf
+        self._last_clamp = -math.inf
+        self.active = False
+
+    @classmethod
+    def claims_for(cls, params: Params) -> list[str]:
+        assert isinstance(params, ServoParams)
+        return [interface_name(j, f) for j in params.joints for f in params.command_interfaces]
+
+    @classmethod
+    def robot_problems(cls, params: Params, limits: Mapping[str, JointLimits]) -> list[str]:
+        assert isinstance(params, ServoParams)
+        return [
+            f"servo needs limits.acceleration and limits.jerk for joint {j} to plan its motion"
+            for j in params.joints
+            if j in limits and (limits[j].acceleration is None or limits[j].jerk is None)
+        ]
+
+    def on_configure(self) -> None:
+        inp = self._inp
+        self._otg = Ruckig(len(self._index), self._period)
+        inp.max_velocity = self._vmax
+        inp.max_acceleration = self._amax
+        inp.max_jerk = self._jmax
+        inp.target_acceleration = self._zeros
+
+    def on_cleanup(self) -> None:
+        self._otg = None
+
+    # ---- asyncio side -------------------------------------------------------------------------------------
+    def inputs(self) -> Mapping[str, Callable[[Any], None]]:
+        return {"target": self.accept}
+
+    def accept(self, payload: Any) -> None:
+        """Validate ``{"positions": [...], "velocities"?: [...]}`` (controller joint order), clamp, hand over."""
+        if not self.active:
+            raise ValueError(f"controller {self.name} is not active")
+        if not isinstance(payload, dict):
+            raise ValueError('expected an object {"positions": [...], "velocities"?: [...]}')
+        unknown = sorted(str(k) for k in set(payload) - {"positions", "velocities"})
+        if unknown:
+            raise ValueError(f"unknown keys {unknown}; expected positions and optional velocities")
+        if "positions" not in payload:
+            raise ValueError("missing positions")
+        positions = self._numbers(payload["positions"], "positions")
+        given = payload.get("velocities")
+        velocities = self._numbers(given, "velocities") if given is not None else list(self._zeros)
+        clamped = self._clamp(positions, velocities)
+        moving = any(v != 0.0 for v in velocities)
+        note = "target clamped: " + "; ".join(clamped) if clamped else ""
+        self._slot.put(ServoTarget(positions, velocities, moving, note))
+
+    def _numbers(self, values: Any, what: str) -> list[float]:
+        joints = self.params.joints
+        if not isinstance(values, list):
+            raise ValueError(f"{what} must be a list of {len(joints)} numbers, not {type(values).__name__}")
+        if len(values) != len(joints):
+            raise ValueError(f"expected {len(joints)} {what} for {joints}; found {len(values)}")
+        for i, v in enumerate(values):
+            if isinstance(v, bool):
+                raise ValueError(f"{what}[{i}] ({joints[i]}) is a boolean; expected a number")
+            if not isinstance(v, int | float):
+                raise ValueError(f"{what}[{i}] ({joints[i]}) is not a number: {v!r}")
+            if not -_FLOAT_MAX <= v <= _FLOAT_MAX:  # NaN and inf fail; so do ints too big for a float
+                shown = v if isinstance(v, float) else "an integer beyond the float range"
+                raise ValueError(f"{what}[{i}] ({joints[i]}) must be finite, not {shown}")
+        return [float(v) for v in values]
+
+    def _clamp(self, positions: list[float], velocities: list[float]) -> list[str]:
+        """Clamp in place to the soft limits and the (scaled) velocity limits; say what was changed.
+
+        Values within the limits but inside the planning margins are pulled in silently: nothing to report.
+        A velocity pointing at a nearby soft limit is also reduced to one the joint can still brake from before
+        the limit once the target is reached: the dead reckoning that follows must never cross it.
+        """
+        notes = []
+        for i, joint in enumerate(self.params.joints):
+            p, v, lo, hi, vmax = positions[i], velocities[i], self._lo[i], self._hi[i], self._vmax[i]
+            if not lo <= p <= hi:
+                positions[i] = min(max(p, lo), hi)
+                if not self._soft_lower[i] <= p <= self._soft_upper[i]:
+                    notes.append(f"{joint} position {p:.4g} → {positions[i]:.4g} (soft limit)")
+            if abs(v) > vmax:
+                velocities[i] = math.copysign(vmax, v)
+                if abs(v) > self._vlimit[i]:
+                    notes.append(f"{joint} velocity {v:.4g} → {velocities[i]:.4g} (velocity limit)")
+            v = velocities[i]
+            if v != 0.0:
+                room = (hi - positions[i] if v > 0.0 else positions[i] - lo) - vmax * self._lookahead
+                safe = speed_to_stop_within(room, self._amax[i], self._jmax[i])
+                if abs(v) > safe:
+                    velocities[i] = math.copysign(safe, v)
+                    notes.append(f"{joint} velocity {v:.4g} → {velocities[i]:.4g} (to stop before the soft limit)")
+        return notes
+
+    # ---- cycle side ---------------------------------------------------------------------------------------
+    def on_activate(self, state: JointState, last_command: ServoCommand) -> None:
+        """Start at rest where the joints are (where a reading is missing, at the last command): no jump."""
+        q = state.position[self._index]
+        start = np.where(np.isfinite(q), q, last_command.position[self._index]).tolist()
+        self._hold_at(start)
+        self._slot.clear()
+        self._last_target = -math.inf
+        self._last_clamp = -math.inf
+        self.active = True
+
+    def on_deactivate(self) -> None:
+        self.active = False
+
+    def update(self, t: float, dt: float, state: JointState, command: ServoCommand) -> None:
+        target = self._slot.take()
+        if target is not None:
+            self._track(t, target)
+        elif self.phase in (Phase.TRACK, Phase.CRUISE) and t - self._last_target > self.params.command_timeout:
+            self.context.emit_event(
+                "warning", f"no target for {self.params.command_timeout:g} s: stopping, then holding"
+            )
+            self._stop()
+        if self.phase == Phase.CRUISE:
+            self._brake_before_soft_limits()
+        if self.phase != Phase.HOLD:
+            self._step(dt)
+        command.position[self._where] = self._p
+        if self._writes_velocity:
+            command.velocity[self._where] = self._v
+        command.written[self._where] = True
+
+    def _track(self, t: float, target: ServoTarget) -> None:
+        inp = self._inp
+        inp.control_interface = ControlInterface.Position
+        inp.synchronization = Synchronization.Time
+        inp.target_position = target.positions
+        inp.target_velocity = target.velocities
+        self._cruise_velocity[:] = target.velocities
+        self._moving = target.moving
+        self._last_target = t
+        self.phase = Phase.TRACK
+        if target.clamped:
+            if t - self._last_clamp >= CLAMP_EVENT_QUIET:
+                self.context.emit_event("warning", target.clamped)
+            self._last_clamp = t
+
+    def _cruise(self) -> None:
+        inp = self._inp
+        inp.control_interface = ControlInterface.Velocity
+        inp.synchronization = Synchronization.No
+        inp.target_velocity = self._cruise_velocity
+        self.phase = Phase.CRUISE
+
+    def _stop(self) -> None:
+        inp = self._inp
+        inp.control_interface = ControlInterface.Velocity
+        inp.synchronization = Synchronization.No
+        inp.target_velocity = self._zeros
+        self.phase = Phase.STOP
+
+    def _hold_at(self, position: list[float]) -> None:
+        inp = self._inp
+        inp.current_position = position
+        inp.current_velocity = self._zeros
+        inp.current_acceleration = self._zeros
+        self._p, self._v = position, self._zeros
+        self.phase = Phase.HOLD
+        if self._otg is not None:
+            self._otg.reset()
+
+    def _brake_before_soft_limits(self) -> None:
+        """Per cruising joint: if one more cycle of travel would leave too little room to stop, brake now."""
+        cruise, p, braked = self._cruise_velocity, self._p, False
+        for i in range(len(cruise)):
+            v = cruise[i]
+            if v == 0.0:
+                continue
+            room = (self._hi[i] - p[i] if v > 0.0 else p[i] - self._lo[i]) - abs(v) * self._lookahead
+            if stopping_distance(abs(v), self._amax[i], self._jmax[i]) >= room:
+                cruise[i] = 0.0
+                braked = True
+        if braked:
+            self._inp.target_velocity = cruise
+
+    def _step(self, dt: float) -> None:
+        otg, inp, out = self._otg, self._inp, self._out
+        assert otg is not None, "servo used before on_configure"
+        if dt > 0.0 and dt != otg.delta_time:
+            otg.delta_time = dt  # the wall clock's real period: the plan advances with real time
+        try:
+            result = otg.update(inp, out)
+            reason = "" if result in (Result.Working, Result.Finished) else result.name
+        except RuckigError as exc:
+            result, reason = Result.ErrorInvalidInput, str(exc).strip().removeprefix("[ruckig] ")
+        if not reason:
+            p, v = out.new_position, out.new_velocity
+            if not math.isfinite(sum(p) + sum(v)):  # a NaN or inf anywhere makes the sum non-finite
+                reason = "non-finite output"
+        if reason:
+            self._planning_failed(reason, dt)
+            return
+        out.pass_to_input(inp)
+        self._p, self._v = p, v
+        if result == Result.Finished:
+            if self.phase == Phase.TRACK and self._moving:
+                self._cruise()
+            elif self.phase == Phase.STOP:
+                self._hold_at(p)
+
+    def _planning_failed(self, reason: str, dt: float) -> None:
+        """Stop as on timeout; if even the stop cannot be planned, hold the last desired position. Never a NaN."""
+        if self.phase != Phase.STOP:
+            self.context.emit_event("error", f"ruckig could not plan ({reason}): stopping, then holding")
+            self._stop()
+            self._step(dt)
+        else:
+            self.context.emit_event("error", f"ruckig could not plan the stop ({reason}): holding")
+            self._hold_at(list(self._p))
+
+
+_FLOAT_MAX = sys.float_info.max
+
+
+def _positive(*values: float) -> bool:
+    return all(math.isfinite(v) and v > 0.0 for v in values)
