@@ -85,6 +85,7 @@ class MujocoTwin(HardwareComponent):
         self.model: mujoco.MjModel | None = None
         self.data: mujoco.MjData | None = None
         self._active = False
+        self._ring: dict[str, np.ndarray] = {}  # allocated at configure
 
     # ------------------------------------------------------------------ lifecycle (non real-time)
 
@@ -156,6 +157,8 @@ class MujocoTwin(HardwareComponent):
 
     def deactivate(self) -> None:
         self._active = False
+        if self.data is None or not self._ring:  # configure failed or cleanup ran: nothing is driven
+            return
         self._clear_commands()
         self._tau.fill(0.0)
         self._frc_all.fill(0.0)

@@ -468,3 +468,12 @@ def test_rrbot_urdf_keeps_joint_names_and_effort_limits() -> None:
     command.kp[:] = 0.0
     cycle(twin, state, command)
     np.testing.assert_array_equal(state.effort, [30.0, 30.0])  # <limit effort="30">
+
+
+def test_a_twin_whose_configure_failed_can_still_be_deactivated_and_cleaned_up() -> None:
+    twin = make_twin(model="missing.xml")
+    with pytest.raises(HardwareError):
+        twin.configure()
+    twin.deactivate()  # the engine's release path after a failed start
+    twin.cleanup()
+    assert twin.data is None
