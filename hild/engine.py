@@ -45,6 +45,9 @@ from hild.transmission import Transmissions
 
 REQUEST_QUEUE = 64
 HEALTH_POLL_HZ = 20.0
+ENABLE_CONFIRM = 1.0  # s: an operator enable must show in the drive's replies within this
+SET_ZERO_MAX_SPEED = 0.05  # rad/s: set-zero only on a still joint
+SET_ZERO_SETTLE = 0.5  # s: hold follows the reading while the drive moves to its new frame (some drop replies ~1 s)
 
 
 class RequestRejected(RuntimeError):
@@ -130,6 +133,7 @@ class Engine:
             REQUEST_QUEUE
         )
         self._estop_requested = False
+        self._rearm: dict[int, int] = {}  # joint → cycle by which its drive must confirm an operator enable
         self._estop_waiters: deque[concurrent.futures.Future[Any]] = deque(maxlen=256)
         self._health_every = max(1, round(self.update_rate / HEALTH_POLL_HZ))
         for name, spec in cfg.controllers.items():
@@ -298,6 +302,8 @@ class Engine:
         self._read(t, dt)
         sup = self.supervisor
         sup.check(self.state)
+        if self._rearm:
+            self._confirm_enabled()
         if self.cycle % self._health_every == 0:
             self._poll_health()
         if self.max_consecutive_overruns and self.stats.consecutive_overruns >= self.max_consecutive_overruns:
@@ -394,14 +400,77 @@ class Engine:
 
     def reset(self) -> dict[str, Any]:
         for slot in self.hardware:
-            if slot.lifecycle is Lifecycle.FAULT:
-                slot.component.clear_faults()
+            if slot.lifecycle is Lifecycle.FAULT or self.supervisor.fault[slot.index].any():
+                slot.component.clear_faults()  # drive errors too; it never re-enables a drive (that is enable)
                 problem = slot.component.health()
                 if problem:
                     return {"cleared": [], "error": f"{slot.name} still faulted: {problem}"}
                 slot.lifecycle, slot.fault = Lifecycle.ACTIVE, ""
         self.stats.consecutive_overruns = 0
         return {"cleared": self.supervisor.reset()}
+
+    def enable(self, joints: Sequence[str] = ()) -> dict[str, Any]:
+        """Operator command (between cycles): enable drives a fault disabled; all when ``joints`` is empty.
+
+        A joint leaves its drive fault once its drive reads back enabled and fault-free (within
+        ``ENABLE_CONFIRM`` s), holding where it is then. Never done automatically."""
+        if self.supervisor.estop:
+            return {"error": "the e-stop is engaged: reset first"}
+        unknown = [j for j in joints if j not in self.joints]
+        if unknown:
+            return {"error": f"unknown joints {unknown} (joints: {', '.join(self.joints)})"}
+        wanted = list(joints) or list(self.joints)
+        enabled: list[str] = []
+        for slot in self.hardware:
+            mine = [j for j in wanted if j in slot.component.joints]
+            if not mine:
+                continue
+            try:
+                if len(mine) == len(slot.component.joints):
+                    enabled += slot.component.enable(None)
+                else:
+                    for joint in mine:
+                        enabled += slot.component.enable(joint)
+            except HardwareError as exc:
+                return {"error": f"{slot.name}: {exc}", "enabled": enabled}
+        deadline = self.cycle + max(1, round(ENABLE_CONFIRM * self.update_rate))
+        for joint in enabled:
+            self._rearm[self.joints.index(joint)] = deadline
+        return {"enabled": enabled}
+
+    def _confirm_enabled(self) -> None:
+        state, sup = self.state, self.supervisor
+        for i, deadline in list(self._rearm.items()):
+            if state.fresh.item(i) and not state.fault.item(i):
+                del self._rearm[i]
+                if sup.rearm(i):
+                    self.events.emit("info", "engine", f"{self.joints[i]}: drive enabled, holding where it is")
+            elif self.cycle >= deadline:
+                del self._rearm[i]
+                self.events.emit("error", "engine", f"{self.joints[i]}: the drive did not confirm enable")
+
+    def set_zero(self, joint: str) -> dict[str, Any]:
+        """Operator command (between cycles): make the drive's current position the joint's zero.
+
+        Only for a held, still joint: a controller or a fault would otherwise act on a position whose origin just
+        moved. Hold then follows the measured position for ``SET_ZERO_SETTLE`` s and latches the new reading."""
+        if joint not in self.joints:
+            return {"error": f"unknown joint {joint!r} (joints: {', '.join(self.joints)})"}
+        i = self.joints.index(joint)
+        if self.supervisor.mode[i] != JointMode.HOLD:
+            mode = JointMode(self.supervisor.mode[i]).name.lower()
+            return {"error": f"joint {joint} is in {mode}: set-zero needs it held (no controller, no fault)"}
+        speed = abs(float(self.state.velocity[i]))
+        if not speed < SET_ZERO_MAX_SPEED:
+            return {"error": f"joint {joint} moves at {speed:.3g} rad/s: set-zero needs it still"}
+        slot = self.hardware[self._joint_slot[i]]
+        try:
+            slot.component.set_zero(joint)
+        except HardwareError as exc:
+            return {"error": f"{slot.name}: {exc}"}
+        self.supervisor.follow_measured(i, max(1, round(SET_ZERO_SETTLE * self.update_rate)))
+        self.events.emit("warning", "engine", f"set-zero: {joint}'s current position is now its drive zero")
+        return {"joint": joint}
 
     def _ring(self) -> None:
         self.doorbell()

@@ -134,6 +134,15 @@ class HardwareComponent(abc.ABC):
     def clear_faults(self) -> None:
         """Clear drive-side faults on an operator ``reset``. Must not re-enable a drive by itself."""
 
+    def enable(self, joint: str | None = None) -> list[str]:
+        """Operator command: enable a drive a fault disabled (one joint, or all). Never called automatically;
+        returns the joints enabled, which the next reads confirm."""
+        raise HardwareError(f"driver {type(self).__name__} enables its drives only at start-up")
+
+    def set_zero(self, joint: str) -> None:
+        """Make the drive's current position its zero. Only ever called on an explicit operator command."""
+        raise HardwareError(f"driver {type(self).__name__} cannot set a zero position")
+
 
 def joint_index(joints: Sequence[str]) -> dict[str, int]:
     return {name: i for i, name in enumerate(joints)}

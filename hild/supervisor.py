@@ -138,6 +138,7 @@ class Supervisor:
         self._safe_action = [Action.HOLD] * n
         self._stale = [0] * n
         self._relatch = [False] * n  # latch at the next command(): after reset and e-stop
+        self._follow = [0] * n  # cycles left during which hold follows the measured position (after set-zero)
         self._prev_position = np.zeros(n)
         self._g = np.zeros(n)
         self.set_claims(ClaimMasks.empty(n))
@@ -232,6 +233,24 @@ class Supervisor:
         self.events.emit("info", "supervisor", "reset: " + ("; ".join(cleared) if cleared else "nothing to clear"))
         return cleared
 
+    def rearm(self, i: int) -> bool:
+        """Clear joint ``i``'s drive fault once its drive is enabled again (operator ``enable``); it holds where
+        it is now. Other faults stay: they need a ``reset``."""
+        if self.estop or self.fault[i] not in (Fault.DRIVE, Fault.STALE_FEEDBACK):
+            return False
+        self.fault[i] = Fault.NONE
+        self.fault_text[i] = ""
+        self.mode[i] = JointMode.HOLD
+        self._stale[i] = 0
+        self._relatch[i] = True
+        self.change_seq += 1
+        return True
+
+    def follow_measured(self, i: int, cycles: int) -> None:
+        """After a drive's zero moved, hold joint ``i`` where it is read for ``cycles`` (damping and gravity only),
+        so the new reading is latched once the drive reports in its new frame; never a pull toward the old one."""
+        self._follow[i] = max(1, cycles)
+
     # ---- the final command (after the controllers) --------------------------------------------------------
     def command(self, dt: float, state: JointState, ctrl: ServoCommand, out: ServoCommand) -> None:
         pos, vel = state.position, state.velocity
@@ -248,6 +267,11 @@ class Supervisor:
                 self._relatch[i] = False
                 if math.isfinite(q):
                     latched[i] = q
+            if self._follow[i]:  # the position's origin moved: re-latch, and slew from the new origin
+                self._follow[i] -= 1
+                if math.isfinite(q):
+                    latched[i] = q
+                    prev[i] = q
             controlled = False
 
             # 1. The servo command this joint gets before limits.

@@ -49,6 +49,10 @@ class MockHardware(HardwareComponent):
     def activate(self) -> None:
         self.enabled = True
 
+    def set_zero(self, joint: str) -> None:
+        """Like a drive's set-zero: the current position reads 0 from now on (the arm itself does not move)."""
+        self.position[self.joints.index(joint)] = 0.0
+
     def deactivate(self) -> None:
         self.enabled = False
 
