@@ -108,7 +108,12 @@ def test_daemon_over_zenoh_only(daemon: tuple[subprocess.Popen[bytes], str, Path
         assert status["ok"] and status["mode"] == "hold"
         assert all(j["mode"] == "hold" for j in status["joints"])
         controllers = {c["name"]: c["state"] for c in arm.list_controllers()}
-        assert controllers == {"joint_state_broadcaster": "active", "forward_position": "inactive"}
+        assert controllers == {
+            "joint_state_broadcaster": "active",
+            "forward_position": "inactive",
+            "joint_trajectory": "inactive",
+            "servo": "inactive",
+        }
 
         # Hold under gravity: a second of joint states stays within a milliradian of the start.
         start = np.array(sample["position"])

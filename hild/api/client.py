@@ -146,11 +146,14 @@ class HildClient:
     ) -> dict[str, Any]:
         """Call ``hild/<robot>/srv/<service>``; return the reply, raising HildError on ``ok: false`` if ``check``."""
         key = self.keys.service(check_chunk(service, "service name"))
+        return self._query(key, service, payload or {}, check, timeout)
+
+    def _query(self, key: str, what: str, payload: Any, check: bool, timeout: float | None) -> dict[str, Any]:
         wait = self.timeout if timeout is None else timeout
         errors: list[str] = []
         try:
             replies = self.session.get(
-                key, payload=encode(payload or {}), encoding=zenoh.Encoding.APPLICATION_JSON, timeout=wait
+                key, payload=encode(payload), encoding=zenoh.Encoding.APPLICATION_JSON, timeout=wait
             )
             for reply in replies:
                 if reply.ok is not None:
@@ -159,16 +162,16 @@ class HildClient:
                 errors.append(reply.err.payload.to_string() if reply.err is not None else "error reply")
             else:
                 if errors:
-                    raise HildError(f"{service}: {'; '.join(errors)}")
+                    raise HildError(f"{what}: {'; '.join(errors)}")
                 raise HildUnreachable(f"no reply from {key} within {wait:g} s: is the daemon of {self.robot!r} up?")
         except zenoh.ZError as exc:
-            raise HildUnreachable(f"{service}: {zenoh_error_text(exc)}") from None
+            raise HildUnreachable(f"{what}: {zenoh_error_text(exc)}") from None
         except json.JSONDecodeError as exc:
-            raise HildError(f"{service}: the reply is not JSON ({exc})") from None
+            raise HildError(f"{what}: the reply is not JSON ({exc})") from None
         if not isinstance(data, dict):
-            raise HildError(f"{service}: the reply is not a JSON object")
+            raise HildError(f"{what}: the reply is not a JSON object")
         if check and not data.get("ok", False):
-            raise HildError(str(data.get("error") or f"{service} failed"))
+            raise HildError(str(data.get("error") or f"{what} failed"))
         return data
 
     def status(self) -> dict[str, Any]:
@@ -219,7 +222,119 @@ class HildClient:
     def subscribe(self, topic: str, callback: Callable[[dict[str, Any]], None]) -> Subscription:
         """Call ``callback(message)`` for each message on ``hild/<robot>/<topic>`` (``joint_states``, ``status``,
         ``events``, or any controller output). It runs on a Zenoh thread: keep it short and thread-safe."""
-        key = self.keys.topic(check_chunk(topic, "topic"))
+        return self._subscribe_key(self.keys.topic(check_chunk(topic, "topic")), callback)
+
+    def next_message(self, topic: str, timeout: float | None = None) -> dict[str, Any]:
+        """The next message on a topic (e.g. the current ``joint_states``), waiting at most ``timeout``."""
+        box: list[dict[str, Any]] = []
+        arrived = threading.Event()
+
+        def keep(message: dict[str, Any]) -> None:
+            if not box:
+                box.append(message)
+                arrived.set()
+
+        wait = self.timeout if timeout is None else timeout
+        with self.subscribe(topic, keep):
+            if not arrived.wait(wait):
+                raise HildUnreachable(f"no message on {self.keys.topic(topic)} within {wait:g} s")
+        return box[0]
+
+    # ---- goals ----------------------------------------------------------------------------------------------
+    def send_goal(
+        self,
+        controller: str,
+        goal: dict[str, Any],
+        feedback: Callable[[dict[str, Any]], None] | None = None,
+    ) -> GoalHandle:
+        """Send a goal (a trajectory or a move_to body) to ``ctrl/<controller>/goal``; raises HildError if refused.
+
+        The result subscription is declared before the goal is sent, so even an instant result is not missed."""
+        check_chunk(controller, "controller name")
+        handle = GoalHandle(self, controller)
+        handle.open(feedback)
+        try:
+            reply = self._query(self.keys.input(controller, "goal"), "goal", goal, check=False, timeout=None)
+        except BaseException:
+            handle.close()
+            raise
+        if not reply.get("ok", False):
+            handle.close()
+            raise HildError(f"goal rejected: {reply.get('error')}")
+        handle.goal_id = str(reply["goal_id"])
+        return handle
+
+    def execute_trajectory(
+        self,
+        controller: str,
+        joint_names: Sequence[str],
+        points: Sequence[dict[str, Any]],
+        *,
+        path_tolerance: Sequence[dict[str, Any]] | None = None,
+        goal_tolerance: Sequence[dict[str, Any]] | None = None,
+        goal_time_tolerance: float | None = None,
+        timeout: float | None = None,
+        feedback: Callable[[dict[str, Any]], None] | None = None,
+    ) -> dict[str, Any]:
+        """Run a trajectory and return its result (``status``, ``error_code``, ``error_string``).
+
+        Points without ``time_from_start`` are time-parameterized by the daemon under the joints' limits."""
+        goal: dict[str, Any] = {"trajectory": {"joint_names": list(joint_names), "points": list(points)}}
+        if path_tolerance is not None:
+            goal["path_tolerance"] = list(path_tolerance)
+        if goal_tolerance is not None:
+            goal["goal_tolerance"] = list(goal_tolerance)
+        if goal_time_tolerance is not None:
+            goal["goal_time_tolerance"] = goal_time_tolerance
+        with self.send_goal(controller, goal, feedback) as handle:
+            return handle.wait(timeout)
+
+    def move_to(
+        self,
+        controller: str,
+        positions: Sequence[float],
+        *,
+        velocities: Sequence[float] | None = None,
+        duration: float | None = None,
+        joint_names: Sequence[str] | None = None,
+        wait: bool = True,
+        timeout: float | None = None,
+    ) -> dict[str, Any]:
+        """A time-optimal jerk-limited move (all joints arrive together; ``duration`` only ever slows it down).
+
+        Returns the result, or ``{"goal_id"}`` at once when ``wait`` is False."""
+        goal: dict[str, Any] = {"positions": [float(p) for p in positions]}
+        if velocities is not None:
+            goal["velocities"] = [float(v) for v in velocities]
+        if duration is not None:
+            goal["duration"] = float(duration)
+        if joint_names is not None:
+            goal["joint_names"] = list(joint_names)
+        handle = self.send_goal(controller, goal)
+        if not wait:
+            handle.close()
+            return {"goal_id": handle.goal_id}
+        with handle:
+            return handle.wait(timeout)
+
+    def cancel(self, controller: str, goal_id: str) -> dict[str, Any]:
+        """Ask the controller to stop a goal (decelerating to a stop); the goal's result says when it is done."""
+        key = self.keys.input(check_chunk(controller, "controller name"), "cancel")
+        return self._query(key, "cancel", {"goal_id": goal_id}, check=True, timeout=None)
+
+    def goal_result(self, controller: str, goal_id: str) -> dict[str, Any]:
+        """The result of a finished goal, or ``{"status": "executing"}``."""
+        key = self.keys.input(check_chunk(controller, "controller name"), "result")
+        reply = self._query(key, "result", {"goal_id": goal_id}, check=False, timeout=None)
+        if reply.get("ok") is False:
+            raise HildError(str(reply.get("error")))
+        return reply
+
+    def servo_stream(self, controller: str) -> ServoStream:
+        """A sender of streamed targets for a ``servo`` controller (teleop, policies)."""
+        return ServoStream(self, controller)
+
+    def _subscribe_key(self, key: str, callback: Callable[[dict[str, Any]], None]) -> Subscription:
 
         def on_sample(sample: zenoh.Sample) -> None:
             try:
@@ -233,3 +348,88 @@ class HildClient:
                 log.exception("subscriber callback for %s raised", key)
 
         return Subscription(self.session.declare_subscriber(key, on_sample))
+
+
+RESULT_POLL = 0.5  # s: while waiting, ask for the result this often in case the published one was dropped
+
+
+class GoalHandle:
+    """A goal in flight: wait for its result, cancel it. Use as a context manager to release its subscriptions."""
+
+    def __init__(self, client: HildClient, controller: str) -> None:
+        self.client = client
+        self.controller = controller
+        self.goal_id = ""
+        self._results: dict[str, dict[str, Any]] = {}
+        self._arrived = threading.Condition()
+        self._subscriptions: list[Subscription] = []
+
+    def open(self, feedback: Callable[[dict[str, Any]], None] | None) -> None:
+        keys = self.client.keys
+        self._subscriptions.append(self.client._subscribe_key(keys.input(self.controller, "result"), self._on_result))
+        if feedback is not None:
+
+            def mine(message: dict[str, Any]) -> None:
+                if message.get("goal_id") == self.goal_id:
+                    feedback(message)
+
+            self._subscriptions.append(self.client._subscribe_key(keys.input(self.controller, "feedback"), mine))
+
+    def _on_result(self, message: dict[str, Any]) -> None:
+        with self._arrived:
+            self._results[str(message.get("goal_id"))] = message
+            self._arrived.notify_all()
+
+    def wait(self, timeout: float | None = None) -> dict[str, Any]:
+        """Block until the goal has a result and return it; HildError after ``timeout`` seconds (None = forever)."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:
+            with self._arrived:
+                result = self._results.get(self.goal_id)
+                if result is None:
+                    left = RESULT_POLL if deadline is None else min(RESULT_POLL, deadline - time.monotonic())
+                    if left > 0:
+                        self._arrived.wait(left)
+                    result = self._results.get(self.goal_id)
+            if result is not None:
+                return result
+            polled = self.client.goal_result(self.controller, self.goal_id)
+            if polled.get("status") != "executing":
+                return polled
+            if deadline is not None and time.monotonic() >= deadline:
+                raise HildError(f"goal {self.goal_id} has no result after {timeout:g} s (still executing)")
+
+    def cancel(self) -> dict[str, Any]:
+        return self.client.cancel(self.controller, self.goal_id)
+
+    def close(self) -> None:
+        for subscription in self._subscriptions:
+            subscription.close()
+        self._subscriptions.clear()
+
+    def __enter__(self) -> GoalHandle:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class ServoStream:
+    """Publishes ``{"positions", "velocities"?}`` targets to ``ctrl/<controller>/target`` (fire and forget)."""
+
+    def __init__(self, client: HildClient, controller: str) -> None:
+        self.client = client
+        self.controller = check_chunk(controller, "controller name")
+
+    def send(self, positions: Sequence[float], velocities: Sequence[float] | None = None) -> None:
+        target: dict[str, Any] = {"positions": _finite(positions, "positions")}
+        if velocities is not None:
+            target["velocities"] = _finite(velocities, "velocities")
+        self.client.put(self.controller, target, input="target")
+
+
+def _finite(values: Sequence[float], what: str) -> list[float]:
+    out = [float(v) for v in values]
+    if not all(math.isfinite(v) for v in out):
+        raise ValueError(f"{what} must be finite numbers")
+    return out

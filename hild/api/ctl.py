@@ -18,6 +18,7 @@ from typing import Any
 from hild.api import render
 from hild.api.client import HildClient, HildError, HildUnreachable
 from hild.api.session import DEFAULT_CONNECT
+from hild.config.documents import DocumentError, load_document
 
 EXIT_OK, EXIT_SERVICE, EXIT_UNREACHABLE = 0, 1, 2
 CLEAR = "\x1b[H\x1b[2J"
@@ -61,6 +62,25 @@ def add_ctl_parser(subparsers: Any) -> None:
     )
     sub.add_parser("estop", parents=[common], help="engage the e-stop (only reset leaves it)")
     sub.add_parser("reset", parents=[common], help="clear latched faults and the e-stop")
+    enable = sub.add_parser("enable", parents=[common], help="enable drives a fault disabled (after reset)")
+    enable.add_argument("joints", nargs="*", metavar="JOINT", help="default: every joint")
+    zero = sub.add_parser("set-zero", parents=[common], help="make a held joint's current position its drive zero")
+    zero.add_argument("joint")
+    zero.add_argument("--confirm", action="store_true", help="required: the joint's position origin moves")
+    goal = argparse.ArgumentParser(add_help=False)
+    goal.add_argument("--controller", default="joint_trajectory", help="default: joint_trajectory")
+    goal.add_argument("--no-wait", action="store_true", help="print the goal id and return once it is accepted")
+    goal.add_argument("--wait", type=float, default=None, metavar="S", help="give up waiting after S seconds")
+    move = sub.add_parser("move-to", parents=[common, goal], help="time-optimal jerk-limited move to positions")
+    move.add_argument("positions", nargs="+", type=float, metavar="RAD", help="target per joint (controller order)")
+    move.add_argument("--joints", nargs="+", metavar="NAME", help="joints the positions are for (partial goals)")
+    move.add_argument("--velocities", nargs="+", type=float, metavar="RAD_S", help="velocity at the target")
+    move.add_argument("--duration", type=float, help="take at least this long (s); never faster than the limits")
+    trajectory = sub.add_parser("trajectory", parents=[common, goal], help="execute a trajectory from a YAML file")
+    trajectory.add_argument("file", help='YAML/JSON: a goal {"trajectory": {joint_names, points}, ...}')
+    cancel = sub.add_parser("cancel", parents=[common], help="stop a running goal (decelerates, then holds)")
+    cancel.add_argument("goal_id")
+    cancel.add_argument("--controller", default="joint_trajectory", help="default: joint_trajectory")
     watch = sub.add_parser("watch", parents=[common], help="live joint table (Ctrl-C to leave)")
     watch.add_argument("--once", action="store_true", help="print one table and exit")
     watch.add_argument("--rate", type=float, default=10.0, help="redraws per second (default 10)")
@@ -117,6 +137,10 @@ def _no_request(args: argparse.Namespace) -> dict[str, Any]:
     return {}
 
 
+def _enable_request(args: argparse.Namespace) -> dict[str, Any]:
+    return {"joints": args.joints}
+
+
 def _switch_request(args: argparse.Namespace) -> dict[str, Any]:
     return {"activate": args.activate, "deactivate": args.deactivate, "strict": not args.best_effort}
 
@@ -154,6 +178,67 @@ def _watch(client: HildClient, args: argparse.Namespace, as_json: bool) -> int:
             time.sleep(period)
 
 
+def _set_zero(client: HildClient, args: argparse.Namespace, as_json: bool) -> int:
+    if not args.confirm:
+        return _fail(HildError(f"set-zero moves {args.joint}'s position origin: add --confirm"), as_json, EXIT_SERVICE)
+    reply = client.call("set_zero", {"joint": args.joint, "confirm": True}, check=False)
+    if as_json:
+        print(json.dumps(reply, indent=2))
+    elif reply.get("ok"):
+        print(f"{args.joint}: its current position is now the drive's zero")
+    else:
+        print(f"hild ctl: set-zero: {reply.get('error')}", file=sys.stderr)
+    return EXIT_OK if reply.get("ok") else EXIT_SERVICE
+
+
+def _move_to(client: HildClient, args: argparse.Namespace, as_json: bool) -> int:
+    goal: dict[str, Any] = {"positions": args.positions}
+    if args.joints:
+        goal["joint_names"] = args.joints
+    if args.velocities:
+        goal["velocities"] = args.velocities
+    if args.duration is not None:
+        goal["duration"] = args.duration
+    return _run_goal(client, args, as_json, goal)
+
+
+def _trajectory(client: HildClient, args: argparse.Namespace, as_json: bool) -> int:
+    try:
+        goal = load_document(args.file)
+    except DocumentError as exc:
+        return _fail(exc, as_json, EXIT_SERVICE)
+    if isinstance(goal, dict) and "points" in goal and "trajectory" not in goal:
+        goal = {"trajectory": goal}  # a bare {joint_names, points} is accepted too
+    return _run_goal(client, args, as_json, goal)
+
+
+def _run_goal(client: HildClient, args: argparse.Namespace, as_json: bool, goal: dict[str, Any]) -> int:
+    """Send a goal, then wait for its result (Ctrl-C cancels it); exit 0 only if it succeeded."""
+    handle = client.send_goal(args.controller, goal)
+    with handle:
+        if args.no_wait:
+            print(json.dumps({"ok": True, "goal_id": handle.goal_id}) if as_json else handle.goal_id)
+            return EXIT_OK
+        if not as_json:
+            print(f"goal {handle.goal_id} accepted; waiting (Ctrl-C cancels it)", file=sys.stderr)
+        try:
+            result = handle.wait(args.wait)
+        except KeyboardInterrupt:
+            handle.cancel()
+            result = handle.wait(5.0)
+    if as_json:
+        print(json.dumps(result, indent=2))
+    else:
+        print(render.result_text(result))
+    return EXIT_OK if result.get("status") == "succeeded" else EXIT_SERVICE
+
+
+def _cancel(client: HildClient, args: argparse.Namespace, as_json: bool) -> int:
+    reply = client.cancel(args.controller, args.goal_id)
+    print(json.dumps(reply) if as_json else f"cancel requested for {args.goal_id}")
+    return EXIT_OK
+
+
 COMMANDS: dict[str, Callable[[HildClient, argparse.Namespace, bool], int]] = {
     "status": _service("status", render.status_text, _no_request),
     "controllers": _service("list_controllers", lambda r: render.controllers_text(r["controllers"]), _no_request),
@@ -163,4 +248,11 @@ COMMANDS: dict[str, Callable[[HildClient, argparse.Namespace, bool], int]] = {
     "estop": _service("estop", lambda r: f"e-stop engaged; deactivated {r.get('deactivated') or []}", _no_request),
     "reset": _service("reset", lambda r: f"reset; cleared {r.get('cleared') or []}", _no_request),
     "watch": _watch,
+    "move-to": _move_to,
+    "trajectory": _trajectory,
+    "cancel": _cancel,
+    "set-zero": _set_zero,
+    "enable": _service(
+        "enable", lambda r: f"enabled {r.get('enabled') or []}; each holds once its drive confirms", _enable_request
+    ),
 }

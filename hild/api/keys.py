@@ -20,6 +20,8 @@ SERVICES = (
     "list_hardware",
     "estop",
     "reset",
+    "set_zero",
+    "enable",
 )
 # Second-level chunks the API itself uses; a controller output may not take one of these names.
 RESERVED = frozenset({ALIVE, STATUS, EVENTS, "srv", "ctrl"})

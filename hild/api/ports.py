@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import logging
 import time
 from collections.abc import Callable, Sequence
@@ -21,6 +22,7 @@ from typing import Any
 
 import zenoh
 
+from hild.action import ActionServer
 from hild.api.codec import MAX_PAYLOAD, PayloadError, decode, encode
 from hild.api.keys import RESERVED, Keys, check_chunk
 from hild.api.session import declare_json_publisher
@@ -86,10 +88,21 @@ class OutputPort:
 
 
 @dataclass
+class ActionPort:
+    """A controller's goal endpoint: queryables goal/cancel/result, publishers feedback/result."""
+
+    server: ActionServer[Any]
+    feedback: zenoh.Publisher
+    result: zenoh.Publisher
+    queryables: list[zenoh.Queryable[Any]] = field(default_factory=list)
+
+
+@dataclass
 class ControllerEndpoints:
     instance: object
     subscribers: list[zenoh.Subscriber[Any]] = field(default_factory=list)
     outputs: list[OutputPort] = field(default_factory=list)
+    action: ActionPort | None = None
 
 
 class ControllerPorts:
@@ -109,6 +122,7 @@ class ControllerPorts:
         self.closing = False
         self._drops = DropReporter(engine.events.emit)
         self._controllers: dict[str, ControllerEndpoints] = {}
+        self._answering: set[asyncio.Task[None]] = set()
 
     # ---- declaration ---------------------------------------------------------------------------------------
     def sync(self) -> None:
@@ -154,7 +168,26 @@ class ControllerPorts:
                 )
                 continue
             endpoints.outputs.append(OutputPort(topic, ring, RingReader(ring), publisher, self._names(ring)))
+        try:
+            server = instance.action_server()
+            if server is not None:
+                endpoints.action = self._declare_action(name, server)
+        except (ValueError, zenoh.ZError) as exc:
+            self.engine.events.emit("error", "api", f"controller {name}: goals not exposed: {exc}")
         return endpoints
+
+    def _declare_action(self, name: str, server: ActionServer[Any]) -> ActionPort:
+        key = functools.partial(self.keys.input, name)
+        port = ActionPort(
+            server,
+            feedback=declare_json_publisher(self.session, key("feedback")),
+            result=declare_json_publisher(self.session, key("result"), priority=zenoh.Priority.DATA_HIGH),
+        )
+        for verb, handle in (("goal", server.submit), ("cancel", server.cancel), ("result", server.result)):
+            port.queryables.append(
+                self.session.declare_queryable(key(verb), self._query_handler(key(verb), handle), complete=True)
+            )
+        return port
 
     def _names(self, ring: SampleRing) -> list[str] | None:
         """Element names of a ring: its own ``names`` if it has them, else the robot's joints when widths match."""
@@ -165,12 +198,16 @@ class ControllerPorts:
 
     @staticmethod
     def _undeclare(endpoints: ControllerEndpoints) -> None:
-        for entity in [*endpoints.subscribers, *(p.publisher for p in endpoints.outputs)]:
+        action = endpoints.action
+        extra: list[Any] = [*action.queryables, action.feedback, action.result] if action else []
+        for entity in [*endpoints.subscribers, *(p.publisher for p in endpoints.outputs), *extra]:
             with contextlib.suppress(zenoh.ZError):
                 entity.undeclare()
 
     def close(self) -> None:
         self.closing = True
+        for task in self._answering:
+            task.cancel()
         for endpoints in self._controllers.values():
             self._undeclare(endpoints)
         self._controllers.clear()
@@ -186,6 +223,62 @@ class ControllerPorts:
                         self.counters.published += 1
                     except zenoh.ZError:
                         self.counters.publish_errors += 1
+            if endpoints.action is not None:
+                self._flush_action(endpoints.action)
+
+    def _flush_action(self, port: ActionPort) -> None:
+        messages = [(port.result, r.as_dict()) for r in port.server.collect()]
+        messages += [(port.feedback, m) for m in port.server.feedback_messages()]
+        for publisher, message in messages:
+            try:
+                publisher.put(encode(message))
+                self.counters.published += 1
+            except zenoh.ZError:
+                self.counters.publish_errors += 1
+
+    # ---- goal queries ---------------------------------------------------------------------------------------------
+    def _query_handler(self, key: str, handle: Callable[[Any], dict[str, Any]]) -> Callable[[zenoh.Query], None]:
+        def on_query(query: zenoh.Query) -> None:  # a Zenoh thread: size check, copy out, hop to the loop
+            try:
+                payload = query.payload
+                size = len(payload) if payload is not None else 0
+                raw = payload.to_bytes() if payload is not None and size <= MAX_PAYLOAD else None
+                self.loop.call_soon_threadsafe(self._start_answer, key, query, handle, raw, size)
+            except RuntimeError:  # the loop is closing: the querier times out
+                with contextlib.suppress(zenoh.ZError):
+                    query.drop()
+
+        return on_query
+
+    def _start_answer(
+        self, key: str, query: zenoh.Query, handle: Callable[[Any], dict[str, Any]], raw: bytes | None, size: int
+    ) -> None:
+        task = self.loop.create_task(self._answer(key, query, handle, raw, size))
+        self._answering.add(task)
+        task.add_done_callback(self._answering.discard)
+
+    async def _answer(
+        self, key: str, query: zenoh.Query, handle: Callable[[Any], dict[str, Any]], raw: bytes | None, size: int
+    ) -> None:
+        """Goals are parsed and planned in a worker thread: a long trajectory must not stall the event loop."""
+        self.counters.queries += 1
+        try:
+            if self.closing:
+                reply: dict[str, Any] = {"ok": False, "error": "the daemon is shutting down"}
+            elif raw is None:
+                reply = {"ok": False, "error": f"payload of {size} bytes exceeds the {MAX_PAYLOAD}-byte limit"}
+            else:
+                reply = await asyncio.to_thread(handle, decode(raw))
+        except Exception as exc:  # bad JSON, a bad request, or a plugin's bug: the client gets the reason
+            reason = str(exc) if isinstance(exc, ValueError) else f"{type(exc).__name__}: {exc}"
+            reply = {"ok": False, "error": reason or type(exc).__name__}
+        try:
+            query.reply(key, encode(reply), encoding=zenoh.Encoding.APPLICATION_JSON)
+        except zenoh.ZError as exc:
+            log.debug("reply on %s failed: %s", key, exc)
+        finally:
+            with contextlib.suppress(zenoh.ZError):
+                query.drop()
 
     # ---- inputs -----------------------------------------------------------------------------------------------
     def _sample_handler(self, key: str, controller: str, accept: Callable[[Any], None]) -> Callable[[Any], None]:

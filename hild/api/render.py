@@ -106,3 +106,13 @@ def watch_text(status: dict[str, Any], joint_states: dict[str, Any] | None, note
         lines.append(note)
     lines += ["", table(["JOINT", "MODE", "OWNER", "POSITION", "VELOCITY", "EFFORT", "FAULT"], rows)]
     return "\n".join(lines)
+
+
+def result_text(result: dict[str, Any]) -> str:
+    """A goal's result in one line: ``succeeded`` or ``aborted (-4): path tolerance violated on …``."""
+    status = str(result.get("status", "?"))
+    code = result.get("error_code", 0)
+    detail = result.get("error_string") or ""
+    if status == "succeeded" and not detail:
+        return f"goal {result.get('goal_id', '')}: succeeded"
+    return f"goal {result.get('goal_id', '')}: {status} ({code}){': ' + detail if detail else ''}"

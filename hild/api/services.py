@@ -55,6 +55,12 @@ def boolean(field: str, value: Any) -> bool:
     return value
 
 
+def joint_name(field: str, value: Any) -> str:
+    if not isinstance(value, str) or not value:
+        raise RequestError(f"{field} must be a joint name, not {value!r}")
+    return value
+
+
 def parse_request(raw: bytes, fields: Mapping[str, Validator]) -> dict[str, Any]:
     """Decode a request object and check every field; an empty payload is an empty object."""
     if not raw.strip():
@@ -90,6 +96,8 @@ class Services:
             "list_hardware": Service({}, self._list_hardware),
             "estop": Service({}, self._estop),
             "reset": Service({}, self._reset),
+            "set_zero": Service({"joint": joint_name, "confirm": boolean}, self._set_zero),
+            "enable": Service({"joints": names}, self._enable),
         }
 
     async def handle(self, name: str, raw: bytes) -> Reply:
@@ -162,3 +170,19 @@ class Services:
     async def _reset(self, request: dict[str, Any]) -> Reply:
         result = dict(await self.on_cycle(self.engine.reset))
         return {**result, "ok": not result.get("error"), "error": result.get("error") or None}
+
+    async def _set_zero(self, request: dict[str, Any]) -> Reply:
+        if "joint" not in request:
+            raise RequestError('give the joint: {"joint": NAME, "confirm": true}')
+        if request.get("confirm") is not True:
+            raise RequestError('set-zero redefines the joint\'s position: confirm it with "confirm": true')
+        result = dict(await self.on_cycle(lambda: self.engine.set_zero(request["joint"])))
+        if result.get("error"):
+            raise RequestError(result["error"])
+        return result
+
+    async def _enable(self, request: dict[str, Any]) -> Reply:
+        result = dict(await self.on_cycle(lambda: self.engine.enable(request.get("joints", []))))
+        if result.get("error"):
+            raise RequestError(result["error"])
+        return result
