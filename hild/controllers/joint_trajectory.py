@@ -24,8 +24,8 @@ from hild.arrays import JointState, ServoCommand
 from hild.config.model import JointLimits
 from hild.config.params import Field, Params, model_validator
 from hild.controller import Controller, ControllerContext
+from hild.controllers.planning import interface_claims, missing_planning_limits
 from hild.controllers.trajectory_goals import GoalContext, PreparedGoal, parse_goal
-from hild.interfaces import interface_name
 from hild.motion.limits import KinematicLimits
 from hild.motion.planning import PlanningError, plan_stop
 from hild.motion.trajectory import Trajectory
@@ -173,18 +173,12 @@ class JointTrajectoryController(Controller):
     @classmethod
     def claims_for(cls, params: Params) -> list[str]:
         assert isinstance(params, JointTrajectoryParams)
-        return [interface_name(j, f) for j in params.joints for f in params.command_interfaces]
+        return interface_claims(params.joints, params.command_interfaces)
 
     @classmethod
     def robot_problems(cls, params: Params, limits: Mapping[str, JointLimits]) -> list[str]:
         assert isinstance(params, JointTrajectoryParams)
-        return [
-            f"joint {j} has no limits.{kind}: joint_trajectory plans moves and stops with it"
-            for j in params.joints
-            if j in limits
-            for kind in ("acceleration", "jerk")
-            if getattr(limits[j], kind) is None
-        ]
+        return missing_planning_limits("joint_trajectory", params.joints, limits)
 
     def action_server(self) -> ActionServer[PreparedGoal]:
         return self.action

@@ -29,7 +29,7 @@ from hild.arrays import JointState, ServoCommand
 from hild.config.model import JointLimits
 from hild.config.params import Field, Params, model_validator
 from hild.controller import Controller, ControllerContext
-from hild.interfaces import interface_name
+from hild.controllers.planning import interface_claims, missing_planning_limits
 from hild.mailbox import LatestSlot
 
 # Plan a hair inside the limits, so rounding in ruckig's profiles never trips the supervisor's velocity, slew
@@ -153,16 +153,12 @@ class ServoController(Controller):
     @classmethod
     def claims_for(cls, params: Params) -> list[str]:
         assert isinstance(params, ServoParams)
-        return [interface_name(j, f) for j in params.joints for f in params.command_interfaces]
+        return interface_claims(params.joints, params.command_interfaces)
 
     @classmethod
     def robot_problems(cls, params: Params, limits: Mapping[str, JointLimits]) -> list[str]:
         assert isinstance(params, ServoParams)
-        return [
-            f"servo needs limits.acceleration and limits.jerk for joint {j} to plan its motion"
-            for j in params.joints
-            if j in limits and (limits[j].acceleration is None or limits[j].jerk is None)
-        ]
+        return missing_planning_limits("servo", params.joints, limits)
 
     def on_configure(self) -> None:
         inp = self._inp
