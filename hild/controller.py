@@ -55,6 +55,7 @@ class ControllerContext:
     update_rate: float
     emit_event: Callable[[str, str], None]  # (level, message); events only, never per cycle
     notify: Callable[[], None]  # rings the asyncio side after writing an output
+    joint_modes: np.ndarray | None = None  # the supervisor's live JointMode per robot joint (read-only)
 
     def index_of(self, names: Sequence[str]) -> np.ndarray:
         lookup = {j: i for i, j in enumerate(self.joints)}

@@ -30,17 +30,9 @@ from hild.hardware import HardwareComponent, HardwareContext, HardwareError, Lif
 from hild.interfaces import interface_name
 from hild.mailbox import BoundedQueue
 from hild.manager import ControllerManager, SwitchResult
+from hild.modes import MODE_NAMES, JointMode
 from hild.stats import LoopStats
-from hild.supervisor import (
-    MODE_NAMES,
-    Action,
-    Fault,
-    JointGains,
-    JointMode,
-    SafetySettings,
-    Supervisor,
-    limit_names,
-)
+from hild.supervisor import Action, Fault, JointGains, SafetySettings, Supervisor, limit_names
 from hild.transmission import Transmissions
 
 REQUEST_QUEUE = 64
@@ -211,6 +203,7 @@ class Engine:
             update_rate=self.update_rate,
             emit_event=lambda level, msg: self.events.emit(level, name, msg),
             notify=self._ring,
+            joint_modes=self.supervisor.mode,
         )
 
     def load_controller(self, name: str, type_name: str, params: Any, fallbacks: Sequence[str] = ()) -> None:

@@ -34,16 +34,7 @@ from hild.arrays import JointState, ServoCommand
 from hild.controller import JointLimitArrays
 from hild.events import EventLog
 from hild.interfaces import FIELDS, ClaimMasks
-
-
-class JointMode(enum.IntEnum):
-    HOLD = 0
-    CONTROLLED = 1
-    FAULT = 2
-    ESTOP = 3
-
-
-MODE_NAMES = {m.value: m.name.lower() for m in JointMode}
+from hild.modes import JointMode
 
 
 class Fault(enum.IntEnum):

@@ -26,6 +26,7 @@ from hild.config.params import Field, Params, model_validator
 from hild.controller import Controller, ControllerContext
 from hild.controllers.planning import interface_claims, missing_planning_limits
 from hild.controllers.trajectory_goals import GoalContext, PreparedGoal, parse_goal
+from hild.modes import JointMode
 from hild.motion.limits import KinematicLimits
 from hild.motion.planning import PlanningError, plan_stop
 from hild.motion.trajectory import Trajectory
@@ -140,6 +141,7 @@ class JointTrajectoryController(Controller):
         self._next_feedback = 0.0
         self._q = np.zeros(n)
         self._qd = np.zeros(n)
+        self._modes = np.zeros(n, dtype=np.int64)
         gains = [params.gains.get(j) for j in params.joints]
         self._pid = {k: np.array([getattr(g, k) if g else 0.0 for g in gains]) for k in ("p", "i", "d", "i_clamp")}
         self._ff_velocity = np.array([g.ff_velocity_scale if g else 0.0 for g in gains])
@@ -214,6 +216,8 @@ class JointTrajectoryController(Controller):
         self.tracks.clear()
 
     def update(self, t: float, dt: float, state: JointState, command: ServoCommand) -> None:
+        if self._joint_taken_over(state):
+            return
         if len(self.action.requests):
             self._take_requests(t)
         for track in self.tracks:
@@ -226,6 +230,25 @@ class JointTrajectoryController(Controller):
             if self.goal is not None and t + 1e-9 >= self._next_feedback:
                 self._feedback(t, q, qd)
         self._write(dt, q, qd, command)
+
+    def _joint_taken_over(self, state: JointState) -> bool:
+        """While the supervisor faults or e-stops one of our joints, its command is ignored: abort the goal and
+        keep the desired state on the measured one, so nothing jumps when the operator resets."""
+        modes = self.context.joint_modes
+        if modes is None:
+            return False
+        np.take(modes, self.index, out=self._modes)
+        if self._modes.max() < JointMode.FAULT:
+            return False
+        if self.goal is not None:
+            j = int(np.flatnonzero(self._modes >= JointMode.FAULT)[0])
+            self._finish(GoalStatus.ABORTED, ErrorCode.INVALID_GOAL, f"joint {self.params.joints[j]} faulted")
+        self.tracks.clear()
+        np.take(state.position, self.index, out=self.pd)
+        self.vd[:] = 0.0
+        self.ad[:] = 0.0
+        self._integral[:] = 0.0
+        return True
 
     # ---- goals ---------------------------------------------------------------------------------------------------
     def _take_requests(self, t: float) -> None:

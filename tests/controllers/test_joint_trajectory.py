@@ -11,6 +11,7 @@ from hild.action import ErrorCode, GoalResult
 from hild.controllers.joint_trajectory import JointTrajectoryController
 from hild.engine import Engine
 from hild.motion.reference import standard_trajectory
+from hild.supervisor import Fault
 from tests.test_engine import JumpGuard, events
 from tests.test_twin_engine import twin
 
@@ -405,3 +406,19 @@ def test_oversized_goals_are_refused_before_planning() -> None:
     timed = [{"positions": HOME, "time_from_start": 1.0 + k} for k in range(10_001)]
     reply = controller(engine).action.submit({"trajectory": {"joint_names": names, "points": timed}})
     assert not reply["ok"] and "at most 10000 are accepted" in reply["error"]
+
+
+def test_a_fault_mid_goal_aborts_it_and_reset_resumes_without_a_jump() -> None:
+    engine = started()
+    rec = Recorder(engine)
+    goal_id = submit(engine, {"positions": (engine.state.position + 0.6).tolist()})
+    rec.run(150)
+    engine.supervisor.trip(2, Fault.HARDWARE, "test fault", engine.state.position)
+    rec.run(2)
+    result = results_of(engine)[goal_id]
+    assert result.status == "aborted" and "joint elbow faulted" in result.error_string
+    rec.run(500)
+    assert engine.reset()["cleared"]
+    rec.run(300)  # the jump guard holds across the reset: the controller resumed from the measured position
+    assert [j["mode"] for j in engine.status()["joints"]] == ["controlled"] * 6
+    np.testing.assert_allclose(engine.final.position, engine.state.position, atol=5e-3)
