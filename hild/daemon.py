@@ -1,8 +1,8 @@
 """The daemon: one asyncio main thread around one cycle thread (DESIGN.md §1).
 
-Start-up order matters for safety: the engine configures the hardware and reads it once before anything is
-enabled, so hold starts where the arm is; the API opens only then; the heap is frozen last, right before the
-cycle thread starts. Shutdown runs the other way: stop accepting commands, hold, release hardware, close.
+Start-up order matters for safety: the engine configures the hardware and reads it once, so hold starts where the
+arm is; the API opens; the heap is frozen; the drives are enabled last, right before the cycle thread starts.
+Shutdown runs the other way: stop accepting commands, hold, release hardware, close.
 """
 
 from __future__ import annotations
@@ -74,18 +74,26 @@ class Daemon:
         self._loop = asyncio.get_running_loop()
         self.engine.doorbell = self._doorbell
         self.engine.realtime_report.update(apply_process_settings(cfg.realtime))
-        self.engine.start()
+        self.engine.bring_up()  # drives configured and read, still disabled
         try:
             self.api = ApiServer(self.engine, cfg.zenoh, self.listen)
             await self.api.start()
-        except Exception as exc:  # e.g. the listen port is taken: release the hardware we just enabled
+        except Exception as exc:  # e.g. the listen port is taken: release the hardware we just configured
             self.api = None
-            self.engine.stop()
+            self.engine.release()
             raise StartupError(f"cannot open the Zenoh API ({self.listen or cfg.zenoh.listen}): {exc}") from exc
         for sig in (signal.SIGINT, signal.SIGTERM):
             self._loop.add_signal_handler(sig, self._on_signal, sig)
         self.engine.realtime_report["gc"] = freeze_heap(cfg.realtime)
         self.cycle = CycleThread(self.engine, cfg.clock.source, cfg.clock.real_time_factor, cfg.realtime)
+        # Enable the drives only now: the first cycle follows within a thread start, so no drive waits limp
+        # (or trips its CAN watchdog) while Zenoh opens and the heap is frozen.
+        try:
+            self.engine.go_live()
+        except HardwareError:
+            await self.api.close()
+            self.api = None
+            raise
         self.cycle.start()
         log.info(
             "%s running at %g Hz on the %s clock; Zenoh %s",

@@ -224,7 +224,12 @@ class Engine:
 
     # ---- lifecycle --------------------------------------------------------------------------------------------
     def start(self) -> None:
-        """Configure hardware, read once so hold starts where the arm is, enable drives, start controllers.
+        """``bring_up`` then ``go_live``: what tests and tools use; the daemon calls the two apart (see there)."""
+        self.bring_up()
+        self.go_live()
+
+    def bring_up(self) -> None:
+        """Configure hardware and read once so hold starts where the arm is. Drives stay disabled.
 
         If any component fails to come up, the ones already configured are released again and the error is raised
         with the component's name: a half-started robot is never left behind.
@@ -236,6 +241,14 @@ class Engine:
             self._read(0.0, self.period)
             self.supervisor.start(self.state)
             np.copyto(self.final.position, self.supervisor.latched)  # the "last command" before any cycle: hold
+        except HardwareError:
+            self._release_hardware()
+            raise
+
+    def go_live(self) -> None:
+        """Enable the drives and autostart controllers. The first cycle must follow at once: an enabled drive
+        waits limp for its first command, and its watchdog (e.g. Damiao's CAN timeout) is already running."""
+        try:
             for slot in self.hardware:
                 self._hook(slot, "activate", slot.component.activate)
                 slot.lifecycle = Lifecycle.ACTIVE
@@ -249,6 +262,11 @@ class Engine:
                 self.events.emit("error", "engine", f"autostart failed: {result.error}")
         self.started = True
         self.events.emit("info", "engine", f"{self.robot} started: {len(self.joints)} joints held where they are")
+
+    def release(self) -> None:
+        """Leave every configured component in its safe state and release it (start-up failed after bring_up)."""
+        self._release_hardware()
+        self.events.emit("info", "engine", "stopped: hardware released")
 
     @staticmethod
     def _hook(slot: HardwareSlot, what: str, hook: Callable[[], None]) -> None:
