@@ -1,0 +1,650 @@
+"""``mit_can``: MIT-protocol CAN servos — Damiao DM-J, T-Motor/CubeMars AK (MIT mode), MyActuator motion mode.
+
+One component owns one bus. Every cycle ``write`` sends one MIT command frame per motor (the servo command of
+DESIGN.md §2 is the drive's native command, quantised with the motor's ranges) and ``read`` drains the replies
+without blocking: newest reply per motor wins, a motor without a reply this cycle is reported ``fresh = False``
+(the supervisor turns that into a stale-feedback fault after ``safety.stale_feedback_cycles``), drive faults become
+fault codes, and frames that fit nothing are counted and summarised in rate-limited events.
+
+Start-up never moves the arm:
+* configure opens the bus; on Damiao it reads PMAX/VMAX/TMAX and CTRL_MODE of every motor and refuses to start on
+  a mismatch with the configured ranges (both ends must scale identically), then writes the TIMEOUT watchdog.
+* It then asks every motor for one feedback frame before anything is enabled: Damiao gets the register-channel
+  refresh (0x7FF, 0xCC), which only answers. T-Motor gets an MIT frame with kp = kd = 0 and zero feed-forward,
+  which a drive in rest mode answers without acting on (and which would mean "no torque" if it were in motor
+  mode). MyActuator motion mode has no rest mode — every motion frame runs the motor — so the same zero-gain frame
+  makes it produce no torque (≤ 1 LSB, t_max/4095, since 0 Nm is not representable): what a disabled drive does.
+  Motors that do not answer are listed in the HardwareError.
+* activate sends the enable frame (Damiao/T-Motor 0xFC; MyActuator motion mode has none) and waits for replies.
+
+Faults: a drive fault (Damiao status nibble, T-Motor error byte, MyActuator error flags read with the native
+status command every ``status_poll_ms``) is reported as its code; a Damiao motor that reports *disabled* while it
+should be enabled (it rebooted, or its fault was cleared) is ``FAULT_DISABLED``. T-Motor and MyActuator replies do
+not say whether the drive is enabled, so their reboots cannot be seen in the replies. ``clear_faults`` (operator
+reset) sends clear-error where the firmware has one and never re-enables: that is the separate, explicit
+``enable`` operator command, like ``set_zero``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import can
+import numpy as np
+
+from drivers.can.bus import BadFrames, CanLink, bits_per_second
+from drivers.can.params import MitCanParams
+from drivers.can.protocol import damiao_registers as reg
+from drivers.can.protocol.errors import FrameError
+from drivers.can.protocol.flavours import FLAVOURS, MYACTUATOR, MitFlavour
+from drivers.can.protocol.mit import MitRanges, encode_command
+from drivers.can.protocol.models import ranges_for
+from hild.arrays import JointState, ServoCommand
+from hild.config.params import Params
+from hild.hardware import ALL_COMMAND_FIELDS, BusUsage, Finding, HardwareComponent, HardwareContext, HardwareError
+
+__all__ = ["FAULT_DISABLED", "MitCanDriver", "MotorWiring", "wire_motors"]
+
+FAULT_DISABLED = 0x1_0000
+"""Fault code: the motor reports disabled while it should be enabled (above every vendor's own 16-bit codes)."""
+
+DEFAULT_DAMIAO_TIMEOUT_MS = 100.0
+DEFAULT_MYACTUATOR_STATUS_MS = 100.0
+# MyActuator native "read status 1" (0x9A on 0x140 + id, answered on 0x240 + id): D1 temperature (int8 °C),
+# D4–D5 voltage (0.1 V), D6–D7 error flags (uint16, little-endian). Protocol V4.3.
+_MYACTUATOR_STATUS = 0x9A
+MYACTUATOR_ERRORS = {
+    0x0002: "stall",
+    0x0004: "low voltage",
+    0x0008: "over-voltage",
+    0x0010: "over-current",
+    0x0040: "power overrun",
+    0x0080: "calibration parameter write error",
+    0x0100: "over-speed",
+    0x1000: "over-temperature",
+    0x2000: "encoder calibration error",
+}
+_REPLY_LENGTHS = {"damiao": (8,), "tmotor": (6, 8), "myactuator": (8,)}
+_KEY_MASK = {"damiao": 0x0F, "tmotor": 0xFF, "myactuator": 0xFF}  # D0 bits that name the motor in a reply
+_ID_RANGE = {"damiao": (1, 0x7FE), "tmotor": (0, 0xFF), "myactuator": (1, 32)}
+_ENABLED_UNKNOWN, _DISABLED, _ENABLED = -1, 0, 1
+
+
+@dataclass(frozen=True, slots=True)
+class MotorWiring:
+    """One motor's ids and ranges, resolved from the config."""
+
+    joint: str
+    id: int
+    command_id: int
+    reply_id: int
+    ranges: MitRanges
+
+
+def wire_motors(params: MitCanParams, joints: Sequence[str]) -> tuple[list[MotorWiring], list[str]]:
+    """Resolve every joint's motor; also return every reason the params cannot work (empty when they can)."""
+    flavour = FLAVOURS[params.flavour]
+    problems: list[str] = []
+    missing = [j for j in joints if j not in params.motors]
+    if missing:
+        problems.append(f"no motor configured for joints {missing}")
+    extra = [j for j in params.motors if j not in joints]
+    if extra:
+        problems.append(f"motors configured for joints this component does not drive: {extra}")
+    lo, hi = _ID_RANGE[params.flavour]
+    wiring: list[MotorWiring] = []
+    for joint in joints:
+        motor = params.motors.get(joint)
+        if motor is None:
+            continue
+        if not lo <= motor.id <= hi:
+            problems.append(f"{joint}: {params.flavour} motor id must be {lo}..{hi:#x}, got {motor.id:#x}")
+            continue
+        if motor.reply_id is not None and params.flavour != "damiao":
+            problems.append(f"{joint}: reply_id applies to damiao only ({params.flavour} derives it from the id)")
+        try:
+            ranges = ranges_for(params.flavour, motor.model, motor.ranges.as_dict() if motor.ranges else None)
+        except ValueError as exc:
+            problems.append(f"{joint}: {exc}")
+            continue
+        reply = motor.reply_id if motor.reply_id is not None else flavour.reply_id(motor.id, params.master_id)
+        wiring.append(MotorWiring(joint, motor.id, flavour.command_id(motor.id), reply, ranges))
+
+    by_command: dict[int, str] = {}
+    for m in wiring:
+        if m.command_id in by_command:
+            problems.append(f"{m.joint}: motor id {m.id:#x} is also used by {by_command[m.command_id]}")
+        by_command.setdefault(m.command_id, m.joint)
+    mask = _KEY_MASK[params.flavour]
+    by_reply: dict[tuple[int, int], str] = {}
+    for m in wiring:
+        if m.reply_id in by_command:
+            problems.append(
+                f"{m.joint}: reply id {m.reply_id:#x} collides with the command id of {by_command[m.reply_id]}"
+            )
+        if params.flavour == "damiao" and m.reply_id == reg.REGISTER_REQUEST_ID:
+            problems.append(f"{m.joint}: reply id 0x7FF is Damiao's register channel")
+        key = (m.reply_id, m.id & mask)
+        if key in by_reply:
+            what = "the low 4 bits of the id" if params.flavour == "damiao" else "the id"
+            problems.append(
+                f"{m.joint}: shares reply id {m.reply_id:#x} with {by_reply[key]} and replies cannot be told apart "
+                f"({what} must differ; give each motor its own reply_id)"
+            )
+        by_reply.setdefault(key, m.joint)
+    if params.flavour != "damiao" and params.timeout_ms is not None:
+        problems.append(f"timeout_ms: {params.flavour} has no CAN timeout register (damiao only)")
+    if params.flavour != "myactuator" and params.status_poll_ms is not None:
+        problems.append(f"status_poll_ms: applies to myactuator only ({params.flavour} replies carry the status)")
+    return wiring, problems
+
+
+class MitCanDriver(HardwareComponent):
+    """MIT-protocol servos on one CAN bus. All five servo-command fields go to the drive."""
+
+    Params = MitCanParams
+    COMMAND_FIELDS = ALL_COMMAND_FIELDS
+
+    # ---- config review (class level) -----------------------------------------------------------------------
+    @classmethod
+    def review(cls, params: Params, joints: Sequence[str], update_rate: float) -> list[Finding]:
+        assert isinstance(params, MitCanParams)
+        _, problems = wire_motors(params, joints)
+        findings = [Finding("error", p) for p in problems]
+        if params.flavour == "damiao":
+            timeout_ms = _damiao_timeout_ms(params)
+            period_ms = 1000.0 / update_rate
+            if timeout_ms == 0.0:
+                findings.append(
+                    Finding("warning", "timeout_ms 0 disables the Damiao watchdog: a dead host leaves motors running")
+                )
+            elif timeout_ms < 2.0 * period_ms:
+                findings.append(
+                    Finding("error", f"timeout_ms {timeout_ms:g} is below two cycles ({2 * period_ms:g} ms)")
+                )
+            elif timeout_ms < 5.0 * period_ms:
+                findings.append(Finding("warning", f"timeout_ms {timeout_ms:g} leaves under 5 cycles of slack"))
+            if params.on_deactivate == "hold" and timeout_ms > 0.0:
+                findings.append(
+                    Finding("warning", "on_deactivate: hold lasts only until the Damiao watchdog disables the motors")
+                )
+        return findings
+
+    @classmethod
+    def bus_usage(cls, params: Params, joints: Sequence[str], update_rate: float) -> list[BusUsage]:
+        """One command and one (worst case 8-byte) reply per motor per cycle; MyActuator status polls on top."""
+        assert isinstance(params, MitCanParams)
+        wiring, _ = wire_motors(params, joints)
+        n = len(wiring)
+        frames = [(8, n * update_rate), (8, n * update_rate)]
+        poll_ms = _status_poll_ms(params)
+        if poll_ms > 0.0:
+            frames.append((8, 2 * n * 1000.0 / poll_ms))  # request + reply per motor per poll period
+        bps = bits_per_second(params.bus, frames)
+        ids = {m.command_id for m in wiring} | {m.reply_id for m in wiring}
+        if params.flavour == "myactuator":  # the native channel carries disable and the status polls
+            ids |= {base + m.id for m in wiring for base in (MYACTUATOR.NATIVE_BASE, MYACTUATOR.NATIVE_REPLY_BASE)}
+        return [BusUsage(params.bus.name, bps, float(params.bus.bitrate), frozenset(ids))]
+
+    # ---- construction --------------------------------------------------------------------------------------
+    def __init__(self, context: HardwareContext, params: MitCanParams) -> None:
+        super().__init__(context, params)
+        self.params: MitCanParams = params
+        wiring, problems = wire_motors(params, context.joints)
+        if problems:
+            raise HardwareError(f"{context.name}: " + "; ".join(problems))
+        self.flavour: MitFlavour = FLAVOURS[params.flavour]
+        self.motors = wiring
+        self.link = CanLink(params.bus, params.send_failure_cycles)
+        self.bad_frames = BadFrames(context.emit_event, context.name, params.event_interval)
+        n = len(wiring)
+        self._lengths = _REPLY_LENGTHS[params.flavour]
+        mask = _KEY_MASK[params.flavour]
+        self._key_mask = mask
+        self._routes: dict[int, dict[int, int]] = {}
+        for k, m in enumerate(wiring):
+            self._routes.setdefault(m.reply_id, {})[m.id & mask] = k
+        self._frame_budget = 8 * n + 64  # frames drained per read at most; the rest waits for the next cycle
+        self._native_replies: dict[int, int] = {}
+        self._status_requests: list[can.Message] = []
+        poll_ms = _status_poll_ms(params)
+        self._status_interval = poll_ms / 1000.0 / n if poll_ms > 0.0 else 0.0  # one motor per interval
+        self._status_due = 0.0
+        self._status_next = 0
+        if params.flavour == "myactuator":
+            native_reply = MYACTUATOR.NATIVE_REPLY_BASE
+            self._native_replies = {native_reply + m.id: k for k, m in enumerate(wiring)}
+        # Newest feedback per motor (actuator space), written by _accept, copied into the state by read.
+        self.position = np.zeros(n)
+        self.velocity = np.zeros(n)
+        self.effort = np.zeros(n)
+        self.temperature = np.full(n, np.nan)
+        self.fault = np.zeros(n, dtype=np.int64)
+        self.status_fault = np.zeros(n, dtype=np.int64)  # MyActuator error flags from the latest status poll
+        self.replies = np.zeros(n, dtype=np.int64)  # replies accepted per motor since configure
+        self.reported_enabled = np.full(n, _ENABLED_UNKNOWN, dtype=np.int8)
+        self.expect_enabled = np.zeros(n, dtype=bool)
+        self._rezero_replies = np.zeros(n, dtype=np.int64)  # replies still due to set-zero's frames, per motor
+        self._new = np.zeros(n, dtype=bool)
+        self._commands: list[can.Message] = []
+
+    @property
+    def pump(self) -> Callable[[], None] | None:
+        """Called while lifecycle hooks wait for replies: in-process emulators service their motors from it."""
+        return self.link.pump
+
+    @pump.setter
+    def pump(self, fn: Callable[[], None] | None) -> None:
+        self.link.pump = fn
+
+    @property
+    def _timeout(self) -> float:
+        return self.params.reply_timeout_ms / 1000.0
+
+    # ---- lifecycle -------------------------------------------------------------------------------------------
+    def configure(self) -> None:
+        self.link.open()
+        try:
+            self.link.drain()
+            self._commands = [self.link.make_message(m.command_id, bytes(8)) for m in self.motors]
+            if self._native_replies:
+                native = MYACTUATOR.NATIVE_BASE
+                self._status_requests = [
+                    self.link.make_message(native + m.id, bytes([_MYACTUATOR_STATUS, 0, 0, 0, 0, 0, 0, 0]))
+                    for m in self.motors
+                ]
+            if self.params.flavour == "damiao":
+                self._check_damiao_registers()
+            self._read_start_positions()
+        except BaseException:
+            self.link.close()
+            raise
+
+    def _check_damiao_registers(self) -> None:
+        """Refuse to start when a motor's PMAX/VMAX/TMAX differ from the config or it is not in MIT mode."""
+        silent: list[str] = []
+        problems: list[str] = []
+        counts = reg.timeout_counts(_damiao_timeout_ms(self.params) / 1000.0)
+        for m in self.motors:
+            values = self._damiao_exchange(m, [reg.read_request(m.id, r) for r in (reg.PMAX, reg.VMAX, reg.TMAX)])
+            if values is None:
+                silent.append(f"{m.joint} (id {m.id:#x}, reply {m.reply_id:#x})")
+                continue
+            for rid, name, configured in (
+                (reg.PMAX, "PMAX", m.ranges.p_max),
+                (reg.VMAX, "VMAX", m.ranges.v_max),
+                (reg.TMAX, "TMAX", m.ranges.t_max),
+            ):
+                device = float(values[rid])
+                if not math.isclose(device, configured, rel_tol=1e-5, abs_tol=1e-6):
+                    problems.append(
+                        f"{m.joint} (id {m.id:#x}): {name} is {device:g} on the motor but {configured:g} in the config "
+                        f"(model or ranges); fix the config or the motor's register"
+                    )
+            mode = self._damiao_exchange(m, [reg.read_request(m.id, reg.CTRL_MODE)])
+            if mode is None:
+                silent.append(f"{m.joint} (id {m.id:#x}) for CTRL_MODE")
+            elif int(mode[reg.CTRL_MODE]) != reg.CTRL_MODE_MIT:
+                problems.append(
+                    f"{m.joint} (id {m.id:#x}): CTRL_MODE is {int(mode[reg.CTRL_MODE])}, not MIT (1); "
+                    "the motor would ignore MIT commands"
+                )
+        if silent:
+            raise HardwareError(
+                f"Damiao motors did not answer register reads: {', '.join(silent)} "
+                "(check power, wiring, bitrate, the id and reply_id = the motor's MST_ID)"
+            )
+        if problems:
+            raise HardwareError("; ".join(problems))
+        for m in self.motors:
+            done = self._damiao_exchange(m, [reg.write_request(m.id, reg.TIMEOUT, counts)])
+            if done is None or int(done[reg.TIMEOUT]) != counts:
+                found = "no answer" if done is None else f"it answered {int(done[reg.TIMEOUT])}"
+                raise HardwareError(f"{m.joint} (id {m.id:#x}): writing TIMEOUT = {counts} failed ({found})")
+
+    def _damiao_exchange(self, m: MotorWiring, requests: list[can.Message]) -> dict[int, float] | None:
+        """Send register requests one by one; the values answered, or None when the motor stays silent."""
+        values: dict[int, float] = {}
+        for request in requests:
+            rid = request.data[3]
+
+            def handle(msg: can.Message, rid: int = rid) -> None:
+                if msg.arbitration_id != m.reply_id or not reg.is_register_reply(msg, m.id):
+                    return
+                try:
+                    esc_id, got, value = reg.decode_register_reply(msg)
+                except FrameError:
+                    self.bad_frames.note("corrupted register reply", msg.arbitration_id)
+                    return
+                if esc_id == m.id and got == rid:
+                    values[rid] = value
+
+            self.link.send_wait(request)
+            if not self.link.collect(handle, lambda rid=rid: rid in values, self._timeout):
+                return None
+        return values
+
+    def _read_start_positions(self) -> None:
+        """One feedback frame per motor before anything is enabled, so hold starts where the arm is."""
+        silent = []
+        for k, m in enumerate(self.motors):
+            before = int(self.replies[k])
+            self.link.send_wait(self._status_request(k))
+            if not self.link.collect(self._accept, lambda k=k, before=before: self.replies[k] > before, self._timeout):
+                silent.append(f"{m.joint} (id {m.id:#x}, reply {m.reply_id:#x})")
+        if silent:
+            raise HardwareError(
+                f"motors did not answer on {self.params.bus.name}: {', '.join(silent)} "
+                "(check power, wiring, bitrate and ids)"
+            )
+        for k, m in enumerate(self.motors):
+            code = int(self.fault[k])
+            if code:
+                self.context.emit_event("error", f"{m.joint}: motor reports {self.describe_fault(code)} at start-up")
+
+    def _status_request(self, k: int) -> can.Message:
+        m = self.motors[k]
+        if self.params.flavour == "damiao":
+            return reg.refresh_request(m.id)
+        return self.link.make_message(m.command_id, encode_command(0.0, 0.0, 0.0, 0.0, 0.0, m.ranges))
+
+    def activate(self) -> None:
+        """Enable every motor and wait for its reply; a motor already reporting a fault is left disabled."""
+        self.expect_enabled[:] = True
+        failed = []
+        for k, m in enumerate(self.motors):
+            code = int(self.fault[k])
+            if code and code != FAULT_DISABLED:
+                self.context.emit_event(
+                    "error",
+                    f"{m.joint}: not enabled, the motor reports {self.describe_fault(code)}: reset clears the drive "
+                    "error, then enable it explicitly",
+                )
+                continue
+            if not self._enable(k, wait=True):
+                failed.append(f"{m.joint} (id {m.id:#x})")
+        if failed:
+            raise HardwareError(f"motors did not confirm enable: {', '.join(failed)}")
+
+    def _enable(self, k: int, *, wait: bool) -> bool:
+        msg = self.flavour.special(self.motors[k].id, "enable", fd=self.params.bus.fd)
+        self.expect_enabled[k] = True
+        if msg is None:  # MyActuator motion mode: every command frame is obeyed; nothing to switch on
+            return True
+        if not wait:
+            return self.link.send(msg)
+        before = int(self.replies[k])
+        self.link.send_wait(msg)
+        reports = self.flavour.reports_enabled
+
+        def confirmed() -> bool:
+            if self.replies[k] <= before:
+                return False
+            return not reports or self.reported_enabled[k] == _ENABLED or self.fault[k] != 0
+
+        return self.link.collect(self._accept, confirmed, self._timeout) and self.fault[k] == 0
+
+    def deactivate(self) -> None:
+        if self.link.bus is None:
+            return
+        if self.params.on_deactivate == "hold":
+            self.context.emit_event("info", "motors left enabled at their last command (on_deactivate: hold)")
+            return
+        self.expect_enabled[:] = False
+        unconfirmed = []
+        for k, m in enumerate(self.motors):
+            msg = self.flavour.special(m.id, "disable", fd=self.params.bus.fd)
+            if msg is None:
+                continue
+            before = int(self.replies[k])
+            try:
+                self.link.send_wait(msg)
+            except HardwareError:
+                unconfirmed.append(m.joint)
+                continue
+            if self.flavour.reports_enabled:
+                ok = self.link.collect(
+                    self._accept,
+                    lambda k=k, before=before: self.replies[k] > before and self.reported_enabled[k] != _ENABLED,
+                    self._timeout,
+                )
+                if not ok:
+                    unconfirmed.append(m.joint)
+        if unconfirmed:
+            self.context.emit_event("error", f"disable not confirmed by {unconfirmed}")
+
+    def cleanup(self) -> None:
+        self.link.close()
+
+    # ---- cycle -------------------------------------------------------------------------------------------------
+    def read(self, t: float, dt: float, state: JointState) -> None:
+        poll, accept = self.link.poll, self._accept
+        for _ in range(self._frame_budget):
+            msg = poll()
+            if msg is None:
+                break
+            accept(msg)
+        np.copyto(state.position, self.position)
+        np.copyto(state.velocity, self.velocity)
+        np.copyto(state.effort, self.effort)
+        np.copyto(state.temperature, self.temperature)
+        np.copyto(state.fault, self.fault)
+        np.copyto(state.fresh, self._new)
+        self._new.fill(False)
+        self.bad_frames.report(t)
+
+    def write(self, t: float, dt: float, command: ServoCommand) -> None:
+        send = self.link.send
+        p, v, kp, kd, ff = command.position, command.velocity, command.kp, command.kd, command.effort
+        rezero = self._rezero_replies
+        for k, msg in enumerate(self._commands):
+            if rezero.item(k):  # the command was computed in the drive's old frame: no torque until it reports
+                msg.data[:] = encode_command(0.0, 0.0, 0.0, 0.0, 0.0, self.motors[k].ranges)
+            else:
+                msg.data[:] = encode_command(
+                    p.item(k), v.item(k), kp.item(k), kd.item(k), ff.item(k), self.motors[k].ranges
+                )
+            send(msg)
+        if self._status_interval:
+            self._status_due -= dt
+            if self._status_due <= 0.0:
+                self._status_due += self._status_interval
+                k = self._status_next
+                self._status_next = (k + 1) % len(self._status_requests)
+                send(self._status_requests[k])
+        self.link.end_cycle()
+
+    def _accept(self, msg: can.Message) -> None:
+        """Decode one received frame into the newest-feedback arrays, or count why it was ignored."""
+        if msg.is_extended_id or msg.is_remote_frame:
+            self.bad_frames.note("unexpected frame type", msg.arbitration_id)
+            return
+        routes = self._routes.get(msg.arbitration_id)
+        if routes is None:
+            native = self._native_replies.get(msg.arbitration_id)
+            if native is not None:
+                self._accept_native(native, msg)
+            elif not any(self.flavour.is_ack(msg, m.id) for m in self.motors):
+                self.bad_frames.note("unknown id", msg.arbitration_id)
+            return
+        data = msg.data
+        if len(data) not in self._lengths:
+            self.bad_frames.note("wrong length", msg.arbitration_id)
+            return
+        k = routes.get(data[0] & self._key_mask)
+        if k is None:
+            self.bad_frames.note("unexpected motor id", msg.arbitration_id)
+            return
+        m = self.motors[k]
+        try:
+            reply = self.flavour.decode_reply(msg, m.ranges, m.id)
+        except FrameError:
+            self.bad_frames.note("corrupted", msg.arbitration_id)
+            return
+        self.position[k] = reply.position
+        self.velocity[k] = reply.velocity
+        self.effort[k] = reply.torque
+        t_mos, t_rotor = reply.temperature_mos, reply.temperature_rotor
+        if t_mos is not None and t_rotor is not None:
+            self.temperature[k] = max(t_mos, t_rotor)  # the hotter one limits the drive
+        elif t_mos is not None or t_rotor is not None:
+            self.temperature[k] = t_mos if t_mos is not None else t_rotor
+        enabled = reply.enabled
+        self.reported_enabled[k] = _ENABLED_UNKNOWN if enabled is None else (_ENABLED if enabled else _DISABLED)
+        if self._rezero_replies[k]:
+            self._rezero_replies[k] -= 1
+        if reply.fault or self.status_fault[k]:
+            self.fault[k] = reply.fault or self.status_fault[k]
+        elif enabled is False and self.expect_enabled[k] and not self._rezero_replies[k]:  # set-zero passes "off"
+            self.fault[k] = FAULT_DISABLED
+        else:
+            self.fault[k] = 0
+        self.replies[k] += 1
+        self._new[k] = True
+
+    def _accept_native(self, k: int, msg: can.Message) -> None:
+        """MyActuator native replies: status 1 carries error flags and temperature; others are acknowledgements."""
+        data = msg.data
+        if len(data) != 8:
+            self.bad_frames.note("wrong length", msg.arbitration_id)
+            return
+        if data[0] != _MYACTUATOR_STATUS:
+            return
+        temperature = data[1] - 256 if data[1] > 127 else data[1]
+        self.temperature[k] = float(temperature)
+        flags = data[6] | data[7] << 8
+        self.status_fault[k] = flags
+        if flags:
+            self.fault[k] = flags
+
+    # ---- reporting and operator commands ------------------------------------------------------------------------
+    def health(self) -> str | None:
+        return self.link.check_state()
+
+    def describe_fault(self, code: int) -> str:
+        if code == FAULT_DISABLED:
+            return (
+                "motor reports disabled while it should be enabled (rebooted, zeroed, or its fault was cleared); "
+                "it is not re-enabled automatically: enable it explicitly"
+            )
+        if self.params.flavour == "myactuator":
+            names = [name for bit, name in MYACTUATOR_ERRORS.items() if code & bit]
+            unknown = code & ~sum(MYACTUATOR_ERRORS)
+            if unknown:
+                names.append(f"unknown flags {unknown:#x}")
+            return f"myactuator error flags {code:#06x}: {', '.join(names)}"
+        return f"{self.flavour.name} fault {code:#x}: {self.flavour.describe_fault(code)}"
+
+    def clear_faults(self) -> None:
+        """Operator reset: recover the bus per ``bus_recovery`` and send clear-error to faulted drives.
+
+        A cleared Damiao drive comes back *disabled* and is then reported as ``FAULT_DISABLED`` until the operator
+        enables it explicitly: nothing here enables a motor.
+        """
+        if self.link.problem is not None:
+            if self.params.bus_recovery == "reopen":
+                try:
+                    self.link.reopen()
+                    self._commands = [self.link.make_message(m.command_id, bytes(8)) for m in self.motors]
+                except HardwareError as exc:
+                    self.link.latch(str(exc))
+            else:
+                self.link.clear()
+        # Replies already received still carry the old fault: take them in first, so they cannot re-report it
+        # after the clear below.
+        for _ in range(self._frame_budget):
+            msg = self.link.poll()
+            if msg is None:
+                break
+            self._accept(msg)
+        for k, m in enumerate(self.motors):
+            code = int(self.fault[k])
+            if not code or code == FAULT_DISABLED:
+                continue
+            msg = self.flavour.special(m.id, "clear", fd=self.params.bus.fd)
+            if msg is None:
+                self.context.emit_event(
+                    "warning", f"{m.joint}: {self.flavour.name} has no clear-error frame; the drive must clear it"
+                )
+            else:
+                self.link.send(msg)
+            self.fault[k] = 0  # the drive's next reply (or status poll) says what is left
+            self.status_fault[k] = 0
+
+    def enable(self, joint: str | None = None) -> list[str]:
+        """Operator command: send the enable frame to one motor (or all). Never called automatically.
+
+        Refused for a motor that reports a drive fault (reset first). Returns the joints enabled; the replies of the
+        next cycles confirm it (a motor that stays disabled keeps reporting ``FAULT_DISABLED``).
+        """
+        targets = self._targets(joint)
+        faulted = [self.motors[k].joint for k in targets if self.fault[k] not in (0, FAULT_DISABLED)]
+        if faulted:
+            raise HardwareError(f"motors {faulted} report a drive fault: reset first (it clears the drive error)")
+        for k in targets:
+            if not self._enable(k, wait=False):
+                raise HardwareError(f"{self.motors[k].joint}: enable frame not sent ({self.link.problem or 'bus'})")
+        return [self.motors[k].joint for k in targets]
+
+    def set_zero(self, joint: str) -> None:
+        """Operator command: make the motor's present position its zero. Never called automatically.
+
+        Sends *disable*, *zero* and — if the motor was enabled — *enable* back to back: firmwares re-zero only at
+        rest (Ben Katz lineage) and a drive that stayed enabled would pull toward its old target in the new frame.
+        Every drive answers each of these frames; until those replies are in, the motor gets zero-gain frames
+        (no torque) instead of the command, because that command was computed from a reading in the old frame.
+        Then hold continues where the joint is, read in the new frame. If the enable does not take, the next
+        reply reports ``FAULT_DISABLED``.
+        """
+        (k,) = self._targets(joint)
+        m = self.motors[k]
+        fd = self.params.bus.fd
+        zero = self.flavour.special(m.id, "zero", fd=fd)
+        if zero is None:
+            raise HardwareError(f"{joint}: {self.flavour.name} has no set-zero frame")
+        frames = [self.flavour.special(m.id, "disable", fd=fd), zero]
+        if self.expect_enabled[k]:
+            frames.append(self.flavour.special(m.id, "enable", fd=fd))
+        pending = 0
+        for frame in frames:
+            if frame is None:
+                continue
+            if not self.link.send(frame):
+                self._rezero_replies[k] = pending
+                why = self.link.problem or "send queue full"
+                raise HardwareError(f"{joint}: set-zero interrupted after {pending} of its frames ({why})")
+            pending += 1
+        self._rezero_replies[k] = pending
+
+    def _targets(self, joint: str | None) -> list[int]:
+        if joint is None:
+            return list(range(len(self.motors)))
+        for k, m in enumerate(self.motors):
+            if m.joint == joint:
+                return [k]
+        raise HardwareError(f"{self.context.name} drives no joint {joint!r} (joints: {', '.join(self.joints)})")
+
+    @property
+    def statistics(self) -> dict[str, int]:
+        """Counters for tools and tests: frames, send failures, error frames, ignored frames by kind."""
+        link = self.link
+        return {
+            "frames_sent": link.frames_sent,
+            "frames_received": link.frames_received,
+            "send_failures": link.send_failures,
+            "error_frames": link.error_frames,
+            "error_passive_reports": link.passive_reports,
+            **{f"ignored {kind}": n for kind, n in self.bad_frames.totals.items()},
+        }
+
+
+def _damiao_timeout_ms(params: MitCanParams) -> float:
+    return DEFAULT_DAMIAO_TIMEOUT_MS if params.timeout_ms is None else params.timeout_ms
+
+
+def _status_poll_ms(params: MitCanParams) -> float:
+    if params.flavour != "myactuator":
+        return 0.0
+    return DEFAULT_MYACTUATOR_STATUS_MS if params.status_poll_ms is None else params.status_poll_ms
