@@ -1,0 +1,587 @@
+"""`hild emulate`'s engine room: the CAN drives a robot config names, emulated on their buses, with a plant behind.
+
+`build_runtime(loaded, options)` reads the config's CAN hardware sections (drivers ``mit_can`` and ``odrive_can``)
+and makes one firmware model per configured motor — flavour, ids, model ranges and range overrides exactly as the
+host driver resolves them (``wire_motors``), so both ends of the bus scale values identically. Components on the
+same bus share one `Emulator`. Behind the drives sits a plant in actuator space:
+
+* ``twin`` — the robot's MuJoCo model (``robot.model``), joint names kept, each joint seen through its
+  transmission (`drivers.mujoco.plant.TwinPlant`): the arm's real dynamics behind CAN. One bus only, because
+  the physics must see every drive's torque in the same step.
+* ``motors`` — an independent `MotorPlant` joint per motor (inertia, damping, gravity-like load).
+
+Holding brakes (default on): a joint whose drive is not enabled stays where it is, so an unpowered twin does not
+collapse before a daemon enables it. Without brakes a disabled or faulted drive lets its joint fall, as an
+unbraked Damiao arm does.
+
+Run-time control (``--control HOST:PORT``): a TCP socket taking one JSON object per line and answering one per
+line, ``{"ok": true, ...}`` or ``{"ok": false, "error": "..."}``. Requests are applied by the emulator loop
+between two services, so a fault lands atomically. ``joint`` is a joint name; where optional, omitting it means
+every emulated joint.
+
+* ``{"op": "status"}`` → ``time``, ``plant``, ``buses`` (counters per bus) and ``joints``: name, component, bus,
+  ``position``/``velocity`` (joint space, the plant's truth), ``actuator_position``/``actuator_velocity``,
+  ``torque`` (actuator space), ``enabled``, ``fault``, ``braked``, ``temperature_rotor``/``temperature_mos``.
+* ``{"op": "fault", "joint": J, "code": C}`` — latch a drive fault (Damiao 0x5…0xE, T-Motor 1…6, MyActuator
+  flags, ODrive axis error bits); the drive disables itself like the firmware does.
+* ``{"op": "clear", "joint": J?}`` — clear latched faults on the drive side (an operator power-cycling a supply).
+* ``{"op": "reboot", "joint": J?}`` — power cycle: back disabled, RAM settings lost.
+* ``{"op": "set", "joint": J?, "drop_replies": P, "reply_delay": S, "silent": B, "over_temperature": C}`` —
+  transport faults: drop each reply with probability P, delay replies by S seconds, cut the transceiver.
+* ``{"op": "stop"}`` — end the emulator (the process exits 0).
+
+`request(address, payload)` is a small client for it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import math
+import queue
+import socket
+import socketserver
+import threading
+import time
+import uuid
+from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import Future
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import can
+import numpy as np
+
+from drivers.can.bus import BusSpec, open_bus
+from drivers.can.driver import wire_motors
+from drivers.can.emulator.base import MotorFirmware
+from drivers.can.emulator.core import Emulator
+from drivers.can.emulator.mit_firmware import DamiaoFirmware, MitFirmware, MyActuatorFirmware, TMotorFirmware
+from drivers.can.emulator.odrive_firmware import ODriveFirmware
+from drivers.can.emulator.plant import MotorPlant, Plant
+from drivers.can.params import MitCanParams, ODriveCanParams
+from hild.config.loader import LoadedConfig
+
+__all__ = [
+    "CAN_DRIVERS",
+    "BrakedPlant",
+    "EmulatedJoint",
+    "EmulatorRuntime",
+    "RuntimeOptions",
+    "build_firmware",
+    "build_runtime",
+    "describe",
+    "request",
+]
+
+log = logging.getLogger("hild.emulate")
+
+CAN_DRIVERS = ("mit_can", "odrive_can")
+PlantKind = Literal["twin", "motors"]
+
+
+@dataclass(frozen=True)
+class EmulatedJoint:
+    """One emulated drive and where it sits: its joint, component, bus and the joint's transmission."""
+
+    name: str
+    component: str
+    bus: str
+    firmware: MotorFirmware
+    reduction: float = 1.0
+    direction: int = 1
+    offset: float = 0.0
+
+    def to_joint(self, actuator_position: float) -> float:
+        return self.direction * actuator_position / self.reduction + self.offset
+
+    def to_actuator(self, joint_position: float) -> float:
+        return self.direction * (joint_position - self.offset) * self.reduction
+
+
+@dataclass
+class RuntimeOptions:
+    """What `hild emulate`'s command line can change. ``plant=None``: the twin when the config has robot.model."""
+
+    plant: PlantKind | None = None
+    components: Sequence[str] | None = None
+    keyframe: str | None = None
+    """Twin start pose; None: the model's ``home`` keyframe if it has one, else its qpos0."""
+    initial_positions: Mapping[str, float] = field(default_factory=dict)
+    """Joint space, by joint name; applied after the keyframe."""
+    brakes: bool = True
+    inertia: float = 0.05
+    damping: float = 0.05
+    gravity: float = 0.0
+    max_step: float = 0.0005
+    """Longest plant step (s): the drives' control law is evaluated at least this often."""
+
+
+def build_firmware(params: MitCanParams | ODriveCanParams, joints: Sequence[str]) -> list[MotorFirmware]:
+    """One firmware per joint (component joint order), configured as the host driver expects to find it."""
+    if isinstance(params, ODriveCanParams):
+        return [
+            ODriveFirmware(
+                params.axes[joint].node_id,
+                heartbeat_period=params.heartbeat_rate_ms / 1000.0,
+                encoder_period=params.encoder_rate_ms / 1000.0,
+                seed=k,
+            )
+            for k, joint in enumerate(joints)
+        ]
+    wiring, problems = wire_motors(params, joints)
+    if problems:
+        raise ValueError("; ".join(problems))
+    made: list[MotorFirmware] = []
+    for k, m in enumerate(wiring):
+        if params.flavour == "damiao":
+            made.append(DamiaoFirmware(m.id, m.reply_id, m.ranges, seed=k))
+        elif params.flavour == "tmotor":
+            made.append(TMotorFirmware(m.id, m.ranges, master_id=params.master_id, seed=k))
+        else:
+            made.append(MyActuatorFirmware(m.id, m.ranges, seed=k))
+    return made
+
+
+class BrakedPlant:
+    """Holding brakes around any plant: a joint whose drive is not enabled keeps the position where it locked."""
+
+    def __init__(self, plant: Plant, motors: Sequence[MotorFirmware]) -> None:
+        if len(plant.positions) != len(motors):
+            raise ValueError(f"plant has {len(plant.positions)} joints for {len(motors)} motors")
+        self.plant = plant
+        self.motors = list(motors)
+        self.locked = np.zeros(len(motors), dtype=bool)
+        self._hold = np.array(plant.positions, dtype=float)
+        self._update_locks()
+
+    @property
+    def positions(self) -> np.ndarray:
+        return self.plant.positions
+
+    @property
+    def velocities(self) -> np.ndarray:
+        return self.plant.velocities
+
+    def step(self, torques: np.ndarray, dt: float) -> None:
+        self._update_locks()
+        self.plant.step(torques, dt)
+        if self.locked.any():
+            self.plant.positions[self.locked] = self._hold[self.locked]
+            self.plant.velocities[self.locked] = 0.0
+
+    def _update_locks(self) -> None:
+        for i, motor in enumerate(self.motors):
+            engage = not motor.enabled
+            if engage and not self.locked[i]:
+                self._hold[i] = self.plant.positions[i]
+                self.plant.velocities[i] = 0.0
+            self.locked[i] = engage
+
+
+@dataclass
+class BusRig:
+    """One bus: its spec, the drives on it (plant order) and, once opened, the bus and its emulator."""
+
+    spec: BusSpec
+    joints: list[EmulatedJoint]
+    plant: Plant
+    bus: can.BusABC | None = None
+    emulator: Emulator | None = None
+
+
+class EmulatorRuntime:
+    """Every emulated bus of one config, serviced together on one clock; the control channel's request handler."""
+
+    def __init__(
+        self,
+        rigs: list[BusRig],
+        plant_kind: PlantKind,
+        *,
+        max_step: float = 0.0005,
+        twin: Any | None = None,
+    ) -> None:
+        self.rigs = rigs
+        self.plant_kind = plant_kind
+        self.max_step = max_step
+        self.twin = twin
+        """The TwinPlant when plant_kind is twin (for status and tests)."""
+        self.joints = [j for rig in rigs for j in rig.joints]
+        self.time: float | None = None
+        self._requests: queue.SimpleQueue[tuple[dict[str, Any], Future[dict[str, Any]]]] = queue.SimpleQueue()
+        self._remote: Any | None = None
+        self._remote_thread: threading.Thread | None = None
+        self._control: socketserver.ThreadingTCPServer | None = None
+        self._control_thread: threading.Thread | None = None
+        self.stop_event = threading.Event()
+        self.loop_stats: dict[str, float] = {"services": 0, "overruns": 0, "max_late_ms": 0.0}
+        """Wall-clock loop (`run`): services, periods overrun, worst lateness of a service against its deadline."""
+
+    # ---- lifecycle ------------------------------------------------------------------------------------------
+    def open(self, serve_remote: tuple[str, int] | None = None) -> None:
+        """Open every bus and start its emulator; with ``serve_remote`` also host the remote bus on HOST:PORT.
+
+        The served bus is the one whose components use ``interface: remote``: the emulator sits on a private
+        in-process ``virtual`` channel and a python-can-remote server bridges clients onto that channel.
+        """
+        try:
+            served = self._served_rig(serve_remote)
+            for rig in self.rigs:
+                if rig is served and serve_remote is not None:
+                    channel = f"hild-emulate-{uuid.uuid4().hex[:12]}"
+                    rig.bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
+                    self._start_remote(serve_remote, channel)
+                else:
+                    rig.bus = open_bus(rig.spec)
+                rig.emulator = Emulator(rig.bus, [j.firmware for j in rig.joints], rig.plant, max_step=self.max_step)
+        except BaseException:
+            self.close()
+            raise
+
+    def _served_rig(self, serve_remote: tuple[str, int] | None) -> BusRig | None:
+        if serve_remote is None:
+            return None
+        remote = [rig for rig in self.rigs if rig.spec.interface == "remote"]
+        if not remote:
+            raise ValueError("--serve-remote: no emulated component uses a bus with interface: remote")
+        if len(remote) > 1:
+            names = ", ".join(rig.spec.name for rig in remote)
+            raise ValueError(f"--serve-remote serves one bus, the config has several remote buses ({names})")
+        return remote[0]
+
+    def _start_remote(self, address: tuple[str, int], channel: str) -> None:
+        from can_remote import RemoteServer
+
+        server = RemoteServer(address[0], address[1], interface="virtual", channel=channel)
+        self._remote = server
+        self._remote_thread = threading.Thread(target=server.serve_forever, name="can-remote", daemon=True)
+        self._remote_thread.start()
+
+    @property
+    def remote_address(self) -> tuple[str, int] | None:
+        """HOST, PORT the remote server listens on (the port is real even when 0 was asked for)."""
+        if self._remote is None:
+            return None
+        host, port = self._remote.server_address[:2]
+        return str(host), int(port)
+
+    def start_control(self, address: tuple[str, int]) -> tuple[str, int]:
+        """Listen for control requests on HOST:PORT (JSON lines); returns the bound address."""
+        runtime = self
+
+        class Handler(socketserver.StreamRequestHandler):
+            def handle(self) -> None:
+                for line in self.rfile:
+                    if not line.strip():
+                        continue
+                    reply = runtime.call(line)
+                    self.wfile.write(json.dumps(reply).encode() + b"\n")
+                    self.wfile.flush()
+
+        class Server(socketserver.ThreadingTCPServer):
+            allow_reuse_address = True
+            daemon_threads = True
+
+        server = Server(address, Handler)
+        self._control = server
+        self._control_thread = threading.Thread(target=server.serve_forever, name="emulate-control", daemon=True)
+        self._control_thread.start()
+        host, port = server.server_address[:2]
+        return str(host), int(port)
+
+    def close(self) -> None:
+        """Stop the servers and release the buses (safe to call twice)."""
+        for server in (self._control, self._remote):
+            if server is not None:
+                server.shutdown()
+                server.server_close()
+        self._control = self._remote = None
+        for rig in self.rigs:
+            bus, rig.bus = rig.bus, None
+            rig.emulator = None
+            if bus is not None:
+                with contextlib.suppress(can.CanError, OSError):
+                    bus.shutdown()
+
+    # ---- running ------------------------------------------------------------------------------------------------
+    def service(self, now: float) -> None:
+        """Apply pending control requests, then serve every bus at ``now`` (sim or wall seconds)."""
+        self._apply_requests()
+        self.time = now
+        for rig in self.rigs:
+            if rig.emulator is not None:
+                rig.emulator.service(now)
+
+    def run(self, period: float, clock: Callable[[], float] = time.monotonic) -> None:
+        """Serve every ``period`` s on ``clock`` until `stop_event` is set (a stop request or a signal)."""
+        stop = self.stop_event
+        loop = self.loop_stats
+        deadline = clock()
+        while not stop.is_set():
+            now = clock()
+            late = now - deadline
+            if late > loop["max_late_ms"] / 1000.0:
+                loop["max_late_ms"] = late * 1000.0
+            self.service(now)
+            loop["services"] += 1
+            deadline += period
+            delay = deadline - clock()
+            if delay < 0.0:
+                loop["overruns"] += 1
+                deadline = clock()  # overran: restart the grid rather than burst to catch up
+            elif stop.wait(delay):
+                break
+        self._apply_requests()  # answer whatever arrived with the stop
+
+    # ---- control ------------------------------------------------------------------------------------------------
+    def submit(self, payload: dict[str, Any]) -> Future[dict[str, Any]]:
+        """Queue a control request for the emulator loop (any thread)."""
+        future: Future[dict[str, Any]] = Future()
+        self._requests.put((payload, future))
+        return future
+
+    def call(self, line: bytes | str, timeout: float = 5.0) -> dict[str, Any]:
+        """One JSON request line in, one reply out (what the control socket does per line)."""
+        try:
+            payload = json.loads(line)
+        except ValueError as exc:
+            return {"ok": False, "error": f"not JSON: {exc}"}
+        if not isinstance(payload, dict):
+            return {"ok": False, "error": "a request is a JSON object with an 'op'"}
+        try:
+            return self.submit(payload).result(timeout)
+        except TimeoutError:
+            return {"ok": False, "error": f"the emulator loop did not answer within {timeout} s"}
+
+    def _apply_requests(self) -> None:
+        while True:
+            try:
+                payload, future = self._requests.get_nowait()
+            except queue.Empty:
+                return
+            if future.set_running_or_notify_cancel():
+                future.set_result(self.handle(payload))
+
+    def handle(self, payload: Mapping[str, Any]) -> dict[str, Any]:
+        """Apply one control request now (on the thread that services the emulators)."""
+        op = payload.get("op")
+        try:
+            if op == "status":
+                return {"ok": True, **self.status()}
+            if op == "stop":
+                self.stop_event.set()
+                return {"ok": True}
+            if op == "fault":
+                code = payload.get("code")
+                if not isinstance(code, int) or isinstance(code, bool):
+                    raise ValueError("fault needs an integer 'code'")
+                (joint,) = self._select(payload, required=True)
+                joint.firmware.inject_fault(code)
+                return {"ok": True, "joints": [joint.name]}
+            if op in ("clear", "reboot"):
+                chosen = self._select(payload)
+                for joint in chosen:
+                    if op == "clear":
+                        joint.firmware.clear_fault()
+                    else:
+                        joint.firmware.reboot()
+                return {"ok": True, "joints": [j.name for j in chosen]}
+            if op == "set":
+                return self._set(payload)
+        except (ValueError, TypeError) as exc:
+            return {"ok": False, "error": str(exc)}
+        ops = "status, fault, clear, reboot, set, stop"
+        return {"ok": False, "error": f"unknown op {op!r} (ops: {ops})"}
+
+    def _select(self, payload: Mapping[str, Any], *, required: bool = False) -> list[EmulatedJoint]:
+        name = payload.get("joint")
+        if name is None:
+            if required:
+                raise ValueError(f"{payload.get('op')} needs a 'joint'")
+            return list(self.joints)
+        for joint in self.joints:
+            if joint.name == name:
+                return [joint]
+        raise ValueError(f"unknown joint {name!r} (emulated: {', '.join(j.name for j in self.joints)})")
+
+    def _set(self, payload: Mapping[str, Any]) -> dict[str, Any]:
+        settings = {k: v for k, v in payload.items() if k not in ("op", "joint")}
+        if not settings:
+            raise ValueError("set needs at least one of drop_replies, reply_delay, silent, over_temperature")
+        checked: dict[str, Any] = {}
+        for key, value in settings.items():
+            if key == "silent":
+                if not isinstance(value, bool):
+                    raise ValueError("silent must be true or false")
+                checked[key] = value
+            elif key in ("drop_replies", "reply_delay", "over_temperature"):
+                if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+                    raise ValueError(f"{key} must be a number")
+                if key == "drop_replies" and not 0.0 <= value <= 1.0:
+                    raise ValueError("drop_replies is a probability in [0, 1]")
+                if key == "reply_delay" and value < 0.0:
+                    raise ValueError("reply_delay must not be negative")
+                checked[key] = float(value)
+            else:
+                raise ValueError(f"unknown setting {key!r} (drop_replies, reply_delay, silent, over_temperature)")
+        chosen = self._select(payload)
+        for joint in chosen:
+            for key, value in checked.items():
+                setattr(joint.firmware, key, value)
+        return {"ok": True, "joints": [j.name for j in chosen], **checked}
+
+    def status(self) -> dict[str, Any]:
+        joints = []
+        for rig in self.rigs:
+            braked = rig.plant.locked if isinstance(rig.plant, BrakedPlant) else np.zeros(len(rig.joints), bool)
+            for i, joint in enumerate(rig.joints):
+                fw = joint.firmware
+                q, qd = float(rig.plant.positions[i]), float(rig.plant.velocities[i])
+                joints.append(
+                    {
+                        "name": joint.name,
+                        "component": joint.component,
+                        "bus": rig.spec.name,
+                        "position": joint.to_joint(q),
+                        "velocity": joint.direction * qd / joint.reduction,
+                        "actuator_position": q,
+                        "actuator_velocity": qd,
+                        "torque": float(fw.applied_torque),
+                        "enabled": bool(fw.enabled),
+                        "fault": int(fw.fault),
+                        "braked": bool(braked[i]),
+                        "temperature_rotor": round(float(fw.temperature_rotor), 2),
+                        "temperature_mos": round(float(fw.temperature_mos), 2),
+                    }
+                )
+        buses = [
+            {"bus": rig.spec.name, "motors": len(rig.joints), **(rig.emulator.stats() if rig.emulator else {})}
+            for rig in self.rigs
+        ]
+        loop = {**self.loop_stats, "max_late_ms": round(self.loop_stats["max_late_ms"], 3)}
+        return {"time": self.time, "plant": self.plant_kind, "loop": loop, "buses": buses, "joints": joints}
+
+
+def request(address: tuple[str, int], payload: Mapping[str, Any], timeout: float = 5.0) -> dict[str, Any]:
+    """Send one control request to a running `hild emulate --control HOST:PORT` and return its reply."""
+    with socket.create_connection(address, timeout=timeout) as sock:
+        sock.sendall(json.dumps(dict(payload)).encode() + b"\n")
+        with sock.makefile("rb") as reader:
+            line = reader.readline()
+    if not line:
+        raise ConnectionError(f"the emulator at {address[0]}:{address[1]} closed the connection without a reply")
+    reply: dict[str, Any] = json.loads(line)
+    return reply
+
+
+# ---- building from a config ---------------------------------------------------------------------------------------
+
+
+def build_runtime(loaded: LoadedConfig, options: RuntimeOptions | None = None) -> EmulatorRuntime:
+    """Emulate the CAN components of ``loaded`` (all of them, or ``options.components``); buses are not opened yet.
+
+    Raises ValueError with the reason when there is nothing to emulate or the plant cannot be built.
+    """
+    opts = options or RuntimeOptions()
+    cfg = loaded.config
+    wanted = list(opts.components) if opts.components else None
+    if wanted is not None:
+        unknown = [name for name in wanted if name not in cfg.hardware]
+        if unknown:
+            raise ValueError(f"no hardware component {unknown} in the config (it has: {', '.join(cfg.hardware)})")
+        not_can = [name for name in wanted if cfg.hardware[name].driver not in CAN_DRIVERS]
+        if not_can:
+            raise ValueError(f"components {not_can} are not CAN drivers ({', '.join(CAN_DRIVERS)})")
+    names = wanted or [name for name, hw in cfg.hardware.items() if hw.driver in CAN_DRIVERS]
+    if not names:
+        raise ValueError(f"the config has no CAN hardware component (drivers {', '.join(CAN_DRIVERS)})")
+
+    by_bus: dict[str, tuple[BusSpec, list[EmulatedJoint]]] = {}
+    for name in names:
+        hw = cfg.hardware[name]
+        params = loaded.driver_params[name]
+        assert isinstance(params, MitCanParams | ODriveCanParams)
+        joints = list(hw.joints)
+        firmwares = build_firmware(params, joints)
+        spec = params.bus
+        entry = by_bus.setdefault(spec.name, (spec, []))
+        for joint, fw in zip(joints, firmwares, strict=True):
+            tr = hw.joints[joint]
+            entry[1].append(EmulatedJoint(joint, name, spec.name, fw, tr.reduction, tr.direction, tr.offset))
+
+    kind: PlantKind = opts.plant or ("twin" if cfg.robot.model else "motors")
+    unknown_initial = sorted(set(opts.initial_positions) - {j.name for _, js in by_bus.values() for j in js})
+    if unknown_initial:
+        raise ValueError(f"initial positions for joints that are not emulated: {unknown_initial}")
+    rigs: list[BusRig] = []
+    twin = None
+    if kind == "twin":
+        if cfg.robot.model is None:
+            raise ValueError("--plant twin needs robot.model in the config")
+        if len(by_bus) > 1:
+            raise ValueError(
+                f"--plant twin couples one bus to the model, the config has {len(by_bus)} ({', '.join(by_bus)}): "
+                "emulate one bus (--component) or use --plant motors"
+            )
+        ((spec, joints),) = by_bus.values()
+        twin = _twin_plant(loaded, joints, opts)
+        rigs.append(BusRig(spec, joints, _braked(twin, joints, opts.brakes)))
+    else:
+        if opts.keyframe is not None:
+            raise ValueError("a keyframe is a pose of the twin's model: it needs --plant twin")
+        for spec, joints in by_bus.values():
+            start = [j.to_actuator(opts.initial_positions.get(j.name, j.offset)) for j in joints]
+            plant = MotorPlant(
+                len(joints), inertia=opts.inertia, damping=opts.damping, gravity=opts.gravity, positions=start
+            )
+            rigs.append(BusRig(spec, joints, _braked(plant, joints, opts.brakes)))
+    return EmulatorRuntime(rigs, kind, max_step=opts.max_step, twin=twin)
+
+
+def _braked(plant: Plant, joints: Sequence[EmulatedJoint], brakes: bool) -> Plant:
+    return BrakedPlant(plant, [j.firmware for j in joints]) if brakes else plant
+
+
+def _twin_plant(loaded: LoadedConfig, joints: Sequence[EmulatedJoint], opts: RuntimeOptions) -> Any:
+    from drivers.mujoco.plant import TwinPlant  # mujoco stays in drivers/mujoco; only the twin plant needs it
+
+    model = loaded.directory / str(loaded.config.robot.model)
+    plant = TwinPlant(
+        model,
+        [j.name for j in joints],
+        reduction=[j.reduction for j in joints],
+        direction=[j.direction for j in joints],
+        offset=[j.offset for j in joints],
+    )
+    keyframe = opts.keyframe
+    if keyframe is None and "home" in plant.keyframes:
+        keyframe = "home"
+    plant.reset(keyframe, opts.initial_positions)
+    if plant.free_joints:
+        log.warning("model joints without an emulated drive move freely: %s", ", ".join(plant.free_joints))
+    return plant
+
+
+def describe(runtime: EmulatorRuntime) -> list[str]:
+    """Human-readable lines on what is emulated where (for the start-up log)."""
+    lines = []
+    for rig in runtime.rigs:
+        motors = ", ".join(f"{j.name}={_ident(j.firmware)}" for j in rig.joints)
+        lines.append(f"bus {rig.spec.name}: {len(rig.joints)} drives ({motors})")
+    plant = runtime.plant_kind
+    if runtime.twin is not None:
+        plant += f" ({runtime.twin.model_name})"
+    brakes = any(isinstance(rig.plant, BrakedPlant) for rig in runtime.rigs)
+    lines.append(f"plant: {plant}, holding brakes {'on' if brakes else 'off'}")
+    return lines
+
+
+def _ident(fw: MotorFirmware) -> str:
+    if isinstance(fw, DamiaoFirmware):
+        return f"damiao {fw.motor_id:#x}→{fw.master_id:#x}"
+    if isinstance(fw, MitFirmware):
+        return f"{fw.flavour.name} {fw.motor_id:#x}"
+    if isinstance(fw, ODriveFirmware):
+        return f"odrive node {fw.node_id}"
+    return type(fw).__name__

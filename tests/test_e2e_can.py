@@ -1,0 +1,188 @@
+"""End to end over CAN without kernel CAN: `hild emulate` and `hild run` as two processes on 127.0.0.1.
+
+The emulator hosts the bus (python-can-remote, ``--serve-remote``) with Damiao firmware models and the MuJoCo twin
+behind them; the daemon runs configs/arm6_can_loopback.yaml (its bus channel patched to a free port) on the wall
+clock. A trajectory goes in over Zenoh; the emulator's control channel reports where the arm really is. Every wait
+is for a condition with a generous timeout; both processes are always killed.
+"""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from drivers.can.emulator.runtime import request
+from hild.client import HildError
+from hild.motion.reference import OFFSETS, standard_trajectory
+from tests.conftest import CONFIGS
+from tests.test_e2e import Recorder, connect_when_up, free_port, wait_for
+
+HOST = "127.0.0.1"
+
+
+@dataclass
+class CanRig:
+    emulator: subprocess.Popen[bytes]
+    daemon: subprocess.Popen[bytes]
+    endpoint: str
+    control: tuple[str, int]
+    emulator_log: Path
+    daemon_log: Path
+
+    def status(self) -> dict[str, Any]:
+        reply = request(self.control, {"op": "status"}, timeout=10.0)
+        assert reply["ok"], reply
+        return reply
+
+    def positions(self) -> np.ndarray:
+        return np.array([j["position"] for j in self.status()["joints"]])
+
+    def logs(self) -> str:
+        try:
+            loop = self.status()["loop"]
+        except (OSError, AssertionError, KeyError) as exc:
+            loop = f"unavailable: {exc}"
+        return (
+            f"--- emulator loop: {loop}\n--- emulator:\n{self.emulator_log.read_text()}\n"
+            f"--- daemon:\n{self.daemon_log.read_text()}"
+        )
+
+
+def distinct_free_ports(count: int) -> list[int]:
+    ports: set[int] = set()
+    while len(ports) < count:
+        ports.add(free_port())
+    return sorted(ports)
+
+
+def stop(proc: subprocess.Popen[bytes]) -> None:
+    if proc.poll() is None:
+        proc.kill()
+        proc.wait(10)
+
+
+@pytest.fixture
+def rig(tmp_path: Path) -> Iterator[CanRig]:
+    remote, control, zenoh = distinct_free_ports(3)
+    emulator_log, daemon_log = tmp_path / "emulator.log", tmp_path / "daemon.log"
+    command = [sys.executable, "-m", "hild.cli"]
+    with emulator_log.open("wb") as out:
+        emulator = subprocess.Popen(
+            [
+                *command,
+                "emulate",
+                str(CONFIGS / "arm6_can_loopback.yaml"),
+                "--serve-remote",
+                f"{HOST}:{remote}",
+                "--control",
+                f"{HOST}:{control}",
+            ],
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            cwd=tmp_path,
+        )
+    daemon: subprocess.Popen[bytes] | None = None
+    try:
+        # The control socket opens after the remote bus is served: once it answers, the bus is there.
+        deadline = time.monotonic() + 60.0
+        while True:
+            try:
+                request((HOST, control), {"op": "status"}, timeout=2.0)
+                break
+            except OSError:
+                if emulator.poll() is not None or time.monotonic() > deadline:
+                    pytest.fail(f"emulator never came up (exit {emulator.poll()}):\n{emulator_log.read_text()}")
+                time.sleep(0.1)
+        text = (CONFIGS / "arm6_can_loopback.yaml").read_text()
+        assert "ws://127.0.0.1:54701/" in text and "model: arm6.xml" in text
+        config = tmp_path / "arm6_can_loopback.yaml"
+        config.write_text(
+            text.replace("ws://127.0.0.1:54701/", f"ws://{HOST}:{remote}/").replace(
+                "model: arm6.xml", f"model: {CONFIGS / 'arm6.xml'}"
+            )
+        )
+        endpoint = f"tcp/{HOST}:{zenoh}"
+        with daemon_log.open("wb") as out:
+            daemon = subprocess.Popen(
+                [*command, "run", str(config), "--listen", endpoint], stdout=out, stderr=subprocess.STDOUT, cwd=tmp_path
+            )
+        yield CanRig(emulator, daemon, endpoint, (HOST, control), emulator_log, daemon_log)
+    finally:
+        if daemon is not None:
+            stop(daemon)
+        stop(emulator)
+
+
+def test_trajectory_over_zenoh_drives_the_emulated_arm(rig: CanRig) -> None:
+    with connect_when_up(rig.daemon, rig.endpoint, rig.daemon_log, timeout=60.0) as arm:
+        arm.wait_alive(timeout=30.0)
+        states = Recorder()
+        arm.subscribe("joint_states", states)
+        wait_for(lambda: states.last() is not None, 10.0, "joint_states")
+
+        def measured() -> np.ndarray:
+            return np.array(states.last()["position"])  # type: ignore[index]
+
+        def agree(tolerance: float) -> bool:
+            """The daemon's joint states and the emulator's true joint positions agree (the arm is at rest)."""
+            return bool(np.abs(measured() - rig.positions()).max() < tolerance)
+
+        # Start-up: every drive enabled and healthy, brakes released, the daemon holding where the arm is.
+        status = rig.status()
+        assert all(j["enabled"] and j["fault"] == 0 and not j["braked"] for j in status["joints"]), rig.logs()
+        assert arm.status()["mode"] == "hold", rig.logs()
+        # 1 feedback LSB (0.19 / 0.38 mrad) plus a little motion between the two samples.
+        wait_for(lambda: agree(1e-3), 15.0, "joint_states to match the emulator at rest")
+        home = measured()
+
+        arm.switch(activate=["joint_trajectory"])
+        goal = standard_trajectory(list(states.last()["name"]), home.tolist())  # type: ignore[index]
+        excursion = np.zeros(6)
+        with arm.send_goal("joint_trajectory", goal) as handle:
+            deadline = time.monotonic() + 60.0
+            while True:
+                excursion = np.maximum(excursion, np.abs(rig.positions() - home))
+                try:
+                    result = handle.wait(0.1)
+                    break
+                except HildError:
+                    assert time.monotonic() < deadline, f"no result after 60 s\n{rig.logs()}"
+        assert result["status"] == "succeeded", f"{result}\n{rig.logs()}"
+        # The emulated arm itself went through the motion (sampled every ~0.1 s, so a little short of the peaks).
+        assert (excursion > 0.7 * np.abs(OFFSETS).max(axis=0)).all(), excursion
+
+        # Back home: the daemon's view and the emulator's truth agree, and both are home.
+        wait_for(lambda: agree(1e-3), 15.0, "joint_states to match the emulator after the trajectory")
+        assert np.abs(rig.positions() - home).max() < 0.01
+        status = rig.status()
+        assert all(j["enabled"] and j["fault"] == 0 for j in status["joints"]), status["joints"]
+        (bus,) = status["buses"]
+        assert bus["unknown"] == bus["garbled"] == bus["error_frames"] == 0
+        assert bus["received"] > 6 * 500 * 2  # seconds of 500 Hz commands to 6 motors…
+        assert bus["sent"] == bus["handled"] == bus["received"]  # …each answered
+        assert arm.status()["ok"], rig.logs()
+
+        # Run-time fault injection: the drive latches it, the daemon names it on that joint only.
+        assert request(rig.control, {"op": "fault", "joint": "wrist_3", "code": 0x8})["ok"]
+
+        def faults() -> list[str | None]:
+            return [j["fault"] for j in arm.status()["joints"]]
+
+        wait_for(lambda: faults()[5] is not None, 10.0, "the injected fault to reach the daemon")
+        assert "damiao fault 0x8: over-voltage" in faults()[5] and faults()[:5] == [None] * 5, faults()
+
+    # Ctrl-C: the daemon holds, disables the drives and exits; the emulator sees them disabled.
+    rig.daemon.send_signal(signal.SIGINT)
+    assert rig.daemon.wait(30) == 0, rig.logs()
+    wait_for(lambda: not any(j["enabled"] for j in rig.status()["joints"]), 10.0, "the drives to be disabled")
+    assert request(rig.control, {"op": "stop"}) == {"ok": True}
+    assert rig.emulator.wait(30) == 0, rig.logs()
