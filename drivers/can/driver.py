@@ -28,13 +28,14 @@ reset) sends clear-error where the firmware has one and never re-enables: that i
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import can
 import numpy as np
 
-from drivers.can.bus import BadFrames, CanLink, bits_per_second
+from drivers.can.bus import bits_per_second
+from drivers.can.component import CanComponent
 from drivers.can.params import MitCanParams
 from drivers.can.protocol import damiao_registers as reg
 from drivers.can.protocol.errors import FrameError
@@ -43,7 +44,7 @@ from drivers.can.protocol.mit import MitRanges, encode_command
 from drivers.can.protocol.models import ranges_for
 from hild.arrays import JointState, ServoCommand
 from hild.config.params import Params
-from hild.hardware import ALL_COMMAND_FIELDS, BusUsage, Finding, HardwareComponent, HardwareContext, HardwareError
+from hild.hardware import ALL_COMMAND_FIELDS, BusUsage, Finding, HardwareContext, HardwareError
 
 __all__ = ["FAULT_DISABLED", "MitCanDriver", "MotorWiring", "wire_motors"]
 
@@ -141,7 +142,7 @@ def wire_motors(params: MitCanParams, joints: Sequence[str]) -> tuple[list[Motor
     return wiring, problems
 
 
-class MitCanDriver(HardwareComponent):
+class MitCanDriver(CanComponent):
     """MIT-protocol servos on one CAN bus. All five servo-command fields go to the drive."""
 
     Params = MitCanParams
@@ -190,15 +191,13 @@ class MitCanDriver(HardwareComponent):
 
     # ---- construction --------------------------------------------------------------------------------------
     def __init__(self, context: HardwareContext, params: MitCanParams) -> None:
-        super().__init__(context, params)
-        self.params: MitCanParams = params
         wiring, problems = wire_motors(params, context.joints)
         if problems:
             raise HardwareError(f"{context.name}: " + "; ".join(problems))
+        super().__init__(context, params, len(wiring))
+        self.params: MitCanParams = params
         self.flavour: MitFlavour = FLAVOURS[params.flavour]
         self.motors = wiring
-        self.link = CanLink(params.bus, params.send_failure_cycles)
-        self.bad_frames = BadFrames(context.emit_event, context.name, params.event_interval)
         n = len(wiring)
         self._lengths = _REPLY_LENGTHS[params.flavour]
         mask = _KEY_MASK[params.flavour]
@@ -206,7 +205,6 @@ class MitCanDriver(HardwareComponent):
         self._routes: dict[int, dict[int, int]] = {}
         for k, m in enumerate(wiring):
             self._routes.setdefault(m.reply_id, {})[m.id & mask] = k
-        self._frame_budget = 8 * n + 64  # frames drained per read at most; the rest waits for the next cycle
         self._native_replies: dict[int, int] = {}
         self._status_requests: list[can.Message] = []
         poll_ms = _status_poll_ms(params)
@@ -229,15 +227,6 @@ class MitCanDriver(HardwareComponent):
         self._rezero_replies = np.zeros(n, dtype=np.int64)  # replies still due to set-zero's frames, per motor
         self._new = np.zeros(n, dtype=bool)
         self._commands: list[can.Message] = []
-
-    @property
-    def pump(self) -> Callable[[], None] | None:
-        """Called while lifecycle hooks wait for replies: in-process emulators service their motors from it."""
-        return self.link.pump
-
-    @pump.setter
-    def pump(self, fn: Callable[[], None] | None) -> None:
-        self.link.pump = fn
 
     @property
     def _timeout(self) -> float:
@@ -415,17 +404,9 @@ class MitCanDriver(HardwareComponent):
         if unconfirmed:
             self.context.emit_event("error", f"disable not confirmed by {unconfirmed}")
 
-    def cleanup(self) -> None:
-        self.link.close()
-
     # ---- cycle -------------------------------------------------------------------------------------------------
     def read(self, t: float, dt: float, state: JointState) -> None:
-        poll, accept = self.link.poll, self._accept
-        for _ in range(self._frame_budget):
-            msg = poll()
-            if msg is None:
-                break
-            accept(msg)
+        self.drain(self._accept)
         np.copyto(state.position, self.position)
         np.copyto(state.velocity, self.velocity)
         np.copyto(state.effort, self.effort)
@@ -520,9 +501,6 @@ class MitCanDriver(HardwareComponent):
             self.fault[k] = flags
 
     # ---- reporting and operator commands ------------------------------------------------------------------------
-    def health(self) -> str | None:
-        return self.link.check_state()
-
     def describe_fault(self, code: int) -> str:
         if code == FAULT_DISABLED:
             return (
@@ -625,19 +603,6 @@ class MitCanDriver(HardwareComponent):
             if m.joint == joint:
                 return [k]
         raise HardwareError(f"{self.context.name} drives no joint {joint!r} (joints: {', '.join(self.joints)})")
-
-    @property
-    def statistics(self) -> dict[str, int]:
-        """Counters for tools and tests: frames, send failures, error frames, ignored frames by kind."""
-        link = self.link
-        return {
-            "frames_sent": link.frames_sent,
-            "frames_received": link.frames_received,
-            "send_failures": link.send_failures,
-            "error_frames": link.error_frames,
-            "error_passive_reports": link.passive_reports,
-            **{f"ignored {kind}": n for kind, n in self.bad_frames.totals.items()},
-        }
 
 
 def _damiao_timeout_ms(params: MitCanParams) -> float:

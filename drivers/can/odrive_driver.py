@@ -30,14 +30,15 @@ from collections.abc import Callable, Sequence
 import can
 import numpy as np
 
-from drivers.can.bus import BadFrames, CanLink, bits_per_second, rtr_bits
+from drivers.can.bus import bits_per_second, rtr_bits
+from drivers.can.component import CanComponent
 from drivers.can.params import ODriveCanParams
 from drivers.can.protocol import odrive
 from drivers.can.protocol.errors import FrameError
 from drivers.can.protocol.odrive import AxisState, Cmd, ControlMode, InputMode
 from hild.arrays import JointState, ServoCommand
 from hild.config.params import Params
-from hild.hardware import BusUsage, Finding, HardwareComponent, HardwareContext, HardwareError
+from hild.hardware import BusUsage, Finding, HardwareContext, HardwareError
 
 __all__ = ["FAULT_NOT_CLOSED_LOOP", "ODriveCanDriver"]
 
@@ -92,7 +93,7 @@ def _problems(params: ODriveCanParams, joints: Sequence[str]) -> list[str]:
     return problems
 
 
-class ODriveCanDriver(HardwareComponent):
+class ODriveCanDriver(CanComponent):
     """ODrive axes on one CAN bus; the drive runs its own gains (kp/kd of the servo command are not sent)."""
 
     Params = ODriveCanParams
@@ -134,20 +135,17 @@ class ODriveCanDriver(HardwareComponent):
 
     # ---- construction --------------------------------------------------------------------------------------
     def __init__(self, context: HardwareContext, params: ODriveCanParams) -> None:
-        super().__init__(context, params)
-        self.params: ODriveCanParams = params
         problems = _problems(params, context.joints)
         if problems:
             raise HardwareError(f"{context.name}: " + "; ".join(problems))
+        super().__init__(context, params, len(context.joints))
+        self.params: ODriveCanParams = params
         self.nodes = [params.axes[j].node_id for j in context.joints]
         self._axis_of = {node: k for k, node in enumerate(self.nodes)}
-        self.link = CanLink(params.bus, params.send_failure_cycles)
-        self.bad_frames = BadFrames(context.emit_event, context.name, params.event_interval)
         n = len(self.nodes)
         self._request_estimates = params.encoder_rate_ms == 0.0
         self._estimate_window = params.encoder_rate_ms / 1000.0 + context.period
         self._heartbeat_timeout = params.heartbeat_timeout
-        self._frame_budget = 8 * n + 64
         self.position = np.zeros(n)
         self.velocity = np.zeros(n)
         self.effort = np.full(n, np.nan)  # only known when the drive sends Get_Torques
@@ -162,15 +160,6 @@ class ODriveCanDriver(HardwareComponent):
         self._new_estimate = np.zeros(n, dtype=bool)
         self._mode = [_NO_MODE] * n
         self._rtr = [odrive.request(node, Cmd.GET_ENCODER_ESTIMATES) for node in self.nodes]
-
-    @property
-    def pump(self) -> Callable[[], None] | None:
-        """Called while lifecycle hooks wait for replies: in-process emulators service their axes from it."""
-        return self.link.pump
-
-    @pump.setter
-    def pump(self, fn: Callable[[], None] | None) -> None:
-        self.link.pump = fn
 
     @property
     def _wait(self) -> float:
@@ -270,19 +259,11 @@ class ODriveCanDriver(HardwareComponent):
             except HardwareError as exc:
                 self.context.emit_event("error", f"node {node}: idle request not sent: {exc}")
 
-    def cleanup(self) -> None:
-        self.link.close()
-
     # ---- cycle -------------------------------------------------------------------------------------------------
     def read(self, t: float, dt: float, state: JointState) -> None:
         self._heartbeat_age += dt
         self._estimate_age += dt
-        poll, accept = self.link.poll, self._accept
-        for _ in range(self._frame_budget):
-            msg = poll()
-            if msg is None:
-                break
-            accept(msg)
+        self.drain(self._accept)
         np.copyto(state.position, self.position)
         np.copyto(state.velocity, self.velocity)
         np.copyto(state.effort, self.effort)
@@ -364,9 +345,6 @@ class ODriveCanDriver(HardwareComponent):
             self.bad_frames.note(kind, msg.arbitration_id)
 
     # ---- reporting and operator commands ------------------------------------------------------------------------
-    def health(self) -> str | None:
-        return self.link.check_state()
-
     def describe_fault(self, code: int) -> str:
         parts = []
         errors = code & _ERROR_MASK
@@ -422,18 +400,6 @@ class ODriveCanDriver(HardwareComponent):
             raise HardwareError(
                 f"{self.context.name} drives no joint {joint!r} (joints: {', '.join(self.joints)})"
             ) from None
-
-    @property
-    def statistics(self) -> dict[str, int]:
-        link = self.link
-        return {
-            "frames_sent": link.frames_sent,
-            "frames_received": link.frames_received,
-            "send_failures": link.send_failures,
-            "error_frames": link.error_frames,
-            "error_passive_reports": link.passive_reports,
-            **{f"ignored {kind}": n for kind, n in self.bad_frames.totals.items()},
-        }
 
 
 def _state_name(state: int) -> str:

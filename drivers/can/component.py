@@ -1,0 +1,58 @@
+"""What every CAN host driver shares: one bus link, bad-frame accounting, the non-blocking drain, counters."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import can
+
+from drivers.can.bus import BadFrames, CanLink
+from drivers.can.params import CanDriverParams
+from hild.hardware import HardwareComponent, HardwareContext
+
+
+class CanComponent(HardwareComponent):
+    """Base of ``mit_can`` and ``odrive_can``: one component owns one bus."""
+
+    def __init__(self, context: HardwareContext, params: CanDriverParams, drives: int) -> None:
+        super().__init__(context, params)
+        self.link = CanLink(params.bus, params.send_failure_cycles)
+        self.bad_frames = BadFrames(context.emit_event, context.name, params.event_interval)
+        self._frame_budget = 8 * drives + 64  # frames drained per read at most; the rest waits for the next cycle
+
+    @property
+    def pump(self) -> Callable[[], None] | None:
+        """Called while lifecycle hooks wait for replies: in-process emulators service their drives from it."""
+        return self.link.pump
+
+    @pump.setter
+    def pump(self, fn: Callable[[], None] | None) -> None:
+        self.link.pump = fn
+
+    def cleanup(self) -> None:
+        self.link.close()
+
+    def drain(self, accept: Callable[[can.Message], None]) -> None:
+        """Take every frame waiting (up to the budget) without blocking: the cycle never waits on the bus."""
+        poll = self.link.poll
+        for _ in range(self._frame_budget):
+            msg = poll()
+            if msg is None:
+                break
+            accept(msg)
+
+    def health(self) -> str | None:
+        return self.link.check_state()
+
+    @property
+    def statistics(self) -> dict[str, int]:
+        """Counters for tools and tests: frames, send failures, error frames, ignored frames by kind."""
+        link = self.link
+        return {
+            "frames_sent": link.frames_sent,
+            "frames_received": link.frames_received,
+            "send_failures": link.send_failures,
+            "error_frames": link.error_frames,
+            "error_passive_reports": link.passive_reports,
+            **{f"ignored {kind}": n for kind, n in self.bad_frames.totals.items()},
+        }
