@@ -32,6 +32,7 @@ def setup_logging(level: str) -> None:
 
 def _cmd_run(args: argparse.Namespace) -> int:
     from hild.daemon import run_daemon
+    from hild.realtime import thaw_heap
 
     setup_logging(args.log_level)
     try:
@@ -39,7 +40,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         print(exc, file=sys.stderr)
         return 1
-    return run_daemon(loaded, args.listen)
+    code = run_daemon(loaded, args.listen)
+    thaw_heap()  # the daemon is gone; free what was frozen for the cycle's sake
+    return code
 
 
 def _cmd_check(args: argparse.Namespace) -> int:

@@ -48,6 +48,13 @@ def freeze_heap(settings: RealtimeSection) -> str:
     return f"frozen {gc.get_freeze_count()} objects"
 
 
+def thaw_heap() -> None:
+    """At exit: give the frozen objects back to the collector, so extension objects are freed before the
+    interpreter ends (nanobind-based modules such as ruckig report leaks otherwise)."""
+    gc.unfreeze()
+    gc.collect()
+
+
 def apply_thread_settings(settings: RealtimeSection) -> dict[str, str]:
     """Settings for the calling thread (the cycle thread)."""
     report = {}

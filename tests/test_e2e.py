@@ -166,6 +166,7 @@ def test_daemon_over_zenoh_only(daemon: tuple[subprocess.Popen[bytes], str, Path
     assert proc.wait(20) == 0, log.read_text()
     text = log.read_text()
     assert "stopped: hardware released" in text
+    assert "leaked" not in text  # extension objects were freed before the interpreter ended (no nanobind noise)
 
 
 def test_bad_config_exits_1_with_its_message(tmp_path: Path) -> None:
