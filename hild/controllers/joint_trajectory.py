@@ -24,9 +24,8 @@ from hild.arrays import JointState, ServoCommand
 from hild.config.model import JointLimits
 from hild.config.params import Field, Params, model_validator
 from hild.controller import Controller, ControllerContext
-from hild.controllers.planning import interface_claims, missing_planning_limits
+from hild.controllers.planning import first_taken_over, interface_claims, missing_planning_limits
 from hild.controllers.trajectory_goals import GoalContext, PreparedGoal, parse_goal
-from hild.modes import JointMode
 from hild.motion.limits import KinematicLimits
 from hild.motion.planning import PlanningError, plan_stop
 from hild.motion.trajectory import Trajectory
@@ -232,16 +231,11 @@ class JointTrajectoryController(Controller):
         self._write(dt, q, qd, command)
 
     def _joint_taken_over(self, state: JointState) -> bool:
-        """While the supervisor faults or e-stops one of our joints, its command is ignored: abort the goal and
-        keep the desired state on the measured one, so nothing jumps when the operator resets."""
-        modes = self.context.joint_modes
-        if modes is None:
-            return False
-        np.take(modes, self.index, out=self._modes)
-        if self._modes.max() < JointMode.FAULT:
+        """A faulted or e-stopped joint aborts the goal; the desired state follows the measured one meanwhile."""
+        j = first_taken_over(self.context.joint_modes, self.index, self._modes)
+        if j < 0:
             return False
         if self.goal is not None:
-            j = int(np.flatnonzero(self._modes >= JointMode.FAULT)[0])
             self._finish(GoalStatus.ABORTED, ErrorCode.INVALID_GOAL, f"joint {self.params.joints[j]} faulted")
         self.tracks.clear()
         np.take(state.position, self.index, out=self.pd)

@@ -4,8 +4,11 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
 
+import numpy as np
+
 from hild.config.model import JointLimits
 from hild.interfaces import interface_name
+from hild.modes import JointMode
 
 
 def interface_claims(joints: Sequence[str], fields: Iterable[str]) -> list[str]:
@@ -22,3 +25,16 @@ def missing_planning_limits(kind: str, joints: Sequence[str], limits: Mapping[st
         for j in joints
         if j in limits and (limits[j].acceleration is None or limits[j].jerk is None)
     ]
+
+
+def first_taken_over(modes: np.ndarray | None, index: np.ndarray, scratch: np.ndarray) -> int:
+    """Position in ``index`` of the first joint the supervisor has taken over (fault or e-stop), else -1.
+
+    While that lasts the joint's command is ignored; a planning controller follows the measured state instead
+    of its plan, so an operator reset continues from where the arm is. ``scratch``: int64 like ``index``."""
+    if modes is None:
+        return -1
+    np.take(modes, index, out=scratch)
+    if scratch.max() < JointMode.FAULT:
+        return -1
+    return int(np.argmax(scratch >= JointMode.FAULT))

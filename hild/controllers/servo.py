@@ -29,7 +29,7 @@ from hild.arrays import JointState, ServoCommand
 from hild.config.model import JointLimits
 from hild.config.params import Field, Params, model_validator
 from hild.controller import Controller, ControllerContext
-from hild.controllers.planning import interface_claims, missing_planning_limits
+from hild.controllers.planning import first_taken_over, interface_claims, missing_planning_limits
 from hild.mailbox import LatestSlot
 
 # Plan a hair inside the limits, so rounding in ruckig's profiles never trips the supervisor's velocity, slew
@@ -111,6 +111,7 @@ class ServoController(Controller):
     def __init__(self, context: ControllerContext, params: ServoParams) -> None:
         super().__init__(context, params)
         self._index = context.index_of(params.joints)
+        self._modes = np.zeros(len(self._index), dtype=np.int64)
         n = len(self._index)
         lim = context.limits
         missing = [
@@ -251,7 +252,17 @@ class ServoController(Controller):
     def on_deactivate(self) -> None:
         self.active = False
 
+    def _follow_measured(self, state: JointState) -> None:
+        """A joint is faulted or e-stopped: forget the stream and rest where the arm is, so a reset resumes
+        from there; targets sent meanwhile are dropped."""
+        q = state.position[self._index]
+        self._hold_at(np.where(np.isfinite(q), q, self._p).tolist())
+        self._slot.clear()
+
     def update(self, t: float, dt: float, state: JointState, command: ServoCommand) -> None:
+        if first_taken_over(self.context.joint_modes, self._index, self._modes) >= 0:
+            self._follow_measured(state)
+            return
         target = self._slot.take()
         if target is not None:
             self._track(t, target)

@@ -654,3 +654,26 @@ def test_null_velocities_mean_none_given(make_engine: MakeEngine) -> None:
     LimitProbe(engine, servo).run(400)
     np.testing.assert_allclose(engine.command.position, [0.2, 0.0, 0.0], atol=1e-12)
     assert servo.phase == Phase.TRACK  # reached with v = 0: no dead reckoning
+
+
+def test_a_fault_makes_servo_follow_the_arm_and_reset_resumes_without_a_jump() -> None:
+    from hild.supervisor import Fault
+    from tests.test_twin_engine import twin
+
+    engine = twin("arm6_twin.yaml")
+    assert engine.switch(["servo"], []).ok
+    servo = engine.manager.records["servo"].instance
+    guard = JumpGuard(engine)
+    target = (engine.state.position + 0.5).tolist()
+    for _ in range(100):
+        servo.accept({"positions": target})
+        guard.run(1)
+    engine.supervisor.trip(1, Fault.HARDWARE, "test fault", engine.state.position)
+    for _ in range(300):
+        servo.accept({"positions": target})  # the stream goes on; while faulted it is dropped
+        guard.run(1)
+    held = engine.state.position.copy()
+    assert engine.reset()["cleared"]
+    guard.run(300)  # no target since the reset: it rests where the arm was, no jump, no resumed motion
+    np.testing.assert_allclose(engine.final.position, held, atol=5e-3)
+    assert [j["mode"] for j in engine.status()["joints"]] == ["controlled"] * 6
