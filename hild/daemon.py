@@ -3,6 +3,10 @@
 Start-up order matters for safety: the engine configures the hardware and reads it once, so hold starts where the
 arm is; the API opens; the heap is frozen; the drives are enabled last, right before the cycle thread starts.
 Shutdown runs the other way: stop accepting commands, hold, release hardware, close.
+
+Under systemd (``Type=notify``) the daemon says READY=1 only once the drives are live and the cycle has run a few
+cycles with the supervisor holding, pings the watchdog only while the cycle earns it (``hild.notify.WatchdogGate``),
+keeps ``STATUS=`` current and says STOPPING=1 when it starts to shut down.
 """
 
 from __future__ import annotations
@@ -19,11 +23,16 @@ from hild.cycle import CycleThread
 from hild.engine import Engine
 from hild.events import log_event
 from hild.hardware import HardwareError
+from hild.notify import SystemdNotifier, WatchdogGate, status_line
 from hild.realtime import apply_process_settings, freeze_heap
 
 log = logging.getLogger("hild.daemon")
 
 CYCLE_JOIN_TIMEOUT = 5.0
+READY_AFTER_CYCLES = 5  # cycles the live loop must complete (read → supervise → write) before READY=1
+READY_POLL = 0.005  # s: how often the asyncio side looks for those first cycles
+SERVICE_TICK = 0.2  # s: the asyncio side's housekeeping tick once running (watchdog, status, cycle alive)
+STATUS_PERIOD = 2.0  # s: STATUS= refresh; a change of overall mode is sent at the next tick
 
 
 class StartupError(RuntimeError):
@@ -41,6 +50,12 @@ class Daemon:
         self._signals = 0
         self.api = None
         self.cycle: CycleThread | None = None
+        self.notifier = SystemdNotifier()
+        self.watchdog = WatchdogGate(self.engine.max_consecutive_overruns)
+        self.ready = False
+        self._next_ping = 0.0
+        self._next_status = 0.0
+        self._last_mode = ""
 
     # ---- cycle → asyncio doorbell --------------------------------------------------------------------------
     def _doorbell(self) -> None:
@@ -73,6 +88,7 @@ class Daemon:
         cfg = self.loaded.config
         self._loop = asyncio.get_running_loop()
         self.engine.doorbell = self._doorbell
+        self.notifier.status("bringing up the hardware")
         self.engine.realtime_report.update(apply_process_settings(cfg.realtime))
         self.engine.bring_up()  # drives configured and read, still disabled
         try:
@@ -107,25 +123,71 @@ class Daemon:
         await self._shutdown()
         return exit_code
 
+    def request_stop(self) -> None:
+        """Stop as on SIGTERM (tests and embedding code)."""
+        self._stopping.set()
+
     async def _wait_for_stop(self) -> int:
         assert self.cycle is not None
+        ping = self.notifier.ping_period
+        tick = SERVICE_TICK if ping is None else min(SERVICE_TICK, ping)
         while not self._stopping.is_set():
             with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(self._stopping.wait(), timeout=0.2)
+                await asyncio.wait_for(self._stopping.wait(), timeout=tick if self.ready else READY_POLL)
             if not self.cycle.is_alive():
                 log.error("the cycle thread ended unexpectedly: %s", self.cycle.error)
                 return 1
+            self._service_tick(asyncio.get_running_loop().time())
         return 0
+
+    # ---- systemd: READY, WATCHDOG, STATUS ------------------------------------------------------------------
+    def _service_tick(self, now: float) -> None:
+        """READY=1 once the live cycle has run; then earned watchdog pings and a current STATUS=."""
+        assert self.cycle is not None
+        engine = self.engine
+        if not self.ready:
+            if engine.cycle <= READY_AFTER_CYCLES:  # the counter counts cycles begun: this many have ended
+                return
+            self.ready = True
+            self.watchdog.reset(engine.cycle)
+            self._last_mode = engine.overall_mode()
+            self._next_ping = self._next_status = now
+            self.notifier.ready(self._status_text(self._last_mode))
+            log.info("ready: the drives are live and %d cycles have run", engine.cycle)
+            return
+        ping = self.notifier.ping_period
+        if ping is not None and now >= self._next_ping:
+            self._next_ping = now + ping
+            was_withheld = bool(self.watchdog.reason)
+            if self.watchdog.earned(engine.cycle, engine.stats.consecutive_overruns, self.cycle.is_alive()):
+                self.notifier.watchdog()
+                if was_withheld:
+                    log.info("systemd watchdog pings resumed: the cycle advances again")
+            elif not was_withheld:  # one line per episode, not one per missed ping
+                log.error("withholding the systemd watchdog ping: %s", self.watchdog.reason)
+        if not self.notifier.enabled:  # not under systemd: no status line to build
+            return
+        mode = engine.overall_mode()
+        if mode != self._last_mode or now >= self._next_status:
+            self._last_mode = mode
+            self._next_status = now + STATUS_PERIOD
+            self.notifier.status(self._status_text(mode))
+
+    def _status_text(self, mode: str) -> str:
+        return status_line(mode, self.engine.update_rate, self.engine.stats.summary())
 
     async def _shutdown(self) -> None:
         assert self.cycle is not None
+        self.notifier.stopping("stopping: holding every joint, then releasing the hardware")
         self.cycle.stop()
         await asyncio.to_thread(self.cycle.join, CYCLE_JOIN_TIMEOUT)
-        if self.cycle.is_alive():
+        stuck = self.cycle.is_alive()
+        if stuck:
             log.error("the cycle thread did not stop within %g s", CYCLE_JOIN_TIMEOUT)
         self._on_wake()
         if self.api is not None:
             await self.api.close()
+        self.notifier.status("stopped: the cycle thread did not stop" if stuck else "stopped: hardware released")
         log.info("stopped")
 
 
@@ -144,4 +206,7 @@ def run_daemon(loaded: LoadedConfig, listen: list[str] | None = None) -> int:
         for event in daemon.engine.events.drain():
             log_event(event)
         log.error("start-up failed; the hardware was released: %s", exc)
+        daemon.notifier.status(f"start-up failed: {exc}")
         return 1
+    finally:
+        daemon.notifier.close()
