@@ -8,7 +8,7 @@ on (joints named by controllers exist, each joint has exactly one hardware compo
 from __future__ import annotations
 
 import math
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import Field, PositiveFloat, field_validator, model_validator
 
@@ -150,15 +150,71 @@ class ZenohSection(Params):
     )
 
 
-class TelemetrySection(Params):
-    enabled: bool = Field(default=False, description="rerun telemetry (see docs/config.md).")
+class FileSinkSpec(Params):
+    """Write a ``.rrd`` recording; with rotation, every file is named ``<stem>-<UTC timestamp>.rrd``."""
 
-    @field_validator("enabled")
+    kind: Literal["file"]
+    path: str = Field(min_length=1, description="Path of the .rrd file, relative to the config file's directory.")
+    rotate_mb: PositiveFloat | None = Field(default=None, description="Start a new file past this size (MB).")
+    rotate_minutes: PositiveFloat | None = Field(default=None, description="Start a new file after this many minutes.")
+
+    @field_validator("path")
     @classmethod
-    def _not_yet(cls, v: bool) -> bool:
-        if v:
-            raise ValueError("false: rerun telemetry is not implemented in this version")
+    def _rrd(cls, v: str) -> str:
+        if not v.endswith(".rrd"):
+            raise ValueError(f"a rerun recording path ending in .rrd, got {v!r}")
         return v
+
+
+class SpawnSinkSpec(Params):
+    """Start a native rerun viewer on this machine and stream to it."""
+
+    kind: Literal["spawn"]
+    port: int = Field(default=9876, ge=1, le=65535, description="Port of the spawned viewer's gRPC server.")
+
+
+class ConnectSinkSpec(Params):
+    """Stream to a viewer (or server) that is already running."""
+
+    kind: Literal["connect"]
+    url: str = Field(
+        default="rerun+http://127.0.0.1:9876/proxy",
+        pattern=r"^(rerun|rerun\+http|rerun\+https)://[^/]+/proxy$",
+        description="rerun://, rerun+http:// or rerun+https:// URL ending in /proxy.",
+    )
+
+
+class ServeSinkSpec(Params):
+    """Host a gRPC server in the daemon that viewers connect to (``rerun+http://<bind>:<port>/proxy``)."""
+
+    kind: Literal["serve"]
+    bind: str = Field(default="127.0.0.1", description="Address to bind; 127.0.0.1 keeps it on this machine.")
+    port: int = Field(default=9876, ge=1, le=65535)
+    memory_limit: str = Field(default="512MiB", description="Buffer for late viewers; oldest data dropped first.")
+
+
+TelemetrySink = Annotated[FileSinkSpec | SpawnSinkSpec | ConnectSinkSpec | ServeSinkSpec, Field(discriminator="kind")]
+
+
+class TelemetrySection(Params):
+    """rerun telemetry (docs/telemetry.md): batched off the cycle thread, to one or more sinks."""
+
+    enabled: bool = Field(default=False, description="Record and stream telemetry with rerun.")
+    sinks: list[TelemetrySink] = Field(default_factory=list, description="Where telemetry goes; several at once.")
+    flush_period: float = Field(default=0.1, ge=0.01, le=5.0, description="Seconds between batches sent to rerun.")
+    scalar_rate: float = Field(
+        default=0.0, ge=0.0, description="Hz of the joint and loop scalars; 0 = every cycle (capped at update_rate)."
+    )
+    pose_rate: float = Field(default=30.0, gt=0.0, le=1000.0, description="Hz of the 3D arm pose.")
+
+    @model_validator(mode="after")
+    def _needs_a_sink(self) -> TelemetrySection:
+        if self.enabled and not self.sinks:
+            raise ValueError("telemetry is enabled but has no sinks: add e.g. {kind: file, path: recordings/x.rrd}")
+        serve_ports = [s.port for s in self.sinks if isinstance(s, ServeSinkSpec)]
+        if len(serve_ports) > 1:
+            raise ValueError("at most one serve sink (one gRPC server per daemon)")
+        return self
 
 
 class RealtimeSection(Params):

@@ -1,0 +1,7 @@
+"""The one telemetry exception, in a module of its own so the daemon side can raise it without loading rerun."""
+
+from __future__ import annotations
+
+
+class TelemetryError(RuntimeError):
+    """A sink that cannot open, a recorder process that cannot start, or one that stopped answering."""
