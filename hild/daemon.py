@@ -17,6 +17,7 @@ import logging
 import os
 import signal
 import threading
+from typing import Any
 
 from hild.config.loader import LoadedConfig
 from hild.cycle import CycleThread
@@ -50,6 +51,8 @@ class Daemon:
         self._signals = 0
         self.api = None
         self.cycle: CycleThread | None = None
+        self.telemetry: Any = None  # hild.telemetry.Telemetry when telemetry.enabled
+        self._telemetry_task: asyncio.Task[None] | None = None
         self.notifier = SystemdNotifier()
         self.watchdog = WatchdogGate(self.engine.max_consecutive_overruns)
         self.ready = False
@@ -71,6 +74,8 @@ class Daemon:
             log_event(event)
         if self.api is not None:
             self.api.publish(events)
+        if self.telemetry is not None and events:
+            self.telemetry.log_events(events)
 
     # ---- signals ---------------------------------------------------------------------------------------------
     def _on_signal(self, signum: int) -> None:
@@ -90,6 +95,7 @@ class Daemon:
         self.engine.doorbell = self._doorbell
         self.notifier.status("bringing up the hardware")
         self.engine.realtime_report.update(apply_process_settings(cfg.realtime))
+        self._open_telemetry()  # before the hardware: a sink that cannot open is a start-up error, nothing enabled
         self.engine.bring_up()  # drives configured and read, still disabled
         try:
             self.api = ApiServer(self.engine, cfg.zenoh, self.listen)
@@ -110,6 +116,9 @@ class Daemon:
             await self.api.close()
             self.api = None
             raise
+        if self.telemetry is not None:
+            self.engine.tap = self.telemetry.tap
+            self._telemetry_task = self._loop.create_task(self.telemetry.run(), name="hild-telemetry")
         self.cycle.start()
         log.info(
             "%s running at %g Hz on the %s clock; Zenoh %s",
@@ -176,6 +185,29 @@ class Daemon:
     def _status_text(self, mode: str) -> str:
         return status_line(mode, self.engine.update_rate, self.engine.stats.summary())
 
+    def _open_telemetry(self) -> None:
+        if not self.loaded.config.telemetry.enabled:
+            return
+        from hild.telemetry import Telemetry, TelemetryError  # rerun lives in the telemetry room
+
+        try:
+            self.telemetry = Telemetry.from_config(self.loaded, self.engine.stats)
+        except TelemetryError as exc:
+            raise StartupError(f"telemetry: {exc}") from exc
+
+    async def close_telemetry(self) -> None:
+        """Flush and close the recording (bounded in time: an unreachable viewer never holds up the stop)."""
+        telemetry, self.telemetry = self.telemetry, None
+        if telemetry is None:
+            return
+        self.engine.tap = None
+        await asyncio.to_thread(telemetry.close)
+        if self._telemetry_task is not None:
+            self._telemetry_task.cancel()
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await self._telemetry_task
+            self._telemetry_task = None
+
     async def _shutdown(self) -> None:
         assert self.cycle is not None
         self.notifier.stopping("stopping: holding every joint, then releasing the hardware")
@@ -185,6 +217,7 @@ class Daemon:
         if stuck:
             log.error("the cycle thread did not stop within %g s", CYCLE_JOIN_TIMEOUT)
         self._on_wake()
+        await self.close_telemetry()
         if self.api is not None:
             await self.api.close()
         self.notifier.status("stopped: the cycle thread did not stop" if stuck else "stopped: hardware released")
@@ -203,6 +236,7 @@ def run_daemon(loaded: LoadedConfig, listen: list[str] | None = None) -> int:
     try:
         return asyncio.run(daemon.run())
     except (HardwareError, StartupError) as exc:
+        asyncio.run(daemon.close_telemetry())
         for event in daemon.engine.events.drain():
             log_event(event)
         log.error("start-up failed; the hardware was released: %s", exc)

@@ -125,6 +125,7 @@ class Engine:
             REQUEST_QUEUE
         )
         self._estop_requested = False
+        self.tap: Any = None  # telemetry: an object with record(...) called once per cycle, or None
         self._rearm: dict[int, int] = {}  # joint → cycle by which its drive must confirm an operator enable
         self._estop_waiters: deque[concurrent.futures.Future[Any]] = deque(maxlen=256)
         self._health_every = max(1, round(self.update_rate / HEALTH_POLL_HZ))
@@ -325,6 +326,8 @@ class Engine:
             self.manager.fail_slots(
                 sup.bad_command_owners, "non-finite or negative-gain command", self.state, self.command
             )
+        if self.tap is not None:  # a few µs of numpy copies into a preallocated ring; rerun runs elsewhere
+            self.tap.record(t, self.cycle, self.state, self.final, sup.mode, dt)
         self._write(t, dt)
 
     def run_cycles(self, count: int) -> None:
