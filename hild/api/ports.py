@@ -25,6 +25,7 @@ import zenoh
 from hild.action import ActionServer
 from hild.api.codec import MAX_PAYLOAD, PayloadError, decode, encode
 from hild.api.keys import RESERVED, Keys, check_chunk
+from hild.api.queries import BUSY, MAX_IN_FLIGHT, SHUTTING_DOWN, drop, read_payload, reply_json, too_large
 from hild.api.session import declare_json_publisher
 from hild.engine import Engine
 from hild.ring import RingReader, SampleRing
@@ -240,45 +241,39 @@ class ControllerPorts:
     def _query_handler(self, key: str, handle: Callable[[Any], dict[str, Any]]) -> Callable[[zenoh.Query], None]:
         def on_query(query: zenoh.Query) -> None:  # a Zenoh thread: size check, copy out, hop to the loop
             try:
-                payload = query.payload
-                size = len(payload) if payload is not None else 0
-                raw = payload.to_bytes() if payload is not None and size <= MAX_PAYLOAD else None
+                raw, size = read_payload(query)
                 self.loop.call_soon_threadsafe(self._start_answer, key, query, handle, raw, size)
             except RuntimeError:  # the loop is closing: the querier times out
-                with contextlib.suppress(zenoh.ZError):
-                    query.drop()
+                drop(query)
 
         return on_query
 
     def _start_answer(
         self, key: str, query: zenoh.Query, handle: Callable[[Any], dict[str, Any]], raw: bytes | None, size: int
     ) -> None:
-        task = self.loop.create_task(self._answer(key, query, handle, raw, size))
-        self._answering.add(task)
-        task.add_done_callback(self._answering.discard)
-
-    async def _answer(
-        self, key: str, query: zenoh.Query, handle: Callable[[Any], dict[str, Any]], raw: bytes | None, size: int
-    ) -> None:
-        """Goals are parsed and planned in a worker thread: a long trajectory must not stall the event loop."""
         self.counters.queries += 1
+        if self.closing:
+            reply_json(query, key, SHUTTING_DOWN)
+        elif raw is None:
+            reply_json(query, key, too_large(size))
+        elif len(self._answering) >= MAX_IN_FLIGHT:  # the same cap as services: a flood cannot pile up planners
+            reply_json(query, key, BUSY)
+        else:
+            task = self.loop.create_task(self._answer(key, query, handle, raw))
+            self._answering.add(task)
+            task.add_done_callback(self._answering.discard)
+
+    async def _answer(self, key: str, query: zenoh.Query, handle: Callable[[Any], dict[str, Any]], raw: bytes) -> None:
+        """Goals are parsed and planned in a worker thread: a long trajectory must not stall the event loop."""
         try:
-            if self.closing:
-                reply: dict[str, Any] = {"ok": False, "error": "the daemon is shutting down"}
-            elif raw is None:
-                reply = {"ok": False, "error": f"payload of {size} bytes exceeds the {MAX_PAYLOAD}-byte limit"}
-            else:
-                reply = await asyncio.to_thread(handle, decode(raw))
+            reply = await asyncio.to_thread(handle, decode(raw))
+        except asyncio.CancelledError:
+            reply_json(query, key, SHUTTING_DOWN)
+            raise
         except Exception as exc:  # bad JSON, a bad request, or a plugin's bug: the client gets the reason
             reason = str(exc) if isinstance(exc, ValueError) else f"{type(exc).__name__}: {exc}"
             reply = {"ok": False, "error": reason or type(exc).__name__}
-        try:
-            query.reply(key, encode(reply), encoding=zenoh.Encoding.APPLICATION_JSON)
-        except zenoh.ZError as exc:
-            log.debug("reply on %s failed: %s", key, exc)
-        finally:
-            with contextlib.suppress(zenoh.ZError):
-                query.drop()
+        reply_json(query, key, reply)
 
     # ---- inputs -----------------------------------------------------------------------------------------------
     def _sample_handler(self, key: str, controller: str, accept: Callable[[Any], None]) -> Callable[[Any], None]:

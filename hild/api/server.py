@@ -16,9 +16,10 @@ from typing import Any
 
 import zenoh
 
-from hild.api.codec import MAX_PAYLOAD, encode
+from hild.api.codec import encode
 from hild.api.keys import SERVICES, Keys
 from hild.api.ports import ControllerPorts, Counters
+from hild.api.queries import BUSY, MAX_IN_FLIGHT, SHUTTING_DOWN, drop, read_payload, reply_json, too_large
 from hild.api.services import DEFAULT_TIMEOUT, Reply, Services
 from hild.api.session import declare_json_publisher, open_session, server_config
 from hild.config.model import ZenohSection
@@ -28,7 +29,6 @@ from hild.events import Event
 log = logging.getLogger("hild.api")
 
 STATUS_PERIOD = 0.2  # s: status is published at 5 Hz, and at once when modes, faults or controllers change
-MAX_IN_FLIGHT = 32  # concurrent service requests; more are refused with "busy"
 
 
 class ApiServer:
@@ -174,25 +174,23 @@ class ApiServer:
     def _query_handler(self, service: str) -> Callable[[zenoh.Query], None]:
         def on_query(query: zenoh.Query) -> None:  # a Zenoh thread: size check, copy out, hop to the loop
             try:
-                payload = query.payload
-                if payload is not None and len(payload) > MAX_PAYLOAD:
-                    error = f"payload of {len(payload)} bytes exceeds the {MAX_PAYLOAD}-byte limit"
-                    self._reply(service, query, {"ok": False, "error": error})
+                raw, size = read_payload(query)
+                if raw is None:
+                    self._reply(service, query, too_large(size))
                     return
-                raw = payload.to_bytes() if payload is not None else b""
                 assert self._loop is not None
                 self._loop.call_soon_threadsafe(self._start_request, service, query, raw)
             except RuntimeError:  # the loop is closed: let the client time out quickly
-                self._drop(query)
+                drop(query)
 
         return on_query
 
     def _start_request(self, service: str, query: zenoh.Query, raw: bytes) -> None:
         self.counters.queries += 1
         if self._closing:
-            self._reply(service, query, {"ok": False, "error": "the daemon is shutting down"})
+            self._reply(service, query, SHUTTING_DOWN)
         elif len(self._requests) >= MAX_IN_FLIGHT:
-            self._reply(service, query, {"ok": False, "error": f"busy: {MAX_IN_FLIGHT} requests in flight; retry"})
+            self._reply(service, query, BUSY)
         else:
             assert self._loop is not None
             task = self._loop.create_task(self._serve(service, query, raw))
@@ -203,22 +201,12 @@ class ApiServer:
         try:
             reply = await self.services.handle(service, raw)
         except asyncio.CancelledError:
-            self._reply(service, query, {"ok": False, "error": "the daemon is shutting down"})
+            self._reply(service, query, SHUTTING_DOWN)
             raise
         self._reply(service, query, reply)
 
     def _reply(self, service: str, query: zenoh.Query, reply: Reply) -> None:
-        try:
-            query.reply(self.keys.service(service), encode(reply), encoding=zenoh.Encoding.APPLICATION_JSON)
-        except zenoh.ZError as exc:  # the session closed, or the querier went away
-            log.debug("reply on %s failed: %s", service, exc)
-        finally:
-            self._drop(query)
-
-    @staticmethod
-    def _drop(query: zenoh.Query) -> None:
-        with contextlib.suppress(zenoh.ZError):
-            query.drop()
+        reply_json(query, self.keys.service(service), reply)
 
 
 def endpoints_of(settings: ZenohSection, listen: Sequence[str] | None) -> list[str]:
