@@ -43,6 +43,10 @@ class JointState:
         for name in STATE_FIELDS:
             np.copyto(getattr(self, name), getattr(other, name))
 
+    def view(self, part: slice) -> JointState:
+        """The joints ``part`` as views: what a component writes into them lands in this state, with no copy."""
+        return JointState(*(getattr(self, name)[part] for name in STATE_FIELDS))
+
     def __len__(self) -> int:
         return len(self.position)
 
@@ -77,6 +81,10 @@ class ServoCommand:
         for name in COMMAND_FIELDS:
             np.copyto(getattr(self, name), getattr(other, name))
 
+    def view(self, part: slice) -> ServoCommand:
+        """The joints ``part`` as views of this command (read by a component in place, no copy)."""
+        return ServoCommand(*(getattr(self, name)[part] for name in COMMAND_FIELDS))
+
     def __len__(self) -> int:
         return len(self.position)
 
@@ -95,3 +103,11 @@ def gather_command(src: ServoCommand, index: np.ndarray, dst: ServoCommand) -> N
     """Copy the joints ``index`` of the robot's command into a component's (smaller) command, in place."""
     for name in COMMAND_FIELDS:
         getattr(src, name).take(index, out=getattr(dst, name))
+
+
+def contiguous_slice(addresses: np.ndarray) -> slice | None:
+    """``slice(a, a + n)`` when ``addresses`` are ``a, a+1, …, a+n-1`` (views are cheaper than take/put), else None."""
+    n = len(addresses)
+    if n and np.array_equal(addresses, np.arange(addresses[0], addresses[0] + n)):
+        return slice(int(addresses[0]), int(addresses[0]) + n)
+    return None

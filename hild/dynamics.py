@@ -17,6 +17,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from hild.arrays import contiguous_slice
+
 __all__ = [
     "SCALAR_JOINT_TYPES",
     "GeomShape",
@@ -134,14 +136,6 @@ class GravityModel:
             np.copyto(out, self._result_view)
         else:
             np.take(self._result, self._dofadr, out=out)
-
-
-def contiguous_slice(addresses: np.ndarray) -> slice | None:
-    """``slice(a, a + n)`` when ``addresses`` are ``a, a+1, …, a+n-1`` (views are cheaper than take/put), else None."""
-    n = len(addresses)
-    if n and np.array_equal(addresses, np.arange(addresses[0], addresses[0] + n)):
-        return slice(int(addresses[0]), int(addresses[0]) + n)
-    return None
 
 
 _GEOM_KINDS = {

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from hild import plugins
-from hild.arrays import JointState, ServoCommand, gather_command, scatter_state
+from hild.arrays import JointState, ServoCommand, contiguous_slice, gather_command, scatter_state
 from hild.config.loader import LoadedConfig
 from hild.controller import ControllerContext, JointLimitArrays
 from hild.events import EventLog
@@ -54,6 +54,7 @@ class HardwareSlot:
     index: np.ndarray
     state: JointState
     command: ServoCommand
+    in_place: bool  # state and command are views of the engine's actuator arrays: no scatter or gather
     lifecycle: Lifecycle = Lifecycle.UNCONFIGURED
     fault: str = ""
 
@@ -84,9 +85,11 @@ class Engine:
         self.state = JointState.zeros(n)  # joint space, what controllers see
         self.command = ServoCommand.zeros(n)  # controllers' output
         self.final = ServoCommand.zeros(n)  # the supervisor's output, joint space
-        self._actuator_state = JointState.zeros(n)
-        self._actuator_command = ServoCommand.zeros(n)
         self.transmissions = self._transmissions(cfg, index)
+        if self.transmissions.identity:  # actuator space is joint space: one set of arrays, no conversion
+            self._actuator_state, self._actuator_command = self.state, self.final
+        else:
+            self._actuator_state, self._actuator_command = JointState.zeros(n), ServoCommand.zeros(n)
         self.hardware = self._build_hardware(loaded, index)
         self._joint_slot = np.zeros(n, dtype=np.intp)
         for k, slot in enumerate(self.hardware):
@@ -183,16 +186,13 @@ class Engine:
                 emit_event=lambda level, msg, src=name: self.events.emit(level, src, msg),
             )
             component = loaded.driver_classes[name](context, loaded.driver_params[name])
-            slots.append(
-                HardwareSlot(
-                    name,
-                    hw.driver,
-                    component,
-                    np.array([index[j] for j in joints], dtype=np.intp),
-                    JointState.zeros(len(joints)),
-                    ServoCommand.zeros(len(joints)),
-                )
-            )
+            joint_index = np.array([index[j] for j in joints], dtype=np.intp)
+            part = contiguous_slice(joint_index)
+            if part is not None:  # the usual case: the component reads into and writes from the engine's arrays
+                state, command = self._actuator_state.view(part), self._actuator_command.view(part)
+            else:
+                state, command = JointState.zeros(len(joints)), ServoCommand.zeros(len(joints))
+            slots.append(HardwareSlot(name, hw.driver, component, joint_index, state, command, part is not None))
         return slots
 
     def controller_context(self, name: str) -> ControllerContext:
@@ -343,13 +343,17 @@ class Engine:
             except Exception as exc:
                 slot.state.fresh.fill(False)
                 self._hardware_fault(slot, f"read failed: {type(exc).__name__}: {exc}")
-            scatter_state(slot.state, slot.index, act)
-        self.transmissions.to_joint(act, self.state)
+            if not slot.in_place:
+                scatter_state(slot.state, slot.index, act)
+        if act is not self.state:
+            self.transmissions.to_joint(act, self.state)
 
     def _write(self, t: float, dt: float) -> None:
-        self.transmissions.to_actuator(self.final, self._actuator_command)
+        if self._actuator_command is not self.final:
+            self.transmissions.to_actuator(self.final, self._actuator_command)
         for slot in self.hardware:
-            gather_command(self._actuator_command, slot.index, slot.command)
+            if not slot.in_place:
+                gather_command(self._actuator_command, slot.index, slot.command)
             try:
                 slot.component.write(t, dt, slot.command)
             except Exception as exc:

@@ -58,6 +58,11 @@ LIMIT_POSITION, LIMIT_VELOCITY, LIMIT_EFFORT = 1, 2, 4
 _LIMIT_WORDS = ((LIMIT_POSITION, "position"), (LIMIT_VELOCITY, "velocity"), (LIMIT_EFFORT, "effort"))
 
 
+# Plain ints for the per-joint loop (enum attribute lookups cost more than the comparisons they feed).
+_FAULT, _CONTROLLED, _HOLD_MODE = int(JointMode.FAULT), int(JointMode.CONTROLLED), int(JointMode.HOLD)
+_HOLD, _DAMP = int(Action.HOLD), int(Action.DAMP)
+
+
 def limit_names(flags: int) -> list[str]:
     return [word for bit, word in _LIMIT_WORDS if flags & bit]
 
@@ -159,24 +164,27 @@ class Supervisor:
 
     # ---- fault detection (after read) ---------------------------------------------------------------------
     def check(self, state: JointState) -> None:
-        pos, vel, fresh, codes = state.position, state.velocity, state.fresh, state.fault
+        pos = state.position
+        fresh, codes = state.fresh.tolist(), state.fault.tolist()
+        q_all, qd_all = pos.tolist(), state.velocity.tolist()
         stale, stale_limit = self._stale, self.safety.stale_feedback_cycles
-        for i in range(len(stale)):
-            if fresh.item(i):
+        lower, upper, overspeed, isfinite = self._lower, self._upper, self._overspeed, math.isfinite
+        for i, q in enumerate(q_all):
+            if fresh[i]:
                 stale[i] = 0
             else:
                 stale[i] += 1
                 if stale[i] == stale_limit:
                     self.trip(i, Fault.STALE_FEEDBACK, f"no feedback for {stale_limit} cycles", pos)
-            code = codes.item(i)
+            code = codes[i]
             if code:
                 self.trip(i, Fault.DRIVE, self.describe_fault(i, code), pos)
-            q, qd = pos.item(i), vel.item(i)
-            if not (math.isfinite(q) and math.isfinite(qd)):
+            qd = qd_all[i]
+            if not (isfinite(q) and isfinite(qd)):
                 self.trip(i, Fault.INVALID_FEEDBACK, "non-finite position or velocity feedback", pos)
-            elif q < self._lower[i] or q > self._upper[i]:
+            elif q < lower[i] or q > upper[i]:
                 self.trip(i, Fault.POSITION_LIMIT, "measured position outside the hard limits", pos)
-            elif abs(qd) > self._overspeed[i]:
+            elif qd > overspeed[i] or qd < -overspeed[i]:
                 factor = self.safety.overspeed_factor
                 self.trip(i, Fault.OVERSPEED, f"speed above {factor:g}× the velocity limit", pos)
 
@@ -244,92 +252,105 @@ class Supervisor:
 
     # ---- the final command (after the controllers) --------------------------------------------------------
     def command(self, dt: float, state: JointState, ctrl: ServoCommand, out: ServoCommand) -> None:
-        pos, vel = state.position, state.velocity
-        g = self._g
+        pos, g = state.position, self._g
         if self.gravity is not None:
             self.gravity(pos, g)
+        # One tolist() per array instead of an item() per element, and locals instead of attribute lookups: this
+        # loop runs for every joint in every cycle.
+        q_all, qd_all, g_all = pos.tolist(), state.velocity.tolist(), g.tolist()
+        c_pos, c_vel, c_eff = ctrl.position.tolist(), ctrl.velocity.tolist(), ctrl.effort.tolist()
+        c_kp, c_kd, written = ctrl.kp.tolist(), ctrl.kd.tolist(), ctrl.written.tolist()
         latched, prev, modes, old_flags = self.latched, self._prev_position, self.mode, self.limit_flags
-        written = ctrl.written
+        mode_all, prev_all, flags_all = modes.tolist(), prev.tolist(), old_flags.tolist()
+        o_pos, o_vel, o_eff, o_kp, o_kd = out.position, out.velocity, out.effort, out.kp, out.kd
+        owner, claims, default_kp, default_kd = self._owner, self._claims, self._default_kp, self._default_kd
+        hold_kp, hold_kd, soft_lower, soft_upper = self._hold_kp, self._hold_kd, self._soft_lower, self._soft_upper
+        vmax_all, emax_all, safe_action = self._vmax, self._emax, self._safe_action
+        relatch, follow = self._relatch, self._follow
+        check_relatch = True in relatch
+        check_follow = any(follow)
+        isfinite = math.isfinite
         bad_owners: list[int] | None = None
-        for i in range(len(modes)):
-            q, qd, ff_gravity = pos.item(i), vel.item(i), g.item(i)
-            mode = modes.item(i)
-            if self._relatch[i]:
-                self._relatch[i] = False
-                if math.isfinite(q):
+        for i, mode in enumerate(mode_all):
+            q, qd, ff_gravity = q_all[i], qd_all[i], g_all[i]
+            if check_relatch and relatch[i]:
+                relatch[i] = False
+                if isfinite(q):
                     latched[i] = q
-            if self._follow[i]:  # the position's origin moved: re-latch, and slew from the new origin
-                self._follow[i] -= 1
-                if math.isfinite(q):
+            if check_follow and follow[i]:  # the position's origin moved: re-latch, and slew from the new origin
+                follow[i] -= 1
+                if isfinite(q):
                     latched[i] = q
-                    prev[i] = q
+                    prev_all[i] = q
             controlled = False
 
             # 1. The servo command this joint gets before limits.
-            if mode >= JointMode.FAULT:
-                action = self._safe_action[i]
-                if action == Action.HOLD:
-                    p, v, ff, kp, kd = latched.item(i), 0.0, ff_gravity, self._hold_kp[i], self._hold_kd[i]
+            if mode >= _FAULT:
+                action = safe_action[i]
+                if action == _HOLD:
+                    p, v, ff, kp, kd = latched.item(i), 0.0, ff_gravity, hold_kp[i], hold_kd[i]
                 else:  # damp or disable: no stiffness, position field follows the arm
-                    p = q if math.isfinite(q) else latched.item(i)
+                    p = q if isfinite(q) else latched.item(i)
                     v, ff, kp = 0.0, 0.0, 0.0
-                    kd = self._hold_kd[i] if action == Action.DAMP else 0.0
+                    kd = hold_kd[i] if action == _DAMP else 0.0
                 new_mode = mode
             else:
-                if written.item(i) and self._owner[i] >= 0:
-                    has_p, has_v, has_e, has_kp, has_kd = self._claims[i]
-                    p = ctrl.position.item(i) if has_p else q
-                    v = ctrl.velocity.item(i) if has_v else 0.0
-                    ff = ctrl.effort.item(i) if has_e else ff_gravity
-                    kp = ctrl.kp.item(i) if has_kp else self._default_kp[i]
-                    kd = ctrl.kd.item(i) if has_kd else self._default_kd[i]
-                    if _valid(p, v, ff, kp, kd):
+                if written[i] and owner[i] >= 0:
+                    has_p, has_v, has_e, has_kp, has_kd = claims[i]
+                    p = c_pos[i] if has_p else q
+                    v = c_vel[i] if has_v else 0.0
+                    ff = c_eff[i] if has_e else ff_gravity
+                    kp = c_kp[i] if has_kp else default_kp[i]
+                    kd = c_kd[i] if has_kd else default_kd[i]
+                    # Finite command and non-negative gains (NaN gains compare False, so they fail too).
+                    if isfinite(p) and isfinite(v) and isfinite(ff) and kp >= 0.0 and kd >= 0.0:
                         controlled = True
                     else:  # a controller bug never reaches a drive: hold, and fail the controller
                         bad_owners = bad_owners or []
-                        bad_owners.append(self._owner[i])
+                        bad_owners.append(owner[i])
                 if not controlled:
-                    if mode == JointMode.CONTROLLED and math.isfinite(q):
+                    if mode == _CONTROLLED and isfinite(q):
                         latched[i] = q  # it just lost its controller: hold where it is now
-                    p, v, ff, kp, kd = latched.item(i), 0.0, ff_gravity, self._hold_kp[i], self._hold_kd[i]
-                new_mode = JointMode.CONTROLLED if controlled else JointMode.HOLD
+                    p, v, ff, kp, kd = latched.item(i), 0.0, ff_gravity, hold_kp[i], hold_kd[i]
+                new_mode = _CONTROLLED if controlled else _HOLD_MODE
 
             # 2. Limits.
             flags = 0
+            vmax = vmax_all[i]
             if controlled:
-                if p < self._soft_lower[i] or p > self._soft_upper[i]:
-                    p = min(max(p, self._soft_lower[i]), self._soft_upper[i])
+                if p < soft_lower[i] or p > soft_upper[i]:
+                    p = min(max(p, soft_lower[i]), soft_upper[i])
                     flags |= LIMIT_POSITION
-                vmax = self._vmax[i]
                 if v > vmax or v < -vmax:
                     v = vmax if v > 0.0 else -vmax
                     flags |= LIMIT_VELOCITY
             if kp > 0.0:  # slew: a stiff position command moves at most velocity_limit·dt per cycle
-                step, last = self._vmax[i] * dt, prev.item(i)
+                step, last = vmax * dt, prev_all[i]
                 if p > last + step or p < last - step:
                     p = last + step if p > last else last - step
                     if controlled:
                         flags |= LIMIT_VELOCITY
             tau = kp * (p - q) + kd * (v - qd) + ff  # what the drive will do; NaN if the state is unknown
-            emax = self._emax[i]
+            emax = emax_all[i]
             if tau > emax or tau < -emax:
                 ff -= tau - (emax if tau > 0.0 else -emax)
                 flags |= LIMIT_EFFORT
 
             # 3. Out, and remember.
-            out.position[i] = p
-            out.velocity[i] = v
-            out.effort[i] = ff
-            out.kp[i] = kp
-            out.kd[i] = kd
-            prev[i] = p
+            o_pos[i] = p
+            o_vel[i] = v
+            o_eff[i] = ff
+            o_kp[i] = kp
+            o_kd[i] = kd
+            prev_all[i] = p
             if new_mode != mode:
                 modes[i] = new_mode
                 self.change_seq += 1
-            if flags != old_flags.item(i):
-                self._report_limits(i, old_flags.item(i), flags)
+            if flags != flags_all[i]:
+                self._report_limits(i, flags_all[i], flags)
                 old_flags[i] = flags
                 self.change_seq += 1
+        prev[:] = prev_all
         self.bad_command_owners = bad_owners or []
 
     def _report_limits(self, i: int, was: int, now: int) -> None:
@@ -339,7 +360,3 @@ class Supervisor:
             elif was & bit and not now & bit:
                 self.events.emit("info", "supervisor", f"joint {self.joints[i]}: {word} limit released")
 
-
-def _valid(p: float, v: float, ff: float, kp: float, kd: float) -> bool:
-    """Finite command and non-negative gains (NaN gains compare False, so they fail too)."""
-    return math.isfinite(p) and math.isfinite(v) and math.isfinite(ff) and kp >= 0.0 and kd >= 0.0

@@ -105,16 +105,26 @@ class Track:
     p: np.ndarray
     v: np.ndarray
     a: np.ndarray
+    direct: bool  # owns every joint of the controller, in order: samples straight into the desired state
 
     @classmethod
-    def of(cls, trajectory: Trajectory, t0: float, cols: np.ndarray) -> Track:
+    def of(cls, trajectory: Trajectory, t0: float, cols: np.ndarray, joints: int) -> Track:
         n = len(cols)
-        return cls(trajectory, t0, cols, np.ones(n, dtype=bool), np.zeros(n), np.zeros(n), np.zeros(n))
+        direct = n == joints and bool(np.array_equal(cols, np.arange(n)))
+        return cls(trajectory, t0, cols, np.ones(n, dtype=bool), np.zeros(n), np.zeros(n), np.zeros(n), direct)
 
     def sample(self, t: float, pd: np.ndarray, vd: np.ndarray, ad: np.ndarray) -> None:
+        if self.direct:
+            self.trajectory.sample(t - self.t0, pd, vd, ad)
+            return
         self.trajectory.sample(t - self.t0, self.p, self.v, self.a)
         cols = self.cols[self.owned]
         pd[cols], vd[cols], ad[cols] = self.p[self.owned], self.v[self.owned], self.a[self.owned]
+
+    def release(self, taken: np.ndarray) -> None:
+        """Stop driving the controller joints marked in ``taken`` (a later goal has them)."""
+        self.owned &= ~taken[self.cols]
+        self.direct = self.direct and bool(self.owned.all())
 
     def finished(self, t: float) -> bool:
         return self.trajectory.finished(t - self.t0)
@@ -222,8 +232,8 @@ class JointTrajectoryController(Controller):
         for track in self.tracks:
             track.sample(t, self.pd, self.vd, self.ad)
         q, qd = self._q, self._qd
-        np.take(state.position, self.index, out=q)
-        np.take(state.velocity, self.index, out=qd)
+        state.position.take(self.index, out=q)
+        state.velocity.take(self.index, out=qd)
         if self.goal is not None:
             self._supervise_goal(t, q, qd)
             if self.goal is not None and t + 1e-9 >= self._next_feedback:
@@ -269,7 +279,7 @@ class JointTrajectoryController(Controller):
         if self.params.partial_goal_other_joints == "stop" and len(cols) < len(self.index):
             others = np.setdiff1d(np.arange(len(self.index)), cols)
             self._stop(others, t)
-        track = Track.of(trajectory, t, cols)
+        track = Track.of(trajectory, t, cols, len(self.index))
         self.tracks.append(track)
         self.goal, self.goal_track, self.canceling = request, track, False
         self._next_feedback = t
@@ -282,20 +292,12 @@ class JointTrajectoryController(Controller):
             if track.finished(t):
                 self._finish(GoalStatus.CANCELED, ErrorCode.SUCCESSFUL, "canceled; stopped and holding")
             return
-        error = np.abs(self.pd[cols] - q[cols])
         if not track.finished(t):
-            bad = (tol.path_position > 0.0) & (error > tol.path_position)
-            vbad = (tol.path_velocity > 0.0) & (np.abs(self.vd[cols] - qd[cols]) > tol.path_velocity)
-            if bad.any() or vbad.any():
-                j = int(np.flatnonzero(bad | vbad)[0])
-                name = self.params.joints[cols[j]]
-                what = (
-                    f"position error {error[j]:.4g} rad > {tol.path_position[j]:g}"
-                    if bad[j]
-                    else f"velocity error {abs(self.vd[cols[j]] - qd[cols[j]]):.4g} rad/s > {tol.path_velocity[j]:g}"
-                )
-                self._abort(t, ErrorCode.PATH_TOLERANCE_VIOLATED, f"path tolerance violated on {name}: {what}")
+            violation = self._path_violation(q, qd)
+            if violation:
+                self._abort(t, ErrorCode.PATH_TOLERANCE_VIOLATED, violation)
             return
+        error = np.abs(self.pd[cols] - q[cols])
         off = (tol.goal_position > 0.0) & (error > tol.goal_position)
         moving = (tol.goal_velocity > 0.0) & (np.abs(qd[cols]) > tol.goal_velocity)
         if not (off.any() or moving.any()):
@@ -311,6 +313,24 @@ class JointTrajectoryController(Controller):
                 ErrorCode.GOAL_TOLERANCE_VIOLATED,
                 f"goal tolerance violated on {name} {tol.goal_time:g} s after the end: {detail}",
             )
+
+    def _path_violation(self, q: np.ndarray, qd: np.ndarray) -> str:
+        """Why the running goal is off its path (the first joint out of tolerance), or "" while it is on it.
+
+        Runs every cycle while a goal moves: plain floats over the goal's joints, no temporary arrays."""
+        assert self.goal is not None
+        cols, position_tol, velocity_tol = self.goal.goal.path_check
+        pd, vd, q_now, qd_now = self.pd.tolist(), self.vd.tolist(), q.tolist(), qd.tolist()
+        for k, c in enumerate(cols):
+            error, tol = abs(pd[c] - q_now[c]), position_tol[k]
+            if tol > 0.0 and error > tol:
+                return f"path tolerance violated on {self.params.joints[c]}: position error {error:.4g} rad > {tol:g}"
+            error, tol = abs(vd[c] - qd_now[c]), velocity_tol[k]
+            if tol > 0.0 and error > tol:
+                return (
+                    f"path tolerance violated on {self.params.joints[c]}: velocity error {error:.4g} rad/s > {tol:g}"
+                )
+        return ""
 
     def _abort(self, t: float, code: ErrorCode, reason: str) -> None:
         assert self.goal is not None
@@ -329,14 +349,14 @@ class JointTrajectoryController(Controller):
         taken = np.zeros(len(self.index), dtype=bool)
         taken[cols] = True
         for track in self.tracks:
-            track.owned &= ~taken[track.cols]
+            track.release(taken)
         self.tracks = [track for track in self.tracks if track.owned.any()]
 
     def _stop(self, cols: np.ndarray, t: float) -> None:
         """Decelerate ``cols`` jerk-limited from their desired state to rest; they hold where they stop."""
         segment = plan_stop(self.pd[cols], self.vd[cols], self.ad[cols], self.limits.subset(cols))
         self._release(cols)
-        self.tracks.append(Track.of(Trajectory([segment], len(cols)), t, cols))
+        self.tracks.append(Track.of(Trajectory([segment], len(cols)), t, cols, len(self.index)))
 
     def _feedback(self, t: float, q: np.ndarray, qd: np.ndarray) -> None:
         assert self.goal is not None

@@ -16,6 +16,7 @@ Three bodies share the ``goal`` key:
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -122,6 +123,12 @@ class PreparedGoal:
 
     def trajectory(self, p: np.ndarray, v: np.ndarray, a: np.ndarray) -> Trajectory:
         return self.plan.trajectory(p, v, a, self.limits)
+
+    @functools.cached_property
+    def path_check(self) -> tuple[list[int], list[float], list[float]]:
+        """``cols``, path position and path velocity tolerances as plain lists, for the per-cycle check."""
+        tol = self.tolerances
+        return self.cols.tolist(), tol.path_position.tolist(), tol.path_velocity.tolist()
 
 
 def _ending_at_rest(
