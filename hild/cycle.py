@@ -18,11 +18,12 @@ from hild.config.model import RealtimeSection
 from hild.engine import Engine
 from hild.realtime import apply_thread_settings
 
-SPIN_NS = 200_000
+SPIN_NS = 200_000  # the default of realtime.spin_us
 
 
-def _wait_until(deadline_ns: int) -> None:
-    remaining = deadline_ns - time.perf_counter_ns() - SPIN_NS
+def wait_until(deadline_ns: int, spin_ns: int = SPIN_NS) -> None:
+    """Sleep to ``spin_ns`` before ``deadline_ns`` (perf_counter_ns), then busy-wait to it."""
+    remaining = deadline_ns - time.perf_counter_ns() - spin_ns
     if remaining > 0:
         time.sleep(remaining / 1e9)
     while time.perf_counter_ns() < deadline_ns:
@@ -59,12 +60,13 @@ class CycleThread(threading.Thread):
     def _run_wall(self) -> None:
         engine, stats, stopping = self.engine, self.engine.stats, self._stop_requested
         period_ns = round(engine.period * 1e9)
+        spin_ns = self.realtime.spin_us * 1000
         start = time.perf_counter_ns()
         deadline = start
         prev_wake = start - period_ns
         while not stopping.is_set():
             deadline += period_ns
-            _wait_until(deadline)
+            wait_until(deadline, spin_ns)
             wake = time.perf_counter_ns()
             engine.step((wake - start) / 1e9, (wake - prev_wake) / 1e9)
             end = time.perf_counter_ns()
@@ -79,6 +81,7 @@ class CycleThread(threading.Thread):
         period = engine.period
         rtf = self.real_time_factor
         period_ns = round(period * 1e9)
+        spin_ns = self.realtime.spin_us * 1000
         start = time.perf_counter_ns()
         t0 = engine.t
         k = 0
@@ -87,7 +90,7 @@ class CycleThread(threading.Thread):
             k += 1
             deadline = start + round(k * period_ns / rtf) if rtf > 0 else 0
             if rtf > 0:
-                _wait_until(deadline)
+                wait_until(deadline, spin_ns)
             wake = time.perf_counter_ns()
             engine.step(t0 + k * period, period)
             end = time.perf_counter_ns()

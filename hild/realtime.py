@@ -76,6 +76,7 @@ def apply_thread_settings(settings: RealtimeSection) -> dict[str, str]:
             report["cpu_affinity"] = f"not applied: {exc.strerror or exc}"
     else:
         report["cpu_affinity"] = "any"
+    report["spin"] = f"{settings.spin_us} µs before each deadline"
     if _libc().prctl(PR_SET_TIMERSLACK, settings.timer_slack_ns, 0, 0, 0) == 0:
         report["timer_slack"] = f"{settings.timer_slack_ns} ns"
     else:

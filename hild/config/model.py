@@ -222,6 +222,13 @@ class RealtimeSection(Params):
     cpu_affinity: list[int] = Field(default_factory=list, description="CPUs the cycle thread may run on.")
     lock_memory: bool = Field(default=False, description="mlockall(MCL_CURRENT|MCL_FUTURE|MCL_ONFAULT).")
     timer_slack_ns: int = Field(default=1, ge=1, description="Timer slack of the cycle thread.")
+    spin_us: int = Field(
+        default=200,
+        ge=0,
+        le=10_000,
+        description="The cycle thread sleeps to this long before each deadline, then spins: longer is steadier "
+        "on a machine whose idle CPU wakes slowly (VMs), at the cost of CPU time.",
+    )
     gc_freeze: bool = Field(default=True, description="gc.collect(); gc.freeze() after start-up.")
     switch_interval: float = Field(
         default=0.0005, gt=0.0, le=0.1, description="sys.setswitchinterval: how long another thread may hold the GIL."
