@@ -21,7 +21,7 @@ from typing import Any
 
 from hild.config.loader import LoadedConfig
 from hild.cycle import CycleThread
-from hild.engine import Engine
+from hild.engine import STATUS_STATS_MAX_AGE, Engine
 from hild.events import log_event
 from hild.hardware import HardwareError
 from hild.notify import SystemdNotifier, WatchdogGate, status_line
@@ -183,7 +183,7 @@ class Daemon:
             self.notifier.status(self._status_text(mode))
 
     def _status_text(self, mode: str) -> str:
-        return status_line(mode, self.engine.update_rate, self.engine.stats.summary())
+        return status_line(mode, self.engine.update_rate, self.engine.stats.summary(STATUS_STATS_MAX_AGE))
 
     def _open_telemetry(self) -> None:
         if not self.loaded.config.telemetry.enabled:

@@ -37,6 +37,7 @@ from hild.transmission import Transmissions
 
 REQUEST_QUEUE = 64
 HEALTH_POLL_HZ = 20.0
+STATUS_STATS_MAX_AGE = 0.1  # s: status polled at 200 Hz recomputes loop percentiles at most 10 times a second
 ENABLE_CONFIRM = 1.0  # s: an operator enable must show in the drive's replies within this
 SET_ZERO_MAX_SPEED = 0.05  # rad/s: set-zero only on a still joint
 SET_ZERO_SETTLE = 0.5  # s: hold follows the reading while the drive moves to its new frame (some drop replies ~1 s)
@@ -536,7 +537,11 @@ class Engine:
                 {"name": s.name, "driver": s.driver, "state": str(s.lifecycle), "fault": s.fault or None}
                 for s in self.hardware
             ],
-            "loop": {"update_rate": self.update_rate, "clock": self.clock_source, **self.stats.summary()},
+            "loop": {
+                "update_rate": self.update_rate,
+                "clock": self.clock_source,
+                **self.stats.summary(STATUS_STATS_MAX_AGE),
+            },
             "realtime": dict(self.realtime_report),
         }
 

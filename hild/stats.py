@@ -6,6 +6,7 @@ demand by whoever asks (status, bench) on the asyncio side, from a copy of the w
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -50,6 +51,8 @@ class LoopStats:
         self.cycles = 0
         self.overruns = 0
         self.consecutive_overruns = 0
+        self._percentiles: tuple[dict[str, float], dict[str, float]] | None = None
+        self._percentiles_at = 0.0
 
     def record(self, duration_ns: int, period_error_ns: int, overrun: bool) -> None:
         self.cycles += 1
@@ -61,12 +64,21 @@ class LoopStats:
         else:
             self.consecutive_overruns = 0
 
-    def summary(self) -> dict[str, object]:
+    def summary(self, max_age: float = 0.0) -> dict[str, object]:
+        """Counters (always current) and percentiles over the window.
+
+        The percentiles cost ~0.2 ms of CPU (and GIL) per call over a 10k window; a caller that may be polled
+        fast (status at 200 Hz) passes ``max_age`` to reuse ones computed less than that many seconds ago."""
+        now = time.monotonic()
+        if self._percentiles is None or now - self._percentiles_at > max_age:
+            self._percentiles = (self.duration.summary_us(), self.period_error.summary_us())
+            self._percentiles_at = now
+        duration, period_error = self._percentiles
         return {
             "cycles": self.cycles,
             "overruns": self.overruns,
-            "duration_us": self.duration.summary_us(),
-            "period_error_us": self.period_error.summary_us(),
+            "duration_us": dict(duration),
+            "period_error_us": dict(period_error),
         }
 
     def reset(self) -> None:
