@@ -52,14 +52,21 @@ class TelemetryRows:
         return len(self.tick)
 
 
+_SCALARS = ("tick", "t", "period", "duration")  # the first cells of a row; then FIELDS side by side, then mode
+
+
+def _row_cells(joints: int) -> int:
+    return len(_SCALARS) + (len(FIELDS) + 1) * joints
+
+
 def _layout(joints: int, capacity: int) -> list[tuple[str, np.dtype, tuple[int, ...]]]:
-    """Every array of the ring in buffer order; 8-byte items first so each array stays aligned."""
-    fields: list[tuple[str, np.dtype, tuple[int, ...]]] = [("_header", np.dtype(np.int64), (_HEADER_CELLS,))]
-    fields.append(("tick", np.dtype(np.int64), (capacity,)))
-    fields += [(name, np.dtype(np.float64), (capacity,)) for name in ("t", "period", "duration")]
-    fields.append(("_joint_rows", np.dtype(np.float64), (capacity, len(FIELDS) * joints)))  # FIELDS side by side
-    fields.append(("mode", np.dtype(np.int8), (capacity, joints)))
-    return fields
+    """The header, then one float64 row per cycle holding everything the cycle records, contiguous: a record
+    writes one short run of memory (a cache line or a few, one page) instead of a cell in each of several arrays.
+    Ticks and modes are small integers, exact in float64."""
+    return [
+        ("_header", np.dtype(np.int64), (_HEADER_CELLS,)),
+        ("_rows", np.dtype(np.float64), (capacity, _row_cells(joints))),
+    ]
 
 
 def ring_bytes(joints: int, capacity: int) -> int:
@@ -90,7 +97,10 @@ class TelemetryTap:
         self.capacity = capacity
         self.every = max(1, int(every))
         self.stats = stats
+        self._stage = np.zeros(len(_SCALARS))  # tick, t, period, duration of the row being recorded
         self._bind(np.zeros(ring_bytes(joints, capacity), dtype=np.uint8) if buffer is None else buffer)
+        if buffer is None:
+            self.prefault()
         self._written = self.head  # the producer's count (it alone advances head)
         self._next = self._written  # the reader's position
 
@@ -101,10 +111,18 @@ class TelemetryTap:
             size = dtype.itemsize * int(np.prod(shape))
             setattr(self, name, raw[offset : offset + size].view(dtype).reshape(shape))
             offset += size
-        blocks = self._joint_rows.reshape(self.capacity, len(FIELDS), self.joints)
-        for k, name in enumerate(FIELDS):  # one (capacity, joints) view per field, for readers
-            setattr(self, name, blocks[:, k, :])
+        rows, n, first = self._rows, self.joints, len(_SCALARS)
+        for k, name in enumerate(_SCALARS):  # views for readers
+            setattr(self, name, rows[:, k])
+        for k, name in enumerate(FIELDS):
+            setattr(self, name, rows[:, first + k * n : first + (k + 1) * n])
+        self.mode = rows[:, first + len(FIELDS) * n :]
         self._raw = raw
+
+    def prefault(self) -> None:
+        """Touch every page of the ring now (the creator, before the cycle starts), so no ``record`` pays a page
+        fault the first time it reaches a new page."""
+        self._raw.fill(0)
 
     def detach(self) -> None:
         """Move the ring into private memory (a copy), so the shared segment can be unmapped while the cycle
@@ -141,16 +159,15 @@ class TelemetryTap:
                 window = self.stats.duration
                 if window.count:
                     duration = window.values.item((window.count - 1) % window.values.shape[0]) * 1e-9
-        i = self._written % self.capacity
-        self.tick[i] = tick
-        self.t[i] = t
-        self.period[i] = period
-        self.duration[i] = duration
-        np.concatenate(  # the six joint vectors in one call: the cheapest copy numpy offers per cycle
-            (state.position, state.velocity, state.effort, final.position, final.velocity, final.effort),
-            out=self._joint_rows[i],
+        stage = self._stage
+        stage[0] = tick
+        stage[1] = t
+        stage[2] = period
+        stage[3] = duration
+        np.concatenate(  # the whole row in one call: the cheapest copy numpy offers per cycle
+            (stage, state.position, state.velocity, state.effort, final.position, final.velocity, final.effort, modes),
+            out=self._rows[self._written % self.capacity],
         )
-        self.mode[i] = modes
         self._written += 1
         self._header[_HEAD] = self._written  # publish: the row is complete before the reader can see it
 
@@ -162,7 +179,7 @@ class TelemetryTap:
         seqs = np.arange(start, head)
         slots = seqs % self.capacity
         rows = TelemetryRows(
-            tick=self.tick[slots],
+            tick=self.tick[slots].astype(np.int64),
             t=self.t[slots],
             period=self.period[slots],
             duration=self.duration[slots],
@@ -172,7 +189,7 @@ class TelemetryTap:
             position=self.position[slots],
             velocity=self.velocity[slots],
             effort=self.effort[slots],
-            mode=self.mode[slots],
+            mode=self.mode[slots].astype(np.int8),
         )
         # Rows the producer reached while we copied may be torn: keep only those it cannot have touched.
         valid_from = self.head - self.capacity + 1
@@ -206,6 +223,7 @@ class SharedRing:
         shm = shared_memory.SharedMemory(name, create=True, size=ring_bytes(joints, capacity))
         try:
             tap = TelemetryTap(joints, capacity, every, stats, shm.buf)
+            tap.prefault()
         except BaseException:
             shm.close()
             shm.unlink()
