@@ -127,6 +127,7 @@ class MujocoTwin(HardwareComponent):
         for name, value in p.damping.items():
             model.dof_damping[dofadr[self.joints.index(name)]] = value
         self._tau_lo, self._tau_hi = self._torque_limits(model, jid)
+        self._tau_lo_list, self._tau_hi_list = self._tau_lo.tolist(), self._tau_hi.tolist()
 
         model.opt.timestep = self.context.period / p.substeps
         if not p.gravity:
@@ -240,22 +241,26 @@ class MujocoTwin(HardwareComponent):
         else:
             pos, vel, eff, kp, kd = command.position, command.velocity, command.effort, command.kp, command.kd
 
-        q, qd, tau, tmp = self._q, self._qd, self._tau, self._tmp
+        # τ = kp·(position − q) + kd·(velocity − q̇) + effort, saturated to the drive's limits, on plain floats:
+        # for a handful of joints that is several times cheaper than a chain of numpy calls.
+        p_cmd, v_cmd, ff_cmd, kp_cmd, kd_cmd = pos.tolist(), vel.tolist(), eff.tolist(), kp.tolist(), kd.tolist()
+        lo, hi, joints = self._tau_lo_list, self._tau_hi_list, range(len(p_cmd))
+        q, qd, tau = self._q, self._qd, self._tau
         for _ in range(self.params.substeps):
             if self._gather:
                 np.take(self._qpos_all, self._qposadr, out=q)
                 np.take(self._qvel_all, self._dofadr, out=qd)
-            # τ = kp·(position − q) + kd·(velocity − q̇) + effort, saturated to the drive's limits.
-            np.subtract(pos, q, out=tau)
-            np.multiply(tau, kp, out=tau)
-            np.subtract(vel, qd, out=tmp)
-            np.multiply(tmp, kd, out=tmp)
-            np.add(tau, tmp, out=tau)
-            np.add(tau, eff, out=tau)
-            np.maximum(tau, self._tau_lo, out=tau)
-            np.minimum(tau, self._tau_hi, out=tau)
-            if math.isnan(tau.dot(tau)):  # e.g. 0·inf in a bad command: a drive rejects it, applies nothing
-                tau[np.isnan(tau)] = 0.0
+            q_now, qd_now, torques = q.tolist(), qd.tolist(), []
+            for i in joints:
+                torque = kp_cmd[i] * (p_cmd[i] - q_now[i]) + kd_cmd[i] * (v_cmd[i] - qd_now[i]) + ff_cmd[i]
+                if torque != torque:  # NaN (e.g. 0·inf in a bad command): a drive rejects it, applies nothing
+                    torque = 0.0
+                elif torque > hi[i]:
+                    torque = hi[i]
+                elif torque < lo[i]:
+                    torque = lo[i]
+                torques.append(torque)
+            tau[:] = torques
             if self._gather:
                 np.put(self._frc_all, self._dofadr, tau)
             else:
@@ -309,7 +314,6 @@ class MujocoTwin(HardwareComponent):
         self._qpos_all, self._qvel_all, self._frc_all = d.qpos, d.qvel, d.qfrc_applied
         self._frc_all.fill(0.0)
         self._tau = np.zeros(n)
-        self._tmp = np.zeros(n)
         qb, db = contiguous_slice(self._qposadr), contiguous_slice(self._dofadr)
         # The usual case: the joints are one contiguous block in model order, so work on views directly.
         self._gather = qb is None or db is None
