@@ -23,8 +23,10 @@ __all__ = [
     "SCALAR_JOINT_TYPES",
     "GeomShape",
     "GravityModel",
+    "JointDofs",
     "Kinematics",
     "contiguous_slice",
+    "joint_dofs",
     "joint_names",
     "load_model",
     "scalar_joint_addresses",
@@ -85,6 +87,44 @@ def scalar_joint_addresses(
         raise ValueError(f"joint names repeat: {', '.join(names)}")
     jid = np.asarray(ids, dtype=np.intp)
     return jid, model.jnt_qposadr[jid].astype(np.intp), model.jnt_dofadr[jid].astype(np.intp)
+
+
+@dataclass(frozen=True)
+class JointDofs:
+    """What a joint's drive moves, from the model: its inertia at given poses and its passive dynamics."""
+
+    inertia: np.ndarray  # poses × joints: diagonal of the joint-space mass matrix (armature included)
+    at_qpos0: np.ndarray  # joints: the same at the model's reference pose
+    damping: np.ndarray  # joints: viscous damping (N·m·s/rad or N·s/m)
+    friction: np.ndarray  # joints: Coulomb friction (frictionloss)
+    qpos0: np.ndarray  # joints: the reference pose
+
+
+def joint_dofs(path: Path, joints: Sequence[str], poses: np.ndarray) -> JointDofs:
+    """MuJoCo's own mass matrix, evaluated for ``joints`` at each row of ``poses`` (other joints at qpos0).
+
+    A joint's inertia changes with the pose (a base joint carries far more with the arm stretched out), so tools
+    that pick gains or a physics step need it over the poses the arm can take, not at one pose."""
+    model = load_model(path)
+    data = mujoco.MjData(model)
+    _, qposadr, dofadr = scalar_joint_addresses(model, joints)
+    full = np.zeros((model.nv, model.nv))
+    inertia = np.empty((len(poses), len(joints)))
+    for k, pose in enumerate(np.atleast_2d(poses)):
+        data.qpos[:] = model.qpos0
+        data.qpos[qposadr] = pose
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_comPos(model, data)
+        mujoco.mj_crb(model, data)
+        mujoco.mj_fullM(model, data, full)
+        inertia[k] = full[dofadr, dofadr]
+    return JointDofs(
+        inertia=inertia,
+        at_qpos0=model.dof_M0[dofadr].copy(),
+        damping=model.dof_damping[dofadr].copy(),
+        friction=model.dof_frictionloss[dofadr].copy(),
+        qpos0=model.qpos0[qposadr].copy(),
+    )
 
 
 class GravityModel:

@@ -25,3 +25,31 @@ def load_document(path: str | Path) -> Any:
         mark = getattr(exc, "problem_mark", None)
         where = f"{path}:{mark.line + 1}" if mark else str(path)
         raise DocumentError(f"{where}: not valid YAML: {getattr(exc, 'problem', None) or exc}") from None
+
+
+KeyPath = tuple[str | int, ...]
+
+
+def load_document_lines(path: str | Path) -> tuple[Any, dict[KeyPath, int]]:
+    """Like :func:`load_document`, plus the 1-based line of every key path (``("a", "b", 0)`` for ``a.b[0]``).
+
+    For tools that read foreign YAML (e.g. a ros2_control controllers.yaml) and must point back at its lines.
+    """
+    data = load_document(path)  # raises DocumentError with the line of a syntax error
+    root = yaml.compose(Path(path).read_text(), Loader=yaml.SafeLoader)
+    lines: dict[KeyPath, int] = {}
+
+    def walk(node: yaml.Node, loc: KeyPath) -> None:
+        lines.setdefault(loc, node.start_mark.line + 1)
+        if isinstance(node, yaml.MappingNode):
+            for key, value in node.value:
+                here = (*loc, str(key.value))
+                lines[here] = key.start_mark.line + 1
+                walk(value, here)
+        elif isinstance(node, yaml.SequenceNode):
+            for i, item in enumerate(node.value):
+                walk(item, (*loc, i))
+
+    if root is not None:
+        walk(root, ())
+    return data, lines

@@ -1,0 +1,182 @@
+"""``import_ros2_control``: URDF (or xacro) + controllers.yaml → a hild config and the twin's URDF, or nothing.
+
+The steps, each in its own module: expand xacro (xacro_expand) → parse with lines (xmltree, urdf) → choose the
+joints (mapping) → controllers (controllers) → the twin's URDF and its inertias (twin) → limits, gains,
+transmissions (mapping) → YAML (writer). Both files are written to a temporary directory beside the output,
+checked there the way ``hild check`` checks a config, and only then renamed into place: an error at any step
+leaves nothing behind.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import re
+import shutil
+import tempfile
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from hild.config import ConfigError, load_config
+from hild.importers.ros2_control import controllers as ctl
+from hild.importers.ros2_control import mapping, twin, writer
+from hild.importers.ros2_control.inertia import joint_inertias
+from hild.importers.ros2_control.packages import PackageRoots
+from hild.importers.ros2_control.report import ImportFailure, Report, SourceRef
+from hild.importers.ros2_control.urdf import parse_robot
+from hild.importers.ros2_control.xacro_expand import expand_xacro, is_xacro
+from hild.importers.ros2_control.xmltree import XmlDocument, XmlSyntaxError, parse_xml
+
+
+@dataclass(frozen=True)
+class ImportRequest:
+    urdf: Path
+    controllers: Path
+    output: Path  # the hild config (.yaml); the twin's URDF is written beside it with the same stem
+    package_roots: Mapping[str, Path] = field(default_factory=dict)
+    xacro_args: Mapping[str, str] = field(default_factory=dict)
+    robot_name: str | None = None
+    force: bool = False
+
+    @property
+    def twin_urdf(self) -> Path:
+        return self.output.with_suffix(".urdf")
+
+
+@dataclass(frozen=True)
+class ImportResult:
+    config: Path
+    urdf: Path
+    report: Report
+
+
+def import_ros2_control(request: ImportRequest) -> ImportResult:
+    """Run the import; raises :class:`ImportFailure` (with file:line) and then has written nothing."""
+    config_path, urdf_path = request.output.resolve(), request.twin_urdf.resolve()
+    _check_destination(request, config_path, urdf_path)
+    report = Report()
+    packages = PackageRoots(request.package_roots, request.urdf.resolve().parent)
+    document, label = _read_urdf(request, packages, urdf_path, report)
+    robot = parse_robot(document.root, label)
+
+    selected = mapping.select_joints(robot, report)
+    if not selected:
+        raise robot.where.fail("no joint to command: <ros2_control> lists no movable, non-mimic joint")
+    plan = ctl.read_controllers(request.controllers, mapping.catalog(robot, selected), report)
+    mapping.report_hardware(robot, report)
+    mapping.check_limits(selected)
+    twin.check_inertias(robot)
+    urdf_text = twin.build_twin_urdf(document, robot, request.urdf.resolve().parent, packages, report)
+
+    with _staging(config_path) as staging:
+        staged_urdf, staged_config = staging / urdf_path.name, staging / config_path.name
+        staged_urdf.write_text(urdf_text)
+        try:
+            ranges = mapping.position_ranges(robot, selected)
+            inertias = joint_inertias(staged_urdf, [s.joint.name for s in selected], ranges)
+        except ValueError as exc:
+            message = str(exc).replace(str(staged_urdf), str(urdf_path))
+            raise ImportFailure(f"{label}: the twin cannot use this URDF: {message}") from None
+        joints = mapping.plan_joints(robot, selected, inertias, plan.effort_pid(), report)
+        substeps = mapping.choose_substeps(joints, plan.update_rate, report)
+        _complete_effort_gains(plan, joints, report)
+        doc = writer.build_document(
+            _robot_name(request.robot_name or robot.name or config_path.stem),
+            urdf_path.name,
+            joints,
+            plan,
+            substeps,
+            [f"URDF: {request.urdf.resolve()}", f"controllers: {request.controllers.resolve()}"],
+            [(b.name, b.plugin or "") for b in robot.ros2_control],
+        )
+        staged_config.write_text(writer.render(doc))
+        try:
+            load_config(staged_config)  # exactly what `hild check` does
+        except ConfigError as exc:
+            detail = str(exc).replace(str(staged_config), str(config_path))
+            raise ImportFailure(f"the imported config does not pass `hild check` (please report):\n{detail}") from None
+        os.replace(staged_urdf, urdf_path)
+        os.replace(staged_config, config_path)
+    report.notes.insert(0, f"wrote {config_path} and {urdf_path} (the twin's model)")
+    return ImportResult(config_path, urdf_path, report)
+
+
+def _read_urdf(
+    request: ImportRequest, packages: PackageRoots, urdf_path: Path, report: Report
+) -> tuple[XmlDocument, str]:
+    """The URDF as a document with lines, and the file name its lines refer to (the expansion, for xacro)."""
+    source = request.urdf
+    try:
+        text = source.read_text()
+    except OSError as exc:
+        raise ImportFailure(f"{source}: cannot read the URDF: {exc.strerror or exc}") from None
+    label = str(source)
+    if is_xacro(source, text):
+        text, warnings = expand_xacro(source, request.xacro_args, packages)
+        label = str(urdf_path)
+        report.notes.append(f"xacro: {source} expanded; URDF lines below refer to the expansion, {urdf_path}")
+        for warning in warnings:
+            report.approximated(SourceRef(str(source)), f"xacro said: {warning}")
+    try:
+        return parse_xml(text), label
+    except XmlSyntaxError as exc:
+        raise SourceRef(label, exc.line).fail(str(exc)) from None
+
+
+@contextlib.contextmanager
+def _staging(config_path: Path) -> Iterator[Path]:
+    """A temporary directory beside the output; on failure it, and any directory made for it, is gone."""
+    created = [d for d in (config_path.parent, *config_path.parent.parents) if not d.exists()]
+    config_path.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=".hild-import-", dir=config_path.parent))
+    try:
+        yield staging
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        for directory in created:  # innermost first: only the directories this import made
+            directory.rmdir()
+        raise
+    shutil.rmtree(staging, ignore_errors=True)
+
+
+def _check_destination(request: ImportRequest, config_path: Path, urdf_path: Path) -> None:
+    if config_path.suffix not in (".yaml", ".yml"):
+        raise ImportFailure(f"{request.output}: the output is a hild config and must end in .yaml")
+    for given in (request.urdf, request.controllers):
+        if given.resolve() in (config_path, urdf_path):
+            raise ImportFailure(f"{given}: the output would overwrite this input; choose another -o")
+    if not request.force:
+        for path in (config_path, urdf_path):
+            if path.exists():
+                raise ImportFailure(f"{path} exists: pass --force to overwrite it")
+
+
+def _robot_name(name: str) -> str:
+    """hild robot names are Zenoh key parts: letters, digits, _ and -."""
+    return re.sub(r"[^A-Za-z0-9_\-]+", "_", name).strip("_") or "robot"
+
+
+def _complete_effort_gains(plan: ctl.ControllersPlan, joints: list[mapping.JointPlan], report: Report) -> None:
+    """An effort trajectory controller needs a PID per joint and a bounded integral."""
+    by_name = {j.name: j for j in joints}
+    for controller in plan.controllers:
+        params = controller.params
+        if params.get("command_interfaces") != ["effort"]:
+            continue
+        gains = {}
+        for joint in params["joints"]:
+            pid = controller.pid.get(joint)
+            j = by_name[joint]
+            if pid is None:
+                gains[joint] = {"p": j.kp, "d": j.kd}
+                report.approximated(
+                    controller.where,
+                    f"{controller.name}: no gains for {joint} (ROS: p = 0) → the hold gains p {j.kp:g}, d {j.kd:g}",
+                )
+                continue
+            if pid.i > 0 and pid.i_clamp is None:
+                pid.i_clamp = j.effort
+                report.approximated(pid.where, f"{controller.name}: {joint} integral bounded to ±{j.effort:g} N·m")
+            gains[joint] = pid.params()
+        params["gains"] = gains

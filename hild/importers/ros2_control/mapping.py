@@ -1,0 +1,476 @@
+"""URDF joints, limits, ``<ros2_control>`` and transmissions → hild joints, the twin's params and the CAN template.
+
+The defaults below are the documented answers (docs/import.md) to what a ros2_control robot does not say but a
+hild config needs: acceleration and jerk for planning, hold gains without PID gains, finite limits for
+continuous joints.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+from hild.importers.ros2_control.controllers import JointCatalog, Pid
+from hild.importers.ros2_control.inertia import JointInertia
+from hild.importers.ros2_control.report import Report, SourceRef
+from hild.importers.ros2_control.urdf import HardwareJoint, Joint, Robot, Ros2Control
+
+# Planning limits a URDF does not carry: reach full speed in 0.5 s, but never ask for more than half the effort
+# limit to accelerate the joint's own inertia (the other half is left for gravity and the rest of the arm).
+ACCELERATION_PER_VELOCITY = 2.0  # 1/s
+ACCELERATION_EFFORT_SHARE = 0.5
+JERK_PER_ACCELERATION = 10.0  # 1/s: full acceleration in 0.1 s
+# Hold gains without an effort PID: a critically damped 5 Hz loop in the joint's heaviest pose, stiff enough that
+# its own damping and friction at full speed cost at most DAMPING_LAG of tracking error.
+HOLD_BANDWIDTH_HZ = 5.0
+HOLD_DAMPING_RATIO = 1.0
+DAMPING_LAG = 0.05  # rad (m)
+# The twin runs the drive law once per physics step: in the joint's lightest pose, kd·h/M and √(kp/M)·h stay
+# below STEP_MARGIN, which sets the number of substeps (at most MAX_SUBSTEPS; beyond that the gains are lowered).
+STEP_MARGIN = 0.5
+MAX_SUBSTEPS = 100
+CONTINUOUS_RANGE = round(2.0 * math.pi, 4)  # a continuous joint gets ±one turn
+PHYSICS_STEP = 0.001  # s: the twin's substeps keep MuJoCo's step at or below this (or smaller, see above)
+
+SIMULATORS = {
+    "gazebo_ros2_control/GazeboSystem": "Gazebo Classic",
+    "gz_ros2_control/GazeboSimSystem": "Gazebo (gz)",
+    "ign_ros2_control/IgnitionSystem": "Ignition Gazebo",
+    "mujoco_ros2_control/MujocoSystem": "MuJoCo",
+    "mujoco_ros2_control/MujocoSystemInterface": "MuJoCo",
+}
+MOCKS = ("mock_components/GenericSystem", "fake_components/GenericSystem")
+HILD_INTERFACES = ("position", "velocity", "effort")  # and kp/kd: what the hild servo command carries
+
+
+@dataclass(frozen=True)
+class Selected:
+    """A joint hild commands, with where ros2_control declares it."""
+
+    joint: Joint
+    hardware: HardwareJoint | None
+    block: Ros2Control | None
+
+
+@dataclass
+class JointPlan:
+    name: str
+    where: SourceRef
+    lower: float
+    upper: float
+    soft_margin: float
+    velocity: float
+    effort: float
+    acceleration: float
+    jerk: float
+    kp: float
+    kd: float
+    gains_from: str
+    initial_position: float | None
+    transmission: dict[str, float] | None  # reduction/direction/offset for the CAN template
+    transmission_from: SourceRef | None
+    block: str
+    inertia: JointInertia
+
+
+def select_joints(robot: Robot, report: Report) -> list[Selected]:
+    """The joints hild will command: those of the ``<ros2_control>`` blocks, in their order."""
+    selected: list[Selected] = []
+    seen: dict[str, SourceRef] = {}
+    for block in robot.ros2_control:
+        if block.type.lower() == "sensor":
+            report.unsupported(block.where, f"<ros2_control> {block.name!r} is a sensor component")
+            continue
+        for tag, name, where in block.others:
+            report.unsupported(where, f"<{tag}> {name!r} in <ros2_control> {block.name!r} (hild has joints only)")
+        for hw in block.joints:
+            joint = robot.joints.get(hw.name)
+            if joint is None:
+                known = ", ".join(j.name for j in robot.joints.values() if j.movable)
+                raise hw.where.fail(f"<ros2_control> joint {hw.name!r} is not a joint of the URDF (joints: {known})")
+            if hw.name in seen:
+                raise hw.where.fail(f"joint {hw.name!r} is already in <ros2_control> at {seen[hw.name]}")
+            seen[hw.name] = hw.where
+            if hw.mimic or joint.mimic is not None:
+                if joint.mimic is None:  # URDF mimic joints are reported with the hardware
+                    report.unsupported(hw.where, f"joint {hw.name!r} is a mimic joint: not commanded")
+                continue
+            for spec in hw.command_interfaces:
+                if spec.name not in HILD_INTERFACES:
+                    report.unsupported(
+                        spec.where,
+                        f"{hw.name}: command interface {spec.name!r} (hild has {', '.join(HILD_INTERFACES)})",
+                    )
+            if not joint.movable:
+                report.unsupported(hw.where, f"joint {hw.name!r} is {joint.type}: not a commandable joint")
+                continue
+            selected.append(Selected(joint, hw, block))
+    if robot.ros2_control:
+        return selected
+    transmitted = {end.name for t in robot.transmissions for end in t.joints}
+    candidates = [j for j in robot.joints.values() if j.movable and j.mimic is None]
+    chosen = [j for j in candidates if j.name in transmitted] or candidates
+    why = "the joints of its <transmission>s" if transmitted else "every movable joint"
+    report.approximated(robot.where, f"no <ros2_control> in the URDF: hild commands {why}")
+    return [Selected(j, None, None) for j in chosen]
+
+
+def catalog(robot: Robot, selected: list[Selected]) -> JointCatalog:
+    interfaces = {
+        s.joint.name: frozenset(i.name for i in s.hardware.command_interfaces)
+        for s in selected
+        if s.hardware is not None
+    }
+    mimic = {j.name: j.mimic.joint for j in robot.joints.values() if j.mimic is not None}
+    for block in robot.ros2_control:
+        for hw in block.joints:
+            if hw.mimic and hw.name not in mimic:
+                mimic[hw.name] = "(mimic in <ros2_control>)"
+    return JointCatalog(tuple(s.joint.name for s in selected), frozenset(robot.joints), mimic, interfaces)
+
+
+def report_hardware(robot: Robot, report: Report) -> None:
+    """What becomes of each hardware plugin, its params, the gazebo plugins and mimic joints."""
+    for block in robot.ros2_control:
+        plugin = block.plugin
+        if plugin in SIMULATORS:
+            report.mapped(block.plugin_where, f"{plugin} ({SIMULATORS[plugin]}) → the MuJoCo twin over the same URDF")
+        elif plugin in MOCKS:
+            report.approximated(
+                block.plugin_where,
+                f"{plugin} → the MuJoCo twin: it has physics (gravity, inertia), the mock mirrors commands",
+            )
+        elif plugin is None:
+            report.unsupported(
+                block.where, f"<ros2_control> {block.name!r} names no hardware plugin; the twin stands in"
+            )
+        else:
+            report.unsupported(
+                block.plugin_where,
+                f"hardware plugin {plugin} has no hild driver: the MuJoCo twin stands in; fill in the CAN template",
+            )
+        for name, (value, where) in block.params.items():
+            report.unsupported(where, f"hardware param {name}={value!r} of {plugin} is not used by the twin")
+    for element in robot.gazebo:
+        if element.plugin and "ros2_control" in element.plugin:
+            extra = (
+                f"; its parameters file {element.parameters} is the --controllers input" if element.parameters else ""
+            )
+            report.mapped(element.where, f"<gazebo> plugin {element.plugin} → the twin runs the controllers{extra}")
+        elif element.reference:
+            report.unsupported(element.where, f"<gazebo reference={element.reference!r}>: Gazebo-only properties")
+        else:
+            report.unsupported(element.where, f"<gazebo> {element.plugin or 'element'}: not used by the twin")
+    for joint in robot.joints.values():
+        if joint.mimic is not None:
+            m = joint.mimic
+            report.unsupported(
+                m.where,
+                f"mimic joint {joint.name!r} (follows {m.joint!r} × {m.multiplier:g} + {m.offset:g}) is not commanded; "
+                "the twin keeps it coupled (MuJoCo joint equality)",
+            )
+        elif joint.type in ("floating", "planar"):
+            report.unsupported(joint.where, f"{joint.type} joint {joint.name!r}: hild drives 1-DoF joints only")
+
+
+def plan_joints(
+    robot: Robot,
+    selected: list[Selected],
+    inertias: Mapping[str, JointInertia],
+    effort_pid: Mapping[str, tuple[str, Pid]],
+    report: Report,
+) -> list[JointPlan]:
+    transmissions = _transmissions(robot, {s.joint.name for s in selected}, report)
+    plans = []
+    for s in selected:
+        joint, hw = s.joint, s.hardware
+        lower, upper, velocity, effort = _limits(joint, hw, report)
+        margin = _soft_margin(joint, lower, upper, report)
+        acceleration, jerk = _planning_limits(joint, velocity, effort, inertias[joint.name], report)
+        kp, kd, gains_from = _hold_gains(joint, velocity, inertias[joint.name], effort_pid.get(joint.name), report)
+        reduction = transmissions.get(joint.name)
+        plans.append(
+            JointPlan(
+                name=joint.name,
+                where=hw.where if hw is not None else joint.where,
+                lower=lower,
+                upper=upper,
+                soft_margin=margin,
+                velocity=velocity,
+                effort=effort,
+                acceleration=acceleration,
+                jerk=jerk,
+                kp=kp,
+                kd=kd,
+                gains_from=gains_from,
+                initial_position=_initial_position(joint, hw, lower, upper, report),
+                transmission=reduction[0] if reduction else None,
+                transmission_from=reduction[1] if reduction else None,
+                block=s.block.name if s.block is not None else "",
+                inertia=inertias[joint.name],
+            )
+        )
+    return plans
+
+
+def check_limits(selected: list[Selected]) -> None:
+    """Raise on a joint whose limits hild cannot use, before the twin's model is built from them."""
+    for s in selected:
+        _limits(s.joint, s.hardware, Report())
+
+
+def position_ranges(robot: Robot, selected: list[Selected]) -> dict[str, tuple[float, float]]:
+    """Where each joint can go (for sampling poses): its URDF limits, ±1 turn for a continuous joint."""
+    out = {}
+    for s in selected:
+        limit = s.joint.limit
+        if s.joint.type == "continuous" or limit is None or limit.lower is None or limit.upper is None:
+            out[s.joint.name] = (-math.pi, math.pi)
+        else:
+            out[s.joint.name] = (limit.lower, limit.upper)
+    return out
+
+
+def choose_substeps(plans: list[JointPlan], update_rate: float, report: Report) -> int:
+    """Physics steps per cycle: a step of at most PHYSICS_STEP that keeps every joint's drive law stable.
+
+    A joint whose gains would need more than MAX_SUBSTEPS gets its gains lowered to what that step allows.
+    """
+    period = 1.0 / update_rate
+    needed = [_stable_step(p) for p in plans]
+    step = min([PHYSICS_STEP, *needed])
+    count = min(MAX_SUBSTEPS, max(1, math.ceil(period / step - 1e-9)))
+    h = period / count
+    for plan, limit in zip(plans, needed, strict=True):
+        if limit < h * (1 - 1e-9):
+            light = plan.inertia.lightest
+            kp, kd = plan.kp, plan.kd
+            plan.kd = _round(min(kd, STEP_MARGIN * light / h))
+            plan.kp = _round(min(kp, light * (STEP_MARGIN / h) ** 2))
+            report.approximated(
+                plan.where,
+                f"{plan.name}: gains kp {kp:g}, kd {kd:g} need a physics step below {limit * 1e6:.0f} µs in its "
+                f"lightest pose (inertia {light:.4g}); lowered to kp {plan.kp:g}, kd {plan.kd:g} at "
+                f"{count} substeps",
+            )
+    return count
+
+
+def _stable_step(plan: JointPlan) -> float:
+    light = plan.inertia.lightest
+    if light <= 0:
+        return PHYSICS_STEP
+    by_damping = STEP_MARGIN * light / plan.kd if plan.kd > 0 else math.inf
+    by_stiffness = STEP_MARGIN * math.sqrt(light / plan.kp) if plan.kp > 0 else math.inf
+    return min(by_damping, by_stiffness)
+
+
+# ---- pieces ---------------------------------------------------------------------------------------------------
+
+
+def _round(value: float) -> float:
+    """Four significant digits: derived numbers read better and nothing depends on the fifth."""
+    return float(f"{value:.4g}")
+
+
+def _interface_bound(hw: HardwareJoint | None, interface: str, joint: str) -> tuple[float | None, ...]:
+    """``(min, max)`` params of a command interface, when given (ros2_control joint limits from the tag)."""
+    if hw is None:
+        return None, None
+    for spec in hw.command_interfaces:
+        if spec.name == interface:
+            out = []
+            for key in ("min", "max"):
+                raw = spec.params.get(key)
+                try:
+                    out.append(float(raw) if raw not in (None, "") else None)
+                except ValueError:
+                    raise spec.where_of(key).fail(
+                        f"joint {joint!r}: {interface} {key}={raw!r} is not a number"
+                    ) from None
+            return tuple(out)
+    return None, None
+
+
+def _limits(joint: Joint, hw: HardwareJoint | None, report: Report) -> tuple[float, float, float, float]:
+    limit = joint.limit
+    where = limit.where if limit is not None else joint.where
+    if joint.type == "continuous":
+        lower, upper = -CONTINUOUS_RANGE, CONTINUOUS_RANGE
+        report.approximated(
+            where, f"{joint.name}: continuous joint → position limits ±{CONTINUOUS_RANGE:.4f} (±1 turn)"
+        )
+    else:
+        if limit is None or limit.lower is None or limit.upper is None:
+            raise where.fail(f"{joint.type} joint {joint.name!r} needs <limit lower=... upper=...>")
+        lower, upper = limit.lower, limit.upper
+        if not lower < upper:
+            raise where.fail(f"joint {joint.name!r}: <limit> lower {lower:g} must be below upper {upper:g}")
+    velocity = limit.velocity if limit is not None else None
+    effort = limit.effort if limit is not None else None
+    lo, hi = _interface_bound(hw, "position", joint.name)
+    if (lo is not None and lo > lower) or (hi is not None and hi < upper):
+        lower, upper = max(lower, lo if lo is not None else lower), min(upper, hi if hi is not None else upper)
+        report.mapped(hw.where if hw else where, f"{joint.name}: position min/max of <command_interface> → tighter")
+    for name, current in (("velocity", velocity), ("effort", effort)):
+        lo, hi = _interface_bound(hw, name, joint.name)
+        bounds = [abs(b) for b in (lo, hi) if b is not None]
+        if bounds and (current is None or min(bounds) < current):
+            if len(set(bounds)) > 1:
+                report.approximated(
+                    hw.where if hw else where, f"{joint.name}: asymmetric {name} min/max → ±{min(bounds):g}"
+                )
+            if name == "velocity":
+                velocity = min(bounds)
+            else:
+                effort = min(bounds)
+    for name, value in (("velocity", velocity), ("effort", effort)):
+        if value is None or value <= 0:
+            found = "missing" if value is None else f"{value:g}"
+            raise where.fail(
+                f"joint {joint.name!r}: <limit {name}=...> is {found}; hild needs a positive {name} limit "
+                f"({'the twin saturates its torque to it' if name == 'effort' else 'it bounds commands and planning'})"
+            )
+    assert velocity is not None and effort is not None
+    report.mapped(
+        where, f"{joint.name}: limits position [{lower:g}, {upper:g}], velocity {velocity:g}, effort {effort:g}"
+    )
+    return lower, upper, velocity, effort
+
+
+def _soft_margin(joint: Joint, lower: float, upper: float, report: Report) -> float:
+    safety = joint.safety
+    if safety is None:
+        return 0.0
+    margins = []
+    if safety.soft_lower is not None:
+        margins.append(safety.soft_lower - lower)
+    if safety.soft_upper is not None:
+        margins.append(upper - safety.soft_upper)
+    margins = [max(0.0, m) for m in margins]
+    margin = _round(max(margins, default=0.0))
+    if 2 * margin >= upper - lower:
+        raise safety.where.fail(f"joint {joint.name!r}: soft limits leave no room inside [{lower:g}, {upper:g}]")
+    text = f"{joint.name}: <safety_controller> soft limits → soft_margin {margin:g}"
+    if len(set(margins)) > 1 or len(margins) == 1:
+        report.approximated(safety.where, f"{text} (hild's margin is symmetric: the tighter side is taken)")
+    else:
+        report.mapped(safety.where, text)
+    if safety.k_position is not None or safety.k_velocity is not None:
+        report.unsupported(
+            safety.where, f"{joint.name}: k_position/k_velocity (hild clamps the command at the soft limit)"
+        )
+    return margin
+
+
+def _planning_limits(
+    joint: Joint, velocity: float, effort: float, inertia: JointInertia, report: Report
+) -> tuple[float, float]:
+    heaviest = inertia.heaviest
+    by_speed = ACCELERATION_PER_VELOCITY * velocity
+    by_effort = ACCELERATION_EFFORT_SHARE * effort / heaviest if heaviest > 0 else math.inf
+    acceleration = _round(min(by_speed, by_effort))
+    jerk = _round(JERK_PER_ACCELERATION * acceleration)
+    rule = f"{ACCELERATION_PER_VELOCITY:g} × velocity" if by_speed <= by_effort else "½ effort / inertia"
+    report.approximated(
+        joint.limit.where if joint.limit else joint.where,
+        f"{joint.name}: URDF has no acceleration/jerk → acceleration {acceleration:g} ({rule}; heaviest inertia "
+        f"{heaviest:.4g}), jerk {jerk:g} ({JERK_PER_ACCELERATION:g} × acceleration)",
+    )
+    return acceleration, jerk
+
+
+def _hold_gains(
+    joint: Joint, velocity: float, inertia: JointInertia, pid: tuple[str, Pid] | None, report: Report
+) -> tuple[float, float, str]:
+    heavy = inertia.heaviest
+    if pid is not None:
+        controller, gains = pid
+        kp, kd = gains.p, gains.d
+        source = f"PID of {controller}"
+        if kd <= 0:
+            kd = _round(2.0 * HOLD_DAMPING_RATIO * math.sqrt(kp * heavy))
+            report.approximated(gains.where, f"{joint.name}: hold kp {kp:g} from {source}, no d → kd {kd:g} (ζ = 1)")
+            return kp, kd, f"kp: {source}; kd: critical damping"
+        report.mapped(gains.where, f"{joint.name}: hold gains kp {kp:g}, kd {kd:g} from {source}")
+        return kp, kd, source
+    omega = 2.0 * math.pi * HOLD_BANDWIDTH_HZ
+    by_bandwidth = heavy * omega**2
+    by_losses = (inertia.damping * velocity + inertia.friction) / DAMPING_LAG
+    kp = _round(max(by_bandwidth, by_losses))
+    kd = _round(2.0 * HOLD_DAMPING_RATIO * math.sqrt(kp * heavy))
+    rule = (
+        f"{HOLD_BANDWIDTH_HZ:g} Hz on inertia {heavy:.4g}"
+        if by_bandwidth >= by_losses
+        else f"damping/friction lag ≤ {DAMPING_LAG:g} at full speed"
+    )
+    report.approximated(joint.where, f"{joint.name}: no effort PID → hold kp {kp:g}, kd {kd:g} ({rule}, ζ = 1)")
+    return kp, kd, f"default: {rule}, critically damped"
+
+
+def _initial_position(
+    joint: Joint, hw: HardwareJoint | None, lower: float, upper: float, report: Report
+) -> float | None:
+    """``initial_value`` of the position interface (state first, as gz/mock read it) → the twin's start pose."""
+    if hw is None:
+        return None
+    found = None
+    for spec in (*hw.state_interfaces, *hw.command_interfaces):
+        raw = spec.params.get("initial_value")
+        if raw is None:
+            continue
+        where = spec.where_of("initial_value")
+        if spec.name != "position":
+            report.unsupported(where, f"{joint.name}: initial_value of {spec.name} (the twin starts at rest)")
+            continue
+        if found is not None:
+            continue
+        try:
+            value = float(raw)
+        except ValueError:
+            raise where.fail(f"joint {joint.name!r}: initial_value {raw!r} is not a number") from None
+        if not lower <= value <= upper:
+            raise where.fail(f"joint {joint.name!r}: initial_value {value:g} is outside [{lower:g}, {upper:g}]")
+        found = value
+        report.mapped(where, f"{joint.name}: initial_value {value:g} → twin initial_positions")
+    return found
+
+
+def _transmissions(robot: Robot, commanded: set[str], report: Report) -> dict[str, tuple[dict[str, float], SourceRef]]:
+    out: dict[str, tuple[dict[str, float], SourceRef]] = {}
+    for t in robot.transmissions:
+        if "SimpleTransmission" not in t.kind:
+            report.unsupported(t.where, f"transmission {t.name!r}: {t.kind or 'no type'} (hild has simple ones)")
+            continue
+        if len(t.joints) != 1:
+            raise t.where.fail(f"transmission {t.name!r}: a SimpleTransmission has exactly one <joint>")
+        end = t.joints[0]
+        if end.name not in robot.joints:
+            raise end.where.fail(f"transmission {t.name!r} names joint {end.name!r}, which the URDF does not have")
+        if end.name not in commanded:
+            report.unsupported(t.where, f"transmission {t.name!r}: joint {end.name!r} is not commanded")
+            continue
+        actuator = t.actuators[0] if t.actuators else None
+        reduction = end.reduction if end.reduction is not None else (actuator.reduction if actuator else None)
+        where = end.reduction_where or (actuator.reduction_where if actuator else None) or t.where
+        reduction = 1.0 if reduction is None else reduction
+        if reduction == 0:
+            raise where.fail(f"transmission {t.name!r}: mechanical reduction 0")
+        offset = end.offset if end.offset is not None else ((actuator.offset if actuator else None) or 0.0)
+        spec: dict[str, float] = {}
+        if abs(reduction) != 1.0:
+            spec["reduction"] = abs(reduction)
+        if reduction < 0:
+            spec["direction"] = -1
+        if offset:
+            spec["offset"] = offset
+        out[end.name] = (spec, where)
+        interfaces = sorted({i for e in (*t.joints, *t.actuators) for i in e.hardware_interfaces})
+        iface_text = f", {', '.join(interfaces)}" if interfaces else ""
+        report.mapped(
+            where,
+            f"transmission {t.name!r} ({t.form}{iface_text}): {end.name} reduction {abs(reduction):g}, "
+            f"direction {-1 if reduction < 0 else 1}, offset {offset:g} → CAN template (the twin is joint space)",
+        )
+    return out
