@@ -7,7 +7,8 @@ event loop stays free; streaming and subscriptions are non-blocking already and 
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 from hild.api.client import GoalHandle, HildClient, ServoStream, Subscription
@@ -18,9 +19,24 @@ class AsyncHildClient:
         self.sync = client
 
     @classmethod
-    async def connect(cls, robot: str | None = None, connect: Sequence[str] | None = None, timeout: float = 2.0):
-        """Open a session (in a worker thread) and wait until the robot's daemon is alive."""
-        kwargs: dict[str, Any] = {"robot": robot, "timeout": timeout}
+    async def connect(
+        cls,
+        robot: str | None = None,
+        connect: Sequence[str] | None = None,
+        timeout: float = 2.0,
+        *,
+        zenoh_config: str | Path | None = None,
+        zenoh_overrides: Mapping[str, Any] | None = None,
+    ):
+        """Open a session (in a worker thread) and wait until the robot's daemon is alive.
+
+        ``zenoh_config`` / ``zenoh_overrides``: as for :class:`~hild.api.client.HildClient` (TLS, credentials)."""
+        kwargs: dict[str, Any] = {
+            "robot": robot,
+            "timeout": timeout,
+            "zenoh_config": zenoh_config,
+            "zenoh_overrides": zenoh_overrides,
+        }
         if connect is not None:
             kwargs["connect"] = connect
         client = await asyncio.to_thread(HildClient, **kwargs)

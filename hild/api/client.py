@@ -20,7 +20,8 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from pathlib import Path
 from types import TracebackType
 from typing import Any
 
@@ -64,14 +65,19 @@ class HildClient:
         robot: str | None = None,
         connect: Sequence[str] = DEFAULT_CONNECT,
         timeout: float = 2.0,
+        *,
+        zenoh_config: str | Path | None = None,
+        zenoh_overrides: Mapping[str, Any] | None = None,
     ) -> None:
+        """``zenoh_config``: a Zenoh JSON5 file (TLS certificates, user/password; configs/secure/), applied first;
+        ``zenoh_overrides``: dotted Zenoh keys applied last. ``connect`` always names the endpoints."""
         self.connect = list(connect)
         self.timeout = timeout
         self._robot = check_chunk(robot, "robot name") if robot is not None else None
         self._publishers: dict[str, zenoh.Publisher] = {}
         self._lock = threading.Lock()  # guards the publisher cache only
         try:
-            self.session = open_session(client_config(self.connect))
+            self.session = open_session(client_config(self.connect, zenoh_config, zenoh_overrides))
         except ConnectionError as exc:
             raise HildUnreachable(f"cannot reach a hild daemon at {', '.join(self.connect)}: {exc}") from None
 

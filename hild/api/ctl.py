@@ -2,6 +2,8 @@
 
 Exit codes: 0 ok, 1 the daemon refused (service error), 2 the daemon cannot be reached. ``--json`` prints the
 daemon's reply as one JSON document (errors too, as ``{"ok": false, "error": ...}``) for scripts.
+``--zenoh-config FILE`` (or ``HILD_ZENOH_CONFIG``) loads a station's Zenoh file: TLS, credentials and, unless
+``--connect`` is given, the endpoint (docs/security.md).
 """
 
 from __future__ import annotations
@@ -9,6 +11,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import os
 import sys
 import threading
 import time
@@ -17,10 +20,11 @@ from typing import Any
 
 from hild.api import render
 from hild.api.client import HildClient, HildError, HildUnreachable
-from hild.api.session import DEFAULT_CONNECT
+from hild.api.session import DEFAULT_CONNECT, SessionConfigError, file_endpoints
 from hild.config.documents import DocumentError, load_document
 
 EXIT_OK, EXIT_SERVICE, EXIT_UNREACHABLE = 0, 1, 2
+ZENOH_CONFIG_ENV = "HILD_ZENOH_CONFIG"
 CLEAR = "\x1b[H\x1b[2J"
 
 
@@ -34,6 +38,12 @@ def _common() -> argparse.ArgumentParser:
         default=argparse.SUPPRESS,
         metavar="ENDPOINT",
         help=f"Zenoh endpoint of the daemon, repeatable (default: {DEFAULT_CONNECT[0]})",
+    )
+    common.add_argument(
+        "--zenoh-config",
+        default=argparse.SUPPRESS,
+        metavar="FILE",
+        help=f"Zenoh JSON5 file with TLS, credentials and the endpoint (default: ${ZENOH_CONFIG_ENV})",
     )
     common.add_argument("--timeout", type=float, default=argparse.SUPPRESS, help="seconds per request (default 2)")
     common.add_argument("--json", action="store_true", default=argparse.SUPPRESS, help="machine-readable output")
@@ -88,17 +98,19 @@ def add_ctl_parser(subparsers: Any) -> None:
 
 def run_ctl(args: argparse.Namespace) -> int:
     as_json = bool(getattr(args, "json", False))
+    zenoh_config = getattr(args, "zenoh_config", None) or os.environ.get(ZENOH_CONFIG_ENV) or None
     try:
+        connect = getattr(args, "connect", None) or (zenoh_config and file_endpoints(zenoh_config)) or DEFAULT_CONNECT
         client = HildClient(
-            getattr(args, "robot", None),
-            getattr(args, "connect", None) or list(DEFAULT_CONNECT),
-            getattr(args, "timeout", 2.0),
+            getattr(args, "robot", None), list(connect), getattr(args, "timeout", 2.0), zenoh_config=zenoh_config
         )
-    except HildUnreachable as exc:
+    except (HildUnreachable, SessionConfigError) as exc:
         return _fail(exc, as_json, EXIT_UNREACHABLE)
     try:
         return COMMANDS[args.ctl_command](client, args, as_json)
     except HildUnreachable as exc:
+        if zenoh_config and "no reply from" in str(exc):  # Zenoh ends a denied query with no reply, at once
+            exc = HildUnreachable(f"{exc} (or access control refused this station: docs/security.md)")
         return _fail(exc, as_json, EXIT_UNREACHABLE)
     except HildError as exc:
         return _fail(exc, as_json, EXIT_SERVICE)

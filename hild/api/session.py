@@ -3,13 +3,14 @@
 Defaults keep hild on loopback: the daemon listens where ``zenoh.listen`` says (``tcp/127.0.0.1:7447``), multicast
 scouting and gossip are off, so nothing is announced on the robot network until the config says so. Order of
 application: ``config_file`` first, then hild's own keys, then the ``config`` passthrough entries, so the
-passthrough always has the last word.
+passthrough always has the last word. Clients take the same two extras, which is where TLS certificates and
+credentials go (configs/secure/, docs/security.md).
 """
 
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -42,39 +43,66 @@ def server_config(
     settings: ZenohSection, listen: Sequence[str] | None = None, base_dir: Path | None = None
 ) -> zenoh.Config:
     """The daemon's session config; ``listen`` (e.g. from the command line) replaces ``settings.listen``."""
-    if settings.config_file:
-        path = Path(settings.config_file)
-        if base_dir is not None and not path.is_absolute():
-            path = base_dir / path
-        try:
-            config = zenoh.Config.from_file(str(path))
-        except zenoh.ZError as exc:
-            raise SessionConfigError(f"zenoh config_file {str(path)!r}: {zenoh_error_text(exc)}") from None
-    else:
-        config = zenoh.Config()
+    config = _base_config(settings.config_file, base_dir)
     _insert(config, "mode", settings.mode)
     if settings.mode != "client":  # a client never listens
         _insert(config, "listen/endpoints", list(listen if listen is not None else settings.listen))
     _insert(config, "connect/endpoints", list(settings.connect))
     _insert(config, "scouting/multicast/enabled", settings.multicast_scouting)
     _insert(config, "scouting/gossip/enabled", False)
-    for dotted, value in settings.config.items():
-        _insert(config, dotted.replace(".", "/"), value)
+    _apply_overrides(config, settings.config)
     return config
 
 
-def client_config(connect: Sequence[str] = DEFAULT_CONNECT) -> zenoh.Config:
+def client_config(
+    connect: Sequence[str] = DEFAULT_CONNECT,
+    config_file: str | Path | None = None,
+    config: Mapping[str, Any] | None = None,
+) -> zenoh.Config:
     """A client session: one connection to the daemon, no listening socket, no scouting.
 
     Client mode fails fast when no endpoint answers, which is what a CLI wants ("cannot reach the daemon").
+    ``config_file`` (a Zenoh JSON5 file: TLS, credentials) is applied first, then these keys (``connect`` replaces
+    the file's endpoints: see :func:`file_endpoints`), then ``config`` (dotted paths → values), like the daemon's.
     """
-    config = zenoh.Config()
-    _insert(config, "mode", "client")
-    _insert(config, "connect/endpoints", list(connect))
-    _insert(config, "listen/endpoints", [])
-    _insert(config, "scouting/multicast/enabled", False)
-    _insert(config, "scouting/gossip/enabled", False)
-    return config
+    zconfig = _base_config(config_file)
+    _insert(zconfig, "mode", "client")
+    _insert(zconfig, "connect/endpoints", list(connect))
+    _insert(zconfig, "listen/endpoints", [])
+    _insert(zconfig, "scouting/multicast/enabled", False)
+    _insert(zconfig, "scouting/gossip/enabled", False)
+    _apply_overrides(zconfig, config or {})
+    return zconfig
+
+
+def file_endpoints(config_file: str | Path) -> list[str]:
+    """The ``connect/endpoints`` a Zenoh config file names for a client ([] when none), so a station's file can
+    carry the robot's address and ``hild ctl --zenoh-config FILE`` needs no ``--connect``."""
+    try:
+        endpoints = json.loads(_base_config(config_file).get_json("connect/endpoints"))
+    except (zenoh.ZError, ValueError) as exc:
+        raise SessionConfigError(f"zenoh config_file {str(config_file)!r}: {zenoh_error_text(exc)}") from None
+    if isinstance(endpoints, dict):  # per-mode form: {"client": [...], "peer": [...]}
+        endpoints = endpoints.get("client", [])
+    return [str(e) for e in endpoints or []]
+
+
+def _base_config(config_file: str | Path | None, base_dir: Path | None = None) -> zenoh.Config:
+    """A fresh config, or the JSON5 file's (relative to ``base_dir`` when given)."""
+    if not config_file:
+        return zenoh.Config()
+    path = Path(config_file)
+    if base_dir is not None and not path.is_absolute():
+        path = base_dir / path
+    try:
+        return zenoh.Config.from_file(str(path))
+    except zenoh.ZError as exc:
+        raise SessionConfigError(f"zenoh config_file {str(path)!r}: {zenoh_error_text(exc)}") from None
+
+
+def _apply_overrides(config: zenoh.Config, overrides: Mapping[str, Any]) -> None:
+    for dotted, value in overrides.items():
+        _insert(config, dotted.replace(".", "/"), value)
 
 
 def open_session(config: zenoh.Config) -> zenoh.Session:

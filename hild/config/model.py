@@ -171,6 +171,7 @@ class SpawnSinkSpec(Params):
 
     kind: Literal["spawn"]
     port: int = Field(default=9876, ge=1, le=65535, description="Port of the spawned viewer's gRPC server.")
+    bind: str = Field(default="127.0.0.1", description="Address the viewer's gRPC server listens on.")
 
 
 class ConnectSinkSpec(Params):

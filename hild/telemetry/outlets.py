@@ -17,6 +17,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import rerun as rr
+import rerun_bindings
 
 from hild.config.model import ConnectSinkSpec, FileSinkSpec, ServeSinkSpec, SpawnSinkSpec
 from hild.telemetry.errors import TelemetryError
@@ -130,7 +131,8 @@ class LiveOutlet(Outlet):
         for spec in specs:
             try:
                 if isinstance(spec, SpawnSinkSpec):
-                    rr.spawn(port=spec.port, connect=False, hide_welcome_screen=True)
+                    # rr.spawn cannot pass --bind, and the viewer's server would listen on every interface.
+                    rerun_bindings.spawn(port=spec.port, hide_welcome_screen=True, extra_args=[f"--bind={spec.bind}"])
                     sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{spec.port}/proxy"))
                     what.append(f"spawned viewer on port {spec.port}")
                 elif isinstance(spec, ConnectSinkSpec):
