@@ -157,6 +157,7 @@ class HildClient:
     def _query(self, key: str, what: str, payload: Any, check: bool, timeout: float | None) -> dict[str, Any]:
         wait = self.timeout if timeout is None else timeout
         errors: list[str] = []
+        asked = time.monotonic()
         try:
             replies = self.session.get(
                 key, payload=encode(payload), encoding=zenoh.Encoding.APPLICATION_JSON, timeout=wait
@@ -169,6 +170,11 @@ class HildClient:
             else:
                 if errors:
                     raise HildError(f"{what}: {'; '.join(errors)}")
+                if time.monotonic() - asked < 0.5 * wait:  # Zenoh ended the query early: nobody may answer us
+                    raise HildUnreachable(
+                        f"no reply from {key}: nothing serves it, or access control refused this station "
+                        "(docs/security.md)"
+                    )
                 raise HildUnreachable(f"no reply from {key} within {wait:g} s: is the daemon of {self.robot!r} up?")
         except zenoh.ZError as exc:
             raise HildUnreachable(f"{what}: {zenoh_error_text(exc)}") from None

@@ -109,7 +109,7 @@ def run_ctl(args: argparse.Namespace) -> int:
     try:
         return COMMANDS[args.ctl_command](client, args, as_json)
     except HildUnreachable as exc:
-        if zenoh_config and "no reply from" in str(exc):  # Zenoh ends a denied query with no reply, at once
+        if zenoh_config and "no reply from" in str(exc) and "access control" not in str(exc):
             exc = HildUnreachable(f"{exc} (or access control refused this station: docs/security.md)")
         return _fail(exc, as_json, EXIT_UNREACHABLE)
     except HildError as exc:
