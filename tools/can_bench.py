@@ -5,7 +5,9 @@
     python tools/can_bench.py --scenario 3x1000 --seconds 30 --json can_bench.json
     python tools/can_bench.py --priority 50            # SCHED_FIFO cycle (and emulator one below), if permitted
 
-For each scenario a temporary robot config puts ``mit_can`` on a private python-can ``virtual`` channel (Damiao
+The engine alone, in this process, with the driver's own read/write times and reply bookkeeping; ``hild bench``
+measures the whole daemon (Zenoh, telemetry, latencies) with the same rig. For each scenario the rig's robot
+config (``drivers.can.bench_rig.robot_config``) puts ``mit_can`` on a private python-can ``virtual`` channel (Damiao
 DM4340/DM4310, ids 1..n, reply ids 0x11..), with a ``joint_state_broadcaster`` at 100 Hz and ``joint_trajectory``
 running the standard trajectory (``hild.motion.reference``, scaled down) over and over, so the cycle does real
 work. The firmware emulator (``drivers.can.emulator``) services the same channel from a background thread every
@@ -39,7 +41,6 @@ import tempfile
 import textwrap
 import threading
 import time
-import uuid
 from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import dataclass
@@ -48,11 +49,13 @@ from typing import Any
 
 import numpy as np
 
-from drivers.can.bus import BusSpec, CanLink, open_bus
+from drivers.can.bench_rig import START_POSITIONS, CanBenchRig, motor_kinds, robot_config
+from drivers.can.bus import open_bus
 from drivers.can.driver import MitCanDriver
 from drivers.can.emulator import Emulator, MotorPlant
 from drivers.can.emulator.runtime import build_firmware
 from drivers.can.params import MitCanParams
+from drivers.can.probe import percentiles_us, virtual_round_trip
 from hild.arrays import JointState, ServoCommand
 from hild.config import load_config
 from hild.cycle import CycleThread
@@ -62,10 +65,8 @@ from hild.realtime import apply_process_settings, freeze_heap
 from hild.stats import LoopStats, format_loop_table
 
 JTC = "joint_trajectory"
-BROADCASTER = "joint_state_broadcaster"
 WARMUP_S = 1.0
-TRAJECTORY_SCALE = 0.5  # the standard trajectory moves joints up to 1 rad; half of that is plenty here
-START_POSITIONS = (0.2, -0.3, 0.4, -0.1, 0.3, -0.2)  # rad, where the emulated motors power up
+TRAJECTORY_SCALE = CanBenchRig.trajectory_scale
 SUBMIT_TIMEOUT = 5.0  # s to wait for the cycle thread to run a submitted action
 
 
@@ -77,77 +78,6 @@ class Scenario:
 
 
 SCENARIOS = {s.name: s for s in (Scenario("3x1000", 3, 1000.0), Scenario("6x500", 6, 500.0))}
-
-
-@dataclass(frozen=True)
-class MotorKind:
-    """A Damiao model and joint settings that fit it (effort below TMAX, gains inside the MIT kp/kd ranges)."""
-
-    model: str
-    effort: float
-    velocity: float
-    acceleration: float
-    jerk: float
-    kp: float
-    kd: float
-
-
-DM4340 = MotorKind("DM4340", effort=25.0, velocity=3.0, acceleration=8.0, jerk=80.0, kp=60.0, kd=2.5)  # 28 N·m
-DM4310 = MotorKind("DM4310", effort=9.0, velocity=4.0, acceleration=12.0, jerk=120.0, kp=30.0, kd=1.0)  # 10 N·m
-
-
-def motor_kinds(n: int) -> list[MotorKind]:
-    """Bigger motors at the base, smaller at the wrist, like a small arm."""
-    big = (n + 1) // 2
-    return [DM4340] * big + [DM4310] * (n - big)
-
-
-# ---- the robot -------------------------------------------------------------------------------------------------
-def robot_config(scenario: Scenario, channel: str) -> dict[str, Any]:
-    names = [f"j{k + 1}" for k in range(scenario.motors)]
-    kinds = motor_kinds(scenario.motors)
-    motors = {
-        name: {"id": k + 1, "reply_id": 0x11 + k, "model": kind.model}
-        for k, (name, kind) in enumerate(zip(names, kinds, strict=True))
-    }
-    joints = {
-        name: {
-            "limits": {
-                "position": {"lower": -3.0, "upper": 3.0},
-                "soft_margin": 0.05,
-                "velocity": kind.velocity,
-                "acceleration": kind.acceleration,
-                "jerk": kind.jerk,
-                "effort": kind.effort,
-            },
-            "hold": {"kp": kind.kp, "kd": kind.kd},
-        }
-        for name, kind in zip(names, kinds, strict=True)
-    }
-    return {
-        "robot": {"name": f"canbench{scenario.motors}"},
-        "update_rate": scenario.rate,
-        "clock": {"source": "wall"},
-        "hardware": {
-            "arm": {
-                "driver": "mit_can",
-                "params": {
-                    "bus": {"interface": "virtual", "channel": channel, "bitrate": 1_000_000},
-                    "flavour": "damiao",
-                    "timeout_ms": 100,
-                    "reply_timeout_ms": 100,
-                    "motors": motors,
-                },
-                "joints": {name: {} for name in names},
-            }
-        },
-        "joints": joints,
-        "controllers": {
-            BROADCASTER: {"type": BROADCASTER, "params": {"publish_rate": 100}, "autostart": True},
-            JTC: {"type": JTC, "params": {"joints": names, "command_interfaces": ["position", "velocity"]}},
-        },
-        "safety": {"fault_action": "hold", "estop_action": "hold"},
-    }
 
 
 class DriverProbe:
@@ -234,23 +164,15 @@ def delta(after: dict[str, int], before: dict[str, int]) -> dict[str, int]:
     return {key: after.get(key, 0) - before.get(key, 0) for key in sorted(set(after) | set(before))}
 
 
-def percentiles_us(values_s: np.ndarray) -> dict[str, float]:
-    if len(values_s) == 0:
-        return {"p50": 0.0, "p99": 0.0, "p999": 0.0, "max": 0.0}
-    p50, p99, p999 = np.percentile(values_s, [50, 99, 99.9]) * 1e6
-    return {"p50": round(p50, 1), "p99": round(p99, 1), "p999": round(p999, 1), "max": round(values_s.max() * 1e6, 1)}
-
-
 def measure(scenario: Scenario, seconds: float, emulator_period: float, priority: int, workdir: Path) -> dict[str, Any]:
-    channel = f"can-bench-{uuid.uuid4().hex[:10]}"
     path = workdir / f"can_bench_{scenario.name}.yaml"
-    path.write_text(json.dumps(robot_config(scenario, channel), indent=1))  # JSON is YAML
+    path.write_text(json.dumps(robot_config(scenario.motors, scenario.rate), indent=1))  # JSON is YAML
     loaded = load_config(path)
     cfg = loaded.config
     settings = cfg.realtime.model_copy(update={"priority": priority})
-    params = loaded.driver_params["arm"]
+    ((component, params),) = loaded.driver_params.items()  # both scenarios fit one 1 Mbit/s bus
     assert isinstance(params, MitCanParams)
-    joints = list(cfg.hardware["arm"].joints)
+    joints = list(cfg.hardware[component].joints)
 
     bus = open_bus(params.bus)
     plant = MotorPlant(len(joints), inertia=0.05, damping=0.05, positions=START_POSITIONS[: len(joints)])
@@ -379,37 +301,6 @@ def measure(scenario: Scenario, seconds: float, emulator_period: float, priority
     }
 
 
-# ---- the floor ------------------------------------------------------------------------------------------------
-def virtual_floor(count: int) -> dict[str, Any]:
-    """python-can ``virtual`` alone: one-way (send on A, recv on B) and a request → reply round trip, µs."""
-    spec = BusSpec(interface="virtual", channel=f"can-bench-floor-{uuid.uuid4().hex[:10]}")
-    host, drive = open_bus(spec), open_bus(spec)
-    link = CanLink(spec)
-    request = link.make_message(0x001, bytes(8))
-    reply = link.make_message(0x011, bytes(8))
-    one_way = np.empty(count)
-    round_trip = np.empty(count)
-    clock = time.perf_counter
-    try:
-        for k in range(count + 1000):  # the first 1000 warm up
-            start = clock()
-            host.send(request, timeout=0)
-            got = drive.recv(timeout=0)
-            middle = clock()
-            drive.send(reply, timeout=0)
-            back = host.recv(timeout=0)
-            end = clock()
-            if got is None or back is None:
-                raise SystemExit("the virtual bus did not deliver a frame synchronously")
-            if k >= 1000:
-                one_way[k - 1000] = middle - start
-                round_trip[k - 1000] = end - start
-    finally:
-        host.shutdown()
-        drive.shutdown()
-    return {"frames": count, "one_way_us": percentiles_us(one_way), "round_trip_us": percentiles_us(round_trip)}
-
-
 # ---- report ---------------------------------------------------------------------------------------------------
 def format_report(floor: dict[str, Any], rows: list[dict[str, Any]]) -> str:
     lines = ["Cycle (wall clock, CycleThread, mit_can + Damiao emulator on a python-can virtual bus)"]
@@ -507,7 +398,7 @@ def main() -> int:
     if not 0 <= args.priority <= 99:
         parser.error("--priority must be 0..99")
 
-    floor = virtual_floor(args.floor_frames)
+    floor = virtual_round_trip(args.floor_frames)
     rows = []
     with tempfile.TemporaryDirectory(prefix="hild-can-bench-") as tmp:
         for name in args.scenario:

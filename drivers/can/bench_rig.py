@@ -1,0 +1,303 @@
+"""The CAN bench rig: Damiao motors emulated in-process on python-can ``virtual`` channels, for ``hild bench``.
+
+A ``hild bench`` scenario runs the real daemon in a child process (``hild.bench.host``); for MIT-CAN scenarios
+this rig, found by name in the entry-point group ``hild.bench_rigs``, adds to that process what a robot would
+have on the wire: n Damiao drives (DM4340 at the base, DM4310 at the wrist, firmware-faithful, ``drivers.can.
+emulator``) behind independent motor plants, serviced by one thread every ``EMULATOR_PERIOD``. The motors are
+spread over as many 1 Mbit/s buses as their traffic needs (``hild check`` refuses an over-full bus): 3 per bus
+at 1 kHz, 6 at 500 Hz, one ``mit_can`` component per bus, as a real arm would be wired.
+
+For latencies the emulator's bus is wrapped in a :class:`FrameTap`: while listening it keeps the time and bytes
+of every command frame the first motor receives (stamped by the virtual bus at the driver's ``send``) and every
+reply it sends. No extra bus joins the channel, so listening adds no frame copies to the cycle. Stamps are
+``time.time()`` (the virtual bus's clock) converted to ``perf_counter_ns`` (CLOCK_MONOTONIC, system-wide), so the
+bench compares them with stamps taken in its own process.
+
+The emulator thread competes with the cycle for the GIL (real drives answer from their own silicon), so CAN cycle
+figures are an upper bound; its CPU is reported apart from the daemon's.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import threading
+import time
+import uuid
+from dataclasses import dataclass
+from typing import Any
+
+import can
+
+from drivers.can.bus import frame_bits, open_bus
+from drivers.can.driver import MotorWiring, wire_motors
+from drivers.can.emulator import Emulator, MotorPlant
+from drivers.can.emulator.runtime import build_firmware
+from drivers.can.params import MitCanParams
+from drivers.can.protocol.mit import POSITION_BITS, decode_command, decode_state, special_kind
+from hild.config.loader import LoadedConfig
+
+EMULATOR_PERIOD = 0.0002  # s between services: a reply within ~0.2 ms, like a drive's
+START_POSITIONS = (0.2, -0.3, 0.4, -0.1, 0.3, -0.2)  # rad, where the emulated motors power up
+BITRATE = 1_000_000
+BUS_LOAD = 0.9  # of the bit time a bus may carry
+STALE_FEEDBACK_CYCLES = 50
+CLOCK_PAIRS = 9  # (time.time, perf_counter) readings; the tightest pair gives the offset between the clocks
+
+
+@dataclass(frozen=True)
+class MotorKind:
+    """A Damiao model and joint settings that fit it (effort below TMAX, gains inside the MIT kp/kd ranges)."""
+
+    model: str
+    effort: float
+    velocity: float
+    acceleration: float
+    jerk: float
+    kp: float
+    kd: float
+
+
+DM4340 = MotorKind("DM4340", effort=25.0, velocity=3.0, acceleration=8.0, jerk=80.0, kp=60.0, kd=2.5)  # 28 N·m
+DM4310 = MotorKind("DM4310", effort=9.0, velocity=4.0, acceleration=12.0, jerk=120.0, kp=30.0, kd=1.0)  # 10 N·m
+
+
+def motor_kinds(n: int) -> list[MotorKind]:
+    """Bigger motors at the base, smaller at the wrist, like a small arm."""
+    big = (n + 1) // 2
+    return [DM4340] * big + [DM4310] * (n - big)
+
+
+def motors_per_bus(rate: float, bitrate: int = BITRATE) -> int:
+    """How many MIT motors (a command and an 8-byte reply each per cycle) one classic bus carries at ``rate``
+    within ``BUS_LOAD`` — 3 at 1 kHz and 6 at 500 Hz on 1 Mbit/s, as on a real arm."""
+    return max(1, int(bitrate * BUS_LOAD / (2 * frame_bits(8) * rate)))
+
+
+def robot_config(motors: int, rate: float) -> dict[str, Any]:
+    """A robot of ``motors`` Damiao joints ``j1..jn`` as a config document, the motors spread over as many
+    private virtual channels as a 1 Mbit/s bus needs at ``rate`` (components ``bus1``, ``bus2``, …).
+
+    Controllers: ``joint_state_broadcaster`` (100 Hz, autostart), ``joint_trajectory`` (position + velocity) and
+    ``forward_position`` (position; the bench's latency probes). No telemetry, default real-time settings.
+    """
+    if not 1 <= motors <= len(START_POSITIONS):
+        raise ValueError(f"1 to {len(START_POSITIONS)} motors, not {motors}")
+    names = [f"j{k + 1}" for k in range(motors)]
+    kinds = motor_kinds(motors)
+    per_bus = motors_per_bus(rate)
+    hardware = {}
+    for b, first in enumerate(range(0, motors, per_bus)):
+        mine = range(first, min(motors, first + per_bus))
+        hardware[f"bus{b + 1}"] = {
+            "driver": "mit_can",
+            "params": {
+                "bus": {"interface": "virtual", "channel": f"hild-bench-{uuid.uuid4().hex[:10]}", "bitrate": BITRATE},
+                "flavour": "damiao",
+                "timeout_ms": 100,
+                "reply_timeout_ms": 100,
+                "motors": {names[k]: {"id": k + 1, "reply_id": 0x11 + k, "model": kinds[k].model} for k in mine},
+            },
+            "joints": {names[k]: {} for k in mine},
+        }
+    joints = {
+        name: {
+            "limits": {
+                "position": {"lower": -3.0, "upper": 3.0},
+                "soft_margin": 0.05,
+                "velocity": kind.velocity,
+                "acceleration": kind.acceleration,
+                "jerk": kind.jerk,
+                "effort": kind.effort,
+            },
+            "hold": {"kp": kind.kp, "kd": kind.kd},
+        }
+        for name, kind in zip(names, kinds, strict=True)
+    }
+    return {
+        "robot": {"name": f"can{motors}"},
+        "update_rate": rate,
+        "clock": {"source": "wall"},
+        "hardware": hardware,
+        "joints": joints,
+        "controllers": {
+            "joint_state_broadcaster": {
+                "type": "joint_state_broadcaster",
+                "params": {"publish_rate": 100},
+                "autostart": True,
+            },
+            "joint_trajectory": {
+                "type": "joint_trajectory",
+                "params": {"joints": names, "command_interfaces": ["position", "velocity"]},
+            },
+            "forward_position": {
+                "type": "forward_command",
+                "params": {"joints": names, "interface": "position", "command_timeout": 0.5},
+            },
+        },
+        # The emulated drives share the daemon's GIL: on a loaded 2-core machine their thread can miss 10 ms, which
+        # the default (10 cycles) would report as a drive that stopped answering. Real drives do not pause so.
+        "safety": {"fault_action": "hold", "estop_action": "hold", "stale_feedback_cycles": STALE_FEEDBACK_CYCLES},
+    }
+
+
+class FrameTap:
+    """The emulator's bus, recording the frames of ``watched`` ids while ``recording`` (emulator thread only)."""
+
+    def __init__(self, bus: can.BusABC, watched: set[int]) -> None:
+        self.bus = bus
+        self.watched = watched
+        self.recording = False
+        self.frames: list[tuple[float, int, bytes]] = []
+
+    def recv(self, timeout: float | None = None) -> can.Message | None:
+        msg = self.bus.recv(timeout)
+        if msg is not None and self.recording and msg.arbitration_id in self.watched:
+            self.frames.append((msg.timestamp, msg.arbitration_id, bytes(msg.data)))
+        return msg
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        stamp = time.time()
+        self.bus.send(msg, timeout)
+        if self.recording and msg.arbitration_id in self.watched:
+            self.frames.append((stamp, msg.arbitration_id, bytes(msg.data)))
+
+    def shutdown(self) -> None:
+        self.bus.shutdown()
+
+
+def wall_to_perf_offset_ns() -> int:
+    """``time.time_ns() − perf_counter_ns()`` from the tightest of a few back-to-back readings."""
+    best: tuple[int, int] | None = None
+    for _ in range(CLOCK_PAIRS):
+        before = time.perf_counter_ns()
+        wall = time.time_ns()
+        after = time.perf_counter_ns()
+        if best is None or after - before < best[0]:
+            best = (after - before, wall - (before + after) // 2)
+    assert best is not None
+    return best[1]
+
+
+class CanBenchRig:
+    """``hild.bench_rigs`` entry ``mit_can``: see the module docstring; the bench calls it in this order:
+    ``robot_config`` (parent) → ``start`` → ``attach`` → ``listen``/``counters`` … → ``stop`` (host process).
+
+    One emulator per bus, all serviced by one thread (a drive answers the frame it got in the last service)."""
+
+    trajectory_scale = 0.5  # the standard trajectory moves joints up to 1 rad; half of that suits these motors
+
+    def __init__(self) -> None:
+        self.emulators: list[Emulator] = []
+        self.tap: FrameTap | None = None
+        self.first: MotorWiring | None = None
+        self.drivers: list[Any] = []
+        self._thread: threading.Thread | None = None
+        self._thread_id = 0
+        self._stop = threading.Event()
+        self._priority = 0
+
+    @staticmethod
+    def robot_config(joints: int, rate: float) -> dict[str, Any]:
+        return robot_config(joints, rate)
+
+    def start(self, loaded: LoadedConfig) -> None:
+        """Open the emulated drives on the config's buses and start serving them (before the daemon configures)."""
+        components = [(n, p) for n, p in loaded.driver_params.items() if isinstance(p, MitCanParams)]
+        if not components:
+            raise ValueError("the CAN bench rig needs a mit_can hardware component")
+        motor = 0
+        try:
+            for name, params in components:
+                joints = list(loaded.config.hardware[name].joints)
+                wiring, problems = wire_motors(params, joints)
+                if problems:
+                    raise ValueError("; ".join(problems))
+                bus: Any = open_bus(params.bus)
+                if self.tap is None:  # the first motor's bus carries the latency probes
+                    self.first = wiring[0]
+                    bus = self.tap = FrameTap(bus, {wiring[0].command_id, wiring[0].reply_id})
+                starts = START_POSITIONS[motor : motor + len(joints)]
+                motor += len(joints)
+                plant = MotorPlant(len(joints), inertia=0.05, damping=0.05, positions=starts)
+                self.emulators.append(Emulator(bus, build_firmware(params, joints), plant))
+        except BaseException:
+            self._close_buses()
+            raise
+        self._priority = loaded.config.realtime.priority - 1
+        self._thread = threading.Thread(target=self._serve, name="hild-bench-emulator", daemon=True)
+        self._thread.start()
+        while not self._thread_id:
+            time.sleep(0.001)
+
+    def _serve(self) -> None:
+        """``Emulator.run`` for several emulators: one service of each every period, on an absolute grid."""
+        self._thread_id = threading.get_native_id()
+        if self._priority > 0:  # below a SCHED_FIFO cycle, or the drives starve behind it and their watchdogs fire
+            with contextlib.suppress(OSError):  # the daemon's real-time report says whether FIFO is permitted
+                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self._priority))
+        clock = time.monotonic
+        deadline = clock()
+        while not self._stop.is_set():
+            now = clock()
+            for emulator in self.emulators:
+                emulator.service(now)
+            deadline += EMULATOR_PERIOD
+            delay = deadline - clock()
+            if delay < 0.0:
+                deadline = clock()  # overran: restart the grid instead of bursting to catch up
+            elif self._stop.wait(delay):
+                break
+
+    def attach(self, engine: Any) -> None:
+        """Keep the daemon's CAN drivers for their frame counters."""
+        self.drivers = [s.component for s in engine.hardware if hasattr(s.component, "statistics")]
+
+    def threads(self) -> dict[str, int]:
+        return {"emulator": self._thread_id}
+
+    def counters(self) -> dict[str, int]:
+        out: dict[str, int] = {}
+        for emulator in self.emulators:
+            for key, value in emulator.stats().items():
+                out[f"emulator {key}"] = out.get(f"emulator {key}", 0) + value
+        for driver in self.drivers:
+            for key, value in driver.statistics.items():
+                out[f"driver {key}"] = out.get(f"driver {key}", 0) + value
+        return out
+
+    def listen(self, on: bool) -> dict[str, Any]:
+        """Start (``on``) or stop recording the first motor's frames. Both return its joint and ``lsb`` (the
+        position resolution, rad); stopping also returns the frames decoded: ``command``/``reply`` =
+        [[perf_counter_ns, position rad], …]."""
+        tap, first = self.tap, self.first
+        assert tap is not None and first is not None
+        ranges = first.ranges
+        lsb = 2 * ranges.p_max / ((1 << POSITION_BITS) - 1)
+        if on:
+            tap.frames = []
+            tap.recording = True
+            return {"joint": first.joint, "lsb": lsb}
+        tap.recording = False
+        frames, tap.frames = tap.frames, []
+        offset = wall_to_perf_offset_ns()
+        commands: list[list[float]] = []
+        replies: list[list[float]] = []
+        for stamp, arbitration_id, data in frames:
+            t_ns = round(stamp * 1e9) - offset
+            if arbitration_id == first.command_id and len(data) == 8 and special_kind(data) is None:
+                commands.append([t_ns, decode_command(data, ranges).p])
+            elif arbitration_id == first.reply_id and len(data) == 8 and (data[0] & 0xF) == (first.id & 0xF):
+                replies.append([t_ns, decode_state(data[1:6], ranges)[0]])
+        return {"joint": first.joint, "lsb": lsb, "command": commands, "reply": replies}
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(5.0)
+        self._close_buses()
+
+    def _close_buses(self) -> None:
+        for emulator in self.emulators:
+            emulator.bus.shutdown()
+        self.emulators = []

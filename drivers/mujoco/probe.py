@@ -1,0 +1,65 @@
+"""The physics floor for ``hild bench``: raw ``mj_step`` of a config's model, with nothing of hild around it.
+
+Registered as the ``mj_step`` probe (entry-point group ``hild.probes``), so hild can measure it without importing
+MuJoCo. The model is the config's ``mujoco`` hardware component's, at the twin's physics step
+(``period / substeps``) and start keyframe, so the figure is the part of the twin's cycle time that is MuJoCo's.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from drivers.mujoco.twin import MujocoTwinParams
+from hild.config import load_config
+from hild.dynamics import load_model
+
+WARMUP_STEPS = 200
+
+
+def mj_step(count: int = 5000, config: str | Path | None = None, **_: Any) -> dict[str, Any]:
+    """µs per ``mj_step`` (p50/p99/p99.9/max and mean) over ``count`` steps of the config's twin model."""
+    if config is None:
+        raise ValueError("the mj_step probe needs a robot config with a mujoco hardware component")
+    if count < 1:
+        raise ValueError("count must be positive")
+    loaded = load_config(config)
+    cfg = loaded.config
+    found = [(n, p) for n, p in loaded.driver_params.items() if isinstance(p, MujocoTwinParams)]
+    if not found:
+        raise ValueError(f"{config}: no hardware component uses the mujoco driver")
+    name, params = found[0]
+    model = load_model(loaded.directory / params.model)
+    model.opt.timestep = 1.0 / cfg.update_rate / params.substeps
+    data = mujoco.MjData(model)
+    if params.keyframe is not None:
+        key = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, params.keyframe)
+        if key >= 0:
+            mujoco.mj_resetDataKeyframe(model, data, key)
+    clock = time.perf_counter_ns
+    times = np.empty(count, dtype=np.int64)
+    for k in range(count + WARMUP_STEPS):
+        start = clock()
+        mujoco.mj_step(model, data)
+        if k >= WARMUP_STEPS:
+            times[k - WARMUP_STEPS] = clock() - start
+    us = times / 1e3
+    p50, p99, p999 = np.percentile(us, [50, 99, 99.9])
+    return {
+        "model": Path(params.model).name,
+        "component": name,
+        "timestep_ms": round(model.opt.timestep * 1e3, 4),
+        "substeps": params.substeps,
+        "steps": count,
+        "step_us": {
+            "p50": round(float(p50), 1),
+            "p99": round(float(p99), 1),
+            "p999": round(float(p999), 1),
+            "max": round(float(us.max()), 1),
+            "mean": round(float(us.mean()), 1),
+        },
+    }

@@ -1,0 +1,194 @@
+"""``hild bench``: run the floor and every scenario in one run, print the table, optionally write JSON.
+
+    hild bench                          # everything, ~4 min on 2 cores
+    hild bench --quick                  # everything, short windows (~1 min; indicative only)
+    hild bench --only floor 'twin6*' --seconds 5 --json bench.json
+
+Order: machine facts and load average; the floor (empty thread, Zenoh, python-can, mj_step); the scenarios one
+after the other (never two daemons at once); the interference windows; targets from all of it. Names for
+``--only`` (shell-style patterns): ``floor``, ``interference``, and ``mock6@500`` … ``can6@1000`` (or ``can6`` for
+both rates). See docs/performance.md for what each figure means.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import fnmatch
+import os
+import platform
+import shlex
+import sys
+import tempfile
+import time
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+from typing import Any
+
+from hild.bench.floor import measure_empty_threads, run_probe
+from hild.bench.report import busy, evaluate_targets, format_report, write_json
+from hild.bench.scenarios import ARM6, INTERFERENCE, SCENARIOS, Settings, run_interference, run_scenario
+from hild.config.model import RealtimeSection
+
+PACKAGES = ("hild", "numpy", "eclipse-zenoh", "python-can", "mujoco", "ruckig", "rerun-sdk", "pydantic")
+FLOOR_RATES = (500.0, 1000.0)
+SECTIONS = ("floor", *(s.name for s in SCENARIOS), "interference")
+
+
+def register(subparsers: Any) -> None:
+    parser = subparsers.add_parser(
+        "bench",
+        help="measure the real-time cycle against this machine's floor (table + JSON)",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--quick", action="store_true", help="short windows: a smoke run, not numbers to quote")
+    parser.add_argument("--seconds", type=float, help="counted seconds per scenario window (default 10, quick 1.5)")
+    parser.add_argument("--only", nargs="+", metavar="NAME", help=f"run only these ({', '.join(SECTIONS)})")
+    parser.add_argument("--json", type=Path, metavar="OUT.json", help="also write the whole report as JSON")
+    parser.add_argument(
+        "--priority", type=int, help="SCHED_FIFO priority for every cycle thread (default: the config's, i.e. off)"
+    )
+    parser.add_argument(
+        "--keep", type=Path, metavar="DIR", help="keep each scenario's config, daemon log and recording in DIR"
+    )
+    parser.set_defaults(func=run)
+
+
+def selected(only: list[str] | None) -> list[str]:
+    """The sections ``--only`` names (all by default); a pattern matches a name or a scenario's base name."""
+    if not only:
+        return list(SECTIONS)
+    chosen = []
+    for name in SECTIONS:
+        base = name.split("@")[0]
+        if any(fnmatch.fnmatch(name, p) or fnmatch.fnmatch(base, p) for p in only):
+            chosen.append(name)
+    return chosen
+
+
+def machine_info() -> dict[str, Any]:
+    model = "?"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    packages = {}
+    for name in PACKAGES:
+        try:
+            packages[name] = version(name)
+        except PackageNotFoundError:
+            packages[name] = None
+    return {
+        "cpu_count": os.cpu_count(),
+        "cpu_model": model,
+        "kernel": platform.release(),
+        "preempt_rt": "PREEMPT_RT" in platform.version() or Path("/sys/kernel/realtime").exists(),
+        "python": platform.python_version(),
+        "packages": packages,
+        "load_average": {"before": round(os.getloadavg()[0], 2)},
+    }
+
+
+def measure_floor(settings: Settings) -> dict[str, Any]:
+    realtime = RealtimeSection(priority=settings.priority or 0)
+    floor: dict[str, Any] = {}
+    try:
+        floor["empty_thread"] = measure_empty_threads(list(FLOOR_RATES), settings.floor_seconds, realtime)
+    except Exception as exc:
+        floor["empty_thread"] = []
+        floor["empty_thread_error"] = f"{type(exc).__name__}: {exc}"
+    try:
+        from hild.api.probe import zenoh_round_trip  # zenoh lives in the api room
+
+        floor["zenoh"] = zenoh_round_trip(settings.zenoh_pings, settings.zenoh_puts)
+    except Exception as exc:
+        floor["zenoh"] = {"error": f"{type(exc).__name__}: {exc}"}
+    floor["can_virtual"] = run_probe("can_virtual", count=settings.can_frames)
+    floor["mj_step"] = run_probe("mj_step", count=settings.mj_steps, config=str(ARM6))
+    return floor
+
+
+def progress(text: str) -> None:
+    print(text, file=sys.stderr, flush=True)
+
+
+def bench(settings: Settings, sections: list[str], workdir: Path) -> dict[str, Any]:
+    started = time.monotonic()
+    report: dict[str, Any] = {
+        "bench": {
+            "command": shlex.join(["hild", *sys.argv[1:]]),
+            "started": dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M:%SZ"),
+            "quick": settings.quick,
+            "sections": sections,
+            "settings": {k: v for k, v in vars(settings).items()},
+        },
+        "machine": machine_info(),
+        "floor": {},
+        "scenarios": [],
+        "latency": [],
+        "cpu": [],
+        "interference": {},
+        "targets": [],
+    }
+    if "floor" in sections:
+        progress("floor: empty thread, Zenoh, python-can, mj_step …")
+        report["floor"] = measure_floor(settings)
+    for scenario in SCENARIOS:
+        if scenario.name not in sections:
+            continue
+        progress(f"{scenario.name} …")
+        try:
+            row, latency = run_scenario(scenario, workdir, settings)
+        except Exception as exc:
+            report["scenarios"].append(
+                {"name": scenario.name, "base": scenario.base, "rate_hz": scenario.rate, "error": str(exc)}
+            )
+            continue
+        report["scenarios"].append(row)
+        report["machine"].setdefault("realtime", row["realtime"])
+        report["cpu"].append({"scenario": scenario.name, "rate_hz": scenario.rate, **row["cpu"]})
+        if latency is not None:
+            report["latency"].append(latency)
+    if "interference" in sections:
+        progress(f"interference ({INTERFERENCE.name}) …")
+        try:
+            report["interference"] = run_interference(workdir, settings)
+        except Exception as exc:
+            report["interference"] = {"scenario": INTERFERENCE.name, "error": str(exc)}
+    report["machine"]["load_average"]["after"] = round(os.getloadavg()[0], 2)
+    report["machine"]["busy"] = busy(report["machine"])
+    report["bench"]["seconds_total"] = round(time.monotonic() - started, 1)
+    report["targets"] = evaluate_targets(report)
+    return report
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.seconds is not None and args.seconds <= 0:
+        print("--seconds must be positive", file=sys.stderr)
+        return 2
+    if args.priority is not None and not 0 <= args.priority <= 99:
+        print("--priority must be 0..99", file=sys.stderr)
+        return 2
+    sections = selected(args.only)
+    if not sections:
+        print(f"--only matches nothing (names: {', '.join(SECTIONS)})", file=sys.stderr)
+        return 2
+    settings = Settings.make(args.quick, args.seconds, args.priority)
+    if args.keep is not None:
+        args.keep.mkdir(parents=True, exist_ok=True)
+        report = bench(settings, sections, args.keep.resolve())
+    else:
+        with tempfile.TemporaryDirectory(prefix="hild-bench-") as tmp:
+            report = bench(settings, sections, Path(tmp))
+    print(format_report(report))
+    if args.json:
+        write_json(report, args.json)
+        print(f"\n(JSON written to {args.json})")
+    failed = [r["name"] for r in report["scenarios"] if r.get("error")]
+    if "error" in report["interference"]:
+        failed.append("interference")
+    return 1 if failed else 0

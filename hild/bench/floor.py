@@ -1,0 +1,149 @@
+"""The floor: what this machine gives a Python cycle before hild adds anything, measured in the same run.
+
+* **Empty thread**: ``hild.cycle.CycleThread`` itself — same sleep+spin pacing, same real-time settings, same
+  ``LoopStats`` bookkeeping — driving an engine whose ``step`` does nothing. It runs in a child process of its own
+  (``python -m hild.bench.floor``) with the daemon's process settings (switch interval, gc freeze, optional
+  ``mlockall``), so the only difference from a scenario is the work inside the cycle and what shares the process.
+  Lateness (wake − deadline) is recovered from the cycle clock: the wall clock's ``t`` is wake − start and every
+  deadline is start + k·T, so lateness = t mod T (exact below one period, which is all but overruns).
+* **Library probes**: raw Zenoh on loopback (``hild.api.probe``), and the probes drivers register in the
+  entry-point group ``hild.probes`` (``can_virtual``: python-can's virtual bus; ``mj_step``: MuJoCo's step) —
+  hild never imports a driver, it asks for them by name.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable
+from importlib.metadata import entry_points
+from typing import Any
+
+import numpy as np
+
+from hild.bench.report import loop_figures, summarize_ns
+from hild.config.model import RealtimeSection
+from hild.cycle import CycleThread
+from hild.events import EventLog
+from hild.realtime import apply_process_settings, freeze_heap
+from hild.stats import LoopStats
+
+PROBES = "hild.probes"
+WARMUP_S = 0.5
+
+
+class EmptyEngine:
+    """The part of ``Engine`` that ``CycleThread`` uses, with a ``step`` that only notes its lateness."""
+
+    def __init__(self, rate: float, capacity: int) -> None:
+        self.period = 1.0 / rate
+        self.period_ns = round(self.period * 1e9)
+        self.stats = LoopStats(window=capacity)
+        self.realtime_report: dict[str, str] = {}
+        self.events = EventLog()
+        self.lateness = np.zeros(capacity, dtype=np.int64)
+        self.steps = 0
+        self.warmup_cycles = -1
+        self._open_window = threading.Event()
+
+    def open_window(self) -> None:
+        """Ask the cycle thread to reset its statistics and start noting lateness; wait until it has."""
+        self._open_window.set()
+        while self.warmup_cycles < 0:
+            time.sleep(0.001)
+
+    def step(self, t: float, dt: float) -> None:
+        if self.warmup_cycles >= 0:
+            self.lateness[self.steps % len(self.lateness)] = round(t * 1e9) % self.period_ns
+            self.steps += 1
+        elif self._open_window.is_set():  # on the cycle thread, so no record races the reset
+            cycles = self.stats.cycles
+            self.stats.reset()
+            self.warmup_cycles = cycles
+
+    def stop(self) -> None:
+        pass
+
+
+def empty_thread(rate: float, seconds: float, realtime: RealtimeSection) -> dict[str, Any]:
+    """Run the empty cycle at ``rate`` for ``seconds`` (after a short warm-up); loop figures plus lateness."""
+    capacity = max(10_000, int(rate * seconds) + 1000)
+    engine = EmptyEngine(rate, capacity)
+    cycle = CycleThread(engine, "wall", 1.0, realtime)  # type: ignore[arg-type]
+    cycle.start()
+    time.sleep(WARMUP_S)
+    engine.open_window()
+    time.sleep(seconds)
+    cycle.stop()
+    cycle.join(5.0)
+    stats = engine.stats
+    n = min(stats.cycles, capacity)
+    figures = loop_figures(stats.cycles, stats.overruns, stats.duration.values[:n], stats.period_error.values[:n])
+    figures["lateness_us"] = summarize_ns(engine.lateness[: min(engine.steps, capacity)])
+    figures["rate_hz"] = rate
+    figures["realtime"] = dict(engine.realtime_report)
+    return figures
+
+
+def measure_empty_threads(rates: list[float], seconds: float, realtime: RealtimeSection) -> list[dict[str, Any]]:
+    """The empty thread at each rate, in a child process with the daemon's process settings."""
+    command = [
+        sys.executable,
+        "-m",
+        "hild.bench.floor",
+        "--seconds",
+        str(seconds),
+        "--realtime",
+        realtime.model_dump_json(),
+        "--rates",
+        *(str(r) for r in rates),
+    ]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=60 + 2 * len(rates) * seconds)
+    if done.returncode != 0:
+        raise RuntimeError(f"the empty-thread floor failed (exit {done.returncode}):\n{done.stderr[-2000:]}")
+    result: list[dict[str, Any]] = json.loads(done.stdout)
+    return result
+
+
+def probe(name: str) -> Callable[..., dict[str, Any]]:
+    """The probe registered as ``name`` in ``hild.probes`` (a callable returning a dict)."""
+    for ep in entry_points(group=PROBES):
+        if ep.name == name:
+            loaded: Callable[..., dict[str, Any]] = ep.load()
+            return loaded
+    known = ", ".join(sorted(ep.name for ep in entry_points(group=PROBES))) or "none installed"
+    raise LookupError(f"no probe {name!r} in {PROBES} (known: {known})")
+
+
+def run_probe(name: str, **kwargs: Any) -> dict[str, Any]:
+    """A probe's figures, or ``{"error": ...}`` when it is missing or fails (the rest of the run goes on)."""
+    try:
+        return probe(name)(**kwargs)
+    except Exception as exc:
+        return {"error": f"{type(exc).__name__}: {exc}"}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description="The empty-thread floor (run by hild bench in a child process).")
+    parser.add_argument("--rates", type=float, nargs="+", required=True)
+    parser.add_argument("--seconds", type=float, required=True)
+    parser.add_argument("--realtime", default="{}", help="the RealtimeSection, as JSON")
+    args = parser.parse_args(argv)
+    realtime = RealtimeSection.model_validate_json(args.realtime)
+    process = apply_process_settings(realtime)
+    process["gc"] = freeze_heap(realtime)
+    rows = []
+    for rate in args.rates:
+        row = empty_thread(rate, args.seconds, realtime)
+        row["realtime"] = {**process, **row["realtime"]}
+        rows.append(row)
+    print(json.dumps(rows))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

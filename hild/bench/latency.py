@@ -1,0 +1,105 @@
+"""Latencies across processes: a Zenoh command → the first CAN frame carrying it; a CAN reply → its joint_states.
+
+Both ends are stamped on ``perf_counter_ns`` (CLOCK_MONOTONIC, one clock for the whole machine), the client's in
+this process, the frames' inside the daemon's process by the bench rig.
+
+**Command → frame.** With ``forward_position`` active, the bench publishes targets whose first joint alternates
+between two positions ``delta`` apart (a few position LSBs, below one cycle's slew limit); the others hold. Each
+publish is stamped just before the put. Its latency is the time to the first command frame for that motor whose
+decoded position is within ``tol`` of the value. A probe whose value the frames already carried at publish time
+would be ambiguous and is skipped; probes are spaced several cycles apart at random, so they do not lock to the
+cycle's phase.
+
+**Reply → sample.** Every ``joint_states`` sample carries the cycle time ``t`` of the cycle that read it; with
+the cycle clock's zero in ``perf_counter_ns`` (``start``), that cycle woke at ``start + t``. The reply it
+reflects is the motor's last reply sent before that wake (or one sent in the few µs between wake and read, when
+only that one carries the sample's value). Latency = arrival at the subscriber − that reply's send. It excludes
+the wait for the broadcaster's next sample (uniform in 0 … 1/publish_rate).
+"""
+
+from __future__ import annotations
+
+import bisect
+import random
+import time
+from collections.abc import Sequence
+from typing import Any
+
+from hild.api.client import HildClient
+
+WARMUP_COMMANDS = 5
+READ_AFTER_WAKE_NS = 100_000  # a reply this soon after the wake may still be the one the read took
+
+
+def send_probes(
+    client: HildClient,
+    controller: str,
+    base: Sequence[float],
+    delta: float,
+    count: int,
+    gap: tuple[float, float],
+    rng: random.Random,
+) -> list[tuple[int, float]]:
+    """Publish ``count`` alternating targets (first joint ``base[0] + delta``, then ``base[0]``, …) ``gap`` s
+    apart (uniform in the range); returns (publish perf_counter_ns, first joint's value) for each."""
+    values = [float(v) for v in base]
+    for _ in range(WARMUP_COMMANDS):  # the controller starts from base, so frames carry base before probe 0
+        client.send(controller, values)
+        time.sleep(gap[0])
+    probes = []
+    for k in range(count):
+        values[0] = float(base[0]) + (delta if k % 2 == 0 else 0.0)
+        stamp = time.perf_counter_ns()
+        client.send(controller, values)
+        probes.append((stamp, values[0]))
+        time.sleep(rng.uniform(*gap))
+    return probes
+
+
+def match_commands(
+    probes: Sequence[tuple[int, float]], frames: Sequence[Sequence[float]], tol: float
+) -> tuple[list[int], int]:
+    """Latency (ns) of each probe to the first frame carrying its value; also how many were ambiguous."""
+    times = [int(f[0]) for f in frames]
+    latencies: list[int] = []
+    ambiguous = 0
+    for stamp, value in probes:
+        i = bisect.bisect_left(times, stamp)
+        if i > 0 and abs(frames[i - 1][1] - value) <= tol:
+            ambiguous += 1
+            continue
+        for t, position in frames[i:]:
+            if abs(position - value) <= tol:
+                latencies.append(int(t) - stamp)
+                break
+    return latencies, ambiguous
+
+
+def match_replies(
+    samples: Sequence[tuple[int, float, float]], replies: Sequence[Sequence[float]], start_ns: int, tol: float
+) -> tuple[list[int], int]:
+    """Latency (ns) from the reply each sample reflects to the sample's arrival; also how many found no reply
+    carrying their value (samples = (arrival ns, cycle time s, first joint's position))."""
+    times = [int(r[0]) for r in replies]
+    latencies: list[int] = []
+    unmatched = 0
+    for arrived, stamp, position in samples:
+        wake = start_ns + round(stamp * 1e9)
+        i = bisect.bisect_left(times, wake) - 1
+        candidates = [j for j in (i, i + 1) if 0 <= j < len(times) and times[j] < wake + READ_AFTER_WAKE_NS]
+        chosen = next((j for j in candidates if abs(replies[j][1] - position) <= tol), None)
+        if chosen is None or times[chosen] > arrived:
+            unmatched += 1
+            continue
+        latencies.append(arrived - times[chosen])
+    return latencies, unmatched
+
+
+class SampleLog:
+    """A joint_states subscription callback keeping (arrival perf_counter_ns, stamp, first joint's position)."""
+
+    def __init__(self) -> None:
+        self.samples: list[tuple[int, float, float]] = []
+
+    def __call__(self, message: dict[str, Any]) -> None:
+        self.samples.append((time.perf_counter_ns(), float(message["stamp"]), float(message["position"][0])))

@@ -1,0 +1,488 @@
+"""The scenarios: which robot, at which rate, doing what — each run as the real daemon in a process of its own.
+
+Every scenario carries the same work: a joint_trajectory controller repeating the standard trajectory on every
+joint, the joint_state_broadcaster at 100 Hz, and telemetry recording to a file in a temporary directory.
+
+* ``mock6`` — configs/arm6_twin.yaml with its hardware swapped for the mock driver (same joints, controllers and
+  gravity model): hild's own cost without physics.
+* ``twin6`` — configs/arm6_twin.yaml, ``substeps`` set so the physics step stays 1 ms at either rate.
+* ``can3``, ``can6`` — Damiao motors emulated in the daemon's process by the ``mit_can`` bench rig (a
+  ``hild.bench_rigs`` entry point from drivers/can), on a python-can virtual channel; these also measure the
+  command → frame and reply → sample latencies.
+* ``interference`` — twin6 at 1 kHz with ``joint_trajectory_arm`` (the first three joints, trajectory) and
+  ``servo_wrist`` (the last three, streamed targets) active together, windows interleaved between no extra
+  clients, two pollers (``srv/status`` and ``srv/list_controllers`` at 200 Hz each), and the pollers plus a
+  1 kHz servo stream. The servo gets joints of its own so the trajectory keeps running in every window.
+
+The bench process is the Zenoh client (trajectories, probes, pollers, the stream); the daemon's process answers
+its control requests (``hild.bench.host``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import queue
+import random
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+
+from hild.api.client import HildClient, HildError, HildUnreachable
+from hild.bench.host import rig_class
+from hild.bench.latency import SampleLog, match_commands, match_replies, send_probes
+from hild.bench.load import Counter, Paced, Poller, ServoStreamer, TrajectoryKeeper
+from hild.bench.report import loop_figures, rise_pct, summarize_ns
+from hild.config.documents import load_document
+
+CONFIGS = Path(__file__).resolve().parents[2] / "configs"
+ARM6 = CONFIGS / "arm6_twin.yaml"
+PHYSICS_STEP = 0.001  # s: the twin's physics step at every rate
+BROADCASTER = "joint_state_broadcaster"
+JTC = "joint_trajectory"
+FORWARD = "forward_position"
+JTC_ARM = "joint_trajectory_arm"
+SERVO_WRIST = "servo_wrist"
+CAN_RIG = "mit_can"
+START_TIMEOUT = 60.0  # s for a daemon process to be ready
+REQUEST_TIMEOUT = 30.0  # s for one host request
+PROBE_DELTA_LSB = 3  # the command probe's step in position LSBs: clear of quantization, far below one cycle's slew
+PROBE_TOL_LSB = 1.5
+SETTLE_S = 0.3  # s between starting interference clients and opening the window
+POLL_RATE = 200.0
+SERVO_RATE = 1000.0
+
+
+@dataclass(frozen=True)
+class Scenario:
+    base: str  # mock6, twin6, can3, can6
+    kind: str  # mock, twin, can
+    joints: int
+    rate: float
+
+    @property
+    def name(self) -> str:
+        return f"{self.base}@{self.rate:g}"
+
+
+SCENARIOS = tuple(
+    Scenario(base, kind, joints, rate)
+    for base, kind, joints in (("mock6", "mock", 6), ("twin6", "twin", 6), ("can3", "can", 3), ("can6", "can", 6))
+    for rate in (500.0, 1000.0)
+)
+INTERFERENCE = Scenario("twin6", "twin", 6, 1000.0)
+
+
+@dataclass
+class Settings:
+    """How long and how much; ``quick`` shortens everything (results are then indicative only)."""
+
+    seconds: float = 10.0
+    warmup: float = 1.0
+    latency_probes: int = 300
+    probe_gap: tuple[float, float] = (0.004, 0.012)
+    interference_rounds: int = 2
+    interference_seconds: float = 5.0
+    floor_seconds: float = 5.0
+    zenoh_pings: int = 2000
+    zenoh_puts: int = 2000
+    can_frames: int = 20_000
+    mj_steps: int = 5000
+    priority: int | None = None
+    seed: int = 1
+    quick: bool = False
+
+    @classmethod
+    def make(cls, quick: bool, seconds: float | None, priority: int | None) -> Settings:
+        if quick:
+            s = cls(
+                seconds=1.5,
+                warmup=0.5,
+                latency_probes=40,
+                interference_rounds=1,
+                interference_seconds=1.5,
+                floor_seconds=1.0,
+                zenoh_pings=300,
+                zenoh_puts=300,
+                can_frames=3000,
+                mj_steps=1000,
+                quick=True,
+            )
+        else:
+            s = cls()
+        if seconds is not None:
+            s.seconds = seconds
+            s.interference_seconds = seconds if quick else max(0.5, seconds / 2)
+            s.floor_seconds = min(s.floor_seconds, max(0.5, seconds))
+        s.priority = priority
+        return s
+
+
+# ---- configs -----------------------------------------------------------------------------------------------------
+def arm6_config(kind: str, rate: float, *, interference: bool = False) -> dict[str, Any]:
+    """configs/arm6_twin.yaml at ``rate``: the twin (physics step 1 ms) or the same arm on the mock driver."""
+    data: dict[str, Any] = load_document(ARM6)
+    data["update_rate"] = rate
+    data["robot"]["model"] = str(CONFIGS / data["robot"]["model"])
+    twin = data["hardware"]["twin"]
+    if kind == "twin":
+        twin["params"]["model"] = str(CONFIGS / twin["params"]["model"])
+        twin["params"]["substeps"] = max(1, round(1.0 / (rate * PHYSICS_STEP)))
+    elif kind == "mock":
+        data["hardware"] = {"arm": {"driver": "mock", "params": {}, "joints": twin["joints"]}}
+    else:
+        raise ValueError(f"arm6 comes as twin or mock, not {kind!r}")
+    data.pop("zenoh", None)  # the endpoint comes from the command line
+    if interference:
+        joints = list(data["joints"])
+        data["controllers"][JTC_ARM] = {
+            "type": "joint_trajectory",
+            "params": {"joints": joints[:3], "command_interfaces": ["position", "velocity"]},
+        }
+        data["controllers"][SERVO_WRIST] = {"type": "servo", "params": {"joints": joints[3:], "command_timeout": 0.25}}
+    return data
+
+
+def scenario_config(
+    scenario: Scenario, workdir: Path, settings: Settings, *, interference: bool = False
+) -> tuple[dict[str, Any], str | None, float]:
+    """(config document, rig name or None, trajectory scale) with telemetry to a file in ``workdir``."""
+    rig: str | None = None
+    scale = 1.0
+    if scenario.kind == "can":
+        rig = CAN_RIG
+        cls: Any = rig_class(rig)
+        data = cls.robot_config(scenario.joints, scenario.rate)
+        scale = float(cls.trajectory_scale)
+    else:
+        data = arm6_config(scenario.kind, scenario.rate, interference=interference)
+    tag = scenario.name.replace("@", "_") + ("_interference" if interference else "")
+    data["telemetry"] = {"enabled": True, "sinks": [{"kind": "file", "path": str(workdir / f"{tag}.rrd")}]}
+    if settings.priority is not None:
+        data.setdefault("realtime", {})["priority"] = settings.priority
+    return data, rig, scale
+
+
+# ---- the daemon process ------------------------------------------------------------------------------------------
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+class HostError(RuntimeError):
+    pass
+
+
+class HostProcess:
+    """A ``hild.bench.host`` child: the daemon of one scenario, plus its JSON-lines control channel."""
+
+    def __init__(self, config: Path, log: Path, rig: str | None, capacity: int) -> None:
+        self.endpoint = f"tcp/127.0.0.1:{free_port()}"
+        self.log_path = log
+        self._log: IO[bytes] = log.open("wb")
+        command = [sys.executable, "-m", "hild.bench.host", str(config), "--listen", self.endpoint]
+        command += ["--capacity", str(capacity)] + (["--rig", rig] if rig else [])
+        self.proc = subprocess.Popen(
+            command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._log, text=True, bufsize=1
+        )
+        self._lines: queue.Queue[str | None] = queue.Queue()
+        threading.Thread(target=self._read, name="bench-host-reader", daemon=True).start()
+
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            self._lines.put(line)
+        self._lines.put(None)
+
+    def _next(self, timeout: float) -> dict[str, Any]:
+        try:
+            line = self._lines.get(timeout=timeout)
+        except queue.Empty:
+            raise HostError(f"no answer from the daemon process within {timeout:g} s{self.log_tail()}") from None
+        if line is None:
+            raise HostError(f"the daemon process ended (exit {self.proc.poll()}){self.log_tail()}")
+        message: dict[str, Any] = json.loads(line)
+        return message
+
+    def log_tail(self, lines: int = 15) -> str:
+        if not self._log.closed:
+            self._log.flush()
+        text = self.log_path.read_text(errors="replace").strip().splitlines()[-lines:]
+        return (":\n    " + "\n    ".join(text)) if text else ""
+
+    def wait_ready(self) -> dict[str, Any]:
+        message = self._next(START_TIMEOUT)
+        if message.get("event") != "ready":
+            raise HostError(f"the daemon did not start: {message.get('error', message)}{self.log_tail()}")
+        return message
+
+    def request(self, op: str, timeout: float = REQUEST_TIMEOUT, **fields: Any) -> dict[str, Any]:
+        assert self.proc.stdin is not None
+        try:
+            self.proc.stdin.write(json.dumps({"op": op, **fields}) + "\n")
+            self.proc.stdin.flush()
+        except (BrokenPipeError, OSError) as exc:
+            raise HostError(f"the daemon process is gone ({exc}){self.log_tail()}") from None
+        reply = self._next(timeout)
+        if not reply.get("ok"):
+            raise HostError(f"{op}: {reply.get('error', reply)}")
+        return reply
+
+    def close(self) -> int | None:
+        if self.proc.poll() is None:
+            with contextlib.suppress(HostError):
+                self.request("stop", timeout=5.0)
+            try:
+                self.proc.wait(30.0)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        if self.proc.stdin is not None:
+            with contextlib.suppress(OSError):
+                self.proc.stdin.close()
+        self._log.close()
+        return self.proc.returncode
+
+
+def connect(endpoint: str, robot: str) -> HildClient:
+    deadline = time.monotonic() + 10.0
+    while True:
+        try:
+            client = HildClient(robot, [endpoint], timeout=5.0)
+            client.wait_alive(10.0)
+            return client
+        except HildUnreachable:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.1)
+
+
+@dataclass
+class Session:
+    """One scenario's daemon process and the bench's client of it."""
+
+    scenario: Scenario
+    host: HostProcess
+    client: HildClient
+    robot: str
+    joints: list[str]
+    home: list[float]
+    scale: float
+    events: Counter = field(default_factory=lambda: Counter(lambda m: str(m.get("level"))))
+    cleanups: list[Callable[[], Any]] = field(default_factory=list)
+
+    def window(self, seconds: float) -> dict[str, Any]:
+        self.host.request("window")
+        time.sleep(seconds)
+        return self.host.request("collect")
+
+    def keeper(self, controller: str, joints: list[str], start: list[float]) -> TrajectoryKeeper:
+        keeper = TrajectoryKeeper([self.host.endpoint], self.robot, controller, joints, start, self.scale)
+        keeper.start()
+        self.cleanups.append(keeper.stop)
+        return keeper
+
+
+@contextlib.contextmanager
+def open_session(scenario: Scenario, workdir: Path, settings: Settings, *, interference: bool = False) -> Any:
+    data, rig, scale = scenario_config(scenario, workdir, settings, interference=interference)
+    tag = scenario.name.replace("@", "_") + ("_interference" if interference else "")
+    path = workdir / f"{tag}.yaml"
+    path.write_text(json.dumps(data, indent=1))  # JSON is YAML
+    longest = max(settings.seconds, settings.interference_seconds)
+    host = HostProcess(path, workdir / f"{tag}.log", rig, int(scenario.rate * (longest + 2.0)))
+    client = None
+    session = None
+    try:
+        ready = host.wait_ready()
+        robot = str(ready["robot"])
+        client = connect(host.endpoint, robot)
+        state = client.next_message("joint_states", timeout=10.0)
+        session = Session(scenario, host, client, robot, list(state["name"]), list(state["position"]), scale)
+        subscription = client.subscribe("events", session.events)
+        session.cleanups.append(subscription.close)
+        yield session
+    finally:
+        if session is not None:
+            for cleanup in reversed(session.cleanups):
+                with contextlib.suppress(Exception):
+                    cleanup()
+        code = host.close()
+        if client is not None:
+            client.close()
+        if code not in (0, None) and session is not None:
+            raise HostError(f"{scenario.name}: the daemon exited with {code}{host.log_tail()}")
+
+
+# ---- measurements ----------------------------------------------------------------------------------------------
+def run_scenario(scenario: Scenario, workdir: Path, settings: Settings) -> tuple[dict[str, Any], dict[str, Any] | None]:
+    """The scenario's cycle figures (and, for CAN, its latencies)."""
+    with open_session(scenario, workdir, settings) as s:
+        s.client.switch(activate=[JTC])
+        keeper = s.keeper(JTC, s.joints, s.home)
+        time.sleep(settings.warmup)
+        window = s.window(settings.seconds)
+        latency = None
+        if scenario.kind == "can" and settings.latency_probes > 0:
+            keeper.stopping.set()
+            s.client.switch(activate=[FORWARD], deactivate=[JTC])  # aborts the goal in flight
+            keeper.stop()
+            with contextlib.suppress(HildError):  # a fault latched after the window would hold the probed joint
+                s.client.reset()
+            latency = measure_latency(s, settings)
+        keeper.stop()
+        row = {
+            "name": scenario.name,
+            "base": scenario.base,
+            "kind": scenario.kind,
+            "joints": scenario.joints,
+            "rate_hz": scenario.rate,
+            **loop_figures(window["cycles"], window["overruns"], window["duration_ns"], window["period_error_ns"]),
+            "seconds": window["seconds"],
+            "cpu": window["cpu"],
+            "goals": dict(keeper.results),
+            "mode": window["mode"],
+            "faults": window["faults"],
+            "counters": window["counters"],
+            "telemetry_dropped_rows": window["telemetry_dropped_rows"],
+            "events": dict(s.events.counts),
+            "realtime": window["realtime"],
+            "notes": notes(scenario, window, keeper, s.events),
+        }
+    return row, latency
+
+
+def notes(scenario: Scenario, window: dict[str, Any], keeper: TrajectoryKeeper, events: Counter) -> list[str]:
+    out = []
+    if window["faults"]:
+        out.append(f"faults: {'; '.join(window['faults'])}")
+    bad = {k: v for k, v in keeper.results.items() if k not in ("sent", "succeeded", "ended at stop")}
+    if bad:
+        out.append(f"trajectory results other than succeeded: {bad}" + (f" ({keeper.error})" if keeper.error else ""))
+    for message in events.last[:3]:
+        out.append(f"{message.get('level')} {message.get('source')}: {message.get('message')}")
+    return out
+
+
+def measure_latency(s: Session, settings: Settings) -> dict[str, Any]:
+    """Command → frame and reply → sample on a CAN scenario, with forward_position active."""
+    state = s.client.next_message("joint_states", timeout=5.0)
+    base = list(state["position"])
+    info = s.host.request("listen", on=True)
+    lsb = float(info["lsb"])
+    log = SampleLog()
+    subscription = s.client.subscribe("joint_states", log)
+    try:
+        probes = send_probes(
+            s.client,
+            FORWARD,
+            base,
+            PROBE_DELTA_LSB * lsb,
+            settings.latency_probes,
+            settings.probe_gap,
+            random.Random(settings.seed),
+        )
+        time.sleep(0.05)
+    finally:
+        subscription.close()
+    clock = s.host.request("clock")
+    frames = s.host.request("listen", on=False, timeout=120.0)
+    tol = PROBE_TOL_LSB * lsb
+    command, ambiguous = match_commands(probes, frames["command"], tol)
+    reply, unmatched = match_replies(log.samples, frames["reply"], int(clock["start_ns"]), tol)
+    return {
+        "scenario": s.scenario.name,
+        "base": s.scenario.base,
+        "rate_hz": s.scenario.rate,
+        "joint": frames["joint"],
+        "probes": len(probes),
+        "ambiguous_probes": ambiguous,
+        "probe_step_rad": round(PROBE_DELTA_LSB * lsb, 6),
+        "command_to_frame_us": summarize_ns(command),
+        "samples": len(log.samples),
+        "unmatched_samples": unmatched,
+        "reply_to_joint_states_us": summarize_ns(reply),
+        "broadcaster_rate_hz": 100.0,
+        "clock_spread_us": round(clock["spread_ns"] / 1e3, 1),
+    }
+
+
+INTERFERENCE_CONDITIONS = ("baseline", "polling", "polling+servo")
+
+
+def interference_clients(condition: str, s: Session) -> list[Paced]:
+    endpoint = [s.host.endpoint]
+    clients: list[Paced] = []
+    if condition in ("polling", "polling+servo"):
+        clients += [
+            Poller(endpoint, s.robot, "status", POLL_RATE),
+            Poller(endpoint, s.robot, "list_controllers", POLL_RATE),
+        ]
+    if condition == "polling+servo":
+        clients.append(ServoStreamer(endpoint, s.robot, SERVO_WRIST, s.home[3:], SERVO_RATE))
+    return clients
+
+
+def run_interference(workdir: Path, settings: Settings) -> dict[str, Any]:
+    """Interleaved windows of twin6 @ 1 kHz with and without the interfering clients."""
+    scenario = INTERFERENCE
+    merged: dict[str, dict[str, Any]] = {
+        c: {"cycles": 0, "overruns": 0, "duration": [], "period_error": [], "rates": {}}
+        for c in INTERFERENCE_CONDITIONS
+    }
+    with open_session(scenario, workdir, settings, interference=True) as s:
+        s.client.switch(activate=[JTC_ARM, SERVO_WRIST])
+        s.keeper(JTC_ARM, s.joints[:3], s.home[:3])
+        time.sleep(settings.warmup)
+        for _ in range(settings.interference_rounds):
+            for condition in INTERFERENCE_CONDITIONS:
+                clients = interference_clients(condition, s)
+                for c in clients:
+                    c.start()
+                try:
+                    time.sleep(SETTLE_S)
+                    window = s.window(settings.interference_seconds)
+                finally:
+                    for c in clients:
+                        c.stop()
+                m = merged[condition]
+                m["cycles"] += window["cycles"]
+                m["overruns"] += window["overruns"]
+                m["duration"].append(np.asarray(window["duration_ns"], dtype=np.int64))
+                m["period_error"].append(np.asarray(window["period_error_ns"], dtype=np.int64))
+                for c in clients:
+                    m["rates"].setdefault(c.name, []).append(c.achieved_rate)
+                    if c.failures:
+                        m["rates"].setdefault(c.name + " failures", []).append(c.failures)
+    rows = []
+    for condition in INTERFERENCE_CONDITIONS:
+        m = merged[condition]
+        row = {
+            "name": condition,
+            **loop_figures(
+                m["cycles"], m["overruns"], np.concatenate(m["duration"]), np.concatenate(m["period_error"])
+            ),
+            "clients": ", ".join(f"{k.removeprefix('bench-')} {np.mean(v):.0f}/s" for k, v in m["rates"].items()),
+        }
+        rows.append(row)
+    baseline = rows[0]["duration_us"]["p99"]
+    for row in rows:
+        row["p99_rise_pct"] = rise_pct(row["duration_us"]["p99"], baseline)
+    return {
+        "scenario": scenario.name,
+        "setup": f"{JTC_ARM} on 3 joints + {SERVO_WRIST} on 3",
+        "rounds": settings.interference_rounds,
+        "window_s": settings.interference_seconds,
+        "poll_rate_hz": POLL_RATE,
+        "servo_rate_hz": SERVO_RATE,
+        "conditions": rows,
+    }

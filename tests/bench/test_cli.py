@@ -1,0 +1,74 @@
+"""``hild bench`` end to end at the shortest windows: the real daemon processes, the clients, the JSON report.
+
+Only the shape and the internal consistency of the figures are checked, never a timing target: on a shared
+machine the numbers are whatever they are, and the report says so itself.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+from hild.bench.cli import SECTIONS, selected
+
+SECTION_KEYS = ("bench", "machine", "floor", "scenarios", "latency", "cpu", "interference", "targets")
+
+
+def test_only_takes_names_and_base_names_as_patterns() -> None:
+    assert selected(None) == list(SECTIONS)
+    assert selected(["can6"]) == ["can6@500", "can6@1000"]
+    assert selected(["floor", "*@1000"]) == ["floor", "mock6@1000", "twin6@1000", "can3@1000", "can6@1000"]
+    assert selected(["nothing"]) == []
+
+
+def ordered(p: dict[str, float]) -> bool:
+    return p["n"] > 0 and 0.0 <= p["p50"] <= p["p99"] <= p["p999"] <= p["max"]
+
+
+def test_a_quick_run_writes_every_section(tmp_path: Path) -> None:
+    out = tmp_path / "bench.json"
+    only = ["floor", "can3@1000", "interference"]
+    done = subprocess.run(
+        [sys.executable, "-m", "hild.cli", "bench", "--quick", "--seconds", "0.5", "--json", str(out), "--only", *only],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "TARGETS" in done.stdout and "can3@1000" in done.stdout
+    report = json.loads(out.read_text())
+    assert set(SECTION_KEYS) <= set(report)
+    assert report["bench"]["sections"] == only and report["bench"]["quick"] is True
+    assert report["machine"]["cpu_count"] >= 1 and report["machine"]["packages"]["eclipse-zenoh"]
+    assert {"before", "after"} <= set(report["machine"]["load_average"])
+    assert "switch_interval" in report["machine"]["realtime"]
+
+    floor = report["floor"]
+    assert [r["rate_hz"] for r in floor["empty_thread"]] == [500.0, 1000.0]
+    assert all(ordered(r["period_error_us"]) for r in floor["empty_thread"])
+    for probe in ("zenoh", "can_virtual", "mj_step"):
+        assert "error" not in floor[probe], floor[probe]
+
+    (scenario,) = report["scenarios"]
+    assert scenario["name"] == "can3@1000" and "error" not in scenario
+    assert scenario["cycles"] > 0 and ordered(scenario["duration_us"]) and ordered(scenario["period_error_us"])
+    assert scenario["counters"]["driver frames_sent"] > 0  # the emulated drives were on the wire
+    assert scenario["goals"]["sent"] >= 1
+
+    (latency,) = report["latency"]
+    assert latency["probes"] > 0 and ordered(latency["command_to_frame_us"])
+    assert latency["samples"] > 0 and ordered(latency["reply_to_joint_states_us"])
+
+    (cpu,) = report["cpu"]
+    assert cpu["process"] > 0 and cpu["daemon"] <= cpu["process"] and cpu["emulator"] >= 0
+
+    conditions = report["interference"]["conditions"]
+    assert [c["name"] for c in conditions] == ["baseline", "polling", "polling+servo"]
+    assert all(c["cycles"] > 0 and ordered(c["duration_us"]) for c in conditions)
+    assert conditions[0]["p99_rise_pct"] == 0.0
+
+    statuses = {(t["target"], t["scenario"]): t["status"] for t in report["targets"]}
+    assert statuses[("polling raises cycle p99 by", "twin6@1000")] in ("PASS", "MISS")  # measured, so decided
+    assert statuses[("cycle duration p99", "twin6@1000")] == "n/a"  # not run
