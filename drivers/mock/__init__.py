@@ -72,16 +72,25 @@ class MockHardware(HardwareComponent):
         self.last_command.copy_from(command)
         if not self.enabled or dt <= 0.0:
             return
-        q, qd = self.position, self.velocity
-        torque = command.kp * (command.position - q) + command.kd * (command.velocity - qd) + command.effort
-        stiff = command.kp > 0.0
-        target = np.where(stiff, command.position, q + np.where(command.kd > 0.0, command.velocity, qd) * dt)
-        if self.params.dynamics == "first_order":
-            alpha = 1.0 - math.exp(-dt / self.params.time_constant)
-            target = q + alpha * (target - q)
-        self.velocity[:] = (target - q) / dt
-        self.position[:] = target
-        self.effort[:] = torque
+        # Plain floats: a mock stands in for a drive in benchmarks too, so it should not cost more than one.
+        q_all, qd_all = self.position.tolist(), self.velocity.tolist()
+        p_cmd, v_cmd, ff_cmd = command.position.tolist(), command.velocity.tolist(), command.effort.tolist()
+        kp_cmd, kd_cmd = command.kp.tolist(), command.kd.tolist()
+        first_order = self.params.dynamics == "first_order"
+        alpha = 1.0 - math.exp(-dt / self.params.time_constant) if first_order else 1.0
+        positions, velocities, torques = [], [], []
+        for i, q in enumerate(q_all):
+            qd, kp, kd = qd_all[i], kp_cmd[i], kd_cmd[i]
+            torques.append(kp * (p_cmd[i] - q) + kd * (v_cmd[i] - qd) + ff_cmd[i])
+            # stiff: goes to the commanded position; otherwise moves at the commanded (damped) or current velocity
+            target = p_cmd[i] if kp > 0.0 else q + (v_cmd[i] if kd > 0.0 else qd) * dt
+            if first_order:
+                target = q + alpha * (target - q)
+            positions.append(target)
+            velocities.append((target - q) / dt)
+        self.velocity[:] = velocities
+        self.position[:] = positions
+        self.effort[:] = torques
 
     def health(self) -> str | None:
         return self.health_problem
