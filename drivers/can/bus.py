@@ -4,8 +4,9 @@
   remote, …) with bitrate, CAN-FD and extra interface options from the config.
 * ``CanLink``: the cycle-side handle. ``send`` never waits (``timeout=0``) and counts failures instead of raising;
   ``poll`` is ``recv(timeout=0)``, which on fd-based buses (socketcan) is a zero-timeout ``select`` plus one read, so
-  draining happens inside the cycle with no thread hop. Bus errors (error frames, bus-off, a dead interface,
-  a send queue that stays full) latch a ``problem`` that the driver reports through ``health()``.
+  draining happens inside the cycle with no thread hop (``receive`` is the same in a loop, for the cycle). Bus
+  errors (error frames, bus-off, a dead interface, a send queue that stays full) latch a ``problem`` that the driver
+  reports through ``health()``.
 * ``BadFrames``: counts frames a driver could not use, by kind, and turns them into at most one event per interval.
 * ``frame_bits``: worst-case frame length (bit stuffing included), for ``hild check``'s bus-load figure.
 """
@@ -237,6 +238,33 @@ class CanLink:
                 continue
             self.frames_received += 1
             return msg
+
+    def receive(self, accept: Callable[[can.Message], None], budget: int) -> None:
+        """Feed up to ``budget`` waiting data frames to ``accept`` without blocking; error frames are consumed here.
+
+        ``poll`` in a loop, without a call and a closed-bus check per frame: this is the cycle's receive path.
+        """
+        bus = self.bus
+        if bus is None:
+            return
+        recv = bus.recv
+        taken = 0
+        try:
+            while taken < budget:
+                try:
+                    msg = recv(timeout=0)
+                except (can.CanError, OSError, ValueError) as exc:
+                    self.latch(f"bus error: receive failed: {exc}")
+                    return
+                if msg is None:
+                    return
+                if msg.is_error_frame:
+                    self._error_frame(msg)
+                    continue
+                taken += 1
+                accept(msg)
+        finally:
+            self.frames_received += taken
 
     def _error_frame(self, msg: can.Message) -> None:
         self.error_frames += 1

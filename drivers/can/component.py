@@ -34,12 +34,7 @@ class CanComponent(HardwareComponent):
 
     def drain(self, accept: Callable[[can.Message], None]) -> None:
         """Take every frame waiting (up to the budget) without blocking: the cycle never waits on the bus."""
-        poll = self.link.poll
-        for _ in range(self._frame_budget):
-            msg = poll()
-            if msg is None:
-                break
-            accept(msg)
+        self.link.receive(accept, self._frame_budget)
 
     def health(self) -> str | None:
         return self.link.check_state()

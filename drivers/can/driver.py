@@ -40,7 +40,7 @@ from drivers.can.params import MitCanParams
 from drivers.can.protocol import damiao_registers as reg
 from drivers.can.protocol.errors import FrameError
 from drivers.can.protocol.flavours import FLAVOURS, MYACTUATOR, MitFlavour
-from drivers.can.protocol.mit import MitRanges, encode_command
+from drivers.can.protocol.mit import MitRanges, command_encoder, encode_command
 from drivers.can.protocol.models import ranges_for
 from hild.arrays import JointState, ServoCommand
 from hild.config.params import Params
@@ -202,9 +202,13 @@ class MitCanDriver(CanComponent):
         self._lengths = _REPLY_LENGTHS[params.flavour]
         mask = _KEY_MASK[params.flavour]
         self._key_mask = mask
-        self._routes: dict[int, dict[int, int]] = {}
+        self._routes: dict[int, dict[int, int]] = {}  # reply id → motor key (D0 & mask) → motor index
         for k, m in enumerate(wiring):
             self._routes.setdefault(m.reply_id, {})[m.id & mask] = k
+        # The same routes under one int key (reply id << 8 | motor key): one dict lookup per frame in the cycle.
+        self._route = {reply_id << 8 | key: k for reply_id, keys in self._routes.items() for key, k in keys.items()}
+        self._decoders = [self.flavour.reply_decoder(m.ranges, m.id) for m in wiring]
+        self._encoders = [command_encoder(m.ranges) for m in wiring]
         self._native_replies: dict[int, int] = {}
         self._status_requests: list[can.Message] = []
         poll_ms = _status_poll_ms(params)
@@ -214,19 +218,32 @@ class MitCanDriver(CanComponent):
         if params.flavour == "myactuator":
             native_reply = MYACTUATOR.NATIVE_REPLY_BASE
             self._native_replies = {native_reply + m.id: k for k, m in enumerate(wiring)}
-        # Newest feedback per motor (actuator space), written by _accept, copied into the state by read.
-        self.position = np.zeros(n)
-        self.velocity = np.zeros(n)
-        self.effort = np.zeros(n)
-        self.temperature = np.full(n, np.nan)
-        self.fault = np.zeros(n, dtype=np.int64)
-        self.status_fault = np.zeros(n, dtype=np.int64)  # MyActuator error flags from the latest status poll
-        self.replies = np.zeros(n, dtype=np.int64)  # replies accepted per motor since configure
-        self.reported_enabled = np.full(n, _ENABLED_UNKNOWN, dtype=np.int8)
-        self.expect_enabled = np.zeros(n, dtype=bool)
-        self._rezero_replies = np.zeros(n, dtype=np.int64)  # replies still due to set-zero's frames, per motor
-        self._new = np.zeros(n, dtype=bool)
-        self._commands: list[can.Message] = []
+            native = MYACTUATOR.NATIVE_BASE
+            self._status_requests = [
+                self.link.make_message(native + m.id, bytes([_MYACTUATOR_STATUS, 0, 0, 0, 0, 0, 0, 0])) for m in wiring
+            ]
+        # Newest feedback per motor (actuator space), written by _accept, copied into the state by read. Plain
+        # lists, not numpy arrays: a frame updates single elements, where a list store costs a fraction of a numpy
+        # scalar store; read copies each list into the state array once per cycle.
+        self.position = [0.0] * n
+        self.velocity = [0.0] * n
+        self.effort = [0.0] * n
+        self.temperature = [math.nan] * n
+        self.fault = [0] * n
+        self.status_fault = [0] * n  # MyActuator error flags from the latest status poll
+        self._replies = [0] * n  # replies accepted per motor since configure
+        self.reported_enabled = [_ENABLED_UNKNOWN] * n
+        self.expect_enabled = [False] * n
+        self._rezero_replies = [0] * n  # replies still due to set-zero's frames, per motor
+        self._fresh = [False] * n  # a reply arrived since the last read
+        self._all_stale = [False] * n
+        # One preallocated command frame per motor; write encodes into its data in place every cycle.
+        self._commands = [self.link.make_message(m.command_id, bytes(8)) for m in wiring]
+
+    @property
+    def replies(self) -> np.ndarray:
+        """Replies accepted per motor since the driver was built (a copy, for tools and tests)."""
+        return np.array(self._replies, dtype=np.int64)
 
     @property
     def _timeout(self) -> float:
@@ -237,13 +254,6 @@ class MitCanDriver(CanComponent):
         self.link.open()
         try:
             self.link.drain()
-            self._commands = [self.link.make_message(m.command_id, bytes(8)) for m in self.motors]
-            if self._native_replies:
-                native = MYACTUATOR.NATIVE_BASE
-                self._status_requests = [
-                    self.link.make_message(native + m.id, bytes([_MYACTUATOR_STATUS, 0, 0, 0, 0, 0, 0, 0]))
-                    for m in self.motors
-                ]
             if self.params.flavour == "damiao":
                 self._check_damiao_registers()
             self._read_start_positions()
@@ -319,9 +329,9 @@ class MitCanDriver(CanComponent):
         """One feedback frame per motor before anything is enabled, so hold starts where the arm is."""
         silent = []
         for k, m in enumerate(self.motors):
-            before = int(self.replies[k])
+            before = self._replies[k]
             self.link.send_wait(self._status_request(k))
-            if not self.link.collect(self._accept, lambda k=k, before=before: self.replies[k] > before, self._timeout):
+            if not self.link.collect(self._accept, lambda k=k, before=before: self._replies[k] > before, self._timeout):
                 silent.append(f"{m.joint} (id {m.id:#x}, reply {m.reply_id:#x})")
         if silent:
             raise HardwareError(
@@ -341,7 +351,7 @@ class MitCanDriver(CanComponent):
 
     def activate(self) -> None:
         """Enable every motor and wait for its reply; a motor already reporting a fault is left disabled."""
-        self.expect_enabled[:] = True
+        self.expect_enabled[:] = [True] * len(self.motors)
         failed = []
         for k, m in enumerate(self.motors):
             code = int(self.fault[k])
@@ -364,12 +374,12 @@ class MitCanDriver(CanComponent):
             return True
         if not wait:
             return self.link.send(msg)
-        before = int(self.replies[k])
+        before = self._replies[k]
         self.link.send_wait(msg)
         reports = self.flavour.reports_enabled
 
         def confirmed() -> bool:
-            if self.replies[k] <= before:
+            if self._replies[k] <= before:
                 return False
             return not reports or self.reported_enabled[k] == _ENABLED or self.fault[k] != 0
 
@@ -381,13 +391,13 @@ class MitCanDriver(CanComponent):
         if self.params.on_deactivate == "hold":
             self.context.emit_event("info", "motors left enabled at their last command (on_deactivate: hold)")
             return
-        self.expect_enabled[:] = False
+        self.expect_enabled[:] = [False] * len(self.motors)
         unconfirmed = []
         for k, m in enumerate(self.motors):
             msg = self.flavour.special(m.id, "disable", fd=self.params.bus.fd)
             if msg is None:
                 continue
-            before = int(self.replies[k])
+            before = self._replies[k]
             try:
                 self.link.send_wait(msg)
             except HardwareError:
@@ -396,7 +406,7 @@ class MitCanDriver(CanComponent):
             if self.flavour.reports_enabled:
                 ok = self.link.collect(
                     self._accept,
-                    lambda k=k, before=before: self.replies[k] > before and self.reported_enabled[k] != _ENABLED,
+                    lambda k=k, before=before: self._replies[k] > before and self.reported_enabled[k] != _ENABLED,
                     self._timeout,
                 )
                 if not ok:
@@ -407,26 +417,33 @@ class MitCanDriver(CanComponent):
     # ---- cycle -------------------------------------------------------------------------------------------------
     def read(self, t: float, dt: float, state: JointState) -> None:
         self.drain(self._accept)
-        np.copyto(state.position, self.position)
-        np.copyto(state.velocity, self.velocity)
-        np.copyto(state.effort, self.effort)
-        np.copyto(state.temperature, self.temperature)
-        np.copyto(state.fault, self.fault)
-        np.copyto(state.fresh, self._new)
-        self._new.fill(False)
+        state.position[:] = self.position
+        state.velocity[:] = self.velocity
+        state.effort[:] = self.effort
+        state.temperature[:] = self.temperature
+        state.fault[:] = self.fault
+        fresh = self._fresh
+        state.fresh[:] = fresh
+        fresh[:] = self._all_stale
         self.bad_frames.report(t)
 
     def write(self, t: float, dt: float, command: ServoCommand) -> None:
         send = self.link.send
-        p, v, kp, kd, ff = command.position, command.velocity, command.kp, command.kd, command.effort
-        rezero = self._rezero_replies
-        for k, msg in enumerate(self._commands):
-            if rezero.item(k):  # the command was computed in the drive's old frame: no torque until it reports
-                msg.data[:] = encode_command(0.0, 0.0, 0.0, 0.0, 0.0, self.motors[k].ranges)
+        for msg, encode, rezeroing, p, v, kp, kd, ff in zip(
+            self._commands,
+            self._encoders,
+            self._rezero_replies,
+            command.position.tolist(),
+            command.velocity.tolist(),
+            command.kp.tolist(),
+            command.kd.tolist(),
+            command.effort.tolist(),
+            strict=True,
+        ):
+            if rezeroing:  # the command was computed in the drive's old frame: no torque until it reports
+                encode(msg.data, 0.0, 0.0, 0.0, 0.0, 0.0)
             else:
-                msg.data[:] = encode_command(
-                    p.item(k), v.item(k), kp.item(k), kd.item(k), ff.item(k), self.motors[k].ranges
-                )
+                encode(msg.data, p, v, kp, kd, ff)
             send(msg)
         if self._status_interval:
             self._status_due -= dt
@@ -438,52 +455,65 @@ class MitCanDriver(CanComponent):
         self.link.end_cycle()
 
     def _accept(self, msg: can.Message) -> None:
-        """Decode one received frame into the newest-feedback arrays, or count why it was ignored."""
-        if msg.is_extended_id or msg.is_remote_frame:
-            self.bad_frames.note("unexpected frame type", msg.arbitration_id)
-            return
-        routes = self._routes.get(msg.arbitration_id)
-        if routes is None:
-            native = self._native_replies.get(msg.arbitration_id)
-            if native is not None:
-                self._accept_native(native, msg)
-            elif not any(self.flavour.is_ack(msg, m.id) for m in self.motors):
-                self.bad_frames.note("unknown id", msg.arbitration_id)
-            return
+        """Decode one received frame into the newest-feedback lists, or count why it was ignored.
+
+        The common case, a well-formed reply of one of our motors, costs one dict lookup and the motor's decoder;
+        everything else goes to `_sort_out`, which names the reason.
+        """
         data = msg.data
-        if len(data) not in self._lengths:
-            self.bad_frames.note("wrong length", msg.arbitration_id)
+        if msg.is_extended_id or msg.is_remote_frame or len(data) not in self._lengths:
+            self._sort_out(msg)
             return
-        k = routes.get(data[0] & self._key_mask)
+        k = self._route.get(msg.arbitration_id << 8 | data[0] & self._key_mask)
         if k is None:
-            self.bad_frames.note("unexpected motor id", msg.arbitration_id)
+            self._sort_out(msg)
             return
-        m = self.motors[k]
         try:
-            reply = self.flavour.decode_reply(msg, m.ranges, m.id)
+            p, v, t, enabled, fault, t_mos, t_rotor = self._decoders[k](data)
         except FrameError:
             self.bad_frames.note("corrupted", msg.arbitration_id)
             return
-        self.position[k] = reply.position
-        self.velocity[k] = reply.velocity
-        self.effort[k] = reply.torque
-        t_mos, t_rotor = reply.temperature_mos, reply.temperature_rotor
-        if t_mos is not None and t_rotor is not None:
-            self.temperature[k] = max(t_mos, t_rotor)  # the hotter one limits the drive
-        elif t_mos is not None or t_rotor is not None:
-            self.temperature[k] = t_mos if t_mos is not None else t_rotor
-        enabled = reply.enabled
+        self.position[k] = p
+        self.velocity[k] = v
+        self.effort[k] = t
+        if t_mos is not None:
+            self.temperature[k] = t_mos if t_rotor is None or t_mos >= t_rotor else t_rotor  # the hotter one limits
+        elif t_rotor is not None:
+            self.temperature[k] = t_rotor
         self.reported_enabled[k] = _ENABLED_UNKNOWN if enabled is None else (_ENABLED if enabled else _DISABLED)
-        if self._rezero_replies[k]:
-            self._rezero_replies[k] -= 1
-        if reply.fault or self.status_fault[k]:
-            self.fault[k] = reply.fault or self.status_fault[k]
-        elif enabled is False and self.expect_enabled[k] and not self._rezero_replies[k]:  # set-zero passes "off"
+        rezero = self._rezero_replies[k]
+        if rezero:
+            rezero -= 1
+            self._rezero_replies[k] = rezero
+        status_fault = self.status_fault[k]
+        if fault or status_fault:
+            self.fault[k] = fault or status_fault
+        elif enabled is False and self.expect_enabled[k] and not rezero:  # set-zero passes "off" on purpose
             self.fault[k] = FAULT_DISABLED
         else:
             self.fault[k] = 0
-        self.replies[k] += 1
-        self._new[k] = True
+        self._replies[k] += 1
+        self._fresh[k] = True
+
+    def _sort_out(self, msg: can.Message) -> None:
+        """A frame that is not a well-formed reply of one of our motors: handle it, or count why it was ignored."""
+        arbitration_id = msg.arbitration_id
+        if msg.is_extended_id or msg.is_remote_frame:
+            self.bad_frames.note("unexpected frame type", arbitration_id)
+            return
+        routes = self._routes.get(arbitration_id)
+        if routes is None:
+            native = self._native_replies.get(arbitration_id)
+            if native is not None:
+                self._accept_native(native, msg)
+            elif not any(self.flavour.is_ack(msg, m.id) for m in self.motors):
+                self.bad_frames.note("unknown id", arbitration_id)
+            return
+        data = msg.data
+        if len(data) not in self._lengths:
+            self.bad_frames.note("wrong length", arbitration_id)
+            return
+        self.bad_frames.note("unexpected motor id", arbitration_id)
 
     def _accept_native(self, k: int, msg: can.Message) -> None:
         """MyActuator native replies: status 1 carries error flags and temperature; others are acknowledgements."""
@@ -525,18 +555,13 @@ class MitCanDriver(CanComponent):
             if self.params.bus_recovery == "reopen":
                 try:
                     self.link.reopen()
-                    self._commands = [self.link.make_message(m.command_id, bytes(8)) for m in self.motors]
                 except HardwareError as exc:
                     self.link.latch(str(exc))
             else:
                 self.link.clear()
         # Replies already received still carry the old fault: take them in first, so they cannot re-report it
         # after the clear below.
-        for _ in range(self._frame_budget):
-            msg = self.link.poll()
-            if msg is None:
-                break
-            self._accept(msg)
+        self.drain(self._accept)
         for k, m in enumerate(self.motors):
             code = int(self.fault[k])
             if not code or code == FAULT_DISABLED:

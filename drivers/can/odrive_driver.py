@@ -28,7 +28,6 @@ import struct
 from collections.abc import Callable, Sequence
 
 import can
-import numpy as np
 
 from drivers.can.bus import bits_per_second, rtr_bits
 from drivers.can.component import CanComponent
@@ -60,14 +59,17 @@ _DRIVE_CMDS = _USED_CMDS | {
     Cmd.GET_POWERS,
 }
 _GET_TORQUES = struct.Struct("<ff")  # 0.6 Get_Torques: torque target, torque estimate (Nm)
+_INF = math.inf
+_ESTIMATES = odrive.ENCODER_ESTIMATES.unpack
+# Plain ints for the cycle (an IntEnum member is a class-attribute lookup and compares through int anyway).
+_POSITION_CONTROL = int(ControlMode.POSITION_CONTROL)
+_VELOCITY_CONTROL = int(ControlMode.VELOCITY_CONTROL)
+_TORQUE_CONTROL = int(ControlMode.TORQUE_CONTROL)
+_CLOSED_LOOP = int(AxisState.CLOSED_LOOP_CONTROL)
 
 
-def _mode_for(kp: float, kd: float) -> int:
-    if kp > 0.0:
-        return ControlMode.POSITION_CONTROL
-    if kd > 0.0:
-        return ControlMode.VELOCITY_CONTROL
-    return ControlMode.TORQUE_CONTROL
+def _all_grew(counts: list[int], before: list[int]) -> bool:
+    return all(now > then for now, then in zip(counts, before, strict=True))
 
 
 def _problems(params: ODriveCanParams, joints: Sequence[str]) -> list[str]:
@@ -146,20 +148,31 @@ class ODriveCanDriver(CanComponent):
         self._request_estimates = params.encoder_rate_ms == 0.0
         self._estimate_window = params.encoder_rate_ms / 1000.0 + context.period
         self._heartbeat_timeout = params.heartbeat_timeout
-        self.position = np.zeros(n)
-        self.velocity = np.zeros(n)
-        self.effort = np.full(n, np.nan)  # only known when the drive sends Get_Torques
-        self.temperature = np.full(n, np.nan)
-        self.axis_error = np.zeros(n, dtype=np.int64)
-        self.axis_state = np.zeros(n, dtype=np.int64)
-        self.heartbeats = np.zeros(n, dtype=np.int64)
-        self.estimates = np.zeros(n, dtype=np.int64)
-        self.expect_closed_loop = np.zeros(n, dtype=bool)
-        self._heartbeat_age = np.full(n, np.inf)
-        self._estimate_age = np.full(n, np.inf)
-        self._new_estimate = np.zeros(n, dtype=bool)
+        # Per-axis bookkeeping as plain lists: frames update single elements, which a list does far cheaper than
+        # a numpy array; read copies them into the state once per cycle.
+        self.position = [0.0] * n
+        self.velocity = [0.0] * n
+        self.effort = [math.nan] * n  # only known when the drive sends Get_Torques
+        self.temperature = [math.nan] * n
+        self.axis_error = [0] * n
+        self.axis_state = [0] * n
+        self.heartbeats = [0] * n
+        self.estimates = [0] * n
+        self.expect_closed_loop = [False] * n
+        self._heartbeat_age = [math.inf] * n
+        self._estimate_age = [math.inf] * n
+        self._new_estimate = [False] * n
+        self._fresh = [False] * n
+        self._fault = [0] * n
         self._mode = [_NO_MODE] * n
         self._rtr = [odrive.request(node, Cmd.GET_ENCODER_ESTIMATES) for node in self.nodes]
+        # One frame per axis and input command, refilled in place by write.
+        self._input_pos = [odrive.empty_frame(node, Cmd.SET_INPUT_POS, 8) for node in self.nodes]
+        self._input_vel = [odrive.empty_frame(node, Cmd.SET_INPUT_VEL, 8) for node in self.nodes]
+        self._input_torque = [odrive.empty_frame(node, Cmd.SET_INPUT_TORQUE, 4) for node in self.nodes]
+        self._estimate_ids = {
+            odrive.arbitration_id(node, Cmd.GET_ENCODER_ESTIMATES): k for k, node in enumerate(self.nodes)
+        }
 
     @property
     def _wait(self) -> float:
@@ -172,14 +185,14 @@ class ODriveCanDriver(CanComponent):
         self.link.open()
         try:
             self.link.drain()
-            before_hb = self.heartbeats.copy()
-            before_est = self.estimates.copy()
+            before_hb = list(self.heartbeats)
+            before_est = list(self.estimates)
             for k, node in enumerate(self.nodes):  # the heartbeat is cyclic; asking only shortens the wait
                 self.link.send_wait(odrive.request(node, Cmd.HEARTBEAT))
                 self.link.send_wait(self._rtr[k])
             ok = self.link.collect(
                 self._accept,
-                lambda: bool(np.all(self.heartbeats > before_hb) and np.all(self.estimates > before_est)),
+                lambda: _all_grew(self.heartbeats, before_hb) and _all_grew(self.estimates, before_est),
                 self._wait,
             )
             if not ok:
@@ -193,7 +206,7 @@ class ODriveCanDriver(CanComponent):
                     if missing:
                         silent.append(f"{joint} (node {self.nodes[k]}: no {' and no '.join(missing)})")
                 raise HardwareError(f"ODrive axes did not answer on {self.params.bus.name}: {', '.join(silent)}")
-            self._heartbeat_age.fill(0.0)
+            self._heartbeat_age[:] = [0.0] * len(self.nodes)
             for k, joint in enumerate(self.joints):
                 if self.axis_error[k]:
                     errors = odrive.describe_errors(int(self.axis_error[k]))
@@ -204,7 +217,7 @@ class ODriveCanDriver(CanComponent):
 
     def activate(self) -> None:
         """Request closed-loop control on every axis, holding where it is; wait for the heartbeats to confirm."""
-        self.expect_closed_loop[:] = True
+        self.expect_closed_loop[:] = [True] * len(self.nodes)
         targets = []
         for k, joint in enumerate(self.joints):
             if self.axis_error[k]:
@@ -216,7 +229,7 @@ class ODriveCanDriver(CanComponent):
                 continue
             self._arm(k, self.link.send_wait)
             targets.append(k)
-        before = self.heartbeats.copy()
+        before = list(self.heartbeats)
         for k in targets:
             self.link.send_wait(odrive.request(self.nodes[k], Cmd.HEARTBEAT))
 
@@ -252,7 +265,7 @@ class ODriveCanDriver(CanComponent):
         if self.params.on_deactivate == "hold":
             self.context.emit_event("info", "axes left in closed loop at their last input (on_deactivate: hold)")
             return
-        self.expect_closed_loop[:] = False
+        self.expect_closed_loop[:] = [False] * len(self.nodes)
         for node in self.nodes:
             try:
                 self.link.send_wait(odrive.encode_set_axis_state(node, AxisState.IDLE))
@@ -261,48 +274,80 @@ class ODriveCanDriver(CanComponent):
 
     # ---- cycle -------------------------------------------------------------------------------------------------
     def read(self, t: float, dt: float, state: JointState) -> None:
-        self._heartbeat_age += dt
-        self._estimate_age += dt
+        hb_age, est_age = self._heartbeat_age, self._estimate_age
+        for k in range(len(hb_age)):
+            hb_age[k] += dt
+            est_age[k] += dt
         self.drain(self._accept)
-        np.copyto(state.position, self.position)
-        np.copyto(state.velocity, self.velocity)
-        np.copyto(state.effort, self.effort)
-        np.copyto(state.temperature, self.temperature)
-        fresh, hb_limit = state.fresh, self._heartbeat_timeout
+        state.position[:] = self.position
+        state.velocity[:] = self.velocity
+        state.effort[:] = self.effort
+        state.temperature[:] = self.temperature
+        fresh, fault, new_estimate = self._fresh, self._fault, self._new_estimate
+        hb_limit = self._heartbeat_timeout
         window = -1.0 if self._request_estimates else self._estimate_window
-        for k in range(len(self.nodes)):
-            estimate_ok = self._new_estimate.item(k) or self._estimate_age.item(k) <= window
-            fresh[k] = estimate_ok and self._heartbeat_age.item(k) <= hb_limit
-            state.fault[k] = self._fault_code(k)
-        self._new_estimate.fill(False)
+        for k, (error, axis_state, closed_loop) in enumerate(
+            zip(self.axis_error, self.axis_state, self.expect_closed_loop, strict=True)
+        ):
+            fresh[k] = (new_estimate[k] or est_age[k] <= window) and hb_age[k] <= hb_limit
+            if closed_loop and axis_state != _CLOSED_LOOP:
+                error |= FAULT_NOT_CLOSED_LOOP | axis_state << _STATE_SHIFT
+            fault[k] = error
+            new_estimate[k] = False
+        state.fresh[:] = fresh
+        state.fault[:] = fault
         self.bad_frames.report(t)
-
-    def _fault_code(self, k: int) -> int:
-        code = self.axis_error.item(k)
-        axis_state = self.axis_state.item(k)
-        if self.expect_closed_loop.item(k) and axis_state != AxisState.CLOSED_LOOP_CONTROL:
-            code |= FAULT_NOT_CLOSED_LOOP | axis_state << _STATE_SHIFT
-        return code
 
     def write(self, t: float, dt: float, command: ServoCommand) -> None:
         send, modes = self.link.send, self._mode
-        p, v, ff, kp, kd = command.position, command.velocity, command.effort, command.kp, command.kd
-        for k, node in enumerate(self.nodes):
-            mode = _mode_for(kp.item(k), kd.item(k))
+        request = self._request_estimates
+        for k, (node, p, v, ff, kp, kd) in enumerate(
+            zip(
+                self.nodes,
+                command.position.tolist(),
+                command.velocity.tolist(),
+                command.effort.tolist(),
+                command.kp.tolist(),
+                command.kd.tolist(),
+                strict=True,
+            )
+        ):
+            mode = _POSITION_CONTROL if kp > 0.0 else _VELOCITY_CONTROL if kd > 0.0 else _TORQUE_CONTROL
             if mode != modes[k]:
                 sent = send(odrive.encode_set_controller_mode(node, mode, InputMode.PASSTHROUGH))
                 modes[k] = mode if sent else _NO_MODE
-            if mode == ControlMode.POSITION_CONTROL:
-                send(odrive.encode_set_input_pos(node, p.item(k) / TAU, v.item(k) / TAU, ff.item(k)))
-            elif mode == ControlMode.VELOCITY_CONTROL:
-                send(odrive.encode_set_input_vel(node, v.item(k) / TAU, ff.item(k)))
+            if mode == _POSITION_CONTROL:
+                msg = self._input_pos[k]
+                odrive.pack_set_input_pos(msg.data, p / TAU, v / TAU, ff)
+            elif mode == _VELOCITY_CONTROL:
+                msg = self._input_vel[k]
+                odrive.pack_set_input_vel(msg.data, v / TAU, ff)
             else:
-                send(odrive.encode_set_input_torque(node, ff.item(k)))
-            if self._request_estimates:
+                msg = self._input_torque[k]
+                odrive.pack_set_input_torque(msg.data, ff)
+            send(msg)
+            if request:
                 send(self._rtr[k])
         self.link.end_cycle()
 
     def _accept(self, msg: can.Message) -> None:
+        """Encoder estimates, the per-cycle frame, straight away; every other frame through `_accept_other`."""
+        k = self._estimate_ids.get(msg.arbitration_id)
+        data = msg.data
+        if k is None or msg.is_extended_id or msg.is_remote_frame or len(data) != 8:
+            self._accept_other(msg)
+            return
+        position, velocity = _ESTIMATES(data)
+        if not (-_INF < position < _INF and -_INF < velocity < _INF):  # NaN fails every comparison
+            self.bad_frames.note("corrupted", msg.arbitration_id)
+            return
+        self.position[k] = position * TAU
+        self.velocity[k] = velocity * TAU
+        self._estimate_age[k] = 0.0
+        self._new_estimate[k] = True
+        self.estimates[k] += 1
+
+    def _accept_other(self, msg: can.Message) -> None:
         if msg.is_extended_id:
             self.bad_frames.note("unexpected frame type", msg.arbitration_id)
             return
@@ -368,11 +413,7 @@ class ODriveCanDriver(CanComponent):
                     self.link.latch(str(exc))
             else:
                 self.link.clear()
-        for _ in range(self._frame_budget):  # heartbeats already received must not re-report the cleared errors
-            msg = self.link.poll()
-            if msg is None:
-                break
-            self._accept(msg)
+        self.drain(self._accept)  # heartbeats already received must not re-report the cleared errors
         for k, node in enumerate(self.nodes):
             if self.axis_error[k]:
                 self.link.send(odrive.encode_clear_errors(node))

@@ -4,19 +4,42 @@ The command frame is identical everywhere; the flavours differ in where a reply 
 bytes carry (Damiao status nibble, T-Motor temperature and error byte) and which housekeeping frames exist.
 Decoders check everything they can (DLC, frame type, id bytes, status codes) and raise `FrameError` with the
 reason, so a host counts a bad frame instead of acting on it.
+
+`decode_reply` returns a `MitReply` and is the reference (emulators, tests, tools). `reply_decoder` builds the
+host's per-cycle decoder for one motor: plain tuples from the data bytes, ranges resolved once, and identical values.
 """
 
 from __future__ import annotations
 
+import struct
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import ClassVar, Literal
 
 import can
 
 from drivers.can.protocol.errors import FrameError
-from drivers.can.protocol.mit import SPECIAL_FRAMES, MitRanges, decode_state, encode_command, encode_state
+from drivers.can.protocol.mit import (
+    FIELD_STEPS,
+    POSITION_STEPS,
+    SPECIAL_FRAMES,
+    MitRanges,
+    decode_state,
+    encode_command,
+    encode_state,
+    state_scales,
+)
 
 SpecialKind = Literal["enable", "disable", "zero", "clear"]
+
+ReplyFields = tuple[float, float, float, bool | None, int, float | None, float | None]
+"""(position, velocity, torque, enabled, fault, temperature_mos, temperature_rotor): a `MitReply` minus the id."""
+ReplyDecoder = Callable[[bytes | bytearray], ReplyFields]
+
+# D0 | p16 | v12 t12 | two tail bytes. The 12-bit fields straddle D4, so they are taken apart by hand.
+_STATE_8 = struct.Struct(">BHBBBBB").unpack
+_STATE_6 = struct.Struct(">BHBBB").unpack
+_STATE_HEAD = struct.Struct(">BHBBB").unpack_from
 
 
 @dataclass(frozen=True, slots=True)
@@ -87,6 +110,15 @@ class MitFlavour:
         self, msg: can.Message, ranges: MitRanges, expected_motor_id: int, *, master_id: int | None = None
     ) -> MitReply:
         """Decode a feedback frame; with `master_id` also check the arbitration id it arrived on."""
+        raise NotImplementedError
+
+    def reply_decoder(self, ranges: MitRanges, motor_id: int) -> ReplyDecoder:
+        """`decode_reply` specialised for one motor, on the data bytes only: the host's per-cycle decoder.
+
+        The caller has checked the frame type, the arbitration id and that the DLC is one this flavour uses (the
+        host routes on them); the decoder checks the rest exactly like `decode_reply` (motor byte, status) and
+        raises `FrameError` where it would. The values are bit-identical to `decode_reply`'s.
+        """
         raise NotImplementedError
 
     def encode_reply(
@@ -166,6 +198,34 @@ class DamiaoFlavour(MitFlavour):
         p, v, t = decode_state(data[1:6], ranges)
         return MitReply(expected_motor_id, p, v, t, enabled, fault, float(data[6]), float(data[7]))
 
+    def reply_decoder(self, ranges: MitRanges, motor_id: int) -> ReplyDecoder:
+        p_lo, p_span, v_lo, v_span, t_lo, t_span = state_scales(ranges)
+        p_steps, steps, unpack = POSITION_STEPS, FIELD_STEPS, _STATE_8
+        nibble = motor_id & 0xF
+        # D0 = status << 4 | id nibble: one lookup checks both and yields (enabled, fault).
+        statuses = {self.STATUS_ENABLED: (True, 0), self.STATUS_DISABLED: (False, 0)}
+        statuses.update((code, (False, code)) for code in self.fault_names)
+        by_d0 = {status << 4 | nibble: state for status, state in statuses.items()}
+
+        def decode(data: bytes | bytearray) -> ReplyFields:
+            d0, up, d3, d4, d5, t_mos, t_rotor = unpack(data)
+            state = by_d0.get(d0)
+            if state is None:
+                if d0 & 0xF != nibble:
+                    raise FrameError(f"damiao: feedback names motor nibble 0x{d0 & 0xF:X}, expected 0x{nibble:X}")
+                raise FrameError(f"damiao: unknown status nibble 0x{d0 >> 4:X}")
+            return (
+                up * p_span / p_steps + p_lo,
+                (d3 << 4 | d4 >> 4) * v_span / steps + v_lo,
+                ((d4 & 0xF) << 8 | d5) * t_span / steps + t_lo,
+                state[0],
+                state[1],
+                float(t_mos),
+                float(t_rotor),
+            )
+
+        return decode
+
     def encode_reply(
         self,
         motor_id: int,
@@ -229,6 +289,31 @@ class TMotorFlavour(MitFlavour):
         if len(data) == 6:
             return MitReply(expected_motor_id, p, v, t, None, 0, None, None)
         return MitReply(expected_motor_id, p, v, t, None, data[7], float(data[6]), None)
+
+    def reply_decoder(self, ranges: MitRanges, motor_id: int) -> ReplyDecoder:
+        p_lo, p_span, v_lo, v_span, t_lo, t_span = state_scales(ranges)
+        p_steps, steps, unpack_long, unpack_short = POSITION_STEPS, FIELD_STEPS, _STATE_8, _STATE_6
+
+        def decode(data: bytes | bytearray) -> ReplyFields:
+            if len(data) == 8:
+                d0, up, d3, d4, d5, temperature, fault = unpack_long(data)
+                t_mos: float | None = float(temperature)
+            else:
+                d0, up, d3, d4, d5 = unpack_short(data)
+                t_mos, fault = None, 0
+            if d0 != motor_id:
+                raise FrameError(f"tmotor: reply names motor {d0}, expected {motor_id}")
+            return (
+                up * p_span / p_steps + p_lo,
+                (d3 << 4 | d4 >> 4) * v_span / steps + v_lo,
+                ((d4 & 0xF) << 8 | d5) * t_span / steps + t_lo,
+                None,
+                fault,
+                t_mos,
+                None,
+            )
+
+        return decode
 
     def encode_reply(
         self,
@@ -298,6 +383,26 @@ class MyActuatorFlavour(MitFlavour):
             raise FrameError(f"myactuator: reply names motor {data[0]}, expected {expected_motor_id}")
         p, v, t = decode_state(data[1:6], ranges)
         return MitReply(expected_motor_id, p, v, t, None, 0, None, None)
+
+    def reply_decoder(self, ranges: MitRanges, motor_id: int) -> ReplyDecoder:
+        p_lo, p_span, v_lo, v_span, t_lo, t_span = state_scales(ranges)
+        p_steps, steps, unpack = POSITION_STEPS, FIELD_STEPS, _STATE_HEAD
+
+        def decode(data: bytes | bytearray) -> ReplyFields:
+            d0, up, d3, d4, d5 = unpack(data)
+            if d0 != motor_id:
+                raise FrameError(f"myactuator: reply names motor {d0}, expected {motor_id}")
+            return (
+                up * p_span / p_steps + p_lo,
+                (d3 << 4 | d4 >> 4) * v_span / steps + v_lo,
+                ((d4 & 0xF) << 8 | d5) * t_span / steps + t_lo,
+                None,
+                0,
+                None,
+                None,
+            )
+
+        return decode
 
     def encode_reply(
         self,

@@ -3,6 +3,9 @@
 arbitration id = node_id << 5 | cmd_id on standard frames; every multi-byte field is little-endian. Getters are
 answered when the host sends a remote (RTR) frame with the same id; heartbeat and encoder estimates are also sent
 cyclically. Firmware 0.5 reuses some ids with other meanings, so this module is only valid for 0.6.
+
+The ``encode_*`` functions build a new frame each; the host's cycle instead keeps one frame per axis and command
+(``empty_frame``) and refills its data with the ``pack_*`` functions, which write the same bytes.
 """
 
 from __future__ import annotations
@@ -157,6 +160,11 @@ def _frame(node: int, cmd: int, data: bytes) -> can.Message:
     return can.Message(arbitration_id=arbitration_id(node, cmd), data=data, is_extended_id=False)
 
 
+def empty_frame(node: int, cmd: int, size: int) -> can.Message:
+    """A zeroed data frame of ``size`` bytes for ``cmd``, to be refilled in place every cycle by a ``pack_*``."""
+    return can.Message(arbitration_id=arbitration_id(node, cmd), data=bytearray(size), is_extended_id=False)
+
+
 def request(node: int, cmd: int) -> can.Message:
     """A remote (RTR) frame asking `node` for getter `cmd`."""
     return can.Message(arbitration_id=arbitration_id(node, cmd), is_remote_frame=True, is_extended_id=False, dlc=8)
@@ -192,12 +200,16 @@ class EncoderEstimates(NamedTuple):
     """rev/s"""
 
 
+ENCODER_ESTIMATES = struct.Struct("<ff")
+"""Payload of Get_Encoder_Estimates: position (rev), velocity (rev/s); ``.unpack`` needs exactly 8 bytes."""
+
+
 def encode_encoder_estimates(node: int, position: float, velocity: float) -> can.Message:
     return _frame(node, Cmd.GET_ENCODER_ESTIMATES, struct.pack("<ff", position, velocity))
 
 
 def decode_encoder_estimates(data: bytes | bytearray) -> EncoderEstimates:
-    return EncoderEstimates(*struct.unpack("<ff", _payload(data, 8, "encoder estimates")))
+    return EncoderEstimates(*ENCODER_ESTIMATES.unpack(_payload(data, 8, "encoder estimates")))
 
 
 def encode_set_axis_state(node: int, state: int) -> can.Message:
@@ -239,6 +251,22 @@ def encode_set_input_pos(node: int, position: float, vel_ff: float = 0.0, torque
     return _frame(node, Cmd.SET_INPUT_POS, data)
 
 
+_PACK_INPUT_POS = struct.Struct("<fhh").pack_into
+
+
+def pack_set_input_pos(buffer: bytearray, position: float, vel_ff: float, torque_ff: float) -> None:
+    """The data of `encode_set_input_pos`, written into an 8-byte buffer (same rounding, saturation and errors)."""
+    vel = round(vel_ff / FEED_FORWARD_SCALE)
+    torque = round(torque_ff / FEED_FORWARD_SCALE)
+    _PACK_INPUT_POS(
+        buffer,
+        0,
+        position,
+        -32768 if vel < -32768 else 32767 if vel > 32767 else vel,
+        -32768 if torque < -32768 else 32767 if torque > 32767 else torque,
+    )
+
+
 def decode_set_input_pos(data: bytes | bytearray) -> InputPos:
     position, vel, torque = struct.unpack("<fhh", _payload(data, 8, "Set_Input_Pos"))
     return InputPos(position, vel * FEED_FORWARD_SCALE, torque * FEED_FORWARD_SCALE)
@@ -248,12 +276,28 @@ def encode_set_input_vel(node: int, velocity: float, torque_ff: float = 0.0) -> 
     return _frame(node, Cmd.SET_INPUT_VEL, struct.pack("<ff", velocity, torque_ff))
 
 
+_PACK_INPUT_VEL = struct.Struct("<ff").pack_into
+
+
+def pack_set_input_vel(buffer: bytearray, velocity: float, torque_ff: float) -> None:
+    """The data of `encode_set_input_vel`, written into an 8-byte buffer."""
+    _PACK_INPUT_VEL(buffer, 0, velocity, torque_ff)
+
+
 def decode_set_input_vel(data: bytes | bytearray) -> tuple[float, float]:
     return struct.unpack("<ff", _payload(data, 8, "Set_Input_Vel"))
 
 
 def encode_set_input_torque(node: int, torque: float) -> can.Message:
     return _frame(node, Cmd.SET_INPUT_TORQUE, struct.pack("<f", torque))
+
+
+_PACK_INPUT_TORQUE = struct.Struct("<f").pack_into
+
+
+def pack_set_input_torque(buffer: bytearray, torque: float) -> None:
+    """The data of `encode_set_input_torque`, written into a 4-byte buffer."""
+    _PACK_INPUT_TORQUE(buffer, 0, torque)
 
 
 def decode_set_input_torque(data: bytes | bytearray) -> float:

@@ -38,6 +38,7 @@ class FlakyBus(can.BusABC):
         self.inbox: list[can.Message] = []
         self.bus_state = can.BusState.ACTIVE
         self.kwargs = kwargs
+        self.recv_error: can.CanError | None = None
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         assert timeout == 0, "cycle sends must never wait"
@@ -46,6 +47,8 @@ class FlakyBus(can.BusABC):
         self.sent.append(msg)
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        if self.recv_error is not None:
+            raise self.recv_error
         return (self.inbox.pop(0) if self.inbox else None), False
 
     @property
@@ -186,6 +189,28 @@ def test_error_frames_latch_bus_off_and_count_passive() -> None:
     finally:
         peer.shutdown()
         link.close()
+
+
+def test_receive_feeds_data_frames_up_to_the_budget_and_consumes_error_frames(flaky: None) -> None:
+    link = CanLink(BusSpec(interface="flaky", channel="x"))
+    link.open()
+    bus = link.bus
+    assert isinstance(bus, FlakyBus)
+    data = [can.Message(arbitration_id=0x10 + i, data=bytes([i]), is_extended_id=False) for i in range(5)]
+    passive = can.Message(arbitration_id=ERR_CONTROLLER, is_error_frame=True, data=bytes([0, 0x20, 0, 0]))
+    bus.inbox = [data[0], passive, data[1], data[2], data[3], data[4]]
+    got: list[can.Message] = []
+    link.receive(got.append, 3)  # the error frame is consumed on the way and does not count against the budget
+    assert got == data[:3] and bus.inbox == data[3:]
+    assert (link.frames_received, link.error_frames, link.passive_reports) == (3, 1, 1)
+    link.receive(got.append, 3)  # the rest, then nothing waiting: returns at once
+    assert got == data and (link.frames_received, link.problem) == (5, None)
+    bus.recv_error = can.CanOperationError("Network is down")
+    link.receive(got.append, 3)
+    assert link.problem == "bus error: receive failed: Network is down" and len(got) == 5
+    link.close()
+    link.receive(got.append, 3)  # a closed link has nothing to give
+    assert len(got) == 5
 
 
 def test_full_send_queue_latches_only_after_consecutive_cycles(flaky: None) -> None:

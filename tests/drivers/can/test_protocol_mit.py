@@ -1,11 +1,11 @@
-"""MIT codec: bit packing and truncating quantisation against frames worked out by hand."""
+"""MIT codec: bit packing and truncating quantisation against frames worked out by hand; the fast path against it."""
 
 from __future__ import annotations
 
 import math
 
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from drivers.can.protocol import FrameError
@@ -13,9 +13,12 @@ from drivers.can.protocol.mit import (
     CLEAR_ERROR,
     DISABLE,
     ENABLE,
+    FIELD_STEPS,
+    POSITION_STEPS,
     SET_ZERO,
     MitCommand,
     MitRanges,
+    command_encoder,
     decode_command,
     decode_state,
     encode_command,
@@ -23,6 +26,7 @@ from drivers.can.protocol.mit import (
     float_to_uint,
     quantize,
     special_kind,
+    state_scales,
     uint_to_float,
 )
 
@@ -149,3 +153,102 @@ def test_command_round_trip_within_one_lsb(p: float, v: float, kp: float, kd: fl
     ):
         clamped = min(max(want, lo), hi)
         assert clamped - (hi - lo) / ((1 << bits) - 1) - 1e-9 <= got <= clamped + 1e-9
+
+
+# ---- the host's specialised encoder: bit-identical to encode_command -------------------------------------------
+
+ranges = st.builds(
+    MitRanges,
+    p_max=st.floats(1e-3, 1e4),
+    v_max=st.floats(1e-3, 1e4),
+    t_max=st.floats(1e-3, 1e4),
+    kp_max=st.floats(1e-3, 1e4),
+    kd_max=st.floats(1e-3, 1e4),
+)
+
+
+@st.composite
+def field_value(draw: st.DrawFn, hi: float, signed: bool, bits: int) -> float:
+    """Anywhere on the float line (±inf included), around the range, or exactly on a code's boundary."""
+    lo = -hi if signed else 0.0
+    kind = draw(st.sampled_from(["any", "near", "code", "edge"]))
+    if kind == "any":
+        return draw(st.floats(allow_nan=False))
+    if kind == "near":
+        return draw(st.floats(-2.0 * hi, 2.0 * hi))
+    if kind == "code":  # a decoded value re-encoded: where truncation is most sensitive to the operation order
+        return uint_to_float(draw(st.integers(0, (1 << bits) - 1)), lo, hi, bits)
+    return draw(st.sampled_from([lo, hi, -0.0, 0.0, math.nextafter(hi, math.inf), math.nextafter(lo, -math.inf)]))
+
+
+@st.composite
+def command_case(draw: st.DrawFn) -> tuple[MitRanges, tuple[float, float, float, float, float]]:
+    r = draw(ranges)
+    return r, (
+        draw(field_value(r.p_max, True, 16)),
+        draw(field_value(r.v_max, True, 12)),
+        draw(field_value(r.kp_max, False, 12)),
+        draw(field_value(r.kd_max, False, 12)),
+        draw(field_value(r.t_max, True, 12)),
+    )
+
+
+@given(case=command_case())
+@settings(max_examples=400)
+def test_command_encoder_writes_the_bytes_of_encode_command(
+    case: tuple[MitRanges, tuple[float, float, float, float, float]],
+) -> None:
+    r, fields = case
+    buffer = bytearray(b"\xaa" * 8)  # stale bytes from an earlier cycle must all be overwritten
+    command_encoder(r)(buffer, *fields)
+    assert bytes(buffer) == encode_command(*fields, r)
+
+
+@given(case=command_case(), nan_at=st.integers(0, 4))
+def test_command_encoder_refuses_nan_in_any_field_like_encode_command(
+    case: tuple[MitRanges, tuple[float, float, float, float, float]], nan_at: int
+) -> None:
+    r, fields = case
+    poisoned = list(fields)
+    poisoned[nan_at] = math.nan
+    with pytest.raises(ValueError, match="NaN"):
+        encode_command(*poisoned, r)
+    with pytest.raises(ValueError, match="NaN"):
+        command_encoder(r)(bytearray(8), *poisoned)
+
+
+@pytest.mark.parametrize("r", [DM4310, MitRanges(12.5, 280.0, 1.0)])
+def test_command_encoder_on_every_code_and_its_neighbours(r: MitRanges) -> None:
+    """Every code's decoded value and the floats either side of it: where truncation flips between two codes."""
+    encode, buffer = command_encoder(r), bytearray(8)
+    fields = [(-r.p_max, r.p_max, 16), (-r.v_max, r.v_max, 12), (0.0, r.kp_max, 12), (0.0, r.kd_max, 12)]
+    fields.append((-r.t_max, r.t_max, 12))
+    for slot, (lo, hi, bits) in enumerate(fields):
+        command = [lo, lo, 0.0, 0.0, lo]
+        for u in range(1 << bits):
+            x = uint_to_float(u, lo, hi, bits)
+            for value in (math.nextafter(x, -math.inf), x, math.nextafter(x, math.inf)):
+                command[slot] = value
+                encode(buffer, *command)
+                assert buffer == encode_command(*command, r), (slot, u, value)
+
+
+def test_command_encoder_by_hand() -> None:
+    # the frame of test_command_packing_by_hand, and the clamped one of test_command_fields_clamp
+    buffer = bytearray(8)
+    encode = command_encoder(DM4310)
+    encode(buffer, 1.0, -2.0, 50.0, 1.0, 0.5)
+    assert buffer == bytes([0x8A, 0x3C, 0x77, 0x71, 0x99, 0x33, 0x38, 0x65])
+    encode(buffer, math.inf, -math.inf, 1e6, -1.0, 1e3)
+    assert buffer == bytes([0xFF, 0xFF, 0x00, 0x0F, 0xFF, 0x00, 0x0F, 0xFF])
+
+
+@given(r=ranges, u=st.tuples(st.integers(0, 0xFFFF), st.integers(0, 0xFFF), st.integers(0, 0xFFF)))
+def test_state_scales_decode_like_decode_state(r: MitRanges, u: tuple[int, int, int]) -> None:
+    p_lo, p_span, v_lo, v_span, t_lo, t_span = state_scales(r)
+    block = (u[0] << 24 | u[1] << 12 | u[2]).to_bytes(5, "big")
+    assert decode_state(block, r) == (
+        u[0] * p_span / POSITION_STEPS + p_lo,
+        u[1] * v_span / FIELD_STEPS + v_lo,
+        u[2] * t_span / FIELD_STEPS + t_lo,
+    )

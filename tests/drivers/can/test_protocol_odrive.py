@@ -2,7 +2,12 @@
 
 from __future__ import annotations
 
+import struct
+from collections.abc import Callable
+
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from drivers.can.protocol import FrameError
 from drivers.can.protocol import odrive as od
@@ -62,3 +67,45 @@ def test_describe_errors() -> None:
     assert od.describe_errors(0) == "no error"
     assert od.describe_errors(0x0100_0000) == "WATCHDOG_TIMER_EXPIRED"
     assert od.describe_errors(0x0100_0000 | 0x2 | 0x8000_0000) == "SYSTEM_LEVEL|WATCHDOG_TIMER_EXPIRED|0x80000000"
+
+
+# ---- in-place packers for the host's cycle: the bytes (and errors) of the encode_* functions -------------------
+
+any_float = st.floats()  # NaN, ±inf and magnitudes beyond float32 included
+near_ff = st.floats(-40.0, 40.0)  # around the ±32.767 saturation of the int16 feed-forwards
+
+
+def outcome(fn: Callable[[], bytes]) -> bytes | type[BaseException]:
+    try:
+        return fn()
+    except (ValueError, OverflowError, struct.error) as exc:
+        return type(exc)
+
+
+def packed(pack: Callable[..., None], size: int, *values: float) -> bytes:
+    buffer = bytearray(b"\xaa" * size)  # stale bytes from an earlier cycle must all be overwritten
+    pack(buffer, *values)
+    return bytes(buffer)
+
+
+@given(position=any_float, vel_ff=any_float | near_ff, torque_ff=any_float | near_ff)
+def test_pack_set_input_pos_matches_encode(position: float, vel_ff: float, torque_ff: float) -> None:
+    want = outcome(lambda: bytes(od.encode_set_input_pos(3, position, vel_ff, torque_ff).data))
+    assert outcome(lambda: packed(od.pack_set_input_pos, 8, position, vel_ff, torque_ff)) == want
+
+
+@given(velocity=any_float, torque_ff=any_float)
+def test_pack_set_input_vel_and_torque_match_encode(velocity: float, torque_ff: float) -> None:
+    want = outcome(lambda: bytes(od.encode_set_input_vel(3, velocity, torque_ff).data))
+    assert outcome(lambda: packed(od.pack_set_input_vel, 8, velocity, torque_ff)) == want
+    want = outcome(lambda: bytes(od.encode_set_input_torque(3, torque_ff).data))
+    assert outcome(lambda: packed(od.pack_set_input_torque, 4, torque_ff)) == want
+
+
+def test_empty_frame_is_the_frame_encode_would_build() -> None:
+    built = od.encode_set_input_pos(5, 1.0, 0.5, -0.25)
+    frame = od.empty_frame(5, od.Cmd.SET_INPUT_POS, 8)
+    od.pack_set_input_pos(frame.data, 1.0, 0.5, -0.25)
+    assert frame.equals(built, timestamp_delta=None)
+    torque = od.empty_frame(5, od.Cmd.SET_INPUT_TORQUE, 4)
+    assert (torque.arbitration_id, torque.dlc, torque.is_extended_id, torque.is_remote_frame) == (0xAE, 4, False, False)
