@@ -55,6 +55,14 @@ class BusUsage:
 
 
 @dataclass(frozen=True, slots=True)
+class GainRange:
+    """The largest gains a drive accepts, in actuator space: above them it clamps them without saying so."""
+
+    kp: float
+    kd: float
+
+
+@dataclass(frozen=True, slots=True)
 class Finding:
     """A driver's verdict on its own params, shown by ``hild check``; errors refuse the config."""
 
@@ -72,10 +80,12 @@ class HardwareComponent(abc.ABC):
     Class attributes a driver sets:
     - ``Params``: its parameter model (validated when the config is loaded).
     - ``COMMAND_FIELDS``: the servo-command fields the drive really uses; controllers may only claim these.
+    - ``SIMULATED``: True when no real drive is behind it (mock, twin); the config's safety rules then only warn.
     """
 
     Params: ClassVar[type[Params]] = Params
     COMMAND_FIELDS: ClassVar[frozenset[str]] = ALL_COMMAND_FIELDS
+    SIMULATED: ClassVar[bool] = False
 
     def __init__(self, context: HardwareContext, params: Params) -> None:
         self.context = context
@@ -90,6 +100,12 @@ class HardwareComponent(abc.ABC):
     def review(cls, params: Params, joints: Sequence[str], update_rate: float) -> list[Finding]:
         """Check params against the joints and rate (e.g. overlapping ids); errors refuse the config."""
         return []
+
+    @classmethod
+    def gain_ranges(cls, params: Params, joints: Sequence[str]) -> dict[str, GainRange]:
+        """Per joint, the largest kp and kd the drive accepts (actuator space); the loader refuses configured gains
+        above them after the transmission. Empty when the drive has no such limit or it is unknown."""
+        return {}
 
     @classmethod
     def bus_usage(cls, params: Params, joints: Sequence[str], update_rate: float) -> list[BusUsage]:

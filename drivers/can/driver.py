@@ -44,7 +44,7 @@ from drivers.can.protocol.mit import MitRanges, command_encoder, encode_command
 from drivers.can.protocol.models import ranges_for
 from hild.arrays import JointState, ServoCommand
 from hild.config.params import Params
-from hild.hardware import ALL_COMMAND_FIELDS, BusUsage, Finding, HardwareContext, HardwareError
+from hild.hardware import ALL_COMMAND_FIELDS, BusUsage, Finding, GainRange, HardwareContext, HardwareError
 
 __all__ = ["FAULT_DISABLED", "MitCanDriver", "MotorWiring", "wire_motors"]
 
@@ -172,6 +172,13 @@ class MitCanDriver(CanComponent):
                     Finding("warning", "on_deactivate: hold lasts only until the Damiao watchdog disables the motors")
                 )
         return findings
+
+    @classmethod
+    def gain_ranges(cls, params: Params, joints: Sequence[str]) -> dict[str, GainRange]:
+        """The MIT frame carries kp and kd on 12 bits up to the model's kp_max / kd_max: beyond, the codec clamps."""
+        assert isinstance(params, MitCanParams)
+        wiring, _ = wire_motors(params, joints)
+        return {m.joint: GainRange(m.ranges.kp_max, m.ranges.kd_max) for m in wiring}
 
     @classmethod
     def bus_usage(cls, params: Params, joints: Sequence[str], update_rate: float) -> list[BusUsage]:

@@ -27,6 +27,7 @@ class MockParams(Params):
 
 class MockHardware(HardwareComponent):
     Params = MockParams
+    SIMULATED = True
 
     def __init__(self, context: HardwareContext, params: MockParams) -> None:
         super().__init__(context, params)

@@ -78,6 +78,7 @@ class MujocoTwin(HardwareComponent):
 
     Params = MujocoTwinParams
     COMMAND_FIELDS = ALL_COMMAND_FIELDS
+    SIMULATED = True
 
     def __init__(self, context: HardwareContext, params: MujocoTwinParams) -> None:
         super().__init__(context, params)

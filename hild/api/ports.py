@@ -1,9 +1,12 @@
 """Controller inputs and outputs on Zenoh: one subscriber per input, one publisher per output ring.
 
-Inputs arrive on Zenoh threads; each sample is size-checked there, then handed to the asyncio loop, where it is
-decoded and given to the controller's input callable (which validates it and swaps it into a mailbox). Anything
-wrong drops that sample and emits a warning event: nothing moves on bad input. Warnings are rate-limited per key
-so a client streaming garbage at 1 kHz cannot flood the event log.
+Inputs arrive on Zenoh threads; each sample is size-checked there and parked in its input's one-sample slot (a
+newer sample replaces one the loop has not read yet, like the controllers' own latest-value mailboxes), and the
+asyncio loop is woken once per slot, not once per sample: a flood can neither queue up payloads nor stall the loop.
+The loop decodes the newest sample (large ones in a worker thread) and gives it to the controller's input callable
+(which validates it and swaps it into a mailbox). Anything wrong drops that sample and emits a warning event:
+nothing moves on bad input. Warnings are rate-limited per key so a client streaming garbage at 1 kHz cannot flood
+the event log.
 
 Outputs are read from each controller's :class:`~hild.ring.SampleRing` through a private reader and published
 with congestion control DROP: under back-pressure old samples are lost, the loop is never held.
@@ -15,6 +18,7 @@ import asyncio
 import contextlib
 import functools
 import logging
+import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -23,9 +27,9 @@ from typing import Any
 import zenoh
 
 from hild.action import ActionServer
-from hild.api.codec import MAX_PAYLOAD, PayloadError, decode, encode
+from hild.api.codec import GOAL_CONTAINERS, MAX_PAYLOAD, PayloadError, decode, encode
 from hild.api.keys import RESERVED, Keys, check_chunk
-from hild.api.queries import BUSY, MAX_IN_FLIGHT, SHUTTING_DOWN, drop, read_payload, reply_json, too_large
+from hild.api.queries import SHUTTING_DOWN, Admitted, Gate, HeavyLane, clip, drop, reply_json
 from hild.api.session import declare_json_publisher
 from hild.engine import Engine
 from hild.ring import RingReader, SampleRing
@@ -40,12 +44,18 @@ REPORT_WINDOW = 1.0  # s
 class Counters:
     """What the API has seen; cheap integers, read by tests and diagnostics."""
 
-    commands: int = 0
+    commands: int = 0  # samples received (Zenoh threads, under the ports' count lock)
     accepted: int = 0
-    dropped: int = 0
+    rejected: int = 0  # decoded or validated and found wrong
+    superseded: int = 0  # replaced in their slot by a newer sample before the loop read them (Zenoh threads)
     queries: int = 0
     published: int = 0
     publish_errors: int = 0
+
+    @property
+    def dropped(self) -> int:
+        """Samples that moved nothing: rejected, or superseded before they were read."""
+        return self.rejected + self.superseded
 
 
 class DropReporter:
@@ -64,7 +74,7 @@ class DropReporter:
             self._windows[key] = (start, reported, suppressed + 1)
             return
         more = f" (+{suppressed} more dropped)" if suppressed else ""
-        self._emit("warning", source, f"dropped command on {key}: {reason}{more}")
+        self._emit("warning", source, f"dropped command on {key}: {clip(reason)}{more}")
         self._windows[key] = (start, reported + 1, 0)
 
 
@@ -99,6 +109,18 @@ class ActionPort:
 
 
 @dataclass
+class InputSlot:
+    """The newest undelivered sample of one input; ``busy`` while the loop is delivering from it."""
+
+    key: str
+    controller: str
+    accept: Callable[[Any], None]
+    lock: threading.Lock = field(default_factory=threading.Lock)
+    pending: tuple[bytes | None, int] | None = None  # (payload, or None when over the limit; its size)
+    busy: bool = False
+
+
+@dataclass
 class ControllerEndpoints:
     instance: object
     subscribers: list[zenoh.Subscriber[Any]] = field(default_factory=list)
@@ -114,6 +136,7 @@ class ControllerPorts:
         keys: Keys,
         loop: asyncio.AbstractEventLoop,
         counters: Counters,
+        lane: HeavyLane | None = None,
     ) -> None:
         self.session = session
         self.engine = engine
@@ -124,6 +147,10 @@ class ControllerPorts:
         self._drops = DropReporter(engine.events.emit)
         self._controllers: dict[str, ControllerEndpoints] = {}
         self._answering: set[asyncio.Task[None]] = set()
+        self.lane = lane or HeavyLane()
+        self._gate = Gate()  # goal, cancel and result queries of every controller, like the services' gate
+        self._delivering: set[asyncio.Task[None]] = set()
+        self._count_lock = threading.Lock()  # counters written on Zenoh threads
 
     # ---- declaration ---------------------------------------------------------------------------------------
     def sync(self) -> None:
@@ -150,9 +177,8 @@ class ControllerPorts:
         for input_name, accept in inputs.items():
             try:
                 key = self.keys.input(name, check_chunk(input_name, "input name"))
-                endpoints.subscribers.append(
-                    self.session.declare_subscriber(key, self._sample_handler(key, name, accept))
-                )
+                slot = InputSlot(key, name, accept)
+                endpoints.subscribers.append(self.session.declare_subscriber(key, self._sample_handler(slot)))
             except (ValueError, zenoh.ZError) as exc:
                 self.engine.events.emit("error", "api", f"controller {name}: input {input_name!r} not declared: {exc}")
         taken = {p.topic for ep in self._controllers.values() for p in ep.outputs}
@@ -207,7 +233,7 @@ class ControllerPorts:
 
     def close(self) -> None:
         self.closing = True
-        for task in self._answering:
+        for task in [*self._answering, *self._delivering]:
             task.cancel()
         for endpoints in self._controllers.values():
             self._undeclare(endpoints)
@@ -239,34 +265,41 @@ class ControllerPorts:
 
     # ---- goal queries ---------------------------------------------------------------------------------------------
     def _query_handler(self, key: str, handle: Callable[[Any], dict[str, Any]]) -> Callable[[zenoh.Query], None]:
-        def on_query(query: zenoh.Query) -> None:  # a Zenoh thread: size check, copy out, hop to the loop
+        def on_query(query: zenoh.Query) -> None:  # a Zenoh thread: admit (size, cap), copy out, hop to the loop
+            admitted = self._gate.admit(query)  # a flood cannot pile up planners
+            if not isinstance(admitted, Admitted):
+                reply_json(query, key, admitted)
+                return
             try:
-                raw, size = read_payload(query)
-                self.loop.call_soon_threadsafe(self._start_answer, key, query, handle, raw, size)
+                self.loop.call_soon_threadsafe(self._start_answer, key, query, handle, admitted)
             except RuntimeError:  # the loop is closing: the querier times out
+                admitted.release()
                 drop(query)
 
         return on_query
 
     def _start_answer(
-        self, key: str, query: zenoh.Query, handle: Callable[[Any], dict[str, Any]], raw: bytes | None, size: int
+        self, key: str, query: zenoh.Query, handle: Callable[[Any], dict[str, Any]], admitted: Admitted
     ) -> None:
         self.counters.queries += 1
         if self.closing:
+            admitted.release()
             reply_json(query, key, SHUTTING_DOWN)
-        elif raw is None:
-            reply_json(query, key, too_large(size))
-        elif len(self._answering) >= MAX_IN_FLIGHT:  # the same cap as services: a flood cannot pile up planners
-            reply_json(query, key, BUSY)
-        else:
-            task = self.loop.create_task(self._answer(key, query, handle, raw))
-            self._answering.add(task)
-            task.add_done_callback(self._answering.discard)
+            return
+        task = self.loop.create_task(self._answer(key, query, handle, admitted.raw))
+        self._answering.add(task)
+        task.add_done_callback(self._answering.discard)
+        task.add_done_callback(lambda _: admitted.release())
 
     async def _answer(self, key: str, query: zenoh.Query, handle: Callable[[Any], dict[str, Any]], raw: bytes) -> None:
-        """Goals are parsed and planned in a worker thread: a long trajectory must not stall the event loop."""
+        """Goals are decoded, parsed and planned in a worker thread (large ones in the heavy lane, one at a time):
+        a long trajectory must stall neither the loop nor, with others, the cycle."""
+
+        def work() -> dict[str, Any]:
+            return handle(decode(raw, GOAL_CONTAINERS))
+
         try:
-            reply = await asyncio.to_thread(handle, decode(raw))
+            reply = await (self.lane.run(work) if self.lane.needed(raw) else asyncio.to_thread(work))
         except asyncio.CancelledError:
             reply_json(query, key, SHUTTING_DOWN)
             raise
@@ -276,29 +309,54 @@ class ControllerPorts:
         reply_json(query, key, reply)
 
     # ---- inputs -----------------------------------------------------------------------------------------------
-    def _sample_handler(self, key: str, controller: str, accept: Callable[[Any], None]) -> Callable[[Any], None]:
-        def on_sample(sample: zenoh.Sample) -> None:  # a Zenoh thread: copy out, then hop to the loop
+    def _sample_handler(self, slot: InputSlot) -> Callable[[Any], None]:
+        def on_sample(sample: zenoh.Sample) -> None:  # a Zenoh thread: copy out, park in the slot, wake the loop once
             if self.closing:
                 return
-            try:
-                payload = sample.payload
-                size = len(payload)
-                raw = payload.to_bytes() if size <= MAX_PAYLOAD else None
-                self.loop.call_soon_threadsafe(self._deliver, key, controller, accept, raw, size)
-            except RuntimeError:  # the loop is closing
-                pass
+            payload = sample.payload
+            size = len(payload)
+            raw = payload.to_bytes() if size <= MAX_PAYLOAD else None
+            with slot.lock:
+                superseded = slot.pending is not None  # the loop has not read the previous one: the newest counts
+                slot.pending = (raw, size)
+                wake = not slot.busy
+                slot.busy = True
+            with self._count_lock:
+                self.counters.commands += 1
+                self.counters.superseded += superseded
+            if wake:
+                with contextlib.suppress(RuntimeError):  # the loop is closing
+                    self.loop.call_soon_threadsafe(self._start_delivery, slot)
 
         return on_sample
 
-    def _deliver(self, key: str, controller: str, accept: Callable[[Any], None], raw: bytes | None, size: int) -> None:
-        self.counters.commands += 1
-        try:
-            if raw is None:
-                raise PayloadError(f"payload of {size} bytes exceeds the {MAX_PAYLOAD}-byte limit")
-            accept(decode(raw))
-        except Exception as exc:  # ValueError from validation, or a plugin's bug: the sample is dropped either way
-            self.counters.dropped += 1
-            reason = str(exc) if isinstance(exc, ValueError) else f"{type(exc).__name__}: {exc}"
-            self._drops.report(controller, key, reason or type(exc).__name__)
-            return
-        self.counters.accepted += 1
+    def _start_delivery(self, slot: InputSlot) -> None:
+        task = self.loop.create_task(self._deliver(slot))
+        self._delivering.add(task)
+        task.add_done_callback(self._delivering.discard)
+
+    async def _deliver(self, slot: InputSlot) -> None:
+        """Deliver the slot's newest sample until none is left; large payloads are decoded in a worker thread.
+
+        One sample per turn of the loop: a stream arriving as fast as it is read must not starve the services."""
+        while True:
+            with slot.lock:
+                item, slot.pending = slot.pending, None
+                if item is None:
+                    slot.busy = False
+                    return
+            raw, size = item
+            try:
+                if raw is None:
+                    raise PayloadError(f"payload of {size} bytes exceeds the {MAX_PAYLOAD}-byte limit")
+                payload = await self.lane.run(functools.partial(decode, raw)) if self.lane.needed(raw) else decode(raw)
+                if self.closing:
+                    return
+                slot.accept(payload)
+            except Exception as exc:  # ValueError from validation, or a plugin's bug: the sample is dropped either way
+                self.counters.rejected += 1
+                reason = str(exc) if isinstance(exc, ValueError) else f"{type(exc).__name__}: {exc}"
+                self._drops.report(slot.controller, slot.key, reason or type(exc).__name__)
+            else:
+                self.counters.accepted += 1
+            await asyncio.sleep(0)

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from hild.api.codec import PayloadError, decode
+from hild.api.queries import HeavyLane
 from hild.engine import Engine, RequestRejected
 
 log = logging.getLogger("hild.api")
@@ -85,9 +86,10 @@ class Service:
 
 
 class Services:
-    def __init__(self, engine: Engine, timeout: float = DEFAULT_TIMEOUT) -> None:
+    def __init__(self, engine: Engine, timeout: float = DEFAULT_TIMEOUT, *, lane: HeavyLane | None = None) -> None:
         self.engine = engine
         self.timeout = timeout
+        self.lane = lane or HeavyLane()
         self.table: dict[str, Service] = {
             "status": Service({}, self._status),
             "list_controllers": Service({}, self._list_controllers),
@@ -106,7 +108,11 @@ class Services:
         try:
             if service is None:
                 raise RequestError(f"unknown service {name!r} (known: {', '.join(self.table)})")
-            body = await service.run(parse_request(raw, service.fields))
+            if self.lane.needed(raw):  # never a legitimate request, but decoding it must not stall the loop
+                request = await self.lane.run(lambda: parse_request(raw, service.fields))
+            else:
+                request = parse_request(raw, service.fields)
+            body = await service.run(request)
         except RequestError as exc:
             return {"ok": False, "error": str(exc)}
         except Exception as exc:  # a bug must cost one reply, not the daemon

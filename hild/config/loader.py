@@ -2,6 +2,11 @@
 
 Every problem is collected (not just the first) and reported as ``file:line: key.path: what was expected, what
 was found``, so one ``hild check`` run shows all that is wrong with a file.
+
+Whatever the file holds, loading ends in a config or a ConfigError, quickly: bytes that are not UTF-8, nesting
+deeper than ``MAX_DEPTH`` (checked on the parser's flat event stream, before the recursive composer sees it),
+aliases that expand past ``MAX_NODES`` values (a "billion laughs"), integers too long to read, and keys that are
+not scalars are all reported with their line.
 """
 
 from __future__ import annotations
@@ -18,11 +23,14 @@ from pydantic import BaseModel, ValidationError
 from hild import plugins
 from hild.config.model import RobotConfig
 from hild.config.params import Params
+from hild.config.safety import review_safety
 from hild.hardware import BusUsage
 from hild.interfaces import FIELDS, ClaimError, interface_name, parse_interface
 
 Loc = tuple[str | int, ...]
 _UNION_TYPES = (typing.Union, types.UnionType)
+MAX_DEPTH = 64  # nested mappings/sequences; a robot config needs about 8
+MAX_NODES = 100_000  # values after alias expansion; a robot config has about a thousand
 
 
 @dataclass(frozen=True)
@@ -82,16 +90,71 @@ class LoadedConfig:
 # ---- YAML with line numbers ---------------------------------------------------------------------------------
 
 
-def _line_map(text: str, file: str, issues: list[ConfigIssue]) -> dict[Loc, int]:
-    """Map every key path to its 1-based line; report duplicate keys (PyYAML would silently keep the last)."""
+class _Loader(yaml.SafeLoader):
+    """SafeLoader whose integers too long for ``int()`` (over 4300 digits) are a YAML error with a line."""
+
+    def construct_yaml_int(self, node: yaml.ScalarNode) -> int:
+        try:
+            return super().construct_yaml_int(node)  # type: ignore[no-any-return]
+        except ValueError as exc:
+            message = f"cannot read the integer: {exc}"
+            raise yaml.constructor.ConstructorError(None, None, message, node.start_mark) from None
+
+
+_Loader.add_constructor("tag:yaml.org,2002:int", _Loader.construct_yaml_int)
+
+
+def _parse(text: str, file: str, issues: list[ConfigIssue]) -> tuple[Any, dict[Loc, int]]:
+    """Check the depth on the parser's flat event stream (PyYAML's composer recurses, and a deep document would
+    exhaust the stack), compose once, map the lines (refusing bombs and complex keys), build the data from the same
+    nodes. YAMLError for what PyYAML refuses; ConfigError for the rest."""
+    _check_depth(text, file)
+    loader = _Loader(text)
+    try:
+        root = loader.get_single_node()
+        lines = _line_map(root, file, issues)
+        if issues:  # keys that are not plain values: the constructor would only say "unhashable"
+            raise ConfigError(issues)
+        return (None if root is None else loader.construct_document(root)), lines
+    finally:
+        loader.dispose()
+
+
+def _check_depth(text: str, file: str) -> None:
+    depth = 0
+    for event in yaml.parse(text, Loader=yaml.SafeLoader):
+        if isinstance(event, yaml.MappingStartEvent | yaml.SequenceStartEvent):
+            depth += 1
+            if depth > MAX_DEPTH:
+                raise ConfigError(
+                    [ConfigIssue(file, event.start_mark.line + 1, "", f"nested deeper than {MAX_DEPTH} levels")]
+                )
+        elif isinstance(event, yaml.MappingEndEvent | yaml.SequenceEndEvent):
+            depth -= 1
+
+
+_BOMB = f"the document expands to more than {MAX_NODES} values (aliases of aliases: a YAML bomb?)"
+
+
+def _line_map(root: yaml.Node | None, file: str, issues: list[ConfigIssue]) -> dict[Loc, int]:
+    """Map every key path to its 1-based line; report duplicate keys (PyYAML would silently keep the last).
+
+    Aliases are followed, so this walk is also where an alias bomb is caught: it stops at MAX_NODES values."""
     lines: dict[Loc, int] = {}
-    root = yaml.compose(text, Loader=yaml.SafeLoader)
+    visited = 0
 
     def walk(node: yaml.Node, loc: Loc) -> None:
+        nonlocal visited
+        visited += 1
+        if visited > MAX_NODES:
+            raise ConfigError([ConfigIssue(file, node.start_mark.line + 1, _fmt(loc), _BOMB)])
         lines[loc] = node.start_mark.line + 1
         if isinstance(node, yaml.MappingNode):
             seen: set[str] = set()
             for key, value in node.value:
+                if not isinstance(key, yaml.ScalarNode):
+                    issues.append(ConfigIssue(file, key.start_mark.line + 1, _fmt(loc), "a key must be a plain value"))
+                    continue
                 name = key.value
                 if name in seen:
                     issues.append(ConfigIssue(file, key.start_mark.line + 1, _fmt((*loc, name)), "duplicate key"))
@@ -176,16 +239,22 @@ def load_config(path: str | Path) -> LoadedConfig:
     path = Path(path)
     file = str(path)
     try:
-        text = path.read_text()
+        raw = path.read_bytes()
     except OSError as exc:
         raise ConfigError([ConfigIssue(file, None, "", f"cannot read the file: {exc.strerror or exc}")]) from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw[: exc.start].count(b"\n") + 1
+        raise ConfigError([ConfigIssue(file, line, "", f"not UTF-8 text: {exc.reason} at byte {exc.start}")]) from None
     issues: list[ConfigIssue] = []
     try:
-        lines = _line_map(text, file, issues)
-        data = yaml.safe_load(text)
+        data, lines = _parse(text, file, issues)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         line = mark.line + 1 if mark else None
+        if isinstance(exc, yaml.reader.ReaderError):  # a character YAML does not allow: it has a position only
+            line = text.count("\n", 0, exc.position) + 1
         raise ConfigError([ConfigIssue(file, line, "", f"not valid YAML: {exc}")]) from None
     if not isinstance(data, dict):
         raise ConfigError([ConfigIssue(file, 1, "", f"expected: a mapping at the top; found {_found(data)}")])
@@ -198,6 +267,7 @@ def load_config(path: str | Path) -> LoadedConfig:
     _load_plugins(loaded, file, lines, issues)
     _cross_check(loaded, file, lines, issues)
     _review_hardware(loaded, file, lines, issues)
+    _review_safety(loaded, file, lines, issues)
     if issues:
         raise ConfigError(issues)
     return loaded
@@ -351,6 +421,16 @@ def _review_hardware(loaded: LoadedConfig, file: str, lines: dict[Loc, int], iss
             loaded.notes.append(f"warning: {text}: above {BUS_LOAD_WARNING:.0%}, little headroom for retries")
         else:
             loaded.notes.append(text)
+
+
+def _review_safety(loaded: LoadedConfig, file: str, lines: dict[Loc, int], issues: list[ConfigIssue]) -> None:
+    """Unsafe combinations refuse the config; suspicious ones become warnings (hild/config/safety.py)."""
+    for finding in review_safety(loaded.config, loaded.driver_classes, loaded.driver_params):
+        issue = ConfigIssue(file, _line(lines, finding.loc), _fmt(finding.loc), finding.message)
+        if finding.level == "error":
+            issues.append(issue)
+        else:
+            loaded.notes.append(f"warning: {issue}")
 
 
 def json_schema() -> dict[str, Any]:

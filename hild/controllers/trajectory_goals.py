@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -253,8 +254,9 @@ def _columns(names: Sequence[str], ctx: GoalContext) -> np.ndarray:
     lookup = {j: i for i, j in enumerate(ctx.joints)}
     unknown = [n for n in names if n not in lookup]
     if unknown:
-        raise GoalRejected(f"unknown joints {unknown} (this controller's joints: {list(ctx.joints)})")
-    duplicates = sorted({n for n in names if names.count(n) > 1})
+        shown = f"{unknown[:8]} and {len(unknown) - 8} more" if len(unknown) > 8 else str(unknown)
+        raise GoalRejected(f"unknown joints {shown} (this controller's joints: {list(ctx.joints)})")
+    duplicates = sorted(n for n, count in Counter(names).items() if count > 1)  # linear: names can be 250 000 long
     if duplicates:
         raise GoalRejected(f"joints listed more than once: {duplicates}")
     if len(names) < len(ctx.joints) and not ctx.allow_partial:
