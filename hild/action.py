@@ -6,6 +6,11 @@ at the start of an update, reports feedback into a preallocated ring and a final
 asyncio side turns both into messages. Results of recent goals are kept so a client that missed the published
 result can still ask for it.
 
+A goal body may name its sender (``"client": "<id>"``, the id of the sender's Zenoh liveliness token,
+hild/api/clients.py). When that token goes away, ``client_lost`` hands each of the sender's running goals to the
+cycle as a :class:`ClientLost` request; the controller decides (joint_trajectory: ``on_client_lost``). A controller
+that does not know the request treats it as the cancel it derives from: the safe default.
+
 Statuses and error codes follow ROS's FollowJointTrajectory action, so tools that know it read ours.
 """
 
@@ -13,6 +18,7 @@ from __future__ import annotations
 
 import enum
 import itertools
+import re
 import uuid
 from collections import OrderedDict, deque
 from collections.abc import Callable, Sequence
@@ -26,6 +32,8 @@ G = TypeVar("G")
 
 PENDING_GOALS = 16  # goals accepted but not yet adopted by the cycle; more are refused ("busy")
 KEPT_RESULTS = 256  # finished goals whose result can still be queried
+CLIENT_KEY = "client"  # optional key of a goal body: the sender's liveliness id
+_CLIENT_ID = re.compile(r"^[A-Za-z0-9_\-.]{1,64}$")  # one Zenoh key chunk, bounded
 FEEDBACK_FIELDS = (
     "desired_positions",
     "desired_velocities",
@@ -79,6 +87,14 @@ class CancelRequest:
     goal_id: str
 
 
+@dataclass(frozen=True, slots=True)
+class ClientLost(CancelRequest):
+    """The client that sent ``goal_id`` is gone (its liveliness token was withdrawn)."""
+
+    client: str
+    reason: str
+
+
 class GoalRejected(ValueError):
     """A goal that cannot be executed; the message is the reason given to the client."""
 
@@ -105,6 +121,9 @@ class ActionServer(Generic[G]):
         self._live: dict[str, int] = {}  # accepted, no result yet: goal id → serial
         self._ids_by_serial: dict[int, str] = {}
         self._results: OrderedDict[str, GoalResult] = OrderedDict()
+        self._unannounced: deque[GoalResult] = deque()  # stored by a query's bookkeeping, not yet returned by collect
+        self._clients: dict[str, str] = {}  # live goal id → the client that sent it (when the goal named one)
+        self._lost: deque[ClientLost] = deque()  # client-lost notices waiting for room in the request queue
 
     # ---- asyncio side --------------------------------------------------------------------------------------
     def submit(self, payload: Any) -> dict[str, Any]:
@@ -113,6 +132,7 @@ class ActionServer(Generic[G]):
         Safe to call from a worker thread (the API parses large goals off the event loop)."""
         goal_id = uuid.uuid4().hex
         try:
+            payload, client = split_client(payload)
             reason = self._accepting()
             if reason:
                 raise GoalRejected(reason)
@@ -122,14 +142,17 @@ class ActionServer(Generic[G]):
         serial = next(self._serials)
         self._live[goal_id] = serial  # before the cycle can see it, so its result always finds it live
         self._ids_by_serial[serial] = goal_id
+        if client is not None:
+            self._clients[goal_id] = client
         if not self.requests.offer(GoalRequest(goal_id, serial, goal)):
             del self._live[goal_id], self._ids_by_serial[serial]
+            self._clients.pop(goal_id, None)
             return {"ok": False, "error": f"busy: {PENDING_GOALS} goals waiting for the cycle", "goal_id": goal_id}
         return {"ok": True, "error": None, "goal_id": goal_id}
 
     def cancel(self, payload: Any) -> dict[str, Any]:
         goal_id = _goal_id(payload)
-        self.collect()
+        self._absorb()
         if goal_id not in self._live:
             known = "finished" if goal_id in self._results else "unknown"
             return {"ok": False, "error": f"goal {goal_id} is {known}; nothing to cancel"}
@@ -139,7 +162,7 @@ class ActionServer(Generic[G]):
 
     def result(self, payload: Any) -> dict[str, Any]:
         goal_id = _goal_id(payload)
-        self.collect()
+        self._absorb()
         if goal_id in self._results:
             return self._results[goal_id].as_dict()
         if goal_id in self._live:
@@ -147,18 +170,47 @@ class ActionServer(Generic[G]):
         return {"ok": False, "error": f"unknown goal {goal_id} (results are kept for the last {KEPT_RESULTS} goals)"}
 
     def collect(self) -> list[GoalResult]:
-        """Move results the cycle reported into the store; returns the new ones (to publish)."""
+        """Move results the cycle reported into the store; returns the ones not returned before (to publish).
+
+        Results a ``cancel`` or ``result`` query moved into the store meanwhile are returned too: every result
+        is published once."""
+        self._absorb()
+        self._offer_lost()
         new = []
+        while self._unannounced:
+            new.append(self._unannounced.popleft())
+        return new
+
+    def _absorb(self) -> None:
+        """Move results the cycle reported into the store (any asyncio-side thread)."""
         while self._finished:
             result = self._finished.popleft()
             serial = self._live.pop(result.goal_id, None)
             if serial is not None:
                 self._ids_by_serial.pop(serial, None)
+            self._clients.pop(result.goal_id, None)
             self._results[result.goal_id] = result
             while len(self._results) > KEPT_RESULTS:
                 self._results.popitem(last=False)
-            new.append(result)
-        return new
+            self._unannounced.append(result)
+
+    def client_lost(self, client: str) -> list[str]:
+        """``client``'s liveliness token went away: hand each of its running goals to the cycle as a
+        :class:`ClientLost` request. Returns their ids. A notice that finds the request queue full is offered
+        again at the next ``collect`` (the API collects whenever the cycle rings)."""
+        self._absorb()
+        goals = [goal_id for goal_id, sender in list(self._clients.items()) if sender == client]
+        for goal_id in goals:
+            self._lost.append(ClientLost(goal_id, client, f"the client that sent it ({client}) is gone"))
+        self._offer_lost()
+        return goals
+
+    def _offer_lost(self) -> None:
+        while self._lost:
+            notice = self._lost[0]
+            if notice.goal_id in self._live and not self.requests.offer(notice):
+                return
+            self._lost.popleft()
 
     def feedback_messages(self) -> list[dict[str, Any]]:
         out = []
@@ -188,6 +240,16 @@ class ActionServer(Generic[G]):
         """Report a goal's end (once per goal, on a transition: never per cycle)."""
         self._finished.append(GoalResult(goal_id, status, code, text))
         self._notify()
+
+
+def split_client(payload: Any) -> tuple[Any, str | None]:
+    """A goal body without its ``client`` key, and the client id it named (None when it named none)."""
+    if not isinstance(payload, dict) or CLIENT_KEY not in payload:
+        return payload, None
+    client = payload[CLIENT_KEY]
+    if not isinstance(client, str) or not _CLIENT_ID.match(client):
+        raise GoalRejected(f"{CLIENT_KEY} must be the sender's liveliness id (1–64 of A-Z a-z 0-9 _ - .)")
+    return {key: value for key, value in payload.items() if key != CLIENT_KEY}, client
 
 
 def _goal_id(payload: Any) -> str:

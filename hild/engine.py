@@ -452,9 +452,13 @@ class Engine:
                         enabled += slot.component.enable(joint)
             except HardwareError as exc:
                 return {"error": f"{slot.name}: {exc}", "enabled": enabled}
-        deadline = self.cycle + max(1, round(ENABLE_CONFIRM * self.update_rate))
+        cycles = max(1, round(ENABLE_CONFIRM * self.update_rate))
         for joint in enabled:
-            self._rearm[self.joints.index(joint)] = deadline
+            i = self.joints.index(joint)
+            self._rearm[i] = self.cycle + cycles
+            # The drive was off and the arm may have moved (coasted, pushed): until the drive confirms, hold
+            # follows the reading, so its first commands are where the shaft is, never where it was.
+            self.supervisor.follow_measured(i, cycles)
         return {"enabled": enabled}
 
     def _confirm_enabled(self) -> None:
@@ -462,6 +466,7 @@ class Engine:
         for i, deadline in list(self._rearm.items()):
             if state.fresh.item(i) and not state.fault.item(i):
                 del self._rearm[i]
+                sup.follow_measured(i, 1)  # latch this reading and hold it
                 if sup.rearm(i):
                     self.events.emit("info", "engine", f"{self.joints[i]}: drive enabled, holding where it is")
             elif self.cycle >= deadline:

@@ -246,8 +246,9 @@ class Supervisor:
         return True
 
     def follow_measured(self, i: int, cycles: int) -> None:
-        """After a drive's zero moved, hold joint ``i`` where it is read for ``cycles`` (damping and gravity only),
-        so the new reading is latched once the drive reports in its new frame; never a pull toward the old one."""
+        """Hold joint ``i`` with damping and gravity only (kp 0, position = the reading) for ``cycles``, then latch
+        the last reading: after a drive's zero moved (the new frame's reading is latched, never a pull toward the
+        old one), and while a re-enabled drive confirms (its first commands are where the shaft is)."""
         self._follow[i] = max(1, cycles)
 
     # ---- the final command (after the controllers) --------------------------------------------------------
@@ -277,11 +278,13 @@ class Supervisor:
                 relatch[i] = False
                 if isfinite(q):
                     latched[i] = q
-            if check_follow and follow[i]:  # the position's origin moved: re-latch, and slew from the new origin
+            following = False
+            if check_follow and follow[i]:  # the reading is not to be held yet: follow it, re-latch at the end
                 follow[i] -= 1
                 if isfinite(q):
                     latched[i] = q
                     prev_all[i] = q
+                    following = True
             controlled = False
 
             # 1. The servo command this joint gets before limits.
@@ -313,6 +316,9 @@ class Supervisor:
                         latched[i] = q  # it just lost its controller: hold where it is now
                     p, v, ff, kp, kd = latched.item(i), 0.0, ff_gravity, hold_kp[i], hold_kd[i]
                 new_mode = _CONTROLLED if controlled else _HOLD_MODE
+
+            if following and not controlled:  # damping and gravity only: no spring toward any position
+                p, v, kp = q, 0.0, 0.0
 
             # 2. Limits.
             flags = 0
@@ -359,4 +365,3 @@ class Supervisor:
                 self.events.emit("warning", "supervisor", f"joint {self.joints[i]}: {word} limit engaged")
             elif was & bit and not now & bit:
                 self.events.emit("info", "supervisor", f"joint {self.joints[i]}: {word} limit released")
-

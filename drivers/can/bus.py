@@ -374,4 +374,4 @@ class BadFrames:
         parts = [f"{n} {kind} (last id {self._last_id[kind]:#x})" for kind, n in sorted(self._pending.items())]
         self._pending.clear()
         self._next_report = t + self.interval
-        self.emit("warning", f"{self.source}: ignored CAN frames: {'; '.join(parts)}")
+        self.emit("warning", f"ignored CAN frames: {'; '.join(parts)}")  # the event names the source

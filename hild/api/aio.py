@@ -74,9 +74,20 @@ class AsyncHildClient:
         return await asyncio.to_thread(self.sync.reset)
 
     async def send_goal(
-        self, controller: str, goal: dict[str, Any], feedback: Callable[[dict[str, Any]], None] | None = None
+        self,
+        controller: str,
+        goal: dict[str, Any],
+        feedback: Callable[[dict[str, Any]], None] | None = None,
+        *,
+        watched: bool = True,
     ) -> GoalHandle:
-        return await asyncio.to_thread(self.sync.send_goal, controller, goal, feedback)
+        """``watched``: as for :meth:`HildClient.send_goal` (the goal stops per ``on_client_lost`` if we go)."""
+        return await asyncio.to_thread(self.sync.send_goal, controller, goal, feedback, watched=watched)
+
+    @property
+    def client_id(self) -> str:
+        """The id watched goals name (this client's liveliness token)."""
+        return self.sync.client_id
 
     async def wait_result(self, handle: GoalHandle, timeout: float | None = None) -> dict[str, Any]:
         return await asyncio.to_thread(handle.wait, timeout)

@@ -10,6 +10,11 @@
 Calls block for at most ``timeout`` seconds. A service that answers ``ok: false`` raises :class:`HildError`; a
 daemon that cannot be reached raises :class:`HildUnreachable` (a subclass), so callers can tell "the daemon
 said no" from "nobody answered".
+
+Goals are *watched* by default: before its first goal the client declares a liveliness token and names it in each
+goal, so if this client goes away (closed, crashed, cut off) the daemon applies the controller's
+``on_client_lost`` to its running goals — by default they stop (docs/safety.md). ``send_goal(..., watched=False)``
+sends a goal meant to outlive its sender.
 """
 
 from __future__ import annotations
@@ -27,6 +32,7 @@ from typing import Any
 
 import zenoh
 
+from hild.api.clients import client_token_key, new_client_id
 from hild.api.codec import encode
 from hild.api.keys import ALIVE_ANY, Keys, check_chunk, robot_of_alive_key
 from hild.api.session import DEFAULT_CONNECT, client_config, declare_json_publisher, open_session, zenoh_error_text
@@ -76,6 +82,9 @@ class HildClient:
         self._robot = check_chunk(robot, "robot name") if robot is not None else None
         self._publishers: dict[str, zenoh.Publisher] = {}
         self._lock = threading.Lock()  # guards the publisher cache only
+        self.client_id = new_client_id()  # named in watched goals; the daemon watches its liveliness token
+        self._presence: zenoh.LivelinessToken | None = None
+        self._presence_lock = threading.Lock()
         try:
             self.session = open_session(client_config(self.connect, zenoh_config, zenoh_overrides))
         except ConnectionError as exc:
@@ -83,6 +92,7 @@ class HildClient:
 
     # ---- lifecycle ----------------------------------------------------------------------------------------------
     def close(self) -> None:
+        self._withdraw_presence()
         with self._lock:
             publishers, self._publishers = list(self._publishers.values()), {}
         for publisher in publishers:
@@ -258,11 +268,16 @@ class HildClient:
         controller: str,
         goal: dict[str, Any],
         feedback: Callable[[dict[str, Any]], None] | None = None,
+        *,
+        watched: bool = True,
     ) -> GoalHandle:
         """Send a goal (a trajectory or a move_to body) to ``ctrl/<controller>/goal``; raises HildError if refused.
 
-        The result subscription is declared before the goal is sent, so even an instant result is not missed."""
+        The result subscription is declared before the goal is sent, so even an instant result is not missed.
+        ``watched``: the goal names this client, whose departure the controller's ``on_client_lost`` answers."""
         check_chunk(controller, "controller name")
+        if watched and isinstance(goal, dict):
+            goal = self._watched(goal)
         handle = GoalHandle(self, controller)
         handle.open(feedback)
         try:
@@ -341,6 +356,25 @@ class HildClient:
         if reply.get("ok") is False:
             raise HildError(str(reply.get("error")))
         return reply
+
+    # ---- presence (goal senders' liveliness, hild/api/clients.py) ----------------------------------------------------
+    def _watched(self, goal: dict[str, Any]) -> dict[str, Any]:
+        """``goal`` naming this client, whose liveliness token is declared first (once per client)."""
+        key = client_token_key(self.robot, self.client_id)
+        with self._presence_lock:
+            if self._presence is None:
+                try:
+                    self._presence = self.session.liveliness().declare_token(key)
+                except zenoh.ZError as exc:
+                    raise HildUnreachable(f"cannot declare this client's liveliness: {zenoh_error_text(exc)}") from None
+        return {**goal, "client": self.client_id}
+
+    def _withdraw_presence(self) -> None:
+        with self._presence_lock:
+            token, self._presence = self._presence, None
+        if token is not None:
+            with contextlib.suppress(zenoh.ZError):
+                token.undeclare()
 
     def servo_stream(self, controller: str) -> ServoStream:
         """A sender of streamed targets for a ``servo`` controller (teleop, policies)."""

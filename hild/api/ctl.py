@@ -226,7 +226,8 @@ def _trajectory(client: HildClient, args: argparse.Namespace, as_json: bool) -> 
 
 def _run_goal(client: HildClient, args: argparse.Namespace, as_json: bool, goal: dict[str, Any]) -> int:
     """Send a goal, then wait for its result (Ctrl-C cancels it); exit 0 only if it succeeded."""
-    handle = client.send_goal(args.controller, goal)
+    # --no-wait: nobody stays to watch the goal, so it must not be stopped when this command exits
+    handle = client.send_goal(args.controller, goal, watched=not args.no_wait)
     with handle:
         if args.no_wait:
             print(json.dumps({"ok": True, "goal_id": handle.goal_id}) if as_json else handle.goal_id)

@@ -4,6 +4,9 @@ Threads: Zenoh calls our handlers on its own threads; every handler only copies 
 asyncio loop, where all the work happens. The cycle thread is reached only through ``engine.submit`` and read
 back through ring readers and ``engine.status()``, so the API shares no lock with it. Every publisher uses
 congestion control DROP: a slow subscriber loses samples, it never stalls the loop or the cycle.
+
+Goal senders' liveliness tokens are watched (hild/api/clients.py): when one goes away, the sender's running goals
+are handed to their controllers (``_client_gone``).
 """
 
 from __future__ import annotations
@@ -16,10 +19,11 @@ from typing import Any
 
 import zenoh
 
+from hild.api.clients import watch_clients
 from hild.api.codec import encode
 from hild.api.keys import SERVICES, Keys
 from hild.api.ports import ControllerPorts, Counters
-from hild.api.queries import BUSY, MAX_IN_FLIGHT, SHUTTING_DOWN, drop, read_payload, reply_json, too_large
+from hild.api.queries import SHUTTING_DOWN, Admitted, Gate, HeavyLane, drop, reply_json
 from hild.api.services import DEFAULT_TIMEOUT, Reply, Services
 from hild.api.session import declare_json_publisher, open_session, server_config
 from hild.config.model import ZenohSection
@@ -29,6 +33,7 @@ from hild.events import Event
 log = logging.getLogger("hild.api")
 
 STATUS_PERIOD = 0.2  # s: status is published at 5 Hz, and at once when modes, faults or controllers change
+PRIORITY_SERVICES = frozenset({"estop"})  # their own gate: a flood of other requests never refuses an e-stop
 
 
 class ApiServer:
@@ -45,7 +50,8 @@ class ApiServer:
         self.settings = settings
         self.listen = listen
         self.keys = Keys(engine.robot)
-        self.services = Services(engine, request_timeout)
+        self.lane = HeavyLane()  # shared by services and controller endpoints: one large payload at a time
+        self.services = Services(engine, request_timeout, lane=self.lane)
         self.status_period = status_period
         self.counters = Counters()
         self.session: zenoh.Session | None = None
@@ -54,8 +60,11 @@ class ApiServer:
         self._publishers: dict[str, zenoh.Publisher] = {}
         self._queryables: list[zenoh.Queryable[Any]] = []
         self._token: zenoh.LivelinessToken | None = None
+        self._client_watch: zenoh.Subscriber[Any] | None = None
         self._status_task: asyncio.Task[None] | None = None
         self._requests: set[asyncio.Task[None]] = set()
+        self._gate = Gate()
+        self._priority_gate = Gate()
         self._last_change: int | None = None
         self._closing = False
 
@@ -82,7 +91,7 @@ class ApiServer:
     def _declare(self, session: zenoh.Session, loop: asyncio.AbstractEventLoop) -> None:
         for name in (self.keys.status, self.keys.events):
             self._publishers[name] = declare_json_publisher(session, name)
-        self._ports = ControllerPorts(session, self.engine, self.keys, loop, self.counters)
+        self._ports = ControllerPorts(session, self.engine, self.keys, loop, self.counters, self.lane)
         self._ports.sync()
         self._last_change = self.engine.change_seq
         for service in SERVICES:
@@ -90,6 +99,7 @@ class ApiServer:
                 session.declare_queryable(self.keys.service(service), self._query_handler(service), complete=True)
             )
         self._publish_status()
+        self._watch_clients(session, loop)
         self._token = session.liveliness().declare_token(self.keys.alive)
 
     async def close(self) -> None:
@@ -101,6 +111,10 @@ class ApiServer:
             with contextlib.suppress(zenoh.ZError):
                 self._token.undeclare()
             self._token = None
+        if self._client_watch is not None:
+            with contextlib.suppress(zenoh.ZError):
+                self._client_watch.undeclare()
+            self._client_watch = None
         if self._status_task is not None:
             self._status_task.cancel()
             with contextlib.suppress(asyncio.CancelledError):
@@ -170,32 +184,66 @@ class ApiServer:
             except Exception:
                 log.exception("status publication failed")
 
+    # ---- goal senders' liveliness -------------------------------------------------------------------------------
+    def _watch_clients(self, session: zenoh.Session, loop: asyncio.AbstractEventLoop) -> None:
+        def on_gone(client: str) -> None:  # a Zenoh thread: hop to the loop
+            with contextlib.suppress(RuntimeError):  # the loop is closed
+                loop.call_soon_threadsafe(self._client_gone, client)
+
+        self._client_watch = watch_clients(session, self.engine.robot, on_gone)
+
+    def _client_gone(self, client: str) -> None:
+        """A goal sender's token went away: every controller running its goals is told (asyncio thread)."""
+        if self._closing:
+            return
+        try:
+            instances = [record.instance for record in list(self.engine.manager.records.values())]
+        except RuntimeError:  # controllers loaded meanwhile: try again on the next turn of the loop
+            assert self._loop is not None
+            self._loop.call_soon(self._client_gone, client)
+            return
+        told: list[str] = []
+        for instance in instances:
+            try:
+                server = instance.action_server()
+                if server is not None:
+                    told += server.client_lost(client)
+            except Exception:  # a plugin's bug must not keep the other controllers from being told
+                log.exception("telling %s that client %s is gone failed", type(instance).__name__, client)
+        if told:
+            self.engine.events.emit(
+                "warning", "api", f"client {client} is gone; its running goals {told} follow on_client_lost"
+            )
+
     # ---- services -----------------------------------------------------------------------------------------------
     def _query_handler(self, service: str) -> Callable[[zenoh.Query], None]:
-        def on_query(query: zenoh.Query) -> None:  # a Zenoh thread: size check, copy out, hop to the loop
+        gate = self._priority_gate if service in PRIORITY_SERVICES else self._gate
+
+        def on_query(query: zenoh.Query) -> None:  # a Zenoh thread: admit (size, cap), copy out, hop to the loop
+            admitted = gate.admit(query)
+            if not isinstance(admitted, Admitted):
+                self._reply(service, query, admitted)
+                return
             try:
-                raw, size = read_payload(query)
-                if raw is None:
-                    self._reply(service, query, too_large(size))
-                    return
                 assert self._loop is not None
-                self._loop.call_soon_threadsafe(self._start_request, service, query, raw)
+                self._loop.call_soon_threadsafe(self._start_request, service, query, admitted)
             except RuntimeError:  # the loop is closed: let the client time out quickly
+                admitted.release()
                 drop(query)
 
         return on_query
 
-    def _start_request(self, service: str, query: zenoh.Query, raw: bytes) -> None:
+    def _start_request(self, service: str, query: zenoh.Query, admitted: Admitted) -> None:
         self.counters.queries += 1
         if self._closing:
+            admitted.release()
             self._reply(service, query, SHUTTING_DOWN)
-        elif len(self._requests) >= MAX_IN_FLIGHT:
-            self._reply(service, query, BUSY)
-        else:
-            assert self._loop is not None
-            task = self._loop.create_task(self._serve(service, query, raw))
-            self._requests.add(task)
-            task.add_done_callback(self._requests.discard)
+            return
+        assert self._loop is not None
+        task = self._loop.create_task(self._serve(service, query, admitted.raw))
+        self._requests.add(task)
+        task.add_done_callback(self._requests.discard)
+        task.add_done_callback(lambda _: admitted.release())
 
     async def _serve(self, service: str, query: zenoh.Query, raw: bytes) -> None:
         try:

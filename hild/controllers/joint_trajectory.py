@@ -9,6 +9,10 @@ Joints are driven by *tracks*: a trajectory, its start time and the joints it st
 every track; a partial goal (``allow_partial_joints_goal``) takes its joints and leaves the others to their
 current motion (``continue``) or brings them to a stop (``stop``). Joints without a track hold their desired
 position. Goal bookkeeping lives in :class:`~hild.action.ActionServer`; this module only executes.
+
+A goal whose sender disappears (its Zenoh liveliness token goes away) is stopped by default: decelerated
+jerk-limited to rest and aborted (``on_client_lost: stop``). A robot should not keep executing for someone who is
+no longer there to watch it, cancel it or read its result; ``continue`` is for fire-and-forget senders.
 """
 
 from __future__ import annotations
@@ -19,7 +23,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from hild.action import ActionServer, CancelRequest, ErrorCode, GoalRejected, GoalRequest, GoalStatus
+from hild.action import ActionServer, CancelRequest, ClientLost, ErrorCode, GoalRejected, GoalRequest, GoalStatus
 from hild.arrays import JointState, ServoCommand
 from hild.config.model import JointLimits
 from hild.config.params import Field, Params, model_validator
@@ -75,6 +79,11 @@ class JointTrajectoryParams(Params):
     acceleration_scale: float = Field(default=1.0, gt=0.0, le=1.0, description="Jerk scales with it.")
     start_tolerance: float = Field(
         default=0.01, gt=0.0, description="A first point at time 0 must be this close to the current position."
+    )
+    on_client_lost: Literal["continue", "stop"] = Field(
+        default="stop",
+        description="A goal whose sender disappeared (Zenoh liveliness): decelerate to a stop and abort it, "
+        "or run it to its end.",
     )
 
     @model_validator(mode="after")
@@ -247,6 +256,8 @@ class JointTrajectoryController(Controller):
             return False
         if self.goal is not None:
             self._finish(GoalStatus.ABORTED, ErrorCode.INVALID_GOAL, f"joint {self.params.joints[j]} faulted")
+        if len(self.action.requests):
+            self._refuse_requests(f"joint {self.params.joints[j]} is faulted")
         self.tracks.clear()
         np.take(state.position, self.index, out=self.pd)
         self.vd[:] = 0.0
@@ -254,16 +265,37 @@ class JointTrajectoryController(Controller):
         self._integral[:] = 0.0
         return True
 
+    def _refuse_requests(self, reason: str) -> None:
+        """Goals that arrive while a joint is taken over are aborted, never kept: a reset must not start a motion
+        that was asked for before it (cancels and client-lost notices have nothing left to act on)."""
+        while (request := self.action.requests.poll()) is not None:
+            if isinstance(request, GoalRequest):
+                text = f"not started: {reason}"
+                self.action.finish(request.goal_id, GoalStatus.ABORTED, ErrorCode.INVALID_GOAL, text)
+
     # ---- goals ---------------------------------------------------------------------------------------------------
     def _take_requests(self, t: float) -> None:
         while (request := self.action.requests.poll()) is not None:
-            if isinstance(request, CancelRequest):
+            if isinstance(request, ClientLost):
+                self._client_lost(request, t)
+            elif isinstance(request, CancelRequest):
                 if self.goal is not None and request.goal_id == self.goal.goal_id and not self.canceling:
                     self.canceling = True
                     self._stop(self.goal.goal.cols, t)
                     self.goal_track = self.tracks[-1]
             else:
                 self._adopt(request, t)
+
+    def _client_lost(self, request: ClientLost, t: float) -> None:
+        """The running goal's sender is gone: stop and abort it, or let it run (``on_client_lost``)."""
+        if self.goal is None or request.goal_id != self.goal.goal_id or self.canceling:
+            return  # it already ended, was preempted, or is being canceled
+        if self.params.on_client_lost == "continue":
+            self.context.emit_event(
+                "warning", f"goal {request.goal_id}: {request.reason}; it runs on (on_client_lost: continue)"
+            )
+            return
+        self._abort(t, ErrorCode.INVALID_GOAL, f"{request.reason} (on_client_lost: stop)")
 
     def _adopt(self, request: GoalRequest[PreparedGoal], t: float) -> None:
         goal = request.goal
@@ -327,9 +359,7 @@ class JointTrajectoryController(Controller):
                 return f"path tolerance violated on {self.params.joints[c]}: position error {error:.4g} rad > {tol:g}"
             error, tol = abs(vd[c] - qd_now[c]), velocity_tol[k]
             if tol > 0.0 and error > tol:
-                return (
-                    f"path tolerance violated on {self.params.joints[c]}: velocity error {error:.4g} rad/s > {tol:g}"
-                )
+                return f"path tolerance violated on {self.params.joints[c]}: velocity error {error:.4g} rad/s > {tol:g}"
         return ""
 
     def _abort(self, t: float, code: ErrorCode, reason: str) -> None:

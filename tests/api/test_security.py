@@ -180,6 +180,26 @@ def test_secure_example_checks_and_builds_a_tls_only_access_controlled_session()
 
 
 # ---- roles over user/password + access control ------------------------------------------------------------------
+def test_an_operators_goal_stops_when_the_operator_goes(
+    secure_daemon: Daemon, clients: dict[str, HildClient], passwords: dict[str, str]
+) -> None:
+    """The committed rules let a goal sender's liveliness token in, so on_client_lost: stop works on the robot
+    network too (without the rule, the token is dropped and every goal behaves as on_client_lost: continue)."""
+    watcher = clients["operator"]
+    watcher.switch(activate=["traj"])
+    leaving = role_client("operator", secure_daemon.endpoint, passwords["operator"])
+    handle = leaving.send_goal("traj", {"positions": TARGET, "duration": 30.0})
+    handle.close()
+    leaving.close()
+
+    def ended() -> bool:
+        return watcher.goal_result("traj", handle.goal_id)["status"] not in ("accepted", "executing")
+
+    wait_for(ended, what="the lost operator's goal to end")
+    result = watcher.goal_result("traj", handle.goal_id)
+    assert result["status"] == "aborted" and leaving.client_id in result["error_string"], result
+
+
 def test_operator_switches_and_runs_a_goal(secure_daemon: Daemon, clients: dict[str, HildClient]) -> None:
     operator, observer = clients["operator"], clients["observer"]
     assert operator.discover() == [ROBOT]

@@ -46,6 +46,7 @@ class MotorFirmware:
     Run-time controls (plain attributes, safe to set from another thread between services):
     `drop_replies` probability of losing each outgoing frame, `reply_delay` seconds before a frame leaves,
     `silent` — the transceiver is cut: nothing is heard or sent (the drive's own watchdog still runs),
+    `corrupt_replies` how many of the next outgoing frames leave one byte short (a frame the host must reject),
     `over_temperature` °C at which the drive faults; plus `inject_fault(code)`, `clear_fault()` and `reboot()`.
     """
 
@@ -53,6 +54,7 @@ class MotorFirmware:
         self.drop_replies = 0.0
         self.reply_delay = 0.0
         self.silent = False
+        self.corrupt_replies = 0
         self.over_temperature = 120.0
         self.thermal = thermal if thermal is not None else ThermalModel(rated_torque=rated_torque)
         self.temperature_rotor = self.thermal.ambient
@@ -69,6 +71,7 @@ class MotorFirmware:
             "unheard": 0,
             "dropped": 0,
             "delayed": 0,
+            "corrupted": 0,
         }
         self.last_error = ""
         """Reason of the latest garbled frame, for reports."""
@@ -170,7 +173,12 @@ class MotorFirmware:
         for frame in frames:
             if self.drop_replies > 0.0 and self._rng.random() < self.drop_replies:
                 self.counters["dropped"] += 1
-            elif self.reply_delay > 0.0:
+                continue
+            if self.corrupt_replies > 0:
+                self.corrupt_replies -= 1
+                self.counters["corrupted"] += 1
+                frame = _cut_short(frame)
+            if self.reply_delay > 0.0:
                 self.counters["delayed"] += 1
                 self._sequence += 1
                 heapq.heappush(self._pending, (now + self.reply_delay, self._sequence, frame))
@@ -182,3 +190,14 @@ class MotorFirmware:
         """A well-formed frame this firmware does not act on."""
         self.counters["ignored"] += 1
         return []
+
+
+def _cut_short(frame: can.Message) -> can.Message:
+    """The frame with its last data byte lost: what a host sees of a reply mangled on its way (a DLC it rejects)."""
+    return can.Message(
+        arbitration_id=frame.arbitration_id,
+        data=bytes(frame.data[:-1]),
+        is_extended_id=frame.is_extended_id,
+        is_remote_frame=frame.is_remote_frame,
+        is_fd=frame.is_fd,
+    )

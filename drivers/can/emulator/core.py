@@ -4,6 +4,8 @@
 drives' control laws (sub-stepped, since real drives close their loops far faster than a host cycle), drain the
 bus and hand every frame to the drive it addresses, run the drives' timers, send what they answer. Called with
 sim time it is deterministic, so lockstep tests can interleave host writes, `service(t)` and host reads.
+`bus_off(now, duration)` takes the bus down for a while (fault injection): an error frame of the bus-off class to
+every node, then no frame passes either way until it is back, when an error frame of the restarted class follows.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from collections.abc import Callable, Sequence
 import can
 import numpy as np
 
+from drivers.can.bus import ERR_BUS_OFF, ERR_RESTARTED
 from drivers.can.emulator.base import MotorFirmware
 from drivers.can.emulator.plant import Plant
 
@@ -47,16 +50,31 @@ class Emulator:
         self.plant = plant
         self.max_step = max_step
         self.max_catch_up = max_catch_up
-        self.counters: dict[str, int] = {"received": 0, "unknown": 0, "error_frames": 0, "sent": 0, "send_errors": 0}
+        self.counters: dict[str, int] = {
+            "received": 0,
+            "unknown": 0,
+            "error_frames": 0,
+            "sent": 0,
+            "send_errors": 0,
+            "lost_bus_off": 0,
+        }
         self.last_send_error = ""
         self.time: float | None = None
         """Sim/wall time of the latest service, None before the first."""
+        self.down_until: float | None = None
+        """While the bus is off (`bus_off`): the time it comes back."""
         self._torques = np.zeros(len(self.motors))
         for i, motor in enumerate(self.motors):
             motor.observe(float(plant.positions[i]), float(plant.velocities[i]), 0.0)
 
     def service(self, now: float) -> None:
         self._advance(now)
+        if self.down_until is not None:
+            if now < self.down_until:
+                self._serve_dead_bus(now)
+                return
+            self.down_until = None
+            self._send([_error_frame(ERR_RESTARTED)])
         recv = self.bus.recv
         while (msg := recv(timeout=0)) is not None:
             self.counters["received"] += 1
@@ -70,6 +88,20 @@ class Emulator:
             self._send(motor.handle(msg, now))
         for motor in self.motors:
             self._send(motor.tick(now))
+
+    def bus_off(self, now: float, duration: float) -> None:
+        """Fault injection: the bus goes off at `now` for `duration` s (see the module docstring)."""
+        if duration <= 0.0:
+            raise ValueError("a bus-off lasts a positive time")
+        self._send([_error_frame(ERR_BUS_OFF)])
+        self.down_until = now + duration
+
+    def _serve_dead_bus(self, now: float) -> None:
+        """No frame gets through: what the host sent is lost, the drives hear nothing (their watchdogs run)."""
+        while self.bus.recv(timeout=0) is not None:
+            self.counters["lost_bus_off"] += 1
+        for motor in self.motors:
+            self.counters["lost_bus_off"] += len(motor.tick(now))
 
     def run(self, stop: threading.Event, period: float, clock: Callable[[], float] = time.monotonic) -> None:
         """Serve on the wall clock every `period` s until `stop` is set (for a thread or `hild emulate`)."""
@@ -122,3 +154,8 @@ class Emulator:
                 self.last_send_error = str(exc)
             else:
                 self.counters["sent"] += 1
+
+
+def _error_frame(error_class: int) -> can.Message:
+    """An error frame as SocketCAN delivers it: the class bits in the id, 8 data bytes of detail."""
+    return can.Message(arbitration_id=error_class, data=bytes(8), is_error_frame=True, is_extended_id=False)

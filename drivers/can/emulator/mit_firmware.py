@@ -56,6 +56,9 @@ class MitFirmware(MotorFirmware):
         self._fault = 0
         self._command = _NO_TORQUE
         self._last_command_time = 0.0
+        self.command_step = 0.0
+        """Largest step of the commanded position since the drive was last enabled (rad, stiff commands only; the
+        first one is measured from the shaft): a jump guard on the drive's side of the bus, which outlives hosts."""
 
     @property
     def enabled(self) -> bool:
@@ -107,6 +110,17 @@ class MitFirmware(MotorFirmware):
         self._enabled = True
         self._command = _NO_TORQUE  # entering motor mode starts limp, never from a stale command
         self._last_command_time = now
+        self.command_step = 0.0
+
+    def _take_command(self, data: bytes | bytearray) -> None:
+        """Decode an MIT command into the law, keeping `command_step` up to date."""
+        command = decode_command(data, self.ranges)
+        if command.kp > 0.0:
+            last = self._command.p if self._command.kp > 0.0 else self.reported_position
+            step = abs(command.p - last)
+            if step > self.command_step:
+                self.command_step = step
+        self._command = command
 
     def _disable(self) -> None:
         self._enabled = False
@@ -233,7 +247,7 @@ class DamiaoFirmware(MitFirmware):
             self._fault = 0
             self._disable()
         elif self._enabled:
-            self._command = decode_command(data, self.ranges)
+            self._take_command(data)
         return [self._feedback()]
 
     def _register_frame(self, msg: can.Message) -> list[can.Message]:
@@ -339,7 +353,7 @@ class TMotorFirmware(MitFirmware):
         else:
             self._last_command_time = now
             if self._enabled:
-                self._command = decode_command(data, self.ranges)
+                self._take_command(data)
         return [self._feedback(short=self.short_replies)]
 
 
@@ -395,7 +409,7 @@ class MyActuatorFirmware(MitFirmware):
             if not self._enabled:
                 self._enable(now)
             if self._enabled:
-                self._command = decode_command(data, self.ranges)
+                self._take_command(data)
             return [self._feedback()]
         return self._native(data, now)
 

@@ -21,13 +21,18 @@ every emulated joint.
 
 * ``{"op": "status"}`` → ``time``, ``plant``, ``buses`` (counters per bus) and ``joints``: name, component, bus,
   ``position``/``velocity`` (joint space, the plant's truth), ``actuator_position``/``actuator_velocity``,
-  ``torque`` (actuator space), ``enabled``, ``fault``, ``braked``, ``temperature_rotor``/``temperature_mos``.
+  ``torque`` (actuator space), ``enabled``, ``fault``, ``braked``, ``temperature_rotor``/``temperature_mos``,
+  ``command_step`` (MIT drives: the largest step of the commanded position since the drive was enabled, joint
+  space; 0 elsewhere).
 * ``{"op": "fault", "joint": J, "code": C}`` — latch a drive fault (Damiao 0x5…0xE, T-Motor 1…6, MyActuator
   flags, ODrive axis error bits); the drive disables itself like the firmware does.
 * ``{"op": "clear", "joint": J?}`` — clear latched faults on the drive side (an operator power-cycling a supply).
 * ``{"op": "reboot", "joint": J?}`` — power cycle: back disabled, RAM settings lost.
-* ``{"op": "set", "joint": J?, "drop_replies": P, "reply_delay": S, "silent": B, "over_temperature": C}`` —
-  transport faults: drop each reply with probability P, delay replies by S seconds, cut the transceiver.
+* ``{"op": "set", "joint": J?, "drop_replies": P, "reply_delay": S, "silent": B, "over_temperature": C,
+  "corrupt_replies": N}`` — transport faults: drop each reply with probability P, delay replies by S seconds, cut
+  the transceiver, send the next N replies one byte short.
+* ``{"op": "bus_off", "duration": S}`` — every emulated bus goes off for S seconds (an error frame of the bus-off
+  class first, then no frame either way).
 * ``{"op": "stop"}`` — end the emulator (the process exits 0).
 
 `request(address, payload)` is a small client for it.
@@ -389,9 +394,11 @@ class EmulatorRuntime:
                 return {"ok": True, "joints": [j.name for j in chosen]}
             if op == "set":
                 return self._set(payload)
+            if op == "bus_off":
+                return self._bus_off(payload)
         except (ValueError, TypeError) as exc:
             return {"ok": False, "error": str(exc)}
-        ops = "status, fault, clear, reboot, set, stop"
+        ops = "status, fault, clear, reboot, set, bus_off, stop"
         return {"ok": False, "error": f"unknown op {op!r} (ops: {ops})"}
 
     def _select(self, payload: Mapping[str, Any], *, required: bool = False) -> list[EmulatedJoint]:
@@ -408,12 +415,18 @@ class EmulatorRuntime:
     def _set(self, payload: Mapping[str, Any]) -> dict[str, Any]:
         settings = {k: v for k, v in payload.items() if k not in ("op", "joint")}
         if not settings:
-            raise ValueError("set needs at least one of drop_replies, reply_delay, silent, over_temperature")
+            raise ValueError(
+                "set needs at least one of drop_replies, reply_delay, silent, over_temperature, corrupt_replies"
+            )
         checked: dict[str, Any] = {}
         for key, value in settings.items():
             if key == "silent":
                 if not isinstance(value, bool):
                     raise ValueError("silent must be true or false")
+                checked[key] = value
+            elif key == "corrupt_replies":
+                if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+                    raise ValueError("corrupt_replies must be a count ≥ 0")
                 checked[key] = value
             elif key in ("drop_replies", "reply_delay", "over_temperature"):
                 if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
@@ -424,12 +437,26 @@ class EmulatorRuntime:
                     raise ValueError("reply_delay must not be negative")
                 checked[key] = float(value)
             else:
-                raise ValueError(f"unknown setting {key!r} (drop_replies, reply_delay, silent, over_temperature)")
+                raise ValueError(
+                    f"unknown setting {key!r} (drop_replies, reply_delay, silent, over_temperature, corrupt_replies)"
+                )
         chosen = self._select(payload)
         for joint in chosen:
             for key, value in checked.items():
                 setattr(joint.firmware, key, value)
         return {"ok": True, "joints": [j.name for j in chosen], **checked}
+
+    def _bus_off(self, payload: Mapping[str, Any]) -> dict[str, Any]:
+        duration = payload.get("duration")
+        if isinstance(duration, bool) or not isinstance(duration, int | float) or not 0.0 < duration < math.inf:
+            raise ValueError("bus_off needs a positive 'duration' in seconds")
+        now = self.time if self.time is not None else 0.0
+        buses = []
+        for rig in self.rigs:
+            if rig.emulator is not None:
+                rig.emulator.bus_off(now, float(duration))
+                buses.append(rig.spec.name)
+        return {"ok": True, "buses": buses, "duration": float(duration)}
 
     def status(self) -> dict[str, Any]:
         joints = []
@@ -451,6 +478,7 @@ class EmulatorRuntime:
                         "enabled": bool(fw.enabled),
                         "fault": int(fw.fault),
                         "braked": bool(braked[i]),
+                        "command_step": float(getattr(fw, "command_step", 0.0)) / joint.reduction,
                         "temperature_rotor": round(float(fw.temperature_rotor), 2),
                         "temperature_mos": round(float(fw.temperature_mos), 2),
                     }

@@ -308,12 +308,10 @@ def test_bad_frames_are_summarised_at_most_once_per_interval() -> None:
         bad.note("unknown id", 0x123)
     bad.note("wrong length", 0x11)
     bad.report(0.0)
-    assert events == [
-        ("warning", "left: ignored CAN frames: 5 unknown id (last id 0x123); 1 wrong length (last id 0x11)")
-    ]
+    assert events == [("warning", "ignored CAN frames: 5 unknown id (last id 0x123); 1 wrong length (last id 0x11)")]
     bad.note("unknown id", 0x124)
     bad.report(0.5)  # within the interval: held back, not lost
     assert len(events) == 1
     bad.report(1.0)
-    assert events[-1] == ("warning", "left: ignored CAN frames: 1 unknown id (last id 0x124)")
+    assert events[-1] == ("warning", "ignored CAN frames: 1 unknown id (last id 0x124)")
     assert bad.totals == {"unknown id": 6, "wrong length": 1} and bad.total == 7
