@@ -39,7 +39,7 @@ from drivers.can.component import CanComponent
 from drivers.can.params import MitCanParams
 from drivers.can.protocol import damiao_registers as reg
 from drivers.can.protocol.errors import FrameError
-from drivers.can.protocol.flavours import FLAVOURS, MYACTUATOR, MitFlavour
+from drivers.can.protocol.flavours import DAMIAO, FLAVOURS, MYACTUATOR, MitFlavour
 from drivers.can.protocol.mit import MitRanges, command_encoder, encode_command
 from drivers.can.protocol.models import ranges_for
 from hild.arrays import JointState, ServoCommand
@@ -70,6 +70,10 @@ MYACTUATOR_ERRORS = {
 _REPLY_LENGTHS = {"damiao": (8,), "tmotor": (6, 8), "myactuator": (8,)}
 _KEY_MASK = {"damiao": 0x0F, "tmotor": 0xFF, "myactuator": 0xFF}  # D0 bits that name the motor in a reply
 _ID_RANGE = {"damiao": (1, 0x7FE), "tmotor": (0, 0xFF), "myactuator": (1, 32)}
+# Replies that may still carry a cleared error code: those queued in the adapter and the kernel, and those the drive
+# sent before the clear frame reached it (tens of ms on a USB adapter or the loopback bus). A drive that still
+# reports the code after them did not clear it.
+CLEAR_GRACE_REPLIES = 50
 _ENABLED_UNKNOWN, _DISABLED, _ENABLED = -1, 0, 1
 
 
@@ -238,6 +242,9 @@ class MitCanDriver(CanComponent):
         self.temperature = [math.nan] * n
         self.fault = [0] * n
         self.status_fault = [0] * n  # MyActuator error flags from the latest status poll
+        # After a clear-error: (the cleared code, replies left) — replies already in flight still carry the old code
+        # and must not re-trip the joint; the first reply without it, or the end of the grace, ends it.
+        self._clearing: list[tuple[int, int]] = [(0, 0)] * n
         self._replies = [0] * n  # replies accepted per motor since configure
         self.reported_enabled = [_ENABLED_UNKNOWN] * n
         self.expect_enabled = [False] * n
@@ -492,6 +499,13 @@ class MitCanDriver(CanComponent):
         if rezero:
             rezero -= 1
             self._rezero_replies[k] = rezero
+        if self._clearing[k][1]:
+            cleared, left = self._clearing[k]
+            if fault == cleared:  # an echo from before the clear reached the drive
+                fault = 0
+                self._clearing[k] = (cleared, left - 1)
+            else:
+                self._clearing[k] = (0, 0)
         status_fault = self.status_fault[k]
         if fault or status_fault:
             self.fault[k] = fault or status_fault
@@ -580,6 +594,7 @@ class MitCanDriver(CanComponent):
                 )
             else:
                 self.link.send(msg)
+                self._clearing[k] = (code, CLEAR_GRACE_REPLIES)
             self.fault[k] = 0  # the drive's next reply (or status poll) says what is left
             self.status_fault[k] = 0
 
@@ -594,6 +609,10 @@ class MitCanDriver(CanComponent):
         if faulted:
             raise HardwareError(f"motors {faulted} report a drive fault: reset first (it clears the drive error)")
         for k in targets:
+            if self.flavour is DAMIAO:  # a power-cycled drive forgot its RAM watchdog: write it again, unacknowledged
+                m = self.motors[k]
+                counts = reg.timeout_counts(_damiao_timeout_ms(self.params) / 1000.0)
+                self.link.send(reg.write_request(m.id, reg.TIMEOUT, counts))
             if not self._enable(k, wait=False):
                 raise HardwareError(f"{self.motors[k].joint}: enable frame not sent ({self.link.problem or 'bus'})")
         return [self.motors[k].joint for k in targets]

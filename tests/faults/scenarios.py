@@ -668,9 +668,9 @@ def _kill_and_restart(rigs: CanProcesses) -> tuple[str, str, str, str]:
 
 
 def _reset_until_cleared(arm: Any, rigs: CanProcesses, attempts: int = 3) -> None:
-    """``reset`` until every drive reports its clear (disabled, no error). Over the loopback bus replies are still
-    in flight when the clear frames leave, and ``mit_can`` takes their old fault code as a new one (see the
-    report in docs/safety.md), so one reset may not be enough."""
+    """``reset`` until every drive reports its clear (disabled, no error): an operator's loop. ``mit_can`` forgives
+    the echoes of a cleared code still in flight (up to 50 replies), so one reset is normally enough; the loop
+    keeps this two-process scenario about the restart, not about the loopback bus's latency."""
     for _ in range(attempts):
         arm.reset()
         deadline = time.monotonic() + 2.0
