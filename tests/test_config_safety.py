@@ -10,6 +10,7 @@ from typing import Any
 
 import pytest
 
+from drivers.can.driver import MitCanDriver
 from drivers.mock import MockHardware
 from hild.cli import main
 from hild.config import ConfigError, load_config
@@ -38,6 +39,13 @@ def can_robot() -> dict[str, Any]:
         }
     }
     return data
+
+
+@pytest.fixture
+def any_gains(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The rules these tests trip are about the joint's effort limit, not the drive's gain range (tested on its own
+    below): lift mit_can's kp 500 / kd 5 so the gains that trip them can be written at reduction 1."""
+    monkeypatch.setattr(MitCanDriver, "gain_ranges", classmethod(lambda cls, params, joints: {}))
 
 
 def refused(path: Path) -> list[str]:
@@ -94,7 +102,9 @@ joints:
     assert any("joints.a.limits.velocity: the velocity limit must be a finite number" in n for n in notes)
 
 
-def test_a_stiffness_that_outruns_the_effort_clamp_within_a_cycle_is_refused(write_config: Write) -> None:
+def test_a_stiffness_that_outruns_the_effort_clamp_within_a_cycle_is_refused(
+    write_config: Write, any_gains: None
+) -> None:
     # kp·(overspeed_factor·v)·dt = 20000 · 1.5 · 2 · 0.002 = 120 N·m of spring change in one cycle, against 50 N·m.
     stiff = {"joints": {"b": {"position_gains": {"kp": 20000.0, "kd": 1.0}}}}
     [issue] = refused(write_config(merge(can_robot(), stiff)))
@@ -104,7 +114,7 @@ def test_a_stiffness_that_outruns_the_effort_clamp_within_a_cycle_is_refused(wri
     assert "joints.b.position_gains: kp 20000" in note and "(simulated here; refused on real hardware)" in note
 
 
-def test_the_stiffness_rule_tracks_the_cycle_period(write_config: Write) -> None:
+def test_the_stiffness_rule_tracks_the_cycle_period(write_config: Write, any_gains: None) -> None:
     """kp·v·dt: the same stiffness is refused at 100 Hz and accepted at 1 kHz."""
     stiff = {"joints": {"a": {"hold": {"kp": 5000.0, "kd": 0.0}}}}  # 5000·3·dt: 150 N·m at 100 Hz, 15 at 1 kHz
     assert any("joints.a.hold" in i for i in refused(write_config(merge(can_robot(), {**stiff, "update_rate": 100}))))
@@ -121,7 +131,7 @@ def test_the_stiffness_rule_tracks_the_cycle_period(write_config: Write) -> None
     ],
 )
 def test_damping_that_surges_past_the_effort_limit_in_a_collision_is_a_warning(
-    write_config: Write, patch: dict[str, Any], key: str, surge: float
+    write_config: Write, patch: dict[str, Any], key: str, surge: float, any_gains: None
 ) -> None:
     for robot, name in ((can_robot(), "can.yaml"), (mock_robot(), "mock.yaml")):
         [note] = warnings(load_config(write_config(merge(robot, {"joints": {"b": patch}}), name)))
@@ -130,7 +140,7 @@ def test_damping_that_surges_past_the_effort_limit_in_a_collision_is_a_warning(
         assert "more than the effort limit 50 N·m" in note
 
 
-def test_a_hold_that_saturates_inside_the_soft_margin_is_a_warning(write_config: Write) -> None:
+def test_a_hold_that_saturates_inside_the_soft_margin_is_a_warning(write_config: Write, any_gains: None) -> None:
     # kp 1500 × margin 0.05 = 75 N·m > 50: suspicious, not unsafe (the surge 1500·2·0.002 + 0 = 6 N·m is fine).
     loaded = load_config(write_config(merge(can_robot(), {"joints": {"c": {"hold": {"kp": 1500.0, "kd": 0.0}}}})))
     [note] = warnings(loaded)
@@ -201,6 +211,14 @@ def test_gains_beyond_the_drive_range_after_the_transmission_are_refused(write_c
     message = dict(errors)[("joints", "c", "hold", "kd")]
     assert "kd 8 is 5.55556 at the motor (÷ reduction² 1.44), above the drive's range 0..5" in message
     assert "clamp it silently" in message
+
+
+def test_mit_can_gains_beyond_the_motor_range_are_refused(write_config: Write) -> None:
+    """The real driver reports its range (DM8009: kp ≤ 500, kd ≤ 5 at the motor): the codec would clamp silently."""
+    issues = refused(write_config(merge(can_robot(), {"joints": {"b": {"hold": {"kp": 600.0, "kd": 1.0}}}})))
+    assert any(
+        "joints.b.hold.kp: kp 600 is 600 at the motor" in i and "above the drive's range 0..500" in i for i in issues
+    )
 
 
 def test_hild_check_refuses_an_unsafe_config(write_config: Write, capsys: pytest.CaptureFixture[str]) -> None:

@@ -50,6 +50,12 @@ def register(subparsers: Any) -> None:
         "--priority", type=int, help="SCHED_FIFO priority for every cycle thread (default: the config's, i.e. off)"
     )
     parser.add_argument(
+        "--spin-us",
+        type=int,
+        metavar="US",
+        help="realtime.spin_us for every cycle thread, floor included (default: the config's, 200)",
+    )
+    parser.add_argument(
         "--keep", type=Path, metavar="DIR", help="keep each scenario's config, daemon log and recording in DIR"
     )
     parser.set_defaults(func=run)
@@ -95,6 +101,8 @@ def machine_info() -> dict[str, Any]:
 
 def measure_floor(settings: Settings) -> dict[str, Any]:
     realtime = RealtimeSection(priority=settings.priority or 0)
+    if settings.spin_us is not None:
+        realtime = realtime.model_copy(update={"spin_us": settings.spin_us})
     floor: dict[str, Any] = {}
     try:
         floor["empty_thread"] = measure_empty_threads(list(FLOOR_RATES), settings.floor_seconds, realtime)
@@ -177,7 +185,10 @@ def run(args: argparse.Namespace) -> int:
     if not sections:
         print(f"--only matches nothing (names: {', '.join(SECTIONS)})", file=sys.stderr)
         return 2
-    settings = Settings.make(args.quick, args.seconds, args.priority)
+    if args.spin_us is not None and not 0 <= args.spin_us <= 10_000:
+        print("--spin-us must be 0..10000", file=sys.stderr)
+        return 2
+    settings = Settings.make(args.quick, args.seconds, args.priority, args.spin_us)
     if args.keep is not None:
         args.keep.mkdir(parents=True, exist_ok=True)
         report = bench(settings, sections, args.keep.resolve())

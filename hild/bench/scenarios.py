@@ -97,11 +97,12 @@ class Settings:
     can_frames: int = 20_000
     mj_steps: int = 5000
     priority: int | None = None
+    spin_us: int | None = None
     seed: int = 1
     quick: bool = False
 
     @classmethod
-    def make(cls, quick: bool, seconds: float | None, priority: int | None) -> Settings:
+    def make(cls, quick: bool, seconds: float | None, priority: int | None, spin_us: int | None = None) -> Settings:
         if quick:
             s = cls(
                 seconds=1.5,
@@ -123,6 +124,7 @@ class Settings:
             s.interference_seconds = seconds if quick else max(0.5, seconds / 2)
             s.floor_seconds = min(s.floor_seconds, max(0.5, seconds))
         s.priority = priority
+        s.spin_us = spin_us
         return s
 
 
@@ -168,6 +170,8 @@ def scenario_config(
     data["telemetry"] = {"enabled": True, "sinks": [{"kind": "file", "path": str(workdir / f"{tag}.rrd")}]}
     if settings.priority is not None:
         data.setdefault("realtime", {})["priority"] = settings.priority
+    if settings.spin_us is not None:
+        data.setdefault("realtime", {})["spin_us"] = settings.spin_us
     return data, rig, scale
 
 
