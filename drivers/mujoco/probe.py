@@ -7,6 +7,8 @@ MuJoCo. The model is the config's ``mujoco`` hardware component's, at the twin's
 
 from __future__ import annotations
 
+import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -63,3 +65,32 @@ def mj_step(count: int = 5000, config: str | Path | None = None, **_: Any) -> di
             "mean": round(float(us.mean()), 1),
         },
     }
+
+
+def gil_release(model: mujoco.MjModel, data: mujoco.MjData, seconds: float = 1.0) -> dict[str, int]:
+    """Increments a pure-Python thread makes while this thread loops for ``seconds`` over ``mj_step``, and over a
+    pure-Python loop, with no forced GIL switch (switch interval 1 s): nonzero only where the call releases the
+    GIL. Every release is a point where another thread may take the GIL and make the caller wait for it back."""
+    previous = sys.getswitchinterval()
+    sys.setswitchinterval(1.0)
+    counts: dict[str, int] = {}
+    try:
+        for label, work in (("mj_step", lambda: mujoco.mj_step(model, data)), ("pure Python", lambda: sum(range(200)))):
+            count, stop = [0], threading.Event()
+
+            def counter(count: list[int] = count, stop: threading.Event = stop) -> None:
+                while not stop.is_set():
+                    count[0] += 1
+
+            thread = threading.Thread(target=counter)
+            thread.start()
+            time.sleep(0.01)
+            before, end = count[0], time.perf_counter() + seconds
+            while time.perf_counter() < end:
+                work()
+            counts[label] = count[0] - before
+            stop.set()
+            thread.join()
+    finally:
+        sys.setswitchinterval(previous)
+    return counts

@@ -102,8 +102,8 @@ def test_costly_payloads_under_the_limit_do_not_fault_the_cycle(daemon: FuzzDaem
     print(f"\ncostly payloads: {dict(outcomes)}; {cycles} cycles, {overruns} overruns")
     assert outcomes["payload"] > 0  # "payload holds more than … arrays and objects"
     assert set(outcomes) <= {"payload", "busy:"}
-    assert cycles > 0.5 * 500 * 2.0
-    assert overruns < 0.3 * cycles
+    assert cycles > 0.5 * 500 * 2.0  # the overrun share measures the machine, not hild: printed, not asserted
+    assert during.faults == (None,) * len(during.faults)  # and never an overrun fault
 
 
 def test_goals_at_the_edge_of_the_limits_are_refused_with_the_reason_quickly(daemon: FuzzDaemon) -> None:
