@@ -14,6 +14,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import weakref
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -218,15 +219,21 @@ class ApiServer:
     # ---- services -----------------------------------------------------------------------------------------------
     def _query_handler(self, service: str) -> Callable[[zenoh.Query], None]:
         gate = self._priority_gate if service in PRIORITY_SERVICES else self._gate
+        # Zenoh may hold the callback past undeclare and session close; a weak reference keeps it from holding
+        # the server, and through it the engine, alive until the interpreter exits.
+        server = weakref.ref(self)
 
         def on_query(query: zenoh.Query) -> None:  # a Zenoh thread: admit (size, cap), copy out, hop to the loop
+            me = server()
+            if me is None or me._loop is None:
+                drop(query)
+                return
             admitted = gate.admit(query)
             if not isinstance(admitted, Admitted):
-                self._reply(service, query, admitted)
+                me._reply(service, query, admitted)
                 return
             try:
-                assert self._loop is not None
-                self._loop.call_soon_threadsafe(self._start_request, service, query, admitted)
+                me._loop.call_soon_threadsafe(me._start_request, service, query, admitted)
             except RuntimeError:  # the loop is closed: let the client time out quickly
                 admitted.release()
                 drop(query)

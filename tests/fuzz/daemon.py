@@ -9,7 +9,6 @@ any motion in ``joint_states`` is a command that got through.
 from __future__ import annotations
 
 import json
-import socket
 import subprocess
 import sys
 import threading
@@ -23,6 +22,8 @@ import yaml
 import zenoh
 
 from hild.api.client import HildClient, HildUnreachable
+from tests.api.conftest import free_endpoint
+from tests.api.conftest import wait_for as api_wait_for
 
 ROBOT = "fuzz6"
 JOINTS = ("a", "b", "c", "d", "e", "f")
@@ -73,21 +74,9 @@ def robot_config() -> dict[str, Any]:
     }
 
 
-def free_endpoint() -> str:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return f"tcp/127.0.0.1:{sock.getsockname()[1]}"
-
-
 def wait_for(condition: Callable[[], Any], timeout: float = WAIT, what: str = "condition") -> Any:
-    deadline = time.monotonic() + timeout
-    while True:
-        value = condition()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
-        time.sleep(0.005)
+    """tests.api's wait, with this suite's longer default (a fuzzed daemon may be busy)."""
+    return api_wait_for(condition, timeout, what)
 
 
 class Motion:
