@@ -35,7 +35,8 @@ def test_the_daemon_records_telemetry_and_stops_cleanly(tmp_path: Path) -> None:
             robot.switch(activate=["joint_trajectory"])
             state = robot.next_message("joint_states", 10.0)
             target = [p + 0.2 for p in state["position"]]
-            assert robot.move_to("joint_trajectory", target, timeout=20.0)["status"] == "succeeded"
+            result = robot.move_to("joint_trajectory", target, timeout=20.0)
+            assert result["status"] == "succeeded", f"{result}\n{log.read_text()[-3000:]}"
         proc.send_signal(signal.SIGINT)
         assert proc.wait(30) == 0, log.read_text()
     finally:

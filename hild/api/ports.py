@@ -20,6 +20,7 @@ import functools
 import logging
 import threading
 import time
+import weakref
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -124,6 +125,7 @@ class InputSlot:
 class ControllerEndpoints:
     instance: object
     subscribers: list[zenoh.Subscriber[Any]] = field(default_factory=list)
+    slots: list[InputSlot] = field(default_factory=list)  # the subscribers' callbacks hold them weakly
     outputs: list[OutputPort] = field(default_factory=list)
     action: ActionPort | None = None
 
@@ -178,6 +180,7 @@ class ControllerPorts:
             try:
                 key = self.keys.input(name, check_chunk(input_name, "input name"))
                 slot = InputSlot(key, name, accept)
+                endpoints.slots.append(slot)
                 endpoints.subscribers.append(self.session.declare_subscriber(key, self._sample_handler(slot)))
             except (ValueError, zenoh.ZError) as exc:
                 self.engine.events.emit("error", "api", f"controller {name}: input {input_name!r} not declared: {exc}")
@@ -265,13 +268,21 @@ class ControllerPorts:
 
     # ---- goal queries ---------------------------------------------------------------------------------------------
     def _query_handler(self, key: str, handle: Callable[[Any], dict[str, Any]]) -> Callable[[zenoh.Query], None]:
+        # Zenoh may hold callbacks past undeclare and session close: hold the ports and the controller's handler
+        # weakly, so a kept callback cannot keep the engine alive to interpreter exit.
+        owner, handler = weakref.ref(self), weakref.WeakMethod(handle)  # type: ignore[arg-type]
+
         def on_query(query: zenoh.Query) -> None:  # a Zenoh thread: admit (size, cap), copy out, hop to the loop
-            admitted = self._gate.admit(query)  # a flood cannot pile up planners
+            me, answer = owner(), handler()
+            if me is None or answer is None:
+                drop(query)
+                return
+            admitted = me._gate.admit(query)  # a flood cannot pile up planners
             if not isinstance(admitted, Admitted):
                 reply_json(query, key, admitted)
                 return
             try:
-                self.loop.call_soon_threadsafe(self._start_answer, key, query, handle, admitted)
+                me.loop.call_soon_threadsafe(me._start_answer, key, query, answer, admitted)
             except RuntimeError:  # the loop is closing: the querier times out
                 admitted.release()
                 drop(query)
@@ -309,9 +320,12 @@ class ControllerPorts:
         reply_json(query, key, reply)
 
     # ---- inputs -----------------------------------------------------------------------------------------------
-    def _sample_handler(self, slot: InputSlot) -> Callable[[Any], None]:
+    def _sample_handler(self, input_slot: InputSlot) -> Callable[[Any], None]:
+        owner, slot_of = weakref.ref(self), weakref.ref(input_slot)  # weakly, as for queries
+
         def on_sample(sample: zenoh.Sample) -> None:  # a Zenoh thread: copy out, park in the slot, wake the loop once
-            if self.closing:
+            me, slot = owner(), slot_of()
+            if me is None or slot is None or me.closing:
                 return
             payload = sample.payload
             size = len(payload)
@@ -321,12 +335,12 @@ class ControllerPorts:
                 slot.pending = (raw, size)
                 wake = not slot.busy
                 slot.busy = True
-            with self._count_lock:
-                self.counters.commands += 1
-                self.counters.superseded += superseded
+            with me._count_lock:
+                me.counters.commands += 1
+                me.counters.superseded += superseded
             if wake:
                 with contextlib.suppress(RuntimeError):  # the loop is closing
-                    self.loop.call_soon_threadsafe(self._start_delivery, slot)
+                    me.loop.call_soon_threadsafe(me._start_delivery, slot)
 
         return on_sample
 

@@ -187,9 +187,14 @@ class ApiServer:
 
     # ---- goal senders' liveliness -------------------------------------------------------------------------------
     def _watch_clients(self, session: zenoh.Session, loop: asyncio.AbstractEventLoop) -> None:
+        owner = weakref.ref(self)  # weakly, as for queries
+
         def on_gone(client: str) -> None:  # a Zenoh thread: hop to the loop
+            me = owner()
+            if me is None:
+                return
             with contextlib.suppress(RuntimeError):  # the loop is closed
-                loop.call_soon_threadsafe(self._client_gone, client)
+                loop.call_soon_threadsafe(me._client_gone, client)
 
         self._client_watch = watch_clients(session, self.engine.robot, on_gone)
 
