@@ -8,7 +8,7 @@ import can
 
 from drivers.can.bus import BadFrames, CanLink
 from drivers.can.params import CanDriverParams
-from hild.hardware import HardwareComponent, HardwareContext
+from hild.hardware import HardwareComponent, HardwareContext, HardwareError
 
 
 class CanComponent(HardwareComponent):
@@ -35,6 +35,19 @@ class CanComponent(HardwareComponent):
     def drain(self, accept: Callable[[can.Message], None]) -> None:
         """Take every frame waiting (up to the budget) without blocking: the cycle never waits on the bus."""
         self.link.receive(accept, self._frame_budget)
+
+    def recover_bus(self, accept: Callable[[can.Message], None]) -> None:
+        """First step of an operator reset: recover a bus in trouble per ``bus_recovery``, then take in the frames
+        already received, so replies sent before the clear cannot re-report what the reset is about to clear."""
+        if self.link.problem is not None:
+            if self.params.bus_recovery == "reopen":
+                try:
+                    self.link.reopen()
+                except HardwareError as exc:
+                    self.link.latch(str(exc))
+            else:
+                self.link.clear()
+        self.drain(accept)
 
     def health(self) -> str | None:
         return self.link.check_state()

@@ -572,17 +572,7 @@ class MitCanDriver(CanComponent):
         A cleared Damiao drive comes back *disabled* and is then reported as ``FAULT_DISABLED`` until the operator
         enables it explicitly: nothing here enables a motor.
         """
-        if self.link.problem is not None:
-            if self.params.bus_recovery == "reopen":
-                try:
-                    self.link.reopen()
-                except HardwareError as exc:
-                    self.link.latch(str(exc))
-            else:
-                self.link.clear()
-        # Replies already received still carry the old fault: take them in first, so they cannot re-report it
-        # after the clear below.
-        self.drain(self._accept)
+        self.recover_bus(self._accept)
         for k, m in enumerate(self.motors):
             code = int(self.fault[k])
             if not code or code == FAULT_DISABLED:

@@ -405,15 +405,7 @@ class ODriveCanDriver(CanComponent):
 
     def clear_faults(self) -> None:
         """Operator reset: recover the bus per ``bus_recovery``; Clear_Errors to axes with errors. Never re-arms."""
-        if self.link.problem is not None:
-            if self.params.bus_recovery == "reopen":
-                try:
-                    self.link.reopen()
-                except HardwareError as exc:
-                    self.link.latch(str(exc))
-            else:
-                self.link.clear()
-        self.drain(self._accept)  # heartbeats already received must not re-report the cleared errors
+        self.recover_bus(self._accept)
         for k, node in enumerate(self.nodes):
             if self.axis_error[k]:
                 self.link.send(odrive.encode_clear_errors(node))
