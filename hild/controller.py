@@ -6,9 +6,11 @@ cleanup``. It only ever sees joint space and the cycle clock ``(t, dt)``; it wri
 claimed and marks the joints it commanded in ``command.written``. A joint it leaves unwritten is held by the
 supervisor, so a controller that has nothing to say simply says nothing.
 
-Inputs (commands from Zenoh) arrive on the asyncio side through ``inputs()``: each callable validates a decoded
+Inputs (commands from Zenoh) arrive on the API side through ``inputs()``: each callable validates a decoded
 JSON payload, raises ``ValueError`` with a reason on bad input, and hands the result to the cycle through a
-:class:`~hild.mailbox.LatestSlot`. Outputs (e.g. joint states) leave through :class:`~hild.ring.SampleRing`\\ s.
+:class:`~hild.mailbox.LatestSlot`. It runs on a Zenoh thread (or the asyncio loop for large payloads), never twice
+at once for the same input, so it must not wait on anything.
+Outputs (e.g. joint states) leave through :class:`~hild.ring.SampleRing`\\ s.
 """
 
 from __future__ import annotations
@@ -112,7 +114,7 @@ class Controller:
         """Write claimed fields for the joints commanded now and set ``command.written`` for them."""
 
     def inputs(self) -> Mapping[str, Callable[[Any], None]]:
-        """Named command inputs (asyncio side). Each raises ValueError with a reason on bad input."""
+        """Named command inputs (API side, see above). Each raises ValueError with a reason on bad input."""
         return {}
 
     def action_server(self) -> ActionServer[Any] | None:

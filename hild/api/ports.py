@@ -1,12 +1,13 @@
 """Controller inputs and outputs on Zenoh: one subscriber per input, one publisher per output ring.
 
 Inputs arrive on Zenoh threads; each sample is size-checked there and parked in its input's one-sample slot (a
-newer sample replaces one the loop has not read yet, like the controllers' own latest-value mailboxes), and the
-asyncio loop is woken once per slot, not once per sample: a flood can neither queue up payloads nor stall the loop.
-The loop decodes the newest sample (large ones in a worker thread) and gives it to the controller's input callable
-(which validates it and swaps it into a mailbox). Anything wrong drops that sample and emits a warning event:
-nothing moves on bad input. Warnings are rate-limited per key so a client streaming garbage at 1 kHz cannot flood
-the event log.
+newer sample replaces one not read yet, like the controllers' own latest-value mailboxes). The Zenoh thread that
+finds the slot idle delivers it: decodes the newest sample and gives it to the controller's input callable (which
+validates it and swaps it into a mailbox), until the slot is empty. Small samples never wake the asyncio loop:
+one thread takes the GIL once per sample, which is what a 1 kHz stream costs the cycle (docs/performance.md).
+Large ones are handed to the loop, which decodes them in the heavy lane. A flood can neither queue up payloads nor
+run one input's callable twice at once. Anything wrong drops that sample and emits a warning event: nothing moves
+on bad input. Warnings are rate-limited per key so a client streaming garbage at 1 kHz cannot flood the event log.
 
 Outputs are read from each controller's :class:`~hild.ring.SampleRing` through a private reader and published
 with congestion control DROP: under back-pressure old samples are lost, the loop is never held.
@@ -43,9 +44,12 @@ REPORT_WINDOW = 1.0  # s
 
 @dataclass
 class Counters:
-    """What the API has seen; cheap integers, read by tests and diagnostics."""
+    """What the API has seen; cheap integers, read by tests and diagnostics.
 
-    commands: int = 0  # samples received (Zenoh threads, under the ports' count lock)
+    Counters written on Zenoh threads (all but the publication counts) are changed under ``lock``."""
+
+    lock: threading.Lock = field(default_factory=threading.Lock, repr=False, compare=False)
+    commands: int = 0  # samples received
     accepted: int = 0
     rejected: int = 0  # decoded or validated and found wrong
     superseded: int = 0  # replaced in their slot by a newer sample before the loop read them (Zenoh threads)
@@ -65,18 +69,20 @@ class DropReporter:
     def __init__(self, emit: Callable[[str, str, str], None]) -> None:
         self._emit = emit
         self._windows: dict[str, tuple[float, int, int]] = {}  # key → (window start, reported, suppressed)
+        self._lock = threading.Lock()  # reports come from Zenoh threads and the loop
 
     def report(self, source: str, key: str, reason: str) -> None:
         now = time.monotonic()
-        start, reported, suppressed = self._windows.get(key, (now, 0, 0))
-        if now - start >= REPORT_WINDOW:
-            start, reported = now, 0
-        if reported >= REPORTS_PER_WINDOW:
-            self._windows[key] = (start, reported, suppressed + 1)
-            return
+        with self._lock:
+            start, reported, suppressed = self._windows.get(key, (now, 0, 0))
+            if now - start >= REPORT_WINDOW:
+                start, reported = now, 0
+            if reported >= REPORTS_PER_WINDOW:
+                self._windows[key] = (start, reported, suppressed + 1)
+                return
+            self._windows[key] = (start, reported + 1, 0)
         more = f" (+{suppressed} more dropped)" if suppressed else ""
         self._emit("warning", source, f"dropped command on {key}: {clip(reason)}{more}")
-        self._windows[key] = (start, reported + 1, 0)
 
 
 @dataclass
@@ -152,7 +158,6 @@ class ControllerPorts:
         self.lane = lane or HeavyLane()
         self._gate = Gate()  # goal, cancel and result queries of every controller, like the services' gate
         self._delivering: set[asyncio.Task[None]] = set()
-        self._count_lock = threading.Lock()  # counters written on Zenoh threads
 
     # ---- declaration ---------------------------------------------------------------------------------------
     def sync(self) -> None:
@@ -292,7 +297,8 @@ class ControllerPorts:
     def _start_answer(
         self, key: str, query: zenoh.Query, handle: Callable[[Any], dict[str, Any]], admitted: Admitted
     ) -> None:
-        self.counters.queries += 1
+        with self.counters.lock:
+            self.counters.queries += 1
         if self.closing:
             admitted.release()
             reply_json(query, key, SHUTTING_DOWN)
@@ -323,7 +329,7 @@ class ControllerPorts:
     def _sample_handler(self, input_slot: InputSlot) -> Callable[[Any], None]:
         owner, slot_of = weakref.ref(self), weakref.ref(input_slot)  # weakly, as for queries
 
-        def on_sample(sample: zenoh.Sample) -> None:  # a Zenoh thread: copy out, park in the slot, wake the loop once
+        def on_sample(sample: zenoh.Sample) -> None:  # a Zenoh thread: copy out, park in the slot, deliver
             me, slot = owner(), slot_of()
             if me is None or slot is None or me.closing:
                 return
@@ -331,18 +337,41 @@ class ControllerPorts:
             size = len(payload)
             raw = payload.to_bytes() if size <= MAX_PAYLOAD else None
             with slot.lock:
-                superseded = slot.pending is not None  # the loop has not read the previous one: the newest counts
+                superseded = slot.pending is not None  # the deliverer has not read the previous one: the newest counts
                 slot.pending = (raw, size)
-                wake = not slot.busy
+                deliver = not slot.busy
                 slot.busy = True
-            with me._count_lock:
+            with me.counters.lock:
                 me.counters.commands += 1
                 me.counters.superseded += superseded
-            if wake:
-                with contextlib.suppress(RuntimeError):  # the loop is closing
-                    me.loop.call_soon_threadsafe(me._start_delivery, slot)
+            if deliver:
+                me._deliver_here(slot)
 
         return on_sample
+
+    def _deliver_here(self, slot: InputSlot) -> None:
+        """Deliver on the Zenoh thread that found the slot idle, until it is empty; a large sample goes to the loop.
+
+        A small sample costs one decode and one validation while this thread holds the GIL anyway; hopping to the
+        loop would wake a second thread and take the GIL twice more per sample, each a chance to delay the cycle
+        (docs/performance.md). One deliverer per slot at a time (``busy``), so ``accept`` never runs concurrently
+        with itself."""
+        while True:
+            with slot.lock:
+                item = slot.pending
+                if item is not None and item[0] is not None and self.lane.needed(item[0]):
+                    hand_over = True  # stays pending and busy: the loop decodes it in the heavy lane
+                else:
+                    hand_over = False
+                    slot.pending = None
+                    if item is None:
+                        slot.busy = False
+                        return
+            if hand_over:
+                with contextlib.suppress(RuntimeError):  # the loop is closed: nothing reads the slot again
+                    self.loop.call_soon_threadsafe(self._start_delivery, slot)
+                return
+            self._accept(slot, *item)
 
     def _start_delivery(self, slot: InputSlot) -> None:
         task = self.loop.create_task(self._deliver(slot))
@@ -350,7 +379,7 @@ class ControllerPorts:
         task.add_done_callback(self._delivering.discard)
 
     async def _deliver(self, slot: InputSlot) -> None:
-        """Deliver the slot's newest sample until none is left; large payloads are decoded in a worker thread.
+        """Deliver the slot's samples on the loop, large ones decoded in the heavy lane, until none is left.
 
         One sample per turn of the loop: a stream arriving as fast as it is read must not starve the services."""
         while True:
@@ -360,17 +389,47 @@ class ControllerPorts:
                     slot.busy = False
                     return
             raw, size = item
-            try:
-                if raw is None:
-                    raise PayloadError(f"payload of {size} bytes exceeds the {MAX_PAYLOAD}-byte limit")
-                payload = await self.lane.run(functools.partial(decode, raw)) if self.lane.needed(raw) else decode(raw)
-                if self.closing:
-                    return
-                slot.accept(payload)
-            except Exception as exc:  # ValueError from validation, or a plugin's bug: the sample is dropped either way
-                self.counters.rejected += 1
-                reason = str(exc) if isinstance(exc, ValueError) else f"{type(exc).__name__}: {exc}"
-                self._drops.report(slot.controller, slot.key, reason or type(exc).__name__)
+            if raw is not None and self.lane.needed(raw):
+                try:
+                    payload = await self.lane.run(functools.partial(decode, raw))
+                except Exception as exc:
+                    self._reject(slot, exc)
+                    continue
+                self._hand_over(slot, payload)
             else:
-                self.counters.accepted += 1
+                self._accept(slot, raw, size)
             await asyncio.sleep(0)
+
+    def _accept(self, slot: InputSlot, raw: bytes | None, size: int) -> None:
+        """Decode a small sample and hand it to the controller."""
+        try:
+            payload = decode_input(raw, size)
+        except Exception as exc:
+            self._reject(slot, exc)
+            return
+        self._hand_over(slot, payload)
+
+    def _hand_over(self, slot: InputSlot, payload: Any) -> None:
+        """The controller validates and takes the sample; anything wrong drops it and is reported."""
+        if self.closing:
+            return
+        try:
+            slot.accept(payload)
+        except Exception as exc:  # ValueError from validation, or a plugin's bug: the sample is dropped either way
+            self._reject(slot, exc)
+        else:
+            with self.counters.lock:
+                self.counters.accepted += 1
+
+    def _reject(self, slot: InputSlot, exc: Exception) -> None:
+        with self.counters.lock:
+            self.counters.rejected += 1
+        reason = str(exc) if isinstance(exc, ValueError) else f"{type(exc).__name__}: {exc}"
+        self._drops.report(slot.controller, slot.key, reason or type(exc).__name__)
+
+
+def decode_input(raw: bytes | None, size: int) -> Any:
+    """A parked sample's payload; None stands for one refused unread for its size."""
+    if raw is None:
+        raise PayloadError(f"payload of {size} bytes exceeds the {MAX_PAYLOAD}-byte limit")
+    return decode(raw)

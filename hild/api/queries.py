@@ -130,10 +130,11 @@ def too_large(size: int) -> dict[str, Any]:
 _ENCODED = {id(BUSY): encode(BUSY), id(BUSY_LARGE): encode(BUSY_LARGE)}  # a flood is refused without re-encoding
 
 
-def reply_json(query: zenoh.Query, key: str, message: dict[str, Any]) -> None:
-    """Send the one reply, then drop the query."""
-    payload = _ENCODED.get(id(message))
+def reply_json(query: zenoh.Query, key: str, message: dict[str, Any] | bytes) -> None:
+    """Send the one reply (a message, or one already encoded), then drop the query."""
+    payload = message if isinstance(message, bytes) else _ENCODED.get(id(message))
     if payload is None:
+        assert isinstance(message, dict)
         error = message.get("error")
         if isinstance(error, str) and len(error) > MAX_ERROR_CHARS:
             message = {**message, "error": clip(error)}

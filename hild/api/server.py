@@ -1,7 +1,8 @@
 """The daemon's Zenoh face: state out, services and commands in (docs/protocol.md has the wire format).
 
-Threads: Zenoh calls our handlers on its own threads; every handler only copies the payload out and hops to the
-asyncio loop, where all the work happens. The cycle thread is reached only through ``engine.submit`` and read
+Threads: Zenoh calls our handlers on its own threads. Read-only services (status, list_*) and small controller
+input samples are served right there, so polling and streaming never wake the asyncio loop; everything else is
+copied out and hops to the loop, where it runs. The cycle thread is reached only through ``engine.submit`` and read
 back through ring readers and ``engine.status()``, so the API shares no lock with it. Every publisher uses
 congestion control DROP: a slow subscriber loses samples, it never stalls the loop or the cycle.
 
@@ -228,7 +229,7 @@ class ApiServer:
         # the server, and through it the engine, alive until the interpreter exits.
         server = weakref.ref(self)
 
-        def on_query(query: zenoh.Query) -> None:  # a Zenoh thread: admit (size, cap), copy out, hop to the loop
+        def on_query(query: zenoh.Query) -> None:  # a Zenoh thread: admit (size, cap); read here, or hop to the loop
             me = server()
             if me is None or me._loop is None:
                 drop(query)
@@ -236,6 +237,9 @@ class ApiServer:
             admitted = gate.admit(query)
             if not isinstance(admitted, Admitted):
                 me._reply(service, query, admitted)
+                return
+            if me.services.readable(service, admitted.raw):
+                me._read(service, query, admitted)
                 return
             try:
                 me._loop.call_soon_threadsafe(me._start_request, service, query, admitted)
@@ -246,7 +250,8 @@ class ApiServer:
         return on_query
 
     def _start_request(self, service: str, query: zenoh.Query, admitted: Admitted) -> None:
-        self.counters.queries += 1
+        with self.counters.lock:
+            self.counters.queries += 1
         if self._closing:
             admitted.release()
             self._reply(service, query, SHUTTING_DOWN)
@@ -257,6 +262,15 @@ class ApiServer:
         task.add_done_callback(self._requests.discard)
         task.add_done_callback(lambda _: admitted.release())
 
+    def _read(self, service: str, query: zenoh.Query, admitted: Admitted) -> None:
+        """A read-only service, answered on the Zenoh thread: polling never wakes the loop (docs/performance.md)."""
+        with self.counters.lock:
+            self.counters.queries += 1
+        try:
+            self._reply(service, query, SHUTTING_DOWN if self._closing else self.services.read(service, admitted.raw))
+        finally:
+            admitted.release()
+
     async def _serve(self, service: str, query: zenoh.Query, raw: bytes) -> None:
         try:
             reply = await self.services.handle(service, raw)
@@ -265,7 +279,7 @@ class ApiServer:
             raise
         self._reply(service, query, reply)
 
-    def _reply(self, service: str, query: zenoh.Query, reply: Reply) -> None:
+    def _reply(self, service: str, query: zenoh.Query, reply: Reply | bytes) -> None:
         reply_json(query, self.keys.service(service), reply)
 
 

@@ -1,10 +1,12 @@
-"""The control-plane services, independent of Zenoh: bytes in, a reply dict out, on the asyncio thread.
+"""The control-plane services, independent of Zenoh: bytes in, a reply dict out.
 
 Every reply carries ``ok`` and ``error`` (null when ok); nothing a client sends can raise out of
-:meth:`Services.handle`.
+:meth:`Services.handle` or :meth:`Services.read`.
 Read-only services read the engine directly (its read-back methods are safe from any thread), so they keep
-answering even when the cycle is stuck, which is when an operator needs them most. Services that change
-state run on the cycle thread through ``engine.submit``, between two cycles, and give up after ``timeout``.
+answering even when the cycle is stuck, which is when an operator needs them most; :meth:`Services.read` answers
+them on the caller's thread (a Zenoh thread), so a client polling ``status`` at 200 Hz never wakes the asyncio
+loop. Services that change state run on the cycle thread through ``engine.submit``, between two cycles, on the
+asyncio thread (:meth:`Services.handle`), and give up after ``timeout``.
 """
 
 from __future__ import annotations
@@ -12,18 +14,26 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import logging
+import time
 from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from hild.api.codec import PayloadError, decode
+from hild.api.codec import PayloadError, decode, encode
 from hild.api.queries import HeavyLane
 from hild.engine import Engine, RequestRejected
 
 log = logging.getLogger("hild.api")
 
+READ_MAX_AGE = 0.005  # s: how long a read-only reply is reused while the engine has not changed
+EMPTY_REQUESTS = frozenset({b"", b"{}"})
 DEFAULT_TIMEOUT = 1.0  # s; below the client's default 2 s so the client sees our error, not its own timeout
 MAX_NAMES = 256
+
+
+def ok(body: Reply) -> Reply:
+    """A successful reply; a body may carry its own ok/error (switch, reset)."""
+    return {"ok": True, "error": None, **body}
 
 
 class RequestError(Exception):
@@ -82,7 +92,8 @@ def parse_request(raw: bytes, fields: Mapping[str, Validator]) -> dict[str, Any]
 @dataclass(frozen=True)
 class Service:
     fields: Mapping[str, Validator]
-    run: Callable[[dict[str, Any]], Awaitable[Reply]]
+    run: Callable[[dict[str, Any]], Awaitable[Reply]] | None = None  # changes state: on the asyncio thread
+    read: Callable[[dict[str, Any]], Reply] | None = None  # read-only: answered on any thread
 
 
 class Services:
@@ -90,12 +101,13 @@ class Services:
         self.engine = engine
         self.timeout = timeout
         self.lane = lane or HeavyLane()
+        self._read_cache: dict[str, tuple[int, float, bytes]] = {}  # service → (change_seq, monotonic, reply)
         self.table: dict[str, Service] = {
-            "status": Service({}, self._status),
-            "list_controllers": Service({}, self._list_controllers),
+            "status": Service({}, read=self._status),
+            "list_controllers": Service({}, read=self._list_controllers),
             "switch_controllers": Service({"activate": names, "deactivate": names, "strict": boolean}, self._switch),
-            "list_interfaces": Service({}, self._list_interfaces),
-            "list_hardware": Service({}, self._list_hardware),
+            "list_interfaces": Service({}, read=self._list_interfaces),
+            "list_hardware": Service({}, read=self._list_hardware),
             "estop": Service({}, self._estop),
             "reset": Service({}, self._reset),
             "set_zero": Service({"joint": joint_name, "confirm": boolean}, self._set_zero),
@@ -103,7 +115,7 @@ class Services:
         }
 
     async def handle(self, name: str, raw: bytes) -> Reply:
-        """Serve one request; always returns a reply with ``ok`` and ``error``."""
+        """Serve one request on the asyncio thread; always returns a reply with ``ok`` and ``error``."""
         service = self.table.get(name)
         try:
             if service is None:
@@ -112,13 +124,50 @@ class Services:
                 request = await self.lane.run(lambda: parse_request(raw, service.fields))
             else:
                 request = parse_request(raw, service.fields)
-            body = await service.run(request)
-        except RequestError as exc:
+            body = service.read(request) if service.read is not None else await self._run(service, request)
+        except Exception as exc:
+            return self._failed(name, exc)
+        return ok(body)
+
+    def readable(self, name: str, raw: bytes) -> bool:
+        """Whether :meth:`read` answers this request here and now: a read-only service, a small payload."""
+        service = self.table.get(name)
+        return service is not None and service.read is not None and not self.lane.needed(raw)
+
+    def read(self, name: str, raw: bytes) -> bytes:
+        """Serve a request :meth:`readable` admitted, on the caller's thread: the encoded reply, with ``ok``.
+
+        A request without fields is answered from a reply at most ``READ_MAX_AGE`` old built since the engine's
+        last change (``change_seq``: modes, faults, controllers): a client that switches and then asks sees the
+        switch, and a 10 kHz poll costs a few hundred builds a second, not ten thousand."""
+        empty = raw.strip() in EMPTY_REQUESTS
+        change, now = self.engine.change_seq, time.monotonic()
+        if empty:
+            cached = self._read_cache.get(name)
+            if cached is not None and cached[0] == change and now - cached[1] <= READ_MAX_AGE:
+                return cached[2]
+        service = self.table[name]
+        assert service.read is not None
+        try:
+            reply = ok(service.read(parse_request(raw, service.fields)))
+        except Exception as exc:
+            return encode(self._failed(name, exc))
+        encoded = encode(reply)
+        if empty:
+            self._read_cache[name] = (change, now, encoded)
+        return encoded
+
+    @staticmethod
+    async def _run(service: Service, request: dict[str, Any]) -> Reply:
+        assert service.run is not None
+        return await service.run(request)
+
+    @staticmethod
+    def _failed(name: str, exc: Exception) -> Reply:
+        if isinstance(exc, RequestError):
             return {"ok": False, "error": str(exc)}
-        except Exception as exc:  # a bug must cost one reply, not the daemon
-            log.exception("service %s failed", name)
-            return {"ok": False, "error": f"internal error: {type(exc).__name__}: {exc}"}
-        return {"ok": True, "error": None, **body}  # a body may carry its own ok/error (switch, reset)
+        log.exception("service %s failed", name, exc_info=exc)  # a bug must cost one reply, not the daemon
+        return {"ok": False, "error": f"internal error: {type(exc).__name__}: {exc}"}
 
     # ---- the cycle hop ------------------------------------------------------------------------------------------
     async def on_cycle(self, action: Callable[[], Any]) -> Any:
@@ -142,16 +191,16 @@ class Services:
             ) from None
 
     # ---- services ---------------------------------------------------------------------------------------------
-    async def _status(self, request: dict[str, Any]) -> Reply:
+    def _status(self, request: dict[str, Any]) -> Reply:
         return self.engine.status()
 
-    async def _list_controllers(self, request: dict[str, Any]) -> Reply:
+    def _list_controllers(self, request: dict[str, Any]) -> Reply:
         return {"controllers": [c.as_dict() for c in self.engine.manager.snapshot]}
 
-    async def _list_interfaces(self, request: dict[str, Any]) -> Reply:
+    def _list_interfaces(self, request: dict[str, Any]) -> Reply:
         return {"interfaces": self.engine.interfaces()}
 
-    async def _list_hardware(self, request: dict[str, Any]) -> Reply:
+    def _list_hardware(self, request: dict[str, Any]) -> Reply:
         return {"hardware": self.engine.hardware_info()}
 
     async def _switch(self, request: dict[str, Any]) -> Reply:

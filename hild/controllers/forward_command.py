@@ -54,7 +54,7 @@ class ForwardCommandController(Controller):
         assert isinstance(params, ForwardCommandParams)
         return [interface_name(j, params.interface) for j in params.joints]
 
-    # ---- asyncio side -------------------------------------------------------------------------------------
+    # ---- API side -----------------------------------------------------------------------------------------
     def inputs(self) -> Mapping[str, Callable[[Any], None]]:
         return {"commands": self.accept}
 

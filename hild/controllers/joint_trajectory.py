@@ -203,7 +203,7 @@ class JointTrajectoryController(Controller):
     def action_server(self) -> ActionServer[PreparedGoal]:
         return self.action
 
-    # ---- asyncio side --------------------------------------------------------------------------------------------
+    # ---- API side ------------------------------------------------------------------------------------------------
     def _accepting(self) -> str | None:
         return None if self.active else f"controller {self.name} is not active"
 

@@ -9,7 +9,7 @@ within the joints' velocity, acceleration and jerk limits whatever the stream do
 Phases: ``HOLD`` (at rest: before the first target and after a stop) → ``TRACK`` (ruckig position control
 toward the latest target) → ``CRUISE`` (a target with velocities was reached: keep its velocity until the next
 target, braking per joint in time for the soft limits) → ``STOP`` (ruckig velocity control to rest on timeout or
-planning error) → ``HOLD``. The asyncio side validates and clamps targets; the cycle only copies them into
+planning error) → ``HOLD``. The API side validates and clamps targets; the cycle only copies them into
 ruckig and steps it. The ruckig bindings return fresh lists, so a cycle costs a few small lists; nothing else.
 """
 
@@ -172,7 +172,7 @@ class ServoController(Controller):
     def on_cleanup(self) -> None:
         self._otg = None
 
-    # ---- asyncio side -------------------------------------------------------------------------------------
+    # ---- API side -----------------------------------------------------------------------------------------
     def inputs(self) -> Mapping[str, Callable[[Any], None]]:
         return {"target": self.accept}
 

@@ -119,32 +119,37 @@ class FakeSample:
 
 
 def test_a_burst_on_one_input_keeps_only_the_newest_sample() -> None:
-    """While the loop is busy, 1000 samples arrive: one slot holds the newest, the rest are superseded unread."""
-    loop = asyncio.new_event_loop()
-    thread = threading.Thread(target=loop.run_forever, daemon=True)
-    thread.start()
+    """While one Zenoh thread delivers a sample (its validation is slow), 1000 more arrive on another: the slot
+    holds the newest, the rest are superseded unread, and the deliverer hands over the newest next."""
+    loop = asyncio.new_event_loop()  # never run: small samples are delivered on the Zenoh thread
     counters = Counters()
     ports = ControllerPorts(None, FakeEngine(Events()), Keys("r"), loop, counters)  # type: ignore[arg-type]
     accepted: list[Any] = []
-    slot = InputSlot("hild/r/ctrl/fwd/commands", "fwd", accepted.append)
+    delivering, release = threading.Event(), threading.Event()
+
+    def accept(payload: Any) -> None:
+        accepted.append(payload)
+        if len(accepted) == 1:
+            delivering.set()
+            assert release.wait(5.0)
+
+    def sample(k: int) -> FakeSample:
+        return FakeSample(FakePayload(json.dumps({"values": [k]}).encode()))
+
+    slot = InputSlot("hild/r/ctrl/fwd/commands", "fwd", accept)  # the handler holds it weakly
     on_sample = ports._sample_handler(slot)
-    gate = threading.Event()
-    loop.call_soon_threadsafe(gate.wait)  # the loop is stuck until the burst is in
+    first = threading.Thread(target=on_sample, args=(sample(-1),))
+    first.start()
     try:
+        assert delivering.wait(5.0)
         for k in range(1000):
-            on_sample(FakeSample(FakePayload(json.dumps({"values": [k]}).encode())))
-        gate.set()
-        deadline = time.monotonic() + 5.0
-        while counters.accepted + counters.rejected < 1 and time.monotonic() < deadline:
-            time.sleep(0.001)
-        asyncio.run_coroutine_threadsafe(asyncio.sleep(0.01), loop).result(5.0)
+            on_sample(sample(k))  # returns at once: the slot has its deliverer
     finally:
-        gate.set()
-        loop.call_soon_threadsafe(loop.stop)
-        thread.join(5.0)
+        release.set()
+        first.join(5.0)
         loop.close()
-    assert accepted == [{"values": [999]}]
-    assert (counters.commands, counters.superseded, counters.dropped, counters.accepted) == (1000, 999, 999, 1)
+    assert accepted == [{"values": [-1]}, {"values": [999]}]
+    assert (counters.commands, counters.superseded, counters.dropped, counters.accepted) == (1001, 999, 999, 2)
 
 
 # ---- goals -------------------------------------------------------------------------------------------------------
