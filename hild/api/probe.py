@@ -10,6 +10,12 @@ and publishes as a client command does (express, INTERACTIVE_HIGH, congestion co
   its own clock on arrival (CLOCK_MONOTONIC is system-wide, so stamps of two processes compare directly).
 
 Everything is µs, p50/p99/p99.9/max.
+
+The **decoy** (``python -m hild.api.probe decoy ENDPOINT ROBOT REPLIES.json``) stands in for a daemon in the
+interference windows: a peer that answers the same service keys with replies captured from the real daemon and
+decodes the same input samples, in its own process. Clients aimed at it load the machine as they would load the
+daemon, but nothing reaches the daemon: the cycle's p99 rise against the decoy is what the machine (two cores
+shared with the clients and Zenoh) costs, the rest is what serving the requests costs inside hild.
 """
 
 from __future__ import annotations
@@ -20,11 +26,14 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import zenoh
 
+from hild.api.keys import Keys
 from hild.api.session import client_config, declare_json_publisher, open_session, server_config
 from hild.config.model import ZenohSection
 
@@ -79,6 +88,71 @@ def serve_echo(endpoint: str) -> int:
         entity.undeclare()
     session.close()
     return 0
+
+
+# ---- the decoy process ------------------------------------------------------------------------------------------
+def serve_decoy(endpoint: str, robot: str, replies_path: str) -> int:
+    """Answer ``{service: reply}`` queries and decode samples on the given input keys until stdin closes."""
+    spec = json.loads(Path(replies_path).read_text(encoding="utf-8"))
+    keys = Keys(robot)
+    session = open_session(server_config(ZenohSection(listen=[endpoint])))
+    decoded = [0]
+
+    def answer(key: str, reply: bytes) -> Callable[[zenoh.Query], None]:
+        def on_query(query: zenoh.Query) -> None:
+            query.reply(key, reply, encoding=zenoh.Encoding.APPLICATION_JSON)
+
+        return on_query
+
+    def on_input(sample: zenoh.Sample) -> None:
+        json.loads(sample.payload.to_bytes())
+        decoded[0] += 1
+
+    entities: list[Any] = [
+        session.declare_queryable(keys.service(name), answer(keys.service(name), reply.encode()), complete=True)
+        for name, reply in spec["replies"].items()
+    ]
+    entities += [session.declare_subscriber(keys.input(c, i), on_input) for c, i in spec["inputs"]]
+    sys.stdout.write("ready\n")
+    sys.stdout.flush()
+    sys.stdin.read()  # until the parent closes the pipe
+    for entity in entities:
+        entity.undeclare()
+    session.close()
+    return 0
+
+
+class Decoy:
+    """A decoy daemon in a child process (see the module); a context manager, ``endpoint`` to connect to."""
+
+    def __init__(self, robot: str, replies: dict[str, str], inputs: list[tuple[str, str]], spec_path: str) -> None:
+        Path(spec_path).write_text(json.dumps({"replies": replies, "inputs": inputs}), encoding="utf-8")
+        self.endpoint = f"tcp/127.0.0.1:{_free_port()}"
+        self._process = subprocess.Popen(
+            [sys.executable, "-m", "hild.api.probe", "decoy", self.endpoint, robot, spec_path],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        assert self._process.stdout is not None
+        if self._process.stdout.readline().strip() != "ready":
+            self.close()
+            raise RuntimeError(f"the decoy process did not come up (exit {self._process.poll()})")
+
+    def close(self) -> None:
+        if self._process.stdin is not None:
+            self._process.stdin.close()
+        try:
+            self._process.wait(5.0)
+        except subprocess.TimeoutExpired:
+            self._process.kill()
+            self._process.wait()
+
+    def __enter__(self) -> Decoy:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
 
 # ---- the measuring side -----------------------------------------------------------------------------------------
@@ -187,4 +261,6 @@ class _Publisher:
 
 
 if __name__ == "__main__":
+    if sys.argv[1] == "decoy":
+        sys.exit(serve_decoy(*sys.argv[2:5]))
     sys.exit(serve_echo(sys.argv[1]))

@@ -12,7 +12,10 @@ joint, the joint_state_broadcaster at 100 Hz, and telemetry recording to a file 
 * ``interference`` — twin6 at 1 kHz with ``joint_trajectory_arm`` (the first three joints, trajectory) and
   ``servo_wrist`` (the last three, streamed targets) active together, windows interleaved between no extra
   clients, two pollers (``srv/status`` and ``srv/list_controllers`` at 200 Hz each), and the pollers plus a
-  1 kHz servo stream. The servo gets joints of its own so the trajectory keeps running in every window.
+  1 kHz servo stream; then the same two loads aimed at a decoy daemon in another process
+  (``hild.api.probe.Decoy``), which load the machine alike while nothing reaches the daemon, so a rise can be
+  split into the machine's part and hild's. The servo gets joints of its own so the trajectory keeps running in
+  every window.
 
 The bench process is the Zenoh client (trajectories, probes, pollers, the stream); the daemon's process answers
 its control requests (``hild.bench.host``).
@@ -37,6 +40,7 @@ from typing import IO, Any
 import numpy as np
 
 from hild.api.client import HildClient, HildError, HildUnreachable
+from hild.api.probe import Decoy
 from hild.bench.host import rig_class
 from hild.bench.latency import SampleLog, match_commands, match_replies, send_probes
 from hild.bench.load import Counter, Paced, Poller, ServoStreamer, TrajectoryKeeper
@@ -420,36 +424,44 @@ def measure_latency(s: Session, settings: Settings) -> dict[str, Any]:
     }
 
 
-INTERFERENCE_CONDITIONS = ("baseline", "polling", "polling+servo")
+INTERFERENCE_CONDITIONS = ("baseline", "polling", "polling+servo", "decoy polling", "decoy polling+servo")
+DECOY = "decoy "  # the condition's clients load the machine the same way but talk to a decoy daemon
 
 
-def interference_clients(condition: str, s: Session) -> list[Paced]:
-    endpoint = [s.host.endpoint]
+def interference_clients(condition: str, s: Session, decoy: Decoy) -> list[Paced]:
+    endpoint = [decoy.endpoint if condition.startswith(DECOY) else s.host.endpoint]
+    load = condition.removeprefix(DECOY)
     clients: list[Paced] = []
-    if condition in ("polling", "polling+servo"):
+    if load in ("polling", "polling+servo"):
         clients += [
             Poller(endpoint, s.robot, "status", POLL_RATE),
             Poller(endpoint, s.robot, "list_controllers", POLL_RATE),
         ]
-    if condition == "polling+servo":
+    if load == "polling+servo":
         clients.append(ServoStreamer(endpoint, s.robot, SERVO_WRIST, s.home[3:], SERVO_RATE))
     return clients
 
 
+def open_decoy(s: Session, workdir: Path) -> Decoy:
+    """A decoy answering with what the daemon answers now (docs/performance.md, "Interference")."""
+    replies = {name: json.dumps(s.client.call(name)) for name in ("status", "list_controllers")}
+    return Decoy(s.robot, replies, [(SERVO_WRIST, "target")], str(workdir / "decoy.json"))
+
+
 def run_interference(workdir: Path, settings: Settings) -> dict[str, Any]:
-    """Interleaved windows of twin6 @ 1 kHz with and without the interfering clients."""
+    """Interleaved windows of twin6 @ 1 kHz: no clients, clients on the daemon, the same clients on a decoy."""
     scenario = INTERFERENCE
     merged: dict[str, dict[str, Any]] = {
         c: {"cycles": 0, "overruns": 0, "duration": [], "period_error": [], "rates": {}}
         for c in INTERFERENCE_CONDITIONS
     }
-    with open_session(scenario, workdir, settings, interference=True) as s:
+    with open_session(scenario, workdir, settings, interference=True) as s, open_decoy(s, workdir) as decoy:
         s.client.switch(activate=[JTC_ARM, SERVO_WRIST])
         s.keeper(JTC_ARM, s.joints[:3], s.home[:3])
         time.sleep(settings.warmup)
         for _ in range(settings.interference_rounds):
             for condition in INTERFERENCE_CONDITIONS:
-                clients = interference_clients(condition, s)
+                clients = interference_clients(condition, s, decoy)
                 for c in clients:
                     c.start()
                 try:

@@ -65,10 +65,14 @@ def test_a_quick_run_writes_every_section(tmp_path: Path) -> None:
     assert cpu["process"] > 0 and cpu["daemon"] <= cpu["process"] and cpu["emulator"] >= 0
 
     conditions = report["interference"]["conditions"]
-    assert [c["name"] for c in conditions] == ["baseline", "polling", "polling+servo"]
+    names = ["baseline", "polling", "polling+servo", "decoy polling", "decoy polling+servo"]
+    assert [c["name"] for c in conditions] == names
     assert all(c["cycles"] > 0 and ordered(c["duration_us"]) for c in conditions)
+    decoy = {c["name"]: c["clients"] for c in conditions}["decoy polling+servo"]
+    assert "poll-status" in decoy and "servo-servo_wrist" in decoy and "failures" not in decoy  # the decoy answered
     assert conditions[0]["p99_rise_pct"] == 0.0
 
     statuses = {(t["target"], t["scenario"]): t["status"] for t in report["targets"]}
     assert statuses[("polling raises cycle p99 by", "twin6@1000")] in ("PASS", "MISS")  # measured, so decided
+    assert statuses[("… of which serving it (vs decoy)", "twin6@1000")] in ("PASS", "MISS")
     assert statuses[("cycle duration p99", "twin6@1000")] == "n/a"  # not run

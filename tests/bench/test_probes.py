@@ -13,7 +13,8 @@ import pytest
 from drivers.can.bench_rig import CanBenchRig, motors_per_bus
 from drivers.can.protocol.flavours import DAMIAO
 from drivers.can.protocol.models import ranges_for
-from hild.api.probe import zenoh_round_trip
+from hild.api.client import HildClient, HildError
+from hild.api.probe import Decoy, zenoh_round_trip
 from hild.bench.floor import measure_empty_threads, probe, run_probe
 from hild.bench.host import proc_ticks, rig_class
 from hild.config import load_config
@@ -50,6 +51,19 @@ def test_zenoh_probe_measures_a_round_trip_and_put_to_subscriber_across_processe
     assert ordered(result["round_trip_us"])
     assert result["one_way_us"]["p50"] == pytest.approx(result["round_trip_us"]["p50"] / 2, abs=0.1)
     assert result["received"] > 0 and ordered(result["put_to_subscriber_us"])
+
+
+def test_the_decoy_answers_like_the_daemon_and_takes_servo_targets(tmp_path: Path) -> None:
+    status = {"ok": True, "error": None, "robot": "arm", "mode": "hold"}
+    spec = str(tmp_path / "decoy.json")
+    with (
+        Decoy("arm", {"status": json.dumps(status)}, [("servo", "target")], spec) as decoy,
+        HildClient("arm", [decoy.endpoint], timeout=5.0) as client,
+    ):
+        assert client.call("status") == status
+        client.servo_stream("servo").send([0.1, 0.2])  # a subscriber takes it; nothing to answer
+        with pytest.raises(HildError, match="list_controllers"):
+            client.call("list_controllers", timeout=0.5)  # only what it was given
 
 
 def test_the_empty_thread_runs_hilds_cycle_thread_at_the_rate() -> None:
