@@ -25,7 +25,7 @@ from hild.engine import STATUS_STATS_MAX_AGE, Engine
 from hild.events import log_event
 from hild.hardware import HardwareError
 from hild.notify import SystemdNotifier, WatchdogGate, status_line
-from hild.realtime import apply_process_settings, freeze_heap
+from hild.realtime import CpuLatencyRequest, apply_process_settings, freeze_heap
 
 log = logging.getLogger("hild.daemon")
 
@@ -54,6 +54,7 @@ class Daemon:
         self.telemetry: Any = None  # hild.telemetry.Telemetry when telemetry.enabled
         self._telemetry_task: asyncio.Task[None] | None = None
         self.notifier = SystemdNotifier()
+        self.cpu_latency = CpuLatencyRequest()
         self.watchdog = WatchdogGate(self.engine.max_consecutive_overruns)
         self.ready = False
         self._next_ping = 0.0
@@ -95,6 +96,7 @@ class Daemon:
         self.engine.doorbell = self._doorbell
         self.notifier.status("bringing up the hardware")
         self.engine.realtime_report.update(apply_process_settings(cfg.realtime))
+        self.engine.realtime_report["cpu_dma_latency"] = self.cpu_latency.hold(cfg.realtime.cpu_dma_latency_us)
         self._open_telemetry()  # before the hardware: a sink that cannot open is a start-up error, nothing enabled
         self.engine.bring_up()  # drives configured and read, still disabled
         try:
@@ -220,6 +222,7 @@ class Daemon:
         await self.close_telemetry()
         if self.api is not None:
             await self.api.close()
+        self.cpu_latency.release()
         self.notifier.status("stopped: the cycle thread did not stop" if stuck else "stopped: hardware released")
         log.info("stopped")
 
@@ -243,4 +246,5 @@ def run_daemon(loaded: LoadedConfig, listen: list[str] | None = None) -> int:
         daemon.notifier.status(f"start-up failed: {exc}")
         return 1
     finally:
+        daemon.cpu_latency.release()
         daemon.notifier.close()

@@ -11,12 +11,14 @@ import ctypes
 import ctypes.util
 import gc
 import os
+import struct
 import sys
 
 from hild.config.model import RealtimeSection
 
 MCL_CURRENT, MCL_FUTURE, MCL_ONFAULT = 1, 2, 4
 PR_SET_TIMERSLACK = 29
+CPU_DMA_LATENCY = "/dev/cpu_dma_latency"
 
 
 def _libc() -> ctypes.CDLL:
@@ -37,6 +39,46 @@ def apply_process_settings(settings: RealtimeSection) -> dict[str, str]:
     else:
         report["lock_memory"] = "off"
     return report
+
+
+class CpuLatencyRequest:
+    """A PM QoS request on ``/dev/cpu_dma_latency``, held while the daemon runs.
+
+    While the file stays open with a value written, no CPU enters an idle state that takes longer than that to
+    leave; closing it withdraws the request (the kernel's contract, also what cyclictest does). A cycle that
+    starts on a core coming out of a deep C-state pays several times its work (docs/performance.md)."""
+
+    def __init__(self, path: str = CPU_DMA_LATENCY) -> None:
+        self.path = path
+        self._fd: int | None = None
+
+    def hold(self, latency_us: int | None) -> str:
+        """Open and write the request; the report line says what happened."""
+        if latency_us is None:
+            return "off"
+        try:
+            fd = os.open(self.path, os.O_WRONLY)
+        except OSError as exc:
+            return (
+                f"not permitted: {exc.strerror or exc} (needs write access to {self.path}: root, or the udev rule "
+                "in systemd/examples/)"
+            )
+        try:
+            os.write(fd, struct.pack("i", latency_us))
+        except OSError as exc:
+            os.close(fd)
+            return f"not applied: {exc.strerror or exc}"
+        self._fd = fd
+        return f"{latency_us} µs, held"
+
+    @property
+    def held(self) -> bool:
+        return self._fd is not None
+
+    def release(self) -> None:
+        fd, self._fd = self._fd, None
+        if fd is not None:
+            os.close(fd)
 
 
 def freeze_heap(settings: RealtimeSection) -> str:

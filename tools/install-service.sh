@@ -119,5 +119,7 @@ CAN bring-up (real drives): hild opens can0 but does not configure it (that need
   - or a drop-in that runs 'ip link' as root before hild starts:
     install -D -m 0644 $REPO/systemd/examples/can0.conf /etc/systemd/system/hild@$NAME.service.d/can0.conf
     systemctl daemon-reload
+Fast wake-ups (realtime.cpu_dma_latency_us: 0 in the config) need the device opened to the service user:
+  install -m 0644 $REPO/systemd/examples/60-hild-cpu-dma-latency.rules /etc/udev/rules.d/ && udevadm trigger
 Docs: $REPO/docs/operations.md ("Running as a service").
 EOF

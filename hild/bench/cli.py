@@ -56,6 +56,12 @@ def register(subparsers: Any) -> None:
         help="realtime.spin_us for every cycle thread, floor included (default: the config's, 200)",
     )
     parser.add_argument(
+        "--cpu-dma-latency",
+        type=int,
+        metavar="US",
+        help="realtime.cpu_dma_latency_us for the daemon and the floor (default: the config's, off)",
+    )
+    parser.add_argument(
         "--keep", type=Path, metavar="DIR", help="keep each scenario's config, daemon log and recording in DIR"
     )
     parser.set_defaults(func=run)
@@ -100,9 +106,7 @@ def machine_info() -> dict[str, Any]:
 
 
 def measure_floor(settings: Settings) -> dict[str, Any]:
-    realtime = RealtimeSection(priority=settings.priority or 0)
-    if settings.spin_us is not None:
-        realtime = realtime.model_copy(update={"spin_us": settings.spin_us})
+    realtime = RealtimeSection(**settings.realtime())
     floor: dict[str, Any] = {}
     try:
         floor["empty_thread"] = measure_empty_threads(list(FLOOR_RATES), settings.floor_seconds, realtime)
@@ -188,7 +192,10 @@ def run(args: argparse.Namespace) -> int:
     if args.spin_us is not None and not 0 <= args.spin_us <= 10_000:
         print("--spin-us must be 0..10000", file=sys.stderr)
         return 2
-    settings = Settings.make(args.quick, args.seconds, args.priority, args.spin_us)
+    if args.cpu_dma_latency is not None and args.cpu_dma_latency < 0:
+        print("--cpu-dma-latency must be 0 or more", file=sys.stderr)
+        return 2
+    settings = Settings.make(args.quick, args.seconds, args.priority, args.spin_us, args.cpu_dma_latency)
     if args.keep is not None:
         args.keep.mkdir(parents=True, exist_ok=True)
         report = bench(settings, sections, args.keep.resolve())

@@ -29,7 +29,7 @@ from hild.bench.report import loop_figures, summarize_ns
 from hild.config.model import RealtimeSection
 from hild.cycle import CycleThread
 from hild.events import EventLog
-from hild.realtime import apply_process_settings, freeze_heap
+from hild.realtime import CpuLatencyRequest, apply_process_settings, freeze_heap
 from hild.stats import LoopStats
 
 PROBES = "hild.probes"
@@ -135,12 +135,17 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     realtime = RealtimeSection.model_validate_json(args.realtime)
     process = apply_process_settings(realtime)
+    latency = CpuLatencyRequest()
+    process["cpu_dma_latency"] = latency.hold(realtime.cpu_dma_latency_us)  # as the daemon holds it
     process["gc"] = freeze_heap(realtime)
     rows = []
-    for rate in args.rates:
-        row = empty_thread(rate, args.seconds, realtime)
-        row["realtime"] = {**process, **row["realtime"]}
-        rows.append(row)
+    try:
+        for rate in args.rates:
+            row = empty_thread(rate, args.seconds, realtime)
+            row["realtime"] = {**process, **row["realtime"]}
+            rows.append(row)
+    finally:
+        latency.release()
     print(json.dumps(rows))
     return 0
 

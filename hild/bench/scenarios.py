@@ -102,11 +102,19 @@ class Settings:
     mj_steps: int = 5000
     priority: int | None = None
     spin_us: int | None = None
+    cpu_dma_latency_us: int | None = None
     seed: int = 1
     quick: bool = False
 
     @classmethod
-    def make(cls, quick: bool, seconds: float | None, priority: int | None, spin_us: int | None = None) -> Settings:
+    def make(
+        cls,
+        quick: bool,
+        seconds: float | None,
+        priority: int | None,
+        spin_us: int | None = None,
+        cpu_dma_latency_us: int | None = None,
+    ) -> Settings:
         if quick:
             s = cls(
                 seconds=1.5,
@@ -129,7 +137,13 @@ class Settings:
             s.floor_seconds = min(s.floor_seconds, max(0.5, seconds))
         s.priority = priority
         s.spin_us = spin_us
+        s.cpu_dma_latency_us = cpu_dma_latency_us
         return s
+
+    def realtime(self) -> dict[str, int]:
+        """The ``realtime:`` settings given on the command line, for every cycle thread, floor included."""
+        given = {"priority": self.priority, "spin_us": self.spin_us, "cpu_dma_latency_us": self.cpu_dma_latency_us}
+        return {k: v for k, v in given.items() if v is not None}
 
 
 # ---- configs -----------------------------------------------------------------------------------------------------
@@ -172,10 +186,7 @@ def scenario_config(
         data = arm6_config(scenario.kind, scenario.rate, interference=interference)
     tag = scenario.name.replace("@", "_") + ("_interference" if interference else "")
     data["telemetry"] = {"enabled": True, "sinks": [{"kind": "file", "path": str(workdir / f"{tag}.rrd")}]}
-    if settings.priority is not None:
-        data.setdefault("realtime", {})["priority"] = settings.priority
-    if settings.spin_us is not None:
-        data.setdefault("realtime", {})["spin_us"] = settings.spin_us
+    data.setdefault("realtime", {}).update(settings.realtime())
     return data, rig, scale
 
 

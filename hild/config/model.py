@@ -230,6 +230,13 @@ class RealtimeSection(Params):
         description="The cycle thread sleeps to this long before each deadline, then spins: longer is steadier "
         "on a machine whose idle CPU wakes slowly (VMs), at the cost of CPU time.",
     )
+    cpu_dma_latency_us: int | None = Field(
+        default=None,
+        ge=0,
+        le=1_000_000,
+        description="Hold /dev/cpu_dma_latency at this many µs while running (0: no CPU enters a deep idle state, "
+        "so the cycle never wakes on a cold core); needs write access to the device (root or a udev rule).",
+    )
     gc_freeze: bool = Field(default=True, description="gc.collect(); gc.freeze() after start-up.")
     switch_interval: float = Field(
         default=0.0005, gt=0.0, le=0.1, description="sys.setswitchinterval: how long another thread may hold the GIL."
