@@ -75,6 +75,9 @@ class Engine:
         self.events = EventLog()
         self.events.now = lambda: self.t
         self.doorbell: Callable[[], None] = lambda: None  # set by the daemon: wakes the asyncio side
+        # Set by the API: takes streamed commands at the start of each cycle, so no other thread takes the GIL
+        # per sample (docs/performance.md, "A busy neighbour").
+        self.intake: Callable[[], None] | None = None
         self.events.doorbell = self._ring
         self.stats = LoopStats()
         self.t = 0.0
@@ -312,6 +315,8 @@ class Engine:
         if self._estop_requested:
             self._apply_estop()
         self._apply_requests()
+        if self.intake is not None:
+            self._take_inputs()
         self._read(t, dt)
         sup = self.supervisor
         sup.check(self.state)
@@ -391,6 +396,14 @@ class Engine:
                 future.set_result(action())
             except Exception as exc:
                 future.set_exception(exc)
+
+    def _take_inputs(self) -> None:
+        """Streamed commands, taken by the cycle itself (``hild.api.ports.ControllerPorts.take_inputs``)."""
+        try:
+            self.intake()  # type: ignore[misc]
+        except Exception as exc:  # a bug there must not end the cycle; without inputs, controllers time out
+            self.intake = None
+            self.events.emit("error", "api", f"the input intake failed and is off: {type(exc).__name__}: {exc}")
 
     def request_estop(self) -> concurrent.futures.Future[Any]:
         """E-stop from any thread. Never refused (it bypasses the request queue); applied at the next cycle."""

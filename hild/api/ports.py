@@ -1,13 +1,16 @@
 """Controller inputs and outputs on Zenoh: one subscriber per input, one publisher per output ring.
 
-Inputs arrive on Zenoh threads; each sample is size-checked there and parked in its input's one-sample slot (a
-newer sample replaces one not read yet, like the controllers' own latest-value mailboxes). The Zenoh thread that
-finds the slot idle delivers it: decodes the newest sample and gives it to the controller's input callable (which
-validates it and swaps it into a mailbox), until the slot is empty. Small samples never wake the asyncio loop:
-one thread takes the GIL once per sample, which is what a 1 kHz stream costs the cycle (docs/performance.md).
-Large ones are handed to the loop, which decodes them in the heavy lane. A flood can neither queue up payloads nor
-run one input's callable twice at once. Anything wrong drops that sample and emits a warning event: nothing moves
-on bad input. Warnings are rate-limited per key so a client streaming garbage at 1 kHz cannot flood the event log.
+Inputs are queued by Zenoh in a small ring per input (``RingChannel``: no Python runs when a sample arrives) and
+taken by the cycle thread itself at the start of each cycle (:meth:`ControllerPorts.take_inputs`): the newest
+sample is decoded and given to the controller's input callable (which validates it and swaps it into a mailbox),
+older ones are superseded, like the controllers' own latest-value mailboxes. This is a deliberate exception to
+"parse on the producer's side": a callback per sample on another thread costs the cycle more than the decode and
+validation themselves, because every time another thread takes the GIL the cycle may have to wait for it and be
+woken again (measured: ``tools/cycle_causes.py`` part 3, docs/performance.md). The intake's work is bounded: one
+decode of at most ``CYCLE_DECODE`` bytes and one validation per input per cycle; larger samples are decoded on
+the asyncio loop in the heavy lane and handed over only if nothing newer was. Anything wrong drops that sample and
+emits a warning event: nothing moves on bad input. Warnings are rate-limited per key so a client streaming garbage
+at 1 kHz cannot flood the event log.
 
 Outputs are read from each controller's :class:`~hild.ring.SampleRing` through a private reader and published
 with congestion control DROP: under back-pressure old samples are lost, the loop is never held.
@@ -29,7 +32,7 @@ from typing import Any
 import zenoh
 
 from hild.action import ActionServer
-from hild.api.codec import GOAL_CONTAINERS, MAX_PAYLOAD, PayloadError, decode, encode
+from hild.api.codec import FAST_DECODE, GOAL_CONTAINERS, MAX_PAYLOAD, PayloadError, decode, encode
 from hild.api.keys import RESERVED, Keys, check_chunk
 from hild.api.queries import SHUTTING_DOWN, Admitted, Gate, HeavyLane, clip, drop, reply_json
 from hild.api.session import declare_json_publisher
@@ -38,28 +41,55 @@ from hild.ring import RingReader, SampleRing
 
 log = logging.getLogger("hild.api")
 
+INTAKE_CAPACITY = 64  # samples one input queues between two cycles; beyond that Zenoh drops the oldest, uncounted
+CYCLE_DECODE = FAST_DECODE  # bytes: a sample up to this size is decoded by the cycle's intake, larger ones by the loop
 REPORTS_PER_WINDOW = 10
 REPORT_WINDOW = 1.0  # s
+
+
+@dataclass
+class Tally:
+    """Input samples as one thread counted them: one writer per tally, so the cycle never takes a lock."""
+
+    commands: int = 0  # samples received
+    accepted: int = 0
+    rejected: int = 0  # decoded or validated and found wrong
+    superseded: int = 0  # a newer sample on the same input arrived before this one was handed over
 
 
 @dataclass
 class Counters:
     """What the API has seen; cheap integers, read by tests and diagnostics.
 
-    Counters written on Zenoh threads (all but the publication counts) are changed under ``lock``."""
+    Input samples are counted by the cycle's intake (``cycle``) and, for large ones, the asyncio loop (``loop``);
+    queries are counted on Zenoh threads under ``lock``; publications on the loop."""
 
     lock: threading.Lock = field(default_factory=threading.Lock, repr=False, compare=False)
-    commands: int = 0  # samples received
-    accepted: int = 0
-    rejected: int = 0  # decoded or validated and found wrong
-    superseded: int = 0  # replaced in their slot by a newer sample before the loop read them (Zenoh threads)
+    cycle: Tally = field(default_factory=Tally)
+    loop: Tally = field(default_factory=Tally)
     queries: int = 0
     published: int = 0
     publish_errors: int = 0
 
     @property
+    def commands(self) -> int:
+        return self.cycle.commands  # the intake sees every sample first
+
+    @property
+    def accepted(self) -> int:
+        return self.cycle.accepted + self.loop.accepted
+
+    @property
+    def rejected(self) -> int:
+        return self.cycle.rejected + self.loop.rejected
+
+    @property
+    def superseded(self) -> int:
+        return self.cycle.superseded + self.loop.superseded
+
+    @property
     def dropped(self) -> int:
-        """Samples that moved nothing: rejected, or superseded before they were read."""
+        """Samples that moved nothing: rejected, or superseded before they were handed over."""
         return self.rejected + self.superseded
 
 
@@ -69,7 +99,7 @@ class DropReporter:
     def __init__(self, emit: Callable[[str, str, str], None]) -> None:
         self._emit = emit
         self._windows: dict[str, tuple[float, int, int]] = {}  # key → (window start, reported, suppressed)
-        self._lock = threading.Lock()  # reports come from Zenoh threads and the loop
+        self._lock = threading.Lock()  # reports come from the cycle's intake and the loop (bad input only)
 
     def report(self, source: str, key: str, reason: str) -> None:
         now = time.monotonic()
@@ -117,21 +147,20 @@ class ActionPort:
 
 @dataclass
 class InputSlot:
-    """The newest undelivered sample of one input; ``busy`` while the loop is delivering from it."""
+    """One controller input: Zenoh queues its samples in a ring, the cycle's intake takes the newest."""
 
     key: str
     controller: str
     accept: Callable[[Any], None]
-    lock: threading.Lock = field(default_factory=threading.Lock)
-    pending: tuple[bytes | None, int] | None = None  # (payload, or None when over the limit; its size)
-    busy: bool = False
+    subscriber: Any = None  # zenoh.Subscriber on a RingChannel, once declared
+    taken: int = 0  # samples handed over so far (cycle thread); a large one on the loop checks it is still newest
 
 
 @dataclass
 class ControllerEndpoints:
     instance: object
     subscribers: list[zenoh.Subscriber[Any]] = field(default_factory=list)
-    slots: list[InputSlot] = field(default_factory=list)  # the subscribers' callbacks hold them weakly
+    slots: list[InputSlot] = field(default_factory=list)
     outputs: list[OutputPort] = field(default_factory=list)
     action: ActionPort | None = None
 
@@ -158,6 +187,7 @@ class ControllerPorts:
         self.lane = lane or HeavyLane()
         self._gate = Gate()  # goal, cancel and result queries of every controller, like the services' gate
         self._delivering: set[asyncio.Task[None]] = set()
+        self._intake: tuple[InputSlot, ...] = ()  # what the cycle's intake reads; replaced whole, never changed
 
     # ---- declaration ---------------------------------------------------------------------------------------
     def sync(self) -> None:
@@ -166,11 +196,14 @@ class ControllerPorts:
             current = {name: rec.instance for name, rec in list(self.engine.manager.records.items())}
         except RuntimeError:  # records changed while we copied; the next change_seq brings us back here
             return
-        for name in [n for n, ep in self._controllers.items() if current.get(n) is not ep.instance]:
-            self._undeclare(self._controllers.pop(name))
+        stale = [n for n, ep in self._controllers.items() if current.get(n) is not ep.instance]
+        gone = [self._controllers.pop(n) for n in stale]
         for name, instance in current.items():
             if name not in self._controllers:
                 self._controllers[name] = self._declare(name, instance)
+        self._intake = tuple(slot for ep in self._controllers.values() for slot in ep.slots)  # one swap
+        for endpoints in gone:
+            self._undeclare(endpoints)
 
     def _declare(self, name: str, instance: Any) -> ControllerEndpoints:
         endpoints = ControllerEndpoints(instance)
@@ -184,9 +217,9 @@ class ControllerPorts:
         for input_name, accept in inputs.items():
             try:
                 key = self.keys.input(name, check_chunk(input_name, "input name"))
-                slot = InputSlot(key, name, accept)
-                endpoints.slots.append(slot)
-                endpoints.subscribers.append(self.session.declare_subscriber(key, self._sample_handler(slot)))
+                subscriber = self.session.declare_subscriber(key, zenoh.handlers.RingChannel(INTAKE_CAPACITY))
+                endpoints.subscribers.append(subscriber)
+                endpoints.slots.append(InputSlot(key, name, accept, subscriber))
             except (ValueError, zenoh.ZError) as exc:
                 self.engine.events.emit("error", "api", f"controller {name}: input {input_name!r} not declared: {exc}")
         taken = {p.topic for ep in self._controllers.values() for p in ep.outputs}
@@ -241,6 +274,7 @@ class ControllerPorts:
 
     def close(self) -> None:
         self.closing = True
+        self._intake = ()
         for task in [*self._answering, *self._delivering]:
             task.cancel()
         for endpoints in self._controllers.values():
@@ -325,111 +359,64 @@ class ControllerPorts:
             reply = {"ok": False, "error": reason or type(exc).__name__}
         reply_json(query, key, reply)
 
-    # ---- inputs -----------------------------------------------------------------------------------------------
-    def _sample_handler(self, input_slot: InputSlot) -> Callable[[Any], None]:
-        owner, slot_of = weakref.ref(self), weakref.ref(input_slot)  # weakly, as for queries
+    # ---- inputs (the cycle's intake) ---------------------------------------------------------------------------
+    def take_inputs(self) -> None:
+        """At the start of each cycle, on the cycle thread: per input, take every queued sample and hand the newest
+        to its controller, which validates it and swaps it into its mailbox; the rest are superseded.
 
-        def on_sample(sample: zenoh.Sample) -> None:  # a Zenoh thread: copy out, park in the slot, deliver
-            me, slot = owner(), slot_of()
-            if me is None or slot is None or me.closing:
-                return
-            payload = sample.payload
+        Bounded work: per input a few ``try_recv`` calls (Zenoh queued the samples without Python), and for the
+        newest one decode of at most ``CYCLE_DECODE`` bytes and one validation. A larger sample goes to the loop."""
+        tally = self.counters.cycle
+        for slot in self._intake:
+            newest, count = None, 0
+            try:
+                while (sample := slot.subscriber.try_recv()) is not None:
+                    newest, count = sample, count + 1
+            except Exception:  # undeclared meanwhile (controller unloaded, closing): nothing more to take
+                continue
+            if newest is None:
+                continue
+            tally.commands += count
+            tally.superseded += count - 1
+            slot.taken += 1
+            payload = newest.payload
             size = len(payload)
-            raw = payload.to_bytes() if size <= MAX_PAYLOAD else None
-            with slot.lock:
-                superseded = slot.pending is not None  # the deliverer has not read the previous one: the newest counts
-                slot.pending = (raw, size)
-                deliver = not slot.busy
-                slot.busy = True
-            with me.counters.lock:
-                me.counters.commands += 1
-                me.counters.superseded += superseded
-            if deliver:
-                me._deliver_here(slot)
+            if CYCLE_DECODE < size <= MAX_PAYLOAD:
+                with contextlib.suppress(RuntimeError):  # the loop is closed: the sample is lost with it
+                    self.loop.call_soon_threadsafe(self._start_delivery, slot, payload, slot.taken)
+                continue
+            try:
+                if size > MAX_PAYLOAD:
+                    raise PayloadError(f"payload of {size} bytes exceeds the {MAX_PAYLOAD}-byte limit")
+                slot.accept(decode(payload.to_bytes()))
+            except Exception as exc:  # ValueError from validation, or a plugin's bug: the sample is dropped
+                tally.rejected += 1
+                self._report(slot, exc)
+            else:
+                tally.accepted += 1
 
-        return on_sample
-
-    def _deliver_here(self, slot: InputSlot) -> None:
-        """Deliver on the Zenoh thread that found the slot idle, until it is empty; a large sample goes to the loop.
-
-        A small sample costs one decode and one validation while this thread holds the GIL anyway; hopping to the
-        loop would wake a second thread and take the GIL twice more per sample, each a chance to delay the cycle
-        (docs/performance.md). One deliverer per slot at a time (``busy``), so ``accept`` never runs concurrently
-        with itself."""
-        while True:
-            with slot.lock:
-                item = slot.pending
-                if item is not None and item[0] is not None and self.lane.needed(item[0]):
-                    hand_over = True  # stays pending and busy: the loop decodes it in the heavy lane
-                else:
-                    hand_over = False
-                    slot.pending = None
-                    if item is None:
-                        slot.busy = False
-                        return
-            if hand_over:
-                with contextlib.suppress(RuntimeError):  # the loop is closed: nothing reads the slot again
-                    self.loop.call_soon_threadsafe(self._start_delivery, slot)
-                return
-            self._accept(slot, *item)
-
-    def _start_delivery(self, slot: InputSlot) -> None:
-        task = self.loop.create_task(self._deliver(slot))
+    def _start_delivery(self, slot: InputSlot, payload: Any, seq: int) -> None:
+        task = self.loop.create_task(self._deliver(slot, payload, seq))
         self._delivering.add(task)
         task.add_done_callback(self._delivering.discard)
 
-    async def _deliver(self, slot: InputSlot) -> None:
-        """Deliver the slot's samples on the loop, large ones decoded in the heavy lane, until none is left.
-
-        One sample per turn of the loop: a stream arriving as fast as it is read must not starve the services."""
-        while True:
-            with slot.lock:
-                item, slot.pending = slot.pending, None
-                if item is None:
-                    slot.busy = False
-                    return
-            raw, size = item
-            if raw is not None and self.lane.needed(raw):
-                try:
-                    payload = await self.lane.run(functools.partial(decode, raw))
-                except Exception as exc:
-                    self._reject(slot, exc)
-                    continue
-                self._hand_over(slot, payload)
-            else:
-                self._accept(slot, raw, size)
-            await asyncio.sleep(0)
-
-    def _accept(self, slot: InputSlot, raw: bytes | None, size: int) -> None:
-        """Decode a small sample and hand it to the controller."""
+    async def _deliver(self, slot: InputSlot, payload: Any, seq: int) -> None:
+        """A large sample, decoded in the heavy lane; handed over only if the cycle took nothing newer meanwhile."""
+        tally = self.counters.loop
         try:
-            payload = decode_input(raw, size)
+            value = await self.lane.run(functools.partial(decode, payload.to_bytes()))
+            if self.closing:
+                return
+            if slot.taken != seq:
+                tally.superseded += 1
+                return
+            slot.accept(value)
         except Exception as exc:
-            self._reject(slot, exc)
-            return
-        self._hand_over(slot, payload)
-
-    def _hand_over(self, slot: InputSlot, payload: Any) -> None:
-        """The controller validates and takes the sample; anything wrong drops it and is reported."""
-        if self.closing:
-            return
-        try:
-            slot.accept(payload)
-        except Exception as exc:  # ValueError from validation, or a plugin's bug: the sample is dropped either way
-            self._reject(slot, exc)
+            tally.rejected += 1
+            self._report(slot, exc)
         else:
-            with self.counters.lock:
-                self.counters.accepted += 1
+            tally.accepted += 1
 
-    def _reject(self, slot: InputSlot, exc: Exception) -> None:
-        with self.counters.lock:
-            self.counters.rejected += 1
+    def _report(self, slot: InputSlot, exc: Exception) -> None:
         reason = str(exc) if isinstance(exc, ValueError) else f"{type(exc).__name__}: {exc}"
         self._drops.report(slot.controller, slot.key, reason or type(exc).__name__)
-
-
-def decode_input(raw: bytes | None, size: int) -> Any:
-    """A parked sample's payload; None stands for one refused unread for its size."""
-    if raw is None:
-        raise PayloadError(f"payload of {size} bytes exceeds the {MAX_PAYLOAD}-byte limit")
-    return decode(raw)

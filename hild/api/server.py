@@ -1,10 +1,12 @@
 """The daemon's Zenoh face: state out, services and commands in (docs/protocol.md has the wire format).
 
-Threads: Zenoh calls our handlers on its own threads. Read-only services (status, list_*) and small controller
-input samples are served right there, so polling and streaming never wake the asyncio loop; everything else is
-copied out and hops to the loop, where it runs. The cycle thread is reached only through ``engine.submit`` and read
-back through ring readers and ``engine.status()``, so the API shares no lock with it. Every publisher uses
-congestion control DROP: a slow subscriber loses samples, it never stalls the loop or the cycle.
+Threads: controller input samples are queued by Zenoh without Python and taken by the cycle itself at the start
+of each cycle (``ControllerPorts.take_inputs``): a 1 kHz stream adds no thread that takes the GIL. Zenoh calls our
+query handlers on its own threads: read-only services (status, list_*) are answered right there, so polling never
+wakes the asyncio loop; everything else is copied out and hops to the loop, where it runs. The cycle thread is
+reached only through ``engine.submit`` and ``engine.intake``, and read back through ring readers and
+``engine.status()``, so the API shares no lock with it. Every publisher uses congestion control DROP: a slow
+subscriber loses samples, it never stalls the loop or the cycle.
 
 Goal senders' liveliness tokens are watched (hild/api/clients.py): when one goes away, the sender's running goals
 are handed to their controllers (``_client_gone``).
@@ -95,6 +97,7 @@ class ApiServer:
             self._publishers[name] = declare_json_publisher(session, name)
         self._ports = ControllerPorts(session, self.engine, self.keys, loop, self.counters, self.lane)
         self._ports.sync()
+        self.engine.intake = self._ports.take_inputs
         self._last_change = self.engine.change_seq
         for service in SERVICES:
             self._queryables.append(
@@ -107,6 +110,7 @@ class ApiServer:
     async def close(self) -> None:
         """Withdraw the token first (clients see the daemon go), answer pending requests, then close."""
         self._closing = True
+        self.engine.intake = None
         if self._ports is not None:
             self._ports.closing = True
         if self._token is not None:

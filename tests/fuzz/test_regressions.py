@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import asyncio
 import json
-import threading
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -118,38 +117,71 @@ class FakeSample:
     payload: FakePayload
 
 
-def test_a_burst_on_one_input_keeps_only_the_newest_sample() -> None:
-    """While one Zenoh thread delivers a sample (its validation is slow), 1000 more arrive on another: the slot
-    holds the newest, the rest are superseded unread, and the deliverer hands over the newest next."""
-    loop = asyncio.new_event_loop()  # never run: small samples are delivered on the Zenoh thread
+class FakeSubscriber:
+    """A RingChannel subscriber: ``try_recv`` hands out what Zenoh queued, oldest first, then None."""
+
+    def __init__(self) -> None:
+        self.queued: list[FakeSample] = []
+
+    def put(self, raw: bytes) -> None:
+        self.queued.append(FakeSample(FakePayload(raw)))
+
+    def try_recv(self) -> FakeSample | None:
+        return self.queued.pop(0) if self.queued else None
+
+
+def intake(loop: asyncio.AbstractEventLoop) -> tuple[ControllerPorts, FakeSubscriber, list[Any], Counters]:
     counters = Counters()
     ports = ControllerPorts(None, FakeEngine(Events()), Keys("r"), loop, counters)  # type: ignore[arg-type]
     accepted: list[Any] = []
-    delivering, release = threading.Event(), threading.Event()
+    subscriber = FakeSubscriber()
+    ports._intake = (InputSlot("hild/r/ctrl/fwd/commands", "fwd", accepted.append, subscriber),)
+    return ports, subscriber, accepted, counters
 
-    def accept(payload: Any) -> None:
-        accepted.append(payload)
-        if len(accepted) == 1:
-            delivering.set()
-            assert release.wait(5.0)
 
-    def sample(k: int) -> FakeSample:
-        return FakeSample(FakePayload(json.dumps({"values": [k]}).encode()))
+def test_a_burst_on_one_input_keeps_only_the_newest_sample() -> None:
+    """1000 samples queued between two cycles: the intake hands over the newest; the rest are superseded unread."""
+    loop = asyncio.new_event_loop()  # never run: small samples are handed over by the cycle's intake
+    ports, subscriber, accepted, counters = intake(loop)
+    for k in range(1000):
+        subscriber.put(json.dumps({"values": [k]}).encode())
+    ports.take_inputs()
+    ports.take_inputs()  # nothing new: nothing handed over twice
+    loop.close()
+    assert accepted == [{"values": [999]}]
+    assert (counters.commands, counters.superseded, counters.dropped, counters.accepted) == (1000, 999, 999, 1)
 
-    slot = InputSlot("hild/r/ctrl/fwd/commands", "fwd", accept)  # the handler holds it weakly
-    on_sample = ports._sample_handler(slot)
-    first = threading.Thread(target=on_sample, args=(sample(-1),))
-    first.start()
+
+def test_a_large_sample_goes_to_the_loop_and_never_overtakes_a_newer_one() -> None:
+    loop = asyncio.new_event_loop()
+    ports, subscriber, accepted, counters = intake(loop)
+    large = json.dumps({"values": [1.0], "pad": " " * FAST_DECODE}).encode()
     try:
-        assert delivering.wait(5.0)
-        for k in range(1000):
-            on_sample(sample(k))  # returns at once: the slot has its deliverer
+        subscriber.put(large)
+        ports.take_inputs()  # too large for the cycle: handed to the loop, which has not run yet
+        subscriber.put(b'{"values": [2.0]}')
+        ports.take_inputs()  # the newer, small one is handed over at once
+        loop.run_until_complete(asyncio.sleep(0.2))  # the loop decodes the large one: it is no longer the newest
+        assert accepted == [{"values": [2.0]}]
+        assert counters.loop.superseded == 1 and counters.accepted == 1
+        subscriber.put(large)
+        ports.take_inputs()
+        loop.run_until_complete(asyncio.sleep(0.2))  # alone, it is handed over
+        assert accepted[-1]["values"] == [1.0] and counters.accepted == 2 and counters.commands == 3
     finally:
-        release.set()
-        first.join(5.0)
+        loop.run_until_complete(asyncio.sleep(0))
         loop.close()
-    assert accepted == [{"values": [-1]}, {"values": [999]}]
-    assert (counters.commands, counters.superseded, counters.dropped, counters.accepted) == (1001, 999, 999, 2)
+
+
+def test_an_oversized_sample_is_refused_unread_by_the_intake() -> None:
+    loop = asyncio.new_event_loop()
+    ports, subscriber, accepted, counters = intake(loop)
+    subscriber.put(b" " * (MAX_PAYLOAD + 1))
+    ports.take_inputs()
+    loop.close()
+    assert accepted == [] and counters.rejected == 1
+    (event,) = ports.engine.events.emitted  # type: ignore[attr-defined]
+    assert event[0] == "warning" and f"exceeds the {MAX_PAYLOAD}-byte limit" in event[2]
 
 
 # ---- goals -------------------------------------------------------------------------------------------------------
