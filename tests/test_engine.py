@@ -362,3 +362,28 @@ def test_estop_is_never_refused_even_with_a_full_request_queue(make_engine: Make
     assert stop.result(timeout=0) == {"deactivated": ["fwd"]}
     assert engine.status()["mode"] == "estop"
     assert all(f.done() for f in queued)
+
+
+def test_the_intake_runs_first_in_every_cycle_and_a_failing_one_is_switched_off(make_engine: MakeEngine) -> None:
+    engine = make_engine()
+    assert engine.switch(["fwd"], []).ok
+    taken: list[int] = []
+
+    def intake() -> None:  # what the API's intake does: hand a streamed command over before the controllers run
+        taken.append(engine.cycle)
+        send(engine, "fwd", [0.2, -0.2, 0.3])
+
+    engine.intake = intake
+    engine.run_cycles(1)
+    assert modes(engine) == ["controlled"] * 3  # the controller used it in the cycle that took it
+    engine.run_cycles(2)
+    assert taken == [engine.cycle - 2, engine.cycle - 1, engine.cycle]
+
+    def broken() -> None:
+        raise RuntimeError("bug")
+
+    events(engine)
+    engine.intake = broken
+    engine.run_cycles(2)  # the cycle goes on
+    assert engine.intake is None
+    assert [e for e in events(engine) if "the input intake failed and is off: RuntimeError: bug" in e]
