@@ -1,9 +1,11 @@
 """The daemon's Zenoh face: state out, services and commands in (docs/protocol.md has the wire format).
 
-Threads: controller input samples are queued by Zenoh without Python and taken by the cycle itself at the start
-of each cycle (``ControllerPorts.take_inputs``): a 1 kHz stream adds no thread that takes the GIL. Zenoh calls our
-query handlers on its own threads: read-only services (status, list_*) are answered right there, so polling never
-wakes the asyncio loop; everything else is copied out and hops to the loop, where it runs. The cycle thread is
+Threads: no thread of the daemon takes the GIL per streamed sample or per poll (docs/performance.md, "A busy
+neighbour"). Controller input samples are queued by Zenoh without Python and taken by the cycle itself at the
+start of each cycle (``ControllerPorts.take_inputs``). Read-only queries (status, list_*) are queued the same way
+and answered in batches on the asyncio loop when it wakes anyway, or every ``READ_PERIOD``, from a recent reply.
+Other queries (switch, e-stop, goals …) call our handlers on Zenoh's threads, which copy them out and hop to the
+loop, where they run. The cycle thread is
 reached only through ``engine.submit`` and ``engine.intake``, and read back through ring readers and
 ``engine.status()``, so the API shares no lock with it. Every publisher uses congestion control DROP: a slow
 subscriber loses samples, it never stalls the loop or the cycle.
@@ -38,6 +40,8 @@ log = logging.getLogger("hild.api")
 
 STATUS_PERIOD = 0.2  # s: status is published at 5 Hz, and at once when modes, faults or controllers change
 PRIORITY_SERVICES = frozenset({"estop"})  # their own gate: a flood of other requests never refuses an e-stop
+READ_PERIOD = 0.01  # s: queued read-only queries wait at most this long when nothing else wakes the loop
+READ_BACKLOG = 1024  # read-only queries Zenoh queues per service between two batches; beyond, the oldest go unanswered
 
 
 class ApiServer:
@@ -66,6 +70,8 @@ class ApiServer:
         self._token: zenoh.LivelinessToken | None = None
         self._client_watch: zenoh.Subscriber[Any] | None = None
         self._status_task: asyncio.Task[None] | None = None
+        self._reads_task: asyncio.Task[None] | None = None
+        self._read_queues: list[tuple[str, Any]] = []  # (service, queryable on a RingChannel)
         self._requests: set[asyncio.Task[None]] = set()
         self._gate = Gate()
         self._priority_gate = Gate()
@@ -90,6 +96,7 @@ class ApiServer:
             await self.close()
             raise
         self._status_task = self._loop.create_task(self._status_loop(), name="hild-api-status")
+        self._reads_task = self._loop.create_task(self._read_loop(), name="hild-api-reads")
         log.info("Zenoh API up: %s (%s, listen %s)", self.keys.root, self.settings.mode, endpoints)
 
     def _declare(self, session: zenoh.Session, loop: asyncio.AbstractEventLoop) -> None:
@@ -100,9 +107,13 @@ class ApiServer:
         self.engine.intake = self._ports.take_inputs
         self._last_change = self.engine.change_seq
         for service in SERVICES:
-            self._queryables.append(
-                session.declare_queryable(self.keys.service(service), self._query_handler(service), complete=True)
-            )
+            key = self.keys.service(service)
+            if service in self.services.read_only:  # queued by Zenoh, answered in batches on the loop
+                queue = session.declare_queryable(key, zenoh.handlers.RingChannel(READ_BACKLOG), complete=True)
+                self._read_queues.append((service, queue))
+                self._queryables.append(queue)
+            else:
+                self._queryables.append(session.declare_queryable(key, self._query_handler(service), complete=True))
         self._publish_status()
         self._watch_clients(session, loop)
         self._token = session.liveliness().declare_token(self.keys.alive)
@@ -121,11 +132,12 @@ class ApiServer:
             with contextlib.suppress(zenoh.ZError):
                 self._client_watch.undeclare()
             self._client_watch = None
-        if self._status_task is not None:
-            self._status_task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._status_task
-            self._status_task = None
+        for task in (self._status_task, self._reads_task):
+            if task is not None:
+                task.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await task
+        self._status_task = self._reads_task = None
         for task in list(self._requests):
             task.cancel()
         if self._requests:
@@ -134,6 +146,7 @@ class ApiServer:
             self._ports.close()
             self._ports = None
         entities: list[Any] = [*self._queryables, *self._publishers.values()]
+        self._read_queues.clear()
         self._queryables.clear()
         self._publishers.clear()
         for entity in entities:
@@ -149,6 +162,7 @@ class ApiServer:
         """The doorbell rang: publish events, new output samples, and status if anything changed."""
         if self.session is None or self._closing:
             return
+        self.answer_reads()  # the loop is awake anyway: answer what queued since
         events_pub = self._publishers[self.keys.events]
         for event in events:
             self._put(events_pub, event.as_dict())
@@ -180,6 +194,37 @@ class ApiServer:
             self.counters.published += 1
         except zenoh.ZError:
             self.counters.publish_errors += 1
+
+    # ---- read-only services, in batches (asyncio thread) -------------------------------------------------------
+    def answer_reads(self) -> None:
+        """Answer every queued status/list_* query. Zenoh queued them without Python; answering them here, when
+        the loop wakes anyway (publishing) or every ``READ_PERIOD``, costs the cycle no GIL hand-over per query
+        (docs/performance.md, "A busy neighbour")."""
+        if self._closing:
+            return
+        for service, queue in self._read_queues:
+            try:
+                while (query := queue.try_recv()) is not None:
+                    self._answer_read(service, query)
+            except zenoh.ZError:  # undeclared meanwhile (closing)
+                continue
+
+    def _answer_read(self, service: str, query: zenoh.Query) -> None:
+        admitted = self._gate.admit(query)
+        if not isinstance(admitted, Admitted):
+            self._reply(service, query, admitted)
+        elif self.services.readable(service, admitted.raw):
+            self._read(service, query, admitted)
+        else:  # a large payload on a read-only service: parsed in the heavy lane, like any other request
+            self._start_request(service, query, admitted)
+
+    async def _read_loop(self) -> None:
+        while True:
+            await asyncio.sleep(READ_PERIOD)
+            try:
+                self.answer_reads()
+            except Exception:
+                log.exception("answering queued queries failed")
 
     async def _status_loop(self) -> None:
         while True:
@@ -233,7 +278,7 @@ class ApiServer:
         # the server, and through it the engine, alive until the interpreter exits.
         server = weakref.ref(self)
 
-        def on_query(query: zenoh.Query) -> None:  # a Zenoh thread: admit (size, cap); read here, or hop to the loop
+        def on_query(query: zenoh.Query) -> None:  # a Zenoh thread: admit (size, cap), copy out, hop to the loop
             me = server()
             if me is None or me._loop is None:
                 drop(query)
@@ -241,9 +286,6 @@ class ApiServer:
             admitted = gate.admit(query)
             if not isinstance(admitted, Admitted):
                 me._reply(service, query, admitted)
-                return
-            if me.services.readable(service, admitted.raw):
-                me._read(service, query, admitted)
                 return
             try:
                 me._loop.call_soon_threadsafe(me._start_request, service, query, admitted)
@@ -267,7 +309,7 @@ class ApiServer:
         task.add_done_callback(lambda _: admitted.release())
 
     def _read(self, service: str, query: zenoh.Query, admitted: Admitted) -> None:
-        """A read-only service, answered on the Zenoh thread: polling never wakes the loop (docs/performance.md)."""
+        """A read-only service, answered from the services' recent reply."""
         with self.counters.lock:
             self.counters.queries += 1
         try:

@@ -4,9 +4,9 @@ Every reply carries ``ok`` and ``error`` (null when ok); nothing a client sends 
 :meth:`Services.handle` or :meth:`Services.read`.
 Read-only services read the engine directly (its read-back methods are safe from any thread), so they keep
 answering even when the cycle is stuck, which is when an operator needs them most; :meth:`Services.read` answers
-them on the caller's thread (a Zenoh thread), so a client polling ``status`` at 200 Hz never wakes the asyncio
-loop. Services that change state run on the cycle thread through ``engine.submit``, between two cycles, on the
-asyncio thread (:meth:`Services.handle`), and give up after ``timeout``.
+them synchronously from a recent reply, so the API can answer a batch of polls in one go. Services that change
+state run on the cycle thread through ``engine.submit``, between two cycles, awaited on the asyncio thread
+(:meth:`Services.handle`), and give up after ``timeout``.
 """
 
 from __future__ import annotations
@@ -128,6 +128,11 @@ class Services:
         except Exception as exc:
             return self._failed(name, exc)
         return ok(body)
+
+    @property
+    def read_only(self) -> frozenset[str]:
+        """The services :meth:`read` can answer on any thread."""
+        return frozenset(name for name, service in self.table.items() if service.read is not None)
 
     def readable(self, name: str, raw: bytes) -> bool:
         """Whether :meth:`read` answers this request here and now: a read-only service, a small payload."""
