@@ -3,7 +3,9 @@
 asyncio cannot pace below 1 ms (its epoll wait rounds up to whole milliseconds), so the cycle has its own thread.
 It sleeps to an absolute deadline minus a short spin, then busy-waits the rest: deadlines never drift, and the
 wake-up is accurate to microseconds instead of the kernel's timer slack. A cycle that overruns its period skips
-the missed periods (no burst to catch up) and counts them.
+the missed periods (no burst to catch up) and counts them. The duration recorded is wake-up → hardware writes
+done (``engine.write_done_ns``): what can delay a command. Work after the write (the telemetry tap) counts toward
+overruns, not toward the duration.
 
 Clocks: ``wall`` gives controllers the measured time since start; ``sim`` gives ``t = k · period`` exactly, paced
 at ``real_time_factor`` × real time, or as fast as possible when it is 0 (lockstep twin).
@@ -73,7 +75,7 @@ class CycleThread(threading.Thread):
             overrun = end > deadline + period_ns
             if overrun:
                 deadline += ((end - deadline) // period_ns) * period_ns
-            stats.record(end - wake, abs(wake - prev_wake - period_ns), overrun)
+            stats.record(engine.write_done_ns - wake, abs(wake - prev_wake - period_ns), overrun)
             prev_wake = wake
 
     def _run_sim(self) -> None:
@@ -98,5 +100,5 @@ class CycleThread(threading.Thread):
             if overrun:  # fell behind real time: re-sync instead of bursting to catch up
                 start += end - deadline
             error = abs(wake - prev_wake - round(period_ns / rtf)) if rtf > 0 else 0
-            stats.record(end - wake, error, overrun)
+            stats.record(engine.write_done_ns - wake, error, overrun)
             prev_wake = wake

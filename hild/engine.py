@@ -14,6 +14,7 @@ the start of the next cycle, answered through a ``concurrent.futures.Future``) a
 from __future__ import annotations
 
 import concurrent.futures
+import time
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -78,6 +79,7 @@ class Engine:
         # Set by the API: takes streamed commands at the start of each cycle, so no other thread takes the GIL
         # per sample (docs/performance.md, "A busy neighbour").
         self.intake: Callable[[], None] | None = None
+        self.write_done_ns = 0  # perf_counter_ns when the last cycle's hardware writes were done
         self.events.doorbell = self._ring
         self.stats = LoopStats()
         self.t = 0.0
@@ -332,9 +334,10 @@ class Engine:
             self.manager.fail_slots(
                 sup.bad_command_owners, "non-finite or negative-gain command", self.state, self.command
             )
-        if self.tap is not None:  # a few µs of numpy copies into a preallocated ring; rerun runs elsewhere
-            self.tap.record(t, self.cycle, self.state, self.final, sup.mode, dt)
         self._write(t, dt)
+        self.write_done_ns = time.perf_counter_ns()  # the cycle's duration ends here: what could delay a command
+        if self.tap is not None:  # after the write, so recording never delays a command; rerun runs elsewhere
+            self.tap.record(t, self.cycle, self.state, self.final, sup.mode, dt)
 
     def run_cycles(self, count: int) -> None:
         """Lockstep helper: advance ``count`` cycles of the sim clock (tests, tools)."""

@@ -7,9 +7,10 @@ For each clock (lockstep = sim clock as fast as possible; wall = real time) and 
 cycle thread (hild.cycle.CycleThread) with the daemon's real-time settings, without telemetry and with a file sink
 in a temporary directory (the recorder process, and ``Telemetry.run`` watching it on an asyncio loop on the main
 thread, the way the daemon does). ``--repeat N`` runs N off/on pairs, interleaved (off, on, off, on, …) so a drift
-of the machine hits both alike, and reports each run and the mean of each pair of sides. The tap is called right
-after the supervisor's command, as the engine integration does, and its own cost is timed separately. Reports
-cycle duration p50/p99 (µs), the p99 rise, the tap's p50/p99, the recorder's flush mean/max (ms, in its own
+of the machine hits both alike, and reports each run and the mean of each pair of sides. The tap is called where
+the daemon's engine calls it (``Engine.step``, right after the hardware writes) and its own cost is timed
+separately. Reports cycle duration (wake-up → writes done) p50/p99 (µs), the p99 rise, overruns per 10k cycles
+(they count the whole step, tap included), the tap's p50/p99, the recorder's flush mean/max (ms, in its own
 process) and the recording's size (kB/s).
 """
 
@@ -34,22 +35,17 @@ from hild.realtime import apply_process_settings, freeze_heap, thaw_heap
 from hild.telemetry import Telemetry
 
 
-def _instrument(engine: Engine, telemetry: Telemetry, tap_ns: np.ndarray) -> list[int]:
-    """Call the tap right after ``supervisor.command`` inside ``Engine.step`` (where the integration puts it),
-    timing each call into ``tap_ns``; returns the call counter."""
-    tap, counter = telemetry.tap, [0]
-    sup, clock = engine.supervisor, time.perf_counter_ns
+class TimedTap:
+    """Stands in for the engine's tap wherever ``Engine.step`` calls it, timing each real ``record``."""
 
-    def supervisor_command(dt: float, state: Any, command: Any, final: Any, _inner: Any = sup.command) -> None:
-        _inner(dt, state, command, final)
-        t0 = clock()
-        tap.record(engine.t, engine.cycle, state, final, sup.mode, dt)
-        i = counter[0]
-        tap_ns[i % len(tap_ns)] = clock() - t0
-        counter[0] = i + 1
+    def __init__(self, tap: Any, tap_ns: np.ndarray) -> None:
+        self.tap, self.tap_ns, self.calls = tap, tap_ns, 0
 
-    sup.command = supervisor_command  # type: ignore[method-assign]
-    return counter
+    def record(self, *args: Any) -> None:
+        t0 = time.perf_counter_ns()
+        self.tap.record(*args)
+        self.tap_ns[self.calls % len(self.tap_ns)] = time.perf_counter_ns() - t0
+        self.calls += 1
 
 
 async def _measure(
@@ -67,7 +63,8 @@ async def _measure(
     engine = Engine(loaded)
     telemetry = Telemetry.from_config(loaded, engine.stats)
     tap_ns = np.zeros(200_000, dtype=np.int64)
-    counter = _instrument(engine, telemetry, tap_ns) if telemetry else [0]
+    timed = TimedTap(telemetry.tap, tap_ns) if telemetry else None
+    engine.tap = timed  # where the daemon puts it: Engine.step calls it after the hardware writes
     apply_process_settings(cfg.realtime)
     engine.start()
     freeze_heap(cfg.realtime)
@@ -76,10 +73,10 @@ async def _measure(
     cycle.start()
     await asyncio.sleep(1.0)  # warm-up, not counted
     engine.stats.reset()
-    first_tap = counter[0]
+    first_tap = timed.calls if timed else 0
     await asyncio.sleep(seconds)
     summary = engine.stats.summary()
-    taps = min(counter[0] - first_tap, len(tap_ns))
+    taps = min((timed.calls if timed else 0) - first_tap, len(tap_ns))
     cycle.stop()
     await asyncio.to_thread(cycle.join, 5.0)
     size = 0
@@ -98,6 +95,7 @@ async def _measure(
         "telemetry": with_telemetry,
         "cycles": summary["cycles"],
         "overruns": summary["overruns"],
+        "ovr_per_10k": round(1e4 * int(summary["overruns"]) / max(1, int(summary["cycles"])), 1),
         "p50_us": d["p50"],
         "p99_us": d["p99"],
         "max_us": d["max"],
@@ -140,7 +138,7 @@ def main() -> int:
                 **{
                     f"{side}_{k}": round(float(np.mean([p[i][k] for p in pairs])), 1)
                     for i, side in enumerate(("off", "on"))
-                    for k in ("p50_us", "p99_us")
+                    for k in ("p50_us", "p99_us", "ovr_per_10k")
                 },
             }
             mean["p99_rise_pct"] = _rise(mean["on_p99_us"], mean["off_p99_us"])
@@ -149,7 +147,8 @@ def main() -> int:
         print(json.dumps({"runs": rows, "means": means}, indent=2))
         return 0
     print(
-        f"{'clock':>8} {'rate':>5} {'tele':>5} {'cycles':>7} {'p50':>6} {'p99':>6} {'max':>8} {'rise%':>6} "
+        f"{'clock':>8} {'rate':>5} {'tele':>5} {'cycles':>7} {'p50':>6} {'p99':>6} {'max':>8} {'ovr/10k':>7} "
+        f"{'rise%':>6} "
         f"{'tap50':>6} {'tap99':>6} {'flush ms':>9} {'max':>6} {'kB/s':>6} {'drop':>5}"
     )
     for r in rows:
@@ -161,16 +160,19 @@ def main() -> int:
         )
         print(
             f"{r['clock']:>8} {r['rate_hz']:>5g} {'on' if r['telemetry'] else 'off':>5} {r['cycles']:>7} "
-            f"{r['p50_us']:>6} {r['p99_us']:>6} {r['max_us']:>8} {extra}"
+            f"{r['p50_us']:>6} {r['p99_us']:>6} {r['max_us']:>8} {r['ovr_per_10k']:>7} {extra}"
         )
     print("\nmean over the interleaved pairs")
-    print(f"{'clock':>8} {'rate':>5} {'runs':>4} {'off p99':>8} {'on p99':>7} {'rise%':>6}")
+    print(f"{'clock':>8} {'rate':>5} {'runs':>4} {'off p99':>8} {'on p99':>7} {'rise%':>6} {'ovr off':>8} {'on':>6}")
     for m in means:
         print(
             f"{m['clock']:>8} {m['rate_hz']:>5g} {m['runs']:>4} {m['off_p99_us']:>8} {m['on_p99_us']:>7} "
-            f"{m['p99_rise_pct']:>6}"
+            f"{m['p99_rise_pct']:>6} {m['off_ovr_per_10k']:>8} {m['on_ovr_per_10k']:>6}"
         )
-    print("(µs unless noted; duration = wake → write done; tap = TelemetryTap.record)", file=sys.stderr)
+    print(
+        "(µs unless noted; duration = wake → writes done; overruns count the whole step; tap = TelemetryTap.record)",
+        file=sys.stderr,
+    )
     return 0
 
 

@@ -47,6 +47,7 @@ class EmptyEngine:
         self.events = EventLog()
         self.lateness = np.zeros(capacity, dtype=np.int64)
         self.steps = 0
+        self.write_done_ns = 0
         self.warmup_cycles = -1
         self._open_window = threading.Event()
 
@@ -57,6 +58,7 @@ class EmptyEngine:
             time.sleep(0.001)
 
     def step(self, t: float, dt: float) -> None:
+        self.write_done_ns = time.perf_counter_ns()  # nothing to write: the cycle's work ends here
         if self.warmup_cycles >= 0:
             self.lateness[self.steps % len(self.lateness)] = round(t * 1e9) % self.period_ns
             self.steps += 1
