@@ -82,7 +82,7 @@ class Admitted:
 
 
 class Gate:
-    """Admission of one endpoint group's queries, on the Zenoh thread, before anything is copied or queued."""
+    """Admission of one endpoint group's queries where they are received, before anything is copied or queued."""
 
     def __init__(self, capacity: int = MAX_IN_FLIGHT, large_capacity: int = MAX_LARGE_IN_FLIGHT) -> None:
         self.small = InFlight(capacity)
