@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from hild.config import load_config
+from hild.cycle import wait_until
 from hild.engine import Engine
 from hild.motion.reference import standard_trajectory
 
@@ -122,11 +123,7 @@ def paced_cycles(engine: Engine, count: int, rate: float) -> np.ndarray:
     deadline = time.perf_counter_ns()
     for k in range(count):
         deadline += period
-        remaining = deadline - time.perf_counter_ns() - 200_000
-        if remaining > 0:
-            time.sleep(remaining / 1e9)
-        while time.perf_counter_ns() < deadline:
-            pass
+        wait_until(deadline)  # the cycle thread's own sleep-then-spin, with its default spin
         start = time.perf_counter_ns()
         engine.run_cycles(1)
         took[k] = (time.perf_counter_ns() - start) / 1e3
