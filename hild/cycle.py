@@ -41,6 +41,7 @@ class CycleThread(threading.Thread):
         self.realtime = realtime
         self.error: BaseException | None = None
         self._stop_requested = threading.Event()
+        self._stop_begun = False
 
     def stop(self) -> None:
         self._stop_requested.set()
@@ -59,6 +60,13 @@ class CycleThread(threading.Thread):
         finally:
             engine.stop()
 
+    def _descending(self) -> bool:
+        """Asked to stop: start the engine's stop sequence once, and keep cycling while its descent runs."""
+        if not self._stop_begun:
+            self._stop_begun = True
+            return self.engine.begin_stop()
+        return not self.engine.stopping_done
+
     def _run_wall(self) -> None:
         engine, stats, stopping = self.engine, self.engine.stats, self._stop_requested
         period_ns = round(engine.period * 1e9)
@@ -66,7 +74,7 @@ class CycleThread(threading.Thread):
         start = time.perf_counter_ns()
         deadline = start
         prev_wake = start - period_ns
-        while not stopping.is_set():
+        while not stopping.is_set() or self._descending():
             deadline += period_ns
             wait_until(deadline, spin_ns)
             wake = time.perf_counter_ns()
@@ -88,7 +96,7 @@ class CycleThread(threading.Thread):
         t0 = engine.t
         k = 0
         prev_wake = start
-        while not stopping.is_set():
+        while not stopping.is_set() or self._descending():
             k += 1
             deadline = start + round(k * period_ns / rtf) if rtf > 0 else 0
             if rtf > 0:

@@ -42,6 +42,8 @@ STATUS_STATS_MAX_AGE = 0.1  # s: status polled at 200 Hz recomputes loop percent
 ENABLE_CONFIRM = 1.0  # s: an operator enable must show in the drive's replies within this
 SET_ZERO_MAX_SPEED = 0.05  # rad/s: set-zero only on a still joint
 SET_ZERO_SETTLE = 0.5  # s: hold follows the reading while the drive moves to its new frame (some drop replies ~1 s)
+MAX_STEP_PERIODS = 2.0  # a late cycle advances the control clock (and the slew limit) by at most this many periods
+GAP_EVENT_PERIODS = 10  # a cycle later than this many periods is reported (at most once a second, with a count)
 
 
 class RequestRejected(RuntimeError):
@@ -82,7 +84,13 @@ class Engine:
         self.write_done_ns = 0  # perf_counter_ns when the last cycle's hardware writes were done
         self.events.doorbell = self._ring
         self.stats = LoopStats()
-        self.t = 0.0
+        self.t = 0.0  # the cycle clock as given: wall time since start, or the sim clock
+        # The control clock: what controllers and the slew limit see. It advances by the cycle's dt, but by at
+        # most MAX_STEP_PERIODS periods, so a stalled cycle resumes where it stopped instead of catching up in
+        # one step: trajectories and streams are re-timed by the length of the stall. Equal to t in lockstep.
+        self.control_t = 0.0
+        self._clock_lag = 0.0
+        self._gap_report = (-1.0, 0, 0.0)  # (t of the last gap event, gaps not reported since, the longest)
         self.cycle = 0
         self.started = False
         self.realtime_report: dict[str, str] = {}
@@ -116,12 +124,20 @@ class Engine:
                 s.overspeed_factor,
                 Action[s.fault_action.upper()],
                 Action[s.estop_action.upper()],
+                stale_feedback_time=s.stale_feedback_time,
+                plausibility_margin=s.plausibility.margin,
+                plausible_speed_factor=s.plausibility.speed_factor,
+                plausible_step_tolerance=s.plausibility.step_tolerance,
             ),
             self.events,
             gravity=gravity,
             describe_fault=self._describe_fault,
+            applies_gains=self._applies_gains(),
         )
         self.max_consecutive_overruns = s.max_consecutive_overruns
+        self._max_step = MAX_STEP_PERIODS * self.period
+        self.max_cycle_gap = s.max_cycle_gap
+        self.stop_descent = s.stop_descent
         self.available_interfaces = [
             interface_name(j, f)
             for slot in self.hardware
@@ -169,6 +185,13 @@ class Engine:
             position_kd=np.array([g.kd for g in pos]),
             velocity_kd=np.array([(j.velocity_gains.kd if j.velocity_gains else j.hold.kd) for j in js]),
         )
+
+    def _applies_gains(self) -> np.ndarray:
+        """Per joint: does its drive apply the command's kp/kd (so the supervisor can predict its torque)?"""
+        applies = np.ones(len(self.joints), dtype=bool)
+        for slot in self.hardware:
+            applies[slot.index] = slot.component.APPLIES_GAINS
+        return applies
 
     def _transmissions(self, cfg: Any, index: dict[str, int]) -> Transmissions:
         n = len(self.joints)
@@ -282,20 +305,39 @@ class Engine:
         except Exception as exc:
             raise HardwareError(f"hardware {slot.name!r} ({slot.driver}): {what} failed: {exc}") from exc
 
+    def begin_stop(self) -> bool:
+        """Start stopping: every controller is deactivated; with ``safety.stop_descent`` the damped descent begins.
+        Returns True when cycles must go on until ``stopping_done`` (the cycle thread keeps its pace meanwhile)."""
+        if not self.started:
+            return False
+        self.manager.deactivate_all("shutdown")
+        if self.stop_descent > 0.0:
+            self.supervisor.begin_descent(self.stop_descent)
+            return True
+        return False
+
+    @property
+    def stopping_done(self) -> bool:
+        return not self.supervisor.descending
+
     def stop(self) -> None:
-        """Hold every joint, then leave the hardware in its safe state and release it.
+        """Hold every joint (or, after a stop descent, keep damping), then leave the hardware in its safe state and
+        release it.
 
         Runs on the cycle thread after its last cycle, also after a crash: the hardware is released even when
-        the final hold cycle itself fails.
+        the final cycle itself fails. After a descent the final cycle damps with no feed-forward: a hold spring
+        would pull the lowered arm back up for one cycle before release.
         """
         if not self.started:
             return
+        descended = self.stop_descent > 0.0 and self.supervisor.descent_started
         self.started = False
         self.manager.deactivate_all("shutdown")
-        try:
-            self.step(self.t + self.period, self.period)  # one last cycle: every joint in hold
-        except Exception as exc:
-            self.events.emit("error", "engine", f"final hold cycle failed: {type(exc).__name__}: {exc}")
+        if not descended:
+            try:
+                self.step(self.t + self.period, self.period)  # one last cycle: every joint in hold
+            except Exception as exc:
+                self.events.emit("error", "engine", f"final hold cycle failed: {type(exc).__name__}: {exc}")
         self._release_hardware()
         self.events.emit("info", "engine", "stopped: hardware released")
 
@@ -312,7 +354,15 @@ class Engine:
 
     # ---- the cycle ----------------------------------------------------------------------------------------------
     def step(self, t: float, dt: float) -> None:
+        """One cycle. ``dt`` is the time since the last one as it really passed: drivers and the plausibility
+        check use it (the arm moved for that long); controllers and the slew limit get it clamped."""
         self.t = t
+        dt_control = dt
+        if dt > self._max_step:
+            dt_control = self._max_step
+            self._clock_lag += dt - dt_control
+            self._late_cycle(dt)
+        self.control_t = t - self._clock_lag
         self.cycle += 1
         if self._estop_requested:
             self._apply_estop()
@@ -321,15 +371,15 @@ class Engine:
             self._take_inputs()
         self._read(t, dt)
         sup = self.supervisor
-        sup.check(self.state)
+        sup.check(self.state, dt)
         if self._rearm:
             self._confirm_enabled()
         if self.cycle % self._health_every == 0:
             self._poll_health()
         if self.max_consecutive_overruns and self.stats.consecutive_overruns >= self.max_consecutive_overruns:
-            sup.trip_all(Fault.OVERRUN, f"{self.stats.consecutive_overruns} consecutive overruns", self.state.position)
-        self.manager.update(t, dt, self.state, self.command)
-        sup.command(dt, self.state, self.command, self.final)
+            sup.trip_all(Fault.OVERRUN, f"{self.stats.consecutive_overruns} consecutive overruns")
+        self.manager.update(self.control_t, dt_control, self.state, self.command)
+        sup.command(dt_control, self.state, self.command, self.final)
         if sup.bad_command_owners:
             self.manager.fail_slots(
                 sup.bad_command_owners, "non-finite or negative-gain command", self.state, self.command
@@ -338,6 +388,29 @@ class Engine:
         self.write_done_ns = time.perf_counter_ns()  # the cycle's duration ends here: what could delay a command
         if self.tap is not None:  # after the write, so recording never delays a command; rerun runs elsewhere
             self.tap.record(t, self.cycle, self.state, self.final, sup.mode, dt)
+
+    def _late_cycle(self, dt: float) -> None:
+        """A cycle came ``dt`` after the last: past ``safety.max_cycle_gap`` every joint faults (the arm may have
+        been on its drives' own watchdogs); a shorter gap is reported, at most once a second."""
+        ms = dt * 1000.0
+        if self.max_cycle_gap and dt > self.max_cycle_gap:
+            limit = self.max_cycle_gap * 1000.0
+            self.supervisor.trip_all(Fault.OVERRUN, f"the cycle stalled for {ms:.0f} ms (max_cycle_gap {limit:g} ms)")
+            return
+        if dt < GAP_EVENT_PERIODS * self.period:
+            return
+        last, missed, longest = self._gap_report
+        if last >= 0.0 and self.t - last < 1.0:
+            self._gap_report = (last, missed + 1, max(longest, dt))
+            return
+        more = f"; {missed} more since the last report, the longest {longest * 1000:.0f} ms" if missed else ""
+        self.events.emit(
+            "warning",
+            "engine",
+            f"cycle gap of {ms:.0f} ms ({dt / self.period:.0f} periods): controllers resume where they were, "
+            f"re-timed by the gap{more}",
+        )
+        self._gap_report = (self.t, 0, 0.0)
 
     def run_cycles(self, count: int) -> None:
         """Lockstep helper: advance ``count`` cycles of the sim clock (tests, tools)."""
@@ -380,7 +453,7 @@ class Engine:
             slot.fault = text
             self.events.emit("error", slot.name, text)
         for i in slot.index:
-            self.supervisor.trip(int(i), Fault.HARDWARE, f"{slot.name}: {text}", self.state.position)
+            self.supervisor.trip(int(i), Fault.HARDWARE, f"{slot.name}: {text}")
 
     # ---- requests (asyncio side → cycle) ---------------------------------------------------------------------
     def submit(self, action: Callable[[], Any]) -> concurrent.futures.Future[Any]:
@@ -508,7 +581,7 @@ class Engine:
             slot.component.set_zero(joint)
         except HardwareError as exc:
             return {"error": f"{slot.name}: {exc}"}
-        self.supervisor.follow_measured(i, max(1, round(SET_ZERO_SETTLE * self.update_rate)))
+        self.supervisor.follow_measured(i, max(1, round(SET_ZERO_SETTLE * self.update_rate)), new_frame=True)
         self.events.emit("warning", "engine", f"set-zero: {joint}'s current position is now its drive zero")
         return {"joint": joint}
 

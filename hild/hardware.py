@@ -86,6 +86,10 @@ class HardwareComponent(abc.ABC):
     Params: ClassVar[type[Params]] = Params
     COMMAND_FIELDS: ClassVar[frozenset[str]] = ALL_COMMAND_FIELDS
     SIMULATED: ClassVar[bool] = False
+    APPLIES_GAINS: ClassVar[bool] = True
+    """The drive applies the command's kp/kd in its own law, so ``kp·(p − q) + kd·(v − q̇) + ff`` predicts its
+    torque and the supervisor may trim ``ff`` against it. False (ODrive in position mode: its own gains) leaves
+    only ``ff`` to bound."""
 
     def __init__(self, context: HardwareContext, params: Params) -> None:
         self.context = context

@@ -2,18 +2,29 @@
 
 Every cycle, whatever the controllers do:
 
-* ``check(state)`` (after read) detects faults: stale feedback, drive fault codes, non-finite feedback, hard
-  position limits, overspeed. Faults latch until ``reset``.
+* ``check(state, dt)`` (after read) first passes every reading through the plausibility gate
+  (``hild.plausibility``): a non-finite reading, one outside the hard limits and their margin, a jump no joint could
+  make in the time since the last accepted one, or a frozen position is *rejected* — the state then carries the
+  last accepted reading, marked not fresh, so nothing downstream ever sees it. Then it detects faults: stale or
+  implausible feedback (rejected readings count like missing ones), drive fault codes, overspeed. Faults latch
+  until ``reset``.
 * ``command(state, ctrl, out)`` (after the controllers) builds the final servo command per joint:
   - **controlled** (an active controller claimed and wrote it this cycle): claimed fields from the controller,
     the rest from the joint's mode defaults (position gains for a position claim, kp = 0 for velocity,
     kp = kd = 0 for effort) plus gravity feed-forward;
   - **hold** (nobody commands it): the position latched when it lost its controller (or at start-up), hold
     gains, gravity feed-forward — never a stale command;
-  - **fault / e-stop**: the configured safe action (hold, damp or disable).
+  - **fault / e-stop**: the configured safe action (hold, damp or disable). A fault latches the last *accepted*
+    position; a joint whose position cannot be trusted (its readings are being rejected, or it never had one)
+    is never held with a spring: it gets damping only (kp 0, hold kd) and gravity feed-forward from the last
+    accepted pose.
   Then limits: soft position limits and velocity limits on controller commands, a slew limit so the commanded
-  position never steps by more than ``velocity_limit · dt`` (hold latching included), and the predicted drive
-  torque kept within ``±effort``. A limit that engages is reported once, when it engages and when it releases.
+  position never steps by more than ``velocity_limit · dt`` (hold latching included; ``dt`` is the engine's
+  clamped cycle time, so a late cycle never catches up in one step), and the predicted drive torque kept within
+  ``±effort``. The prediction uses only what the drive applies (``applies_gains``: an ODrive never applies
+  hild's kp/kd), and the feed-forward trim may only *take torque away* unless the joint's reading is fresh and
+  accepted and the joint is not faulted — so no spring seen through a stand-in reading is ever "compensated".
+  A limit that engages is reported once, when it engages and when it releases.
 
 The per-cycle work is a plain loop over joints reading and writing preallocated arrays in place. For the 2–14
 joints of an arm that is several times faster than vectorised numpy (each numpy call on a six-element array is
@@ -35,6 +46,7 @@ from hild.controller import JointLimitArrays
 from hild.events import EventLog
 from hild.interfaces import FIELDS, ClaimMasks
 from hild.modes import JointMode
+from hild.plausibility import BEYOND_LIMITS, NONE, FeedbackGate
 
 
 class Fault(enum.IntEnum):
@@ -61,6 +73,7 @@ _LIMIT_WORDS = ((LIMIT_POSITION, "position"), (LIMIT_VELOCITY, "velocity"), (LIM
 # Plain ints for the per-joint loop (enum attribute lookups cost more than the comparisons they feed).
 _FAULT, _CONTROLLED, _HOLD_MODE = int(JointMode.FAULT), int(JointMode.CONTROLLED), int(JointMode.HOLD)
 _HOLD, _DAMP = int(Action.HOLD), int(Action.DAMP)
+_DAMP_GRAVITY = -1  # not configurable: what a hold becomes when no position can be trusted
 
 
 def limit_names(flags: int) -> list[str]:
@@ -82,6 +95,10 @@ class SafetySettings:
     overspeed_factor: float
     fault_action: Action
     estop_action: Action
+    stale_feedback_time: float = 0.0  # s without an accepted reading, on top of the cycle count; 0 = cycles only
+    plausibility_margin: float = 0.05  # rad beyond the hard limits a reading may still lie (a joint on its stop)
+    plausible_speed_factor: float = 3.0  # × velocity limit: the fastest a reading may move from the last accepted
+    plausible_step_tolerance: float = 0.002  # rad added to that bound (encoder quantisation and noise)
 
 
 GravityFn = Callable[[np.ndarray, np.ndarray], None]
@@ -98,6 +115,7 @@ class Supervisor:
         events: EventLog,
         gravity: GravityFn | None = None,
         describe_fault: DescribeFn | None = None,
+        applies_gains: np.ndarray | None = None,
     ) -> None:
         n = len(joints)
         self.joints = joints
@@ -107,6 +125,16 @@ class Supervisor:
         self.events = events
         self.gravity = gravity
         self.describe_fault = describe_fault or (lambda i, code: f"drive fault code {code:#x}")
+        self.gate = FeedbackGate(
+            joints,
+            limits.lower,
+            limits.upper,
+            limits.velocity,
+            margin=safety.plausibility_margin,
+            factor=safety.plausible_speed_factor,
+            tolerance=safety.plausible_step_tolerance,
+            emit=lambda level, text: events.emit(level, "supervisor", text),
+        )
 
         # Published state (read by status from other threads; written element-wise, only on change).
         self.mode = np.zeros(n, dtype=np.int64)
@@ -124,6 +152,8 @@ class Supervisor:
         self._vmax, self._emax = limits.velocity.tolist(), limits.effort.tolist()
         self._overspeed = [v * safety.overspeed_factor for v in self._vmax]
         self._hold_kp, self._hold_kd = gains.hold_kp.tolist(), gains.hold_kd.tolist()
+        # Whether the drive applies the command's kp/kd itself (its torque is then predictable from them).
+        self._applies_gains = [True] * n if applies_gains is None else [bool(a) for a in applies_gains]
 
         # Per-joint claim view, rebuilt at each switch (set_claims).
         self._owner = [-1] * n
@@ -133,18 +163,24 @@ class Supervisor:
 
         self._safe_action = [Action.HOLD] * n
         self._stale = [0] * n
+        self._silent = [0.0] * n  # s without an accepted reading
         self._relatch = [False] * n  # latch at the next command(): after reset and e-stop
+        self._new_frame = [False] * n  # the follow window is a set-zero's: re-anchor the gate on every reading
         self._follow = [0] * n  # cycles left during which hold follows the measured position (after set-zero)
         self._prev_position = np.zeros(n)
         self._g = np.zeros(n)
+        self._pose = np.zeros(n)  # where gravity is computed: the accepted positions (0 where none is known)
+        self._descent = (0.0, 0.0)  # (s left, s total) of a stop descent; (0, 0) when none runs
+        self.descent_started = False
         self.set_claims(ClaimMasks.empty(n))
 
     # ---- configuration (between cycles) -------------------------------------------------------------------
     def start(self, state: JointState) -> None:
-        """Latch every joint where the first read found it: starting the daemon never moves the arm."""
-        finite = np.isfinite(state.position)
-        self.latched[:] = np.where(finite, state.position, 0.0)
-        self._prev_position[:] = self.latched
+        """Latch every joint where the first read found it: starting the daemon never moves the arm. A joint
+        without a plausible start-up reading has no position (NaN latch): it is damped, never pulled anywhere."""
+        self.gate.start(state)
+        self.latched[:] = self.gate.accepted_position
+        self._prev_position[:] = np.where(np.isfinite(self.latched), self.latched, 0.0)
         self._relatch = [False] * len(self.joints)
         self.mode[:] = JointMode.HOLD
 
@@ -163,47 +199,72 @@ class Supervisor:
         self.change_seq += 1
 
     # ---- fault detection (after read) ---------------------------------------------------------------------
-    def check(self, state: JointState) -> None:
-        pos = state.position
+    def check(self, state: JointState, dt: float) -> None:
+        """Gate the readings, then detect faults. ``dt`` is the wall time since the last read: how far a joint
+        could have moved, and how long it has been silent."""
+        gate = self.gate
+        if any(self._new_frame):
+            for i, moving in enumerate(self._new_frame):
+                if moving:
+                    gate.reanchor(i)
+                    if not self._follow[i]:
+                        self._new_frame[i] = False
+        gate.filter(state, dt)
         fresh, codes = state.fresh.tolist(), state.fault.tolist()
-        q_all, qd_all = pos.tolist(), state.velocity.tolist()
-        stale, stale_limit = self._stale, self.safety.stale_feedback_cycles
-        lower, upper, overspeed, isfinite = self._lower, self._upper, self._overspeed, math.isfinite
-        for i, q in enumerate(q_all):
+        qd_all = state.velocity.tolist()
+        stale, silent, fault = self._stale, self._silent, self.fault
+        stale_limit, stale_time = self.safety.stale_feedback_cycles, self.safety.stale_feedback_time
+        overspeed = self._overspeed
+        for i, qd in enumerate(qd_all):
             if fresh[i]:
                 stale[i] = 0
+                silent[i] = 0.0
+                if qd > overspeed[i] or qd < -overspeed[i]:
+                    factor = self.safety.overspeed_factor
+                    self.trip(i, Fault.OVERSPEED, f"speed above {factor:g}× the velocity limit")
             else:
                 stale[i] += 1
-                if stale[i] == stale_limit:
-                    self.trip(i, Fault.STALE_FEEDBACK, f"no feedback for {stale_limit} cycles", pos)
+                silent[i] += dt
+                if stale[i] >= stale_limit and silent[i] >= stale_time and not fault.item(i):
+                    self._trip_stale(i)
             code = codes[i]
             if code:
-                self.trip(i, Fault.DRIVE, self.describe_fault(i, code), pos)
-            qd = qd_all[i]
-            if not (isfinite(q) and isfinite(qd)):
-                self.trip(i, Fault.INVALID_FEEDBACK, "non-finite position or velocity feedback", pos)
-            elif q < lower[i] or q > upper[i]:
-                self.trip(i, Fault.POSITION_LIMIT, "measured position outside the hard limits", pos)
-            elif qd > overspeed[i] or qd < -overspeed[i]:
-                factor = self.safety.overspeed_factor
-                self.trip(i, Fault.OVERSPEED, f"speed above {factor:g}× the velocity limit", pos)
+                self.trip(i, Fault.DRIVE, self.describe_fault(i, code))
 
-    def trip(self, i: int, kind: Fault, text: str, q: np.ndarray | None = None) -> None:
-        """Latch a fault on joint ``i`` (no-op if it already has one: the first cause is the one reported)."""
+    def _trip_stale(self, i: int) -> None:
+        cycles = self._stale[i]
+        cause = self.gate.cause[i]
+        if cause == NONE:
+            self.trip(i, Fault.STALE_FEEDBACK, f"no feedback for {cycles} cycles")
+            return
+        kind = Fault.POSITION_LIMIT if cause == BEYOND_LIMITS else Fault.INVALID_FEEDBACK
+        self.trip(i, kind, f"implausible feedback for {cycles} cycles: {self.gate.reason[i]}")
+
+    def trip(self, i: int, kind: Fault, text: str) -> None:
+        """Latch a fault on joint ``i`` (no-op if it already has one: the first cause is the one reported).
+
+        The hold target is the last *accepted* position, never the reading that may have caused the fault."""
         if self.fault[i] != Fault.NONE:
             return
         self.fault[i] = kind
         self.fault_text[i] = text
         self.mode[i] = JointMode.FAULT
         self._safe_action[i] = self.safety.estop_action if self.estop else self.safety.fault_action
-        value = q.item(i) if q is not None else math.nan
-        self.latched[i] = value if math.isfinite(value) else self._prev_position.item(i)
+        self.latched[i] = self.gate.accepted_position.item(i)
         self.change_seq += 1
         self.events.emit("error", "supervisor", f"joint {self.joints[i]} fault: {text}")
 
-    def trip_all(self, kind: Fault, text: str, q: np.ndarray | None = None) -> None:
+    def trip_all(self, kind: Fault, text: str) -> None:
         for i in range(len(self.joints)):
-            self.trip(i, kind, text, q)
+            self.trip(i, kind, text)
+
+    def rename_fault(self, i: int, text: str) -> None:
+        """Replace joint ``i``'s fault text with a more precise one (e.g. the drive's own words for an error
+        that survived clear-error), so status names the condition the operator must fix."""
+        if self.fault[i] != Fault.NONE and self.fault_text[i] != text:
+            self.fault_text[i] = text
+            self.change_seq += 1
+            self.events.emit("error", "supervisor", f"joint {self.joints[i]} fault: {text}")
 
     # ---- operator actions (between cycles) ----------------------------------------------------------------
     def engage_estop(self) -> None:
@@ -217,16 +278,27 @@ class Supervisor:
         self.events.emit("error", "supervisor", "e-stop engaged")
 
     def reset(self) -> list[str]:
-        """Clear e-stop and latched faults; every joint restarts in hold where it is. Returns what was cleared."""
+        """Clear e-stop and latched faults; every joint restarts in hold where it is. Returns what was cleared.
+
+        A joint whose readings are being rejected is re-anchored: its next finite reading inside the limits is
+        accepted as it is. Reset is the operator's word that the readings are right again (a persistent jump is
+        then where the drive's own encoder says the shaft is); the reply says which joints were re-anchored."""
         cleared = [f"{self.joints[i]}: {self.fault_text[i]}" for i in np.flatnonzero(self.fault)]
         if self.estop:
             cleared.insert(0, "e-stop")
         n = len(self.joints)
+        for i in range(n):
+            if self.gate.untrusted(i):
+                self.gate.reanchor(i)
+                cleared.append(
+                    f"{self.joints[i]}: re-anchored at its next reading ({self.gate.reason[i] or 'none yet'})"
+                )
         self.estop = False
         self.fault[:] = Fault.NONE
         self.fault_text = [""] * n
         self.mode[:] = JointMode.HOLD
         self._stale = [0] * n
+        self._silent = [0.0] * n
         self._relatch = [True] * n
         self.change_seq += 1
         self.events.emit("info", "supervisor", "reset: " + ("; ".join(cleared) if cleared else "nothing to clear"))
@@ -245,20 +317,39 @@ class Supervisor:
         self.change_seq += 1
         return True
 
-    def follow_measured(self, i: int, cycles: int) -> None:
+    def follow_measured(self, i: int, cycles: int, *, new_frame: bool = False) -> None:
         """Hold joint ``i`` with damping and gravity only (kp 0, position = the reading) for ``cycles``, then latch
         the last reading: after a drive's zero moved (the new frame's reading is latched, never a pull toward the
-        old one), and while a re-enabled drive confirms (its first commands are where the shaft is)."""
+        old one), and while a re-enabled drive confirms (its first commands are where the shaft is).
+
+        ``new_frame``: the drive's frame moves on purpose (set-zero), so the readings jump: the gate re-anchors on
+        every reading until the window ends instead of rejecting the jump."""
         self._follow[i] = max(1, cycles)
+        self._new_frame[i] = new_frame
+
+    def begin_descent(self, seconds: float) -> None:
+        """Stop for an unbraked arm: from the next cycle every joint gets damping only (kp 0, hold kd) and its
+        gravity feed-forward fading linearly to zero over ``seconds``; the arm is lowered, not dropped. The
+        engine releases the hardware once ``descending`` is False."""
+        self._descent = (seconds, seconds)
+        self.descent_started = True
+        self.events.emit("info", "supervisor", f"stopping: damped descent over {seconds:g} s before release")
+
+    @property
+    def descending(self) -> bool:
+        return self._descent[0] > 0.0
 
     # ---- the final command (after the controllers) --------------------------------------------------------
     def command(self, dt: float, state: JointState, ctrl: ServoCommand, out: ServoCommand) -> None:
-        pos, g = state.position, self._g
-        if self.gravity is not None:
-            self.gravity(pos, g)
+        pos, g, pose = state.position, self._g, self._pose
+        if self.gravity is not None:  # at the accepted pose (the state holds stand-ins for rejected readings)
+            np.copyto(pose, pos)
+            np.nan_to_num(pose, copy=False, nan=0.0)
+            self.gravity(pose, g)
         # One tolist() per array instead of an item() per element, and locals instead of attribute lookups: this
         # loop runs for every joint in every cycle.
         q_all, qd_all, g_all = pos.tolist(), state.velocity.tolist(), g.tolist()
+        fresh_all = state.fresh.tolist()
         c_pos, c_vel, c_eff = ctrl.position.tolist(), ctrl.velocity.tolist(), ctrl.effort.tolist()
         c_kp, c_kd, written = ctrl.kp.tolist(), ctrl.kd.tolist(), ctrl.written.tolist()
         latched, prev, modes, old_flags = self.latched, self._prev_position, self.mode, self.limit_flags
@@ -267,35 +358,45 @@ class Supervisor:
         owner, claims, default_kp, default_kd = self._owner, self._claims, self._default_kp, self._default_kd
         hold_kp, hold_kd, soft_lower, soft_upper = self._hold_kp, self._hold_kd, self._soft_lower, self._soft_upper
         vmax_all, emax_all, safe_action = self._vmax, self._emax, self._safe_action
+        applies_gains, cause = self._applies_gains, self.gate.cause
         relatch, follow = self._relatch, self._follow
         check_relatch = True in relatch
         check_follow = any(follow)
+        left, total = self._descent
+        descent = left / total if left > 0.0 else -1.0  # the gravity share left, or -1 when no descent runs
         isfinite = math.isfinite
         bad_owners: list[int] | None = None
         for i, mode in enumerate(mode_all):
             q, qd, ff_gravity = q_all[i], qd_all[i], g_all[i]
-            if check_relatch and relatch[i]:
+            known = isfinite(q)  # False only for a joint that never had an accepted reading
+            if not known:
+                ff_gravity = 0.0
+            if check_relatch and relatch[i] and known:
                 relatch[i] = False
-                if isfinite(q):
-                    latched[i] = q
+                latched[i] = q
             following = False
             if check_follow and follow[i]:  # the reading is not to be held yet: follow it, re-latch at the end
                 follow[i] -= 1
-                if isfinite(q):
+                if known:
                     latched[i] = q
                     prev_all[i] = q
                     following = True
             controlled = False
 
             # 1. The servo command this joint gets before limits.
-            if mode >= _FAULT:
+            if mode >= _FAULT or descent >= 0.0:
                 action = safe_action[i]
+                if descent >= 0.0:
+                    action, ff_gravity = _DAMP_GRAVITY, ff_gravity * descent
+                elif action == _HOLD and (cause[i] != NONE or not known):
+                    action = _DAMP_GRAVITY  # no position to hold with a spring: damp, and carry the arm's weight
                 if action == _HOLD:
                     p, v, ff, kp, kd = latched.item(i), 0.0, ff_gravity, hold_kp[i], hold_kd[i]
-                else:  # damp or disable: no stiffness, position field follows the arm
-                    p = q if isfinite(q) else latched.item(i)
-                    v, ff, kp = 0.0, 0.0, 0.0
-                    kd = hold_kd[i] if action == _DAMP else 0.0
+                else:  # damp or disable: no stiffness, position field where the arm last was
+                    p = q if known else prev_all[i]
+                    v, kp = 0.0, 0.0
+                    ff = ff_gravity if action == _DAMP_GRAVITY else 0.0
+                    kd = hold_kd[i] if action in (_DAMP, _DAMP_GRAVITY) else 0.0
                 new_mode = mode
             else:
                 if written[i] and owner[i] >= 0:
@@ -312,9 +413,11 @@ class Supervisor:
                         bad_owners = bad_owners or []
                         bad_owners.append(owner[i])
                 if not controlled:
-                    if mode == _CONTROLLED and isfinite(q):
+                    if mode == _CONTROLLED and known:
                         latched[i] = q  # it just lost its controller: hold where it is now
                     p, v, ff, kp, kd = latched.item(i), 0.0, ff_gravity, hold_kp[i], hold_kd[i]
+                    if not isfinite(p):  # never had a position: damp until the gate accepts one
+                        p, kp = prev_all[i], 0.0
                 new_mode = _CONTROLLED if controlled else _HOLD_MODE
 
             if following and not controlled:  # damping and gravity only: no spring toward any position
@@ -336,10 +439,17 @@ class Supervisor:
                     p = last + step if p > last else last - step
                     if controlled:
                         flags |= LIMIT_VELOCITY
-            tau = kp * (p - q) + kd * (v - qd) + ff  # what the drive will do; NaN if the state is unknown
+            # What the drive will do: its law if it applies our gains, else only the feed-forward is ours.
+            tau = kp * (p - q) + kd * (v - qd) + ff if applies_gains[i] else ff
             emax = emax_all[i]
             if tau > emax or tau < -emax:
-                ff -= tau - (emax if tau > 0.0 else -emax)
+                trimmed = ff - (tau - (emax if tau > 0.0 else -emax))
+                if not fresh_all[i] or mode >= _FAULT:  # a stand-in reading or a fault: only take torque away
+                    trimmed = min(max(trimmed, min(ff, 0.0)), max(ff, 0.0))
+                ff = trimmed
+                flags |= LIMIT_EFFORT
+            if ff > emax or ff < -emax:  # never more feed-forward than the joint's effort limit
+                ff = emax if ff > 0.0 else -emax
                 flags |= LIMIT_EFFORT
 
             # 3. Out, and remember.
@@ -358,6 +468,8 @@ class Supervisor:
                 self.change_seq += 1
         prev[:] = prev_all
         self.bad_command_owners = bad_owners or []
+        if left > 0.0:
+            self._descent = (max(0.0, left - dt), total)
 
     def _report_limits(self, i: int, was: int, now: int) -> None:
         for bit, word in _LIMIT_WORDS:

@@ -10,6 +10,7 @@ import pytest
 from hild.arrays import JointState, ServoCommand
 from hild.controller import Controller
 from hild.engine import Engine
+from hild.supervisor import Fault
 
 MakeEngine = Callable[..., Engine]
 
@@ -299,10 +300,19 @@ def test_estop_damp_action(make_engine: MakeEngine) -> None:
 
 
 def test_position_beyond_hard_limits_faults(make_engine: MakeEngine) -> None:
+    """A reading beyond the hard limits (and their margin) is rejected like a missing one: the joint has no
+    trusted position, so it is damped — pulled neither in nor toward the reading — and faults after the stale
+    bound with a text that names the limits."""
     engine = make_engine({"hardware": {"bus": {"params": {"initial_positions": {"a": 1.2}}}}})
+    stale = engine.supervisor.safety.stale_feedback_cycles
+    engine.run_cycles(stale - 1)
+    assert engine.status()["joints"][0]["fault"] is None
+    assert engine.final.kp[0] == 0.0 and engine.final.kd[0] > 0.0  # damped from the first cycle
     engine.run_cycles(1)
-    assert engine.status()["joints"][0]["fault"] == "measured position outside the hard limits"
-    np.testing.assert_allclose(engine.final.position[0], 1.2)  # held where it is, not pulled in
+    fault = engine.status()["joints"][0]["fault"]
+    assert fault.startswith(f"implausible feedback for {stale} cycles: position 1.2 rad outside the hard limits")
+    assert engine.supervisor.fault[0] == Fault.POSITION_LIMIT
+    assert engine.final.kp[0] == 0.0  # still no spring toward any position
 
 
 def test_transmissions_map_joint_and_actuator_space(make_engine: MakeEngine) -> None:

@@ -122,9 +122,53 @@ class ControllerSection(Params):
     )
 
 
+class PlausibilitySection(Params):
+    """What a reading must satisfy before anything uses it (docs/safety.md, "Plausibility before trust")."""
+
+    margin: float = Field(
+        default=0.05, ge=0.0, le=0.5, description="rad beyond the hard limits a reading may lie (a joint on its stop)."
+    )
+    speed_factor: float = Field(
+        default=3.0,
+        ge=1.0,
+        le=100.0,
+        description="A reading further from the last accepted one than factor × velocity limit × the time since is "
+        "rejected as a jump.",
+    )
+    step_tolerance: float = Field(
+        default=0.002, ge=0.0, le=0.1, description="rad added to that bound: encoder quantisation and noise."
+    )
+
+
 class SafetySection(Params):
     stale_feedback_cycles: int = Field(
-        default=10, ge=1, description="A joint without fresh feedback for this many cycles faults."
+        default=10,
+        ge=1,
+        description="A joint without an accepted reading (none arrived, or it was rejected) for this many cycles "
+        "faults — and, if stale_feedback_time is set, for that long too.",
+    )
+    stale_feedback_time: float = Field(
+        default=0.0,
+        ge=0.0,
+        le=10.0,
+        description="s without an accepted reading before a joint faults, counted on top of stale_feedback_cycles: "
+        "both must pass. Time is robust to a late cycle (a stalled host misses no replies); cycles are robust "
+        "to a slow rate. 0 = cycles only.",
+    )
+    plausibility: PlausibilitySection = Field(default_factory=PlausibilitySection)
+    max_cycle_gap: float = Field(
+        default=0.25,
+        ge=0.0,
+        le=10.0,
+        description="s: a cycle that comes this long after the previous one faults every joint (the arm was on its "
+        "drives' own watchdogs meanwhile). Shorter gaps are events; controllers resume where they were. 0 = off.",
+    )
+    stop_descent: float = Field(
+        default=0.0,
+        ge=0.0,
+        le=30.0,
+        description="On stop, before the drives are released: a damped descent — kd only, gravity feed-forward "
+        "fading out over this many seconds — so an unbraked arm is lowered, not dropped. 0 = none.",
     )
     overspeed_factor: float = Field(
         default=1.5, ge=1.0, description="Measured speed above factor × velocity limit faults the joint."

@@ -1,7 +1,9 @@
 """joint_state_broadcaster: publishes every joint's measured state at ``publish_rate``.
 
 It claims nothing, so it runs alongside any controller and survives an e-stop. Samples go into a preallocated
-ring; the API publishes them on ``hild/<robot>/joint_states`` from the asyncio side.
+ring; the API publishes them on ``hild/<robot>/joint_states`` from the asyncio side. ``fresh`` (1 or 0 per joint)
+says whether the sample is a new accepted reading; 0 means the drive's reading was missing or rejected as
+implausible and the values are the last accepted ones (hild.plausibility), never the bad reading.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ from hild.config.params import Field, Params
 from hild.controller import Controller, ControllerContext
 from hild.ring import SampleRing
 
-PUBLISHED_FIELDS = ("position", "velocity", "effort")
+PUBLISHED_FIELDS = ("position", "velocity", "effort", "fresh")
 
 
 class BroadcasterParams(Params):
@@ -51,6 +53,7 @@ class JointStateBroadcaster(Controller):
         ring.data["position"][i] = state.position
         ring.data["velocity"][i] = state.velocity
         ring.data["effort"][i] = state.effort
+        ring.data["fresh"][i] = state.fresh
         ring.commit(t)
         self.context.notify()
 

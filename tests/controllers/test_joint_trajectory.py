@@ -413,7 +413,7 @@ def test_a_fault_mid_goal_aborts_it_and_reset_resumes_without_a_jump() -> None:
     rec = Recorder(engine)
     goal_id = submit(engine, {"positions": (engine.state.position + 0.6).tolist()})
     rec.run(150)
-    engine.supervisor.trip(2, Fault.HARDWARE, "test fault", engine.state.position)
+    engine.supervisor.trip(2, Fault.HARDWARE, "test fault")
     rec.run(2)
     result = results_of(engine)[goal_id]
     assert result.status == "aborted" and "joint elbow faulted" in result.error_string

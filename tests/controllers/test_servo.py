@@ -489,17 +489,24 @@ def test_deactivate_mid_motion_holds_and_reactivation_starts_from_the_measured_s
 
 
 def test_the_plan_advances_with_the_cycle_clocks_real_period(make_engine: MakeEngine) -> None:
+    """A slightly late or early wall-clock cycle advances the plan by the time that really passed; a cycle later
+    than MAX_STEP_PERIODS advances it by that much only (the stream resumes where it was, no catch-up step)."""
+    from hild.engine import MAX_STEP_PERIODS
+
     engine, servo = started(make_engine, command_timeout=2.0)
     servo.accept({"positions": [0.1, -0.2, 0.3], "velocities": [0.5, 0.0, 0.0]})
     while servo.phase != Phase.CRUISE:
         engine.run_cycles(1)
     engine.run_cycles(5)
     before = engine.command.position[0]
-    engine.step(engine.t + 0.005, 0.005)  # a late wall-clock cycle
-    assert engine.command.position[0] - before == pytest.approx(0.5 * 0.005, rel=1e-6)
+    engine.step(engine.t + 0.003, 0.003)  # a late wall-clock cycle: 1.5 periods at 500 Hz
+    assert engine.command.position[0] - before == pytest.approx(0.5 * 0.003, rel=1e-6)
     before = engine.command.position[0]
     engine.step(engine.t + 0.001, 0.001)
     assert engine.command.position[0] - before == pytest.approx(0.5 * 0.001, rel=1e-6)
+    before = engine.command.position[0]
+    engine.step(engine.t + 0.05, 0.05)  # a stall of 25 periods
+    assert engine.command.position[0] - before == pytest.approx(0.5 * MAX_STEP_PERIODS * engine.period, rel=1e-6)
 
 
 def test_activation_without_a_reading_starts_at_the_last_command(make_engine: MakeEngine) -> None:
@@ -668,7 +675,7 @@ def test_a_fault_makes_servo_follow_the_arm_and_reset_resumes_without_a_jump() -
     for _ in range(100):
         servo.accept({"positions": target})
         guard.run(1)
-    engine.supervisor.trip(1, Fault.HARDWARE, "test fault", engine.state.position)
+    engine.supervisor.trip(1, Fault.HARDWARE, "test fault")
     for _ in range(300):
         servo.accept({"positions": target})  # the stream goes on; while faulted it is dropped
         guard.run(1)
