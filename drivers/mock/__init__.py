@@ -2,7 +2,7 @@
 
 It mirrors the servo command into the state (optionally through a first-order lag) and reports the torque the
 drive law would produce. Fault-injection hooks make the supervisor's fault paths testable: silence a servo,
-raise a drive fault code, fail reads, or report a component-level problem.
+raise a drive fault code, fail reads, report a component-level problem, or corrupt readings (``glitch``).
 """
 
 from __future__ import annotations
@@ -12,6 +12,7 @@ from typing import Literal
 
 import numpy as np
 
+from drivers.glitch import ReadingGlitch
 from hild.arrays import JointState, ServoCommand
 from hild.config.params import Field, Params
 from hild.hardware import HardwareComponent, HardwareContext, HardwareError
@@ -46,6 +47,7 @@ class MockHardware(HardwareComponent):
         self.read_error: str | None = None
         self.write_error: str | None = None
         self.health_problem: str | None = None
+        self.glitch = ReadingGlitch(n)  # corrupts reported positions only (drivers/glitch.py)
 
     def activate(self) -> None:
         self.enabled = True
@@ -66,6 +68,8 @@ class MockHardware(HardwareComponent):
         np.copyto(state.effort, self.effort, where=fresh)
         np.copyto(state.fresh, fresh)
         np.copyto(state.fault, self.fault_codes)
+        if self.glitch.active:
+            self.glitch.apply(state.position, fresh)
 
     def write(self, t: float, dt: float, command: ServoCommand) -> None:
         if self.write_error:

@@ -26,6 +26,7 @@ from typing import Annotated
 import mujoco
 import numpy as np
 
+from drivers.glitch import ReadingGlitch
 from hild.arrays import JointState, ServoCommand
 from hild.config.params import Field, Params
 from hild.dynamics import SCALAR_JOINT_TYPES, contiguous_slice, joint_names, load_model, scalar_joint_addresses
@@ -82,6 +83,7 @@ class MujocoTwin(HardwareComponent):
 
     def __init__(self, context: HardwareContext, params: MujocoTwinParams) -> None:
         super().__init__(context, params)
+        self.glitch = ReadingGlitch(len(context.joints))  # test hook: corrupts reported positions only
         self.params: MujocoTwinParams = params
         self.model: mujoco.MjModel | None = None
         self.data: mujoco.MjData | None = None
@@ -214,6 +216,8 @@ class MujocoTwin(HardwareComponent):
         state.temperature.fill(math.nan)
         state.fault.fill(0)
         state.fresh.fill(True)
+        if self.glitch.active:
+            self.glitch.apply(state.position, state.fresh)
 
     def write(self, t: float, dt: float, command: ServoCommand) -> None:
         """Queue ``command`` and advance the physics by one cycle, running the drive law in every substep."""
