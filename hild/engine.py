@@ -507,6 +507,9 @@ class Engine:
         return {"deactivated": stopped}
 
     def reset(self) -> dict[str, Any]:
+        refusal = self.supervisor.refusal()
+        if refusal:
+            return {"cleared": [], "error": refusal}
         for slot in self.hardware:
             if slot.lifecycle is Lifecycle.FAULT or self.supervisor.fault[slot.index].any():
                 slot.component.clear_faults()  # drive errors too; it never re-enables a drive (that is enable)

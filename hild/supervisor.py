@@ -164,6 +164,7 @@ class Supervisor:
         self._safe_action = [Action.HOLD] * n
         self._stale = [0] * n
         self._silent = [0.0] * n  # s without an accepted reading
+        self._codes = [0] * n  # the drives' fault codes at the last check
         self._relatch = [False] * n  # latch at the next command(): after reset and e-stop
         self._new_frame = [False] * n  # the follow window is a set-zero's: re-anchor the gate on every reading
         self._follow = [0] * n  # cycles left during which hold follows the measured position (after set-zero)
@@ -211,6 +212,7 @@ class Supervisor:
                         self._new_frame[i] = False
         gate.filter(state, dt)
         fresh, codes = state.fresh.tolist(), state.fault.tolist()
+        self._codes = codes
         qd_all = state.velocity.tolist()
         stale, silent, fault = self._stale, self._silent, self.fault
         stale_limit, stale_time = self.safety.stale_feedback_cycles, self.safety.stale_feedback_time
@@ -291,7 +293,7 @@ class Supervisor:
             if self.gate.untrusted(i):
                 self.gate.reanchor(i)
                 cleared.append(
-                    f"{self.joints[i]}: re-anchored at its next reading ({self.gate.reason[i] or 'none yet'})"
+                    f"{self.joints[i]}: re-anchored at its next reading (rejected: {self.gate.reason[i] or 'none yet'})"
                 )
         self.estop = False
         self.fault[:] = Fault.NONE
@@ -303,6 +305,21 @@ class Supervisor:
         self.change_seq += 1
         self.events.emit("info", "supervisor", "reset: " + ("; ".join(cleared) if cleared else "nothing to clear"))
         return cleared
+
+    def refusal(self) -> str | None:
+        """Why ``reset`` must not run now, or None: a joint whose readings are still rejected while its drive
+        reports no fault (a glitching encoder or readout on a drive that holds: trusting it would move the arm)."""
+        bad = [
+            f"{self.joints[i]} ({self.gate.reason[i]})"
+            for i in range(len(self.joints))
+            if self.gate.cause[i] != NONE and not self._codes[i]
+        ]
+        if not bad:
+            return None
+        return (
+            f"readings still implausible on {', '.join(bad)}: the drive reports no fault, so the encoder or its "
+            "readout is wrong; reset would make the bad reading the truth. Fix the sensor (or power-cycle the drive)"
+        )
 
     def rearm(self, i: int) -> bool:
         """Clear joint ``i``'s drive fault once its drive is enabled again (operator ``enable``); it holds where
@@ -355,6 +372,7 @@ class Supervisor:
         latched, prev, modes, old_flags = self.latched, self._prev_position, self.mode, self.limit_flags
         mode_all, prev_all, flags_all = modes.tolist(), prev.tolist(), old_flags.tolist()
         o_pos, o_vel, o_eff, o_kp, o_kd = out.position, out.velocity, out.effort, out.kp, out.kd
+        was_stiff = o_kp.tolist()  # last cycle's gains: a position with kp 0 held nothing anywhere
         owner, claims, default_kp, default_kd = self._owner, self._claims, self._default_kp, self._default_kd
         hold_kp, hold_kd, soft_lower, soft_upper = self._hold_kp, self._hold_kd, self._soft_lower, self._soft_upper
         vmax_all, emax_all, safe_action = self._vmax, self._emax, self._safe_action
@@ -363,7 +381,8 @@ class Supervisor:
         check_relatch = True in relatch
         check_follow = any(follow)
         left, total = self._descent
-        descent = left / total if left > 0.0 else -1.0  # the gravity share left, or -1 when no descent runs
+        # The gravity share left (0 once the descent ended: never a hold spring again), or -1 when none runs.
+        descent = left / total if self.descent_started else -1.0
         isfinite = math.isfinite
         bad_owners: list[int] | None = None
         for i, mode in enumerate(mode_all):
@@ -374,6 +393,8 @@ class Supervisor:
             if check_relatch and relatch[i] and known:
                 relatch[i] = False
                 latched[i] = q
+                if not was_stiff[i] > 0.0:  # no spring held it anywhere: start at the reading, no slew from nowhere
+                    prev_all[i] = q
             following = False
             if check_follow and follow[i]:  # the reading is not to be held yet: follow it, re-latch at the end
                 follow[i] -= 1

@@ -19,20 +19,28 @@ class JumpGuard:
     """Asserts, cycle by cycle, that a stiff joint's commanded position never steps faster than its velocity limit.
 
     Only joints commanded with kp > 0 are checked: with kp = 0 (velocity, effort, damp) the position field
-    carries no command. Transitions into hold are checked, since hold is stiff.
+    carries no command. Transitions into hold are checked, since hold is stiff: from the last stiff command, or
+    from the accepted reading when the joint had no stiffness before (nothing held it anywhere else).
     """
 
     def __init__(self, engine: Engine) -> None:
         self.engine = engine
         self.prev = engine.final.position.copy()
+        self.prev_stiff = np.ones(len(engine.joints), dtype=bool)  # the start-up latch counts as a stiff command
         self.max_step = engine.limits.velocity * engine.period + 1e-9
+
+    def check(self) -> None:
+        final = self.engine.final
+        origin = np.where(self.prev_stiff, self.prev, self.engine.state.position)
+        step = np.abs(final.position - origin) * (final.kp > 0.0)
+        assert (step <= self.max_step).all(), f"command stepped by {step} at t={self.engine.t}"
+        self.prev[:] = final.position
+        self.prev_stiff[:] = final.kp > 0.0
 
     def run(self, cycles: int) -> None:
         for _ in range(cycles):
             self.engine.run_cycles(1)
-            step = np.abs(self.engine.final.position - self.prev) * (self.engine.final.kp > 0.0)
-            assert (step <= self.max_step).all(), f"command stepped by {step} at t={self.engine.t}"
-            self.prev[:] = self.engine.final.position
+            self.check()
 
 
 def send(engine: Engine, controller: str, values: list[float]) -> None:

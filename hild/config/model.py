@@ -157,7 +157,7 @@ class SafetySection(Params):
     )
     plausibility: PlausibilitySection = Field(default_factory=PlausibilitySection)
     max_cycle_gap: float = Field(
-        default=0.25,
+        default=0.5,
         ge=0.0,
         le=10.0,
         description="s: a cycle that comes this long after the previous one faults every joint (the arm was on its "

@@ -66,10 +66,12 @@ class Guard(JumpGuard):
 
     def check(self) -> None:
         final = self.engine.final
-        step = np.abs(final.position - self.prev) * (final.kp > 0.0)
+        origin = np.where(self.prev_stiff, self.prev, self.engine.state.position)
+        step = np.abs(final.position - origin) * (final.kp > 0.0)
         assert (step <= self.max_step).all(), f"command stepped by {step} at t={self.engine.t}"
         self.worst = max(self.worst, float((step / self.max_step).max()))
         self.prev[:] = final.position
+        self.prev_stiff[:] = final.kp > 0.0
 
 
 class Lockstep:

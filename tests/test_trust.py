@@ -1,0 +1,197 @@
+"""Issue [trust]: a glitching sensor never moves the arm, a faulted joint gets no more torque than its weight, and a
+late cycle never catches up in one step. Each finding of the issue is reproduced here in lockstep (the CAN
+versions are in the fault-injection suite, tests/faults)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+import pytest
+
+from hild.engine import MAX_STEP_PERIODS, Engine
+from hild.supervisor import Fault
+from tests.faults.rigs import JTC, TwinRig
+
+MakeEngine = Callable[..., Engine]
+_seen: dict[int, list[str]] = {}
+
+
+def messages(engine: Engine) -> list[str]:
+    """Every event message the engine emitted so far (the log is drained into a per-engine list)."""
+    seen = _seen.setdefault(id(engine), [])
+    seen.extend(e.message for e in engine.events.drain())
+    return seen
+
+
+def rejections(engine: Engine) -> list[str]:
+    return [m for m in messages(engine) if "reading rejected" in m]
+
+
+def test_finding_1_a_glitch_beyond_the_hard_limit_never_moves_the_arm(make_engine: MakeEngine) -> None:
+    """Three readings of +7 rad (beyond ±1 rad) on a held joint: nothing faults, the hold target and the shaft
+    stay exactly where they were, and the episode is reported once."""
+    engine = make_engine()
+    mock = engine.hardware[0].component
+    engine.run_cycles(10)
+    held, shaft = engine.final.position.copy(), mock.position.copy()
+    mock.glitch.set(0, value=7.0, replies=3)
+    toward = 0.0
+    for _ in range(500):
+        engine.run_cycles(1)
+        toward = max(toward, engine.final.position[0] - held[0])
+        assert engine.state.position[0] == held[0]  # controllers and the broadcaster see the last accepted one
+    assert toward == 0.0
+    np.testing.assert_array_equal(mock.position, shaft)
+    assert engine.status()["mode"] == "hold"
+    (event,) = rejections(engine)
+    assert "joint a: reading rejected: position 7 rad outside the hard limits" in event
+    assert any("readings plausible again" in m and "after 3 rejected" in m for m in messages(engine))
+
+
+def test_a_persistent_glitch_faults_within_the_stale_bound_and_is_damped_not_chased(make_engine: MakeEngine) -> None:
+    engine = make_engine()
+    mock = engine.hardware[0].component
+    engine.run_cycles(10)
+    held, shaft = engine.final.position[0], mock.position[0]
+    mock.glitch.set(0, offset=0.5)  # a persistent jump: every reading from now on is 0.5 rad off
+    stale = engine.supervisor.safety.stale_feedback_cycles
+    engine.run_cycles(stale - 1)
+    assert engine.supervisor.fault[0] == Fault.NONE
+    engine.run_cycles(1)
+    assert engine.supervisor.fault[0] == Fault.INVALID_FEEDBACK
+    assert engine.status()["joints"][0]["fault"].startswith(f"implausible feedback for {stale} cycles: jump of +0.5")
+    engine.run_cycles(200)
+    assert engine.final.kp[0] == 0.0 and engine.final.kd[0] == engine.supervisor.gains.hold_kd[0]  # damping only
+    assert engine.supervisor.latched[0] == held  # the last accepted position, never the glitch
+    assert mock.position[0] == shaft
+    # The drive reports no fault: the readout is wrong, and reset must not make the bad reading the truth.
+    reply = engine.reset()
+    assert reply["error"].startswith("readings still implausible on a (jump of +0.5 rad")
+    assert engine.supervisor.fault[0] == Fault.INVALID_FEEDBACK
+    mock.glitch.clear()  # the sensor is fixed
+    engine.run_cycles(1)
+    assert "error" not in engine.reset()
+    engine.run_cycles(50)
+    assert engine.status()["mode"] == "hold" and engine.final.position[0] == held and mock.position[0] == shaft
+
+
+def test_reset_re_anchors_a_joint_whose_drive_is_off_and_whose_frame_moved(make_engine: MakeEngine) -> None:
+    """A rebooted drive reports a fault (it is off) and may come back in another frame: reset accepts its reading."""
+    engine = make_engine()
+    mock = engine.hardware[0].component
+    engine.run_cycles(10)
+    mock.fault_codes[0] = 0x7  # off…
+    mock.position[0] += 0.5  # …and back in a frame 0.5 rad away (the mock's position is its drive's frame)
+    engine.run_cycles(20)
+    assert engine.supervisor.fault[0] == Fault.DRIVE
+    reply = engine.reset()
+    assert any(
+        line.startswith("a: re-anchored at its next reading (rejected: jump of +0.5") for line in reply["cleared"]
+    )
+    shaft = mock.position[0]
+    engine.run_cycles(50)
+    assert engine.supervisor.fault[0] == Fault.NONE
+    assert engine.supervisor.latched[0] == shaft == mock.position[0]  # held where its encoder says: no motion
+
+
+def test_finding_3_a_step_no_joint_could_make_is_rejected_and_reported(make_engine: MakeEngine) -> None:
+    """0.3 rad in one 2 ms cycle is 150 rad/s against a 2 rad/s limit: rejected, named, never taken as the truth."""
+    engine = make_engine()
+    mock = engine.hardware[0].component
+    engine.run_cycles(10)
+    before = engine.state.position[1]
+    mock.glitch.set(1, offset=0.3, replies=1)
+    engine.run_cycles(1)
+    assert engine.state.position[1] == before and not engine.state.fresh[1]
+    (event,) = rejections(engine)
+    assert "joint b: reading rejected: jump of +0.3 rad in 2 ms (150 rad/s implied)" in event
+
+
+def test_a_joint_may_rest_within_the_margin_of_its_hard_limit(make_engine: MakeEngine) -> None:
+    engine = make_engine({"hardware": {"bus": {"params": {"initial_positions": {"a": 1.0 + 1e-6}}}}})
+    engine.run_cycles(50)
+    assert engine.status()["mode"] == "hold" and engine.final.kp[0] > 0.0
+
+
+def test_a_real_move_near_the_velocity_limit_is_never_rejected(make_engine: MakeEngine) -> None:
+    engine = make_engine()
+    engine.switch(["fwd"], [])
+    mock = engine.hardware[0].component
+    target = np.array([0.9, -0.9, 0.9])
+    fwd = engine.manager.records["fwd"].instance
+    for _ in range(600):
+        fwd.accept({"values": target.tolist()})
+        engine.run_cycles(1)
+    np.testing.assert_allclose(mock.position, target)
+    assert rejections(engine) == [] and engine.status()["mode"] != "fault"
+
+
+# ---- on the twin, with gravity ---------------------------------------------------------------------------------
+def test_finding_2_gravity_is_never_computed_at_a_bogus_reading() -> None:
+    rig = TwinRig()
+    engine = rig.engine
+    twin = engine.hardware[0].component
+    lift = engine.joints.index("shoulder_lift")
+    rig.seconds(0.2)
+    gravity = engine.final.effort[lift]
+    assert abs(gravity) > 1.0  # the joint carries the arm's weight
+    twin.glitch.set(lift, value=7.0)  # persistent: the joint faults on implausible feedback
+    rig.seconds(1.0)
+    assert engine.supervisor.fault[lift] == Fault.POSITION_LIMIT
+    assert engine.final.kp[lift] == 0.0  # no spring toward any position: damping only…
+    assert engine.final.effort[lift] == pytest.approx(gravity, rel=0.05)  # …and the weight at the last accepted pose
+    assert abs(engine.final.effort[lift]) <= engine.limits.effort[lift]
+
+
+@pytest.mark.parametrize("stall", [0.3, 0.05])
+def test_finding_8_a_stalled_cycle_resumes_where_it_was(stall: float) -> None:
+    """SIGSTOP for 0.3 s mid-move used to step the desired position 61 mrad in one cycle and end `succeeded`: now
+    the control clock advances by at most MAX_STEP_PERIODS, the gap is an event, and the goal runs on."""
+    rig = TwinRig()
+    engine = rig.engine
+    rig.switch([JTC])
+    goal = rig.move(0.4)
+    rig.seconds(0.4)
+    before = engine.final.position.copy()
+    engine.step(engine.t + stall, stall)  # the cycle thread was stopped for `stall` seconds
+    step = np.abs(engine.final.position - before)
+    assert (step <= engine.limits.velocity * MAX_STEP_PERIODS * engine.period + 1e-12).all(), step
+    rig.collect_events()
+    assert any("cycle gap of" in e.message for _, e in rig.events)
+    rig.guard.prev[:] = engine.final.position  # the guard's own bound is per nominal cycle
+    assert rig.finish(goal).status == "succeeded"
+    assert engine.status()["mode"] != "fault"
+
+
+def test_a_stall_longer_than_max_cycle_gap_is_a_latched_fault() -> None:
+    rig = TwinRig()
+    engine = rig.engine
+    rig.switch([JTC])
+    goal = rig.move(0.4)
+    rig.seconds(0.4)
+    engine.step(engine.t + 2.0, 2.0)
+    assert all(f == Fault.OVERRUN for f in engine.supervisor.fault)
+    assert engine.status()["joints"][0]["fault"] == "the cycle stalled for 2000 ms (max_cycle_gap 500 ms)"
+    rig.guard.prev[:] = engine.final.position
+    rig.seconds(0.2)
+    result = rig.result(goal)
+    assert result is not None and result.status == "aborted"
+
+
+def test_stopping_with_a_descent_lowers_the_arm_and_never_drops_it() -> None:
+    """stop_descent: kd only, gravity feed-forward fading to zero, then release; no hold spring on the way."""
+    rig = TwinRig(safety={"stop_descent": 1.0})
+    engine = rig.engine
+    lift = engine.joints.index("shoulder_lift")
+    rig.seconds(0.2)
+    gravity = engine.final.effort[lift]
+    assert engine.begin_stop()
+    rig.cycle(1)
+    assert engine.final.kp[lift] == 0.0 and engine.final.effort[lift] == pytest.approx(gravity, rel=0.05)
+    rig.seconds(0.5)
+    assert engine.final.kp[lift] == 0.0 and abs(engine.final.effort[lift]) < 0.6 * abs(gravity)
+    rig.seconds(0.5)
+    assert engine.stopping_done and engine.final.effort[lift] == pytest.approx(0.0, abs=0.02 * abs(gravity))
+    engine.stop()
+    assert not engine.started
