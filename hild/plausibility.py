@@ -30,6 +30,7 @@ from hild.arrays import JointState
 
 FROZEN_TRAVEL = 0.02  # rad: motion the reported velocity may claim while the position does not change at all
 FROZEN_MIN_SPEED = 0.05  # rad/s: below this a reported velocity is noise and says nothing about a frozen encoder
+STEADY_READINGS = 10  # rejected readings in a row, each a plausible step from the one before: a moved frame
 
 # Why the current episode began (the words are built only when an episode starts).
 NONE, NON_FINITE, BEYOND_LIMITS, JUMP, FROZEN = 0, 1, 2, 3, 4
@@ -71,6 +72,7 @@ class FeedbackGate:
         self._rejections = [0] * n
         self._last_raw = [math.nan] * n
         self._frozen_travel = [0.0] * n
+        self._steady = [0] * n  # rejected readings in a row that move plausibly among themselves
 
     # ---- between cycles ------------------------------------------------------------------------------------
     def start(self, state: JointState) -> None:
@@ -83,6 +85,12 @@ class FeedbackGate:
         """The next finite reading inside the limits is accepted as it is: an operator ``reset`` says the readings
         are right again, and a set-zero moves the drive's frame on purpose."""
         self._anchor[i] = True
+
+    def steady(self, i: int) -> bool:
+        """Joint ``i``'s rejected readings agree among themselves (each a plausible step from the one before, inside
+        the limits, not frozen): the sensor works and the shaft is where it says, only far from where it was last
+        accepted — a drive's frame that moved (a reboot, a lost turn count) or motion while readings were rejected."""
+        return self._steady[i] >= STEADY_READINGS
 
     def untrusted(self, i: int) -> bool:
         """Joint ``i`` has no accepted reading now: its current readings are rejected, or it never had one."""
@@ -124,11 +132,16 @@ class FeedbackGate:
                 accepted_v[i] = qd
                 elapsed[i] = 0.0
                 anchor[i] = False
+                self._steady[i] = 0
                 if cause[i] != NONE:
                     self._end_episode(i, q)
                 if rejected[i]:
                     rejected[i] = False
                 continue
+            if why == JUMP and abs(q - last_raw[i]) <= speed[i] * dt + tol:
+                self._steady[i] += 1
+            else:
+                self._steady[i] = 0
             if isfinite(q):
                 last_raw[i] = q
             if cause[i] == NONE:

@@ -307,18 +307,20 @@ class Supervisor:
         return cleared
 
     def refusal(self) -> str | None:
-        """Why ``reset`` must not run now, or None: a joint whose readings are still rejected while its drive
-        reports no fault (a glitching encoder or readout on a drive that holds: trusting it would move the arm)."""
+        """Why ``reset`` must not run now, or None: a joint whose readings still glitch (non-finite, beyond the
+        limits, frozen, or jumping among themselves) while its drive reports no fault — trusting them would move
+        the arm toward a bad reading."""
+        gate = self.gate
         bad = [
-            f"{self.joints[i]} ({self.gate.reason[i]})"
+            f"{self.joints[i]} ({gate.reason[i]})"
             for i in range(len(self.joints))
-            if self.gate.cause[i] != NONE and not self._codes[i]
+            if gate.cause[i] != NONE and not gate.steady(i) and not self._codes[i]
         ]
         if not bad:
             return None
         return (
-            f"readings still implausible on {', '.join(bad)}: the drive reports no fault, so the encoder or its "
-            "readout is wrong; reset would make the bad reading the truth. Fix the sensor (or power-cycle the drive)"
+            f"readings still implausible on {', '.join(bad)}: the encoder or its readout is wrong; reset would make "
+            "a bad reading the truth. Fix the sensor (or power-cycle the drive), then reset"
         )
 
     def rearm(self, i: int) -> bool:

@@ -65,10 +65,19 @@ def test_a_persistent_glitch_faults_within_the_stale_bound_and_is_damped_not_cha
     assert engine.final.kp[0] == 0.0 and engine.final.kd[0] == engine.supervisor.gains.hold_kd[0]  # damping only
     assert engine.supervisor.latched[0] == held  # the last accepted position, never the glitch
     assert mock.position[0] == shaft
-    # The drive reports no fault: the readout is wrong, and reset must not make the bad reading the truth.
+
+
+def test_reset_refuses_while_readings_still_glitch_and_resumes_once_fixed(make_engine: MakeEngine) -> None:
+    engine = make_engine()
+    mock = engine.hardware[0].component
+    engine.run_cycles(10)
+    held, shaft = engine.final.position[0], mock.position[0]
+    mock.glitch.set(0, value=7.0)  # every reading a spike beyond the limits
+    engine.run_cycles(50)
+    assert engine.supervisor.fault[0] == Fault.POSITION_LIMIT
     reply = engine.reset()
-    assert reply["error"].startswith("readings still implausible on a (jump of +0.5 rad")
-    assert engine.supervisor.fault[0] == Fault.INVALID_FEEDBACK
+    assert reply["error"].startswith("readings still implausible on a (position 7 rad outside the hard limits")
+    assert engine.supervisor.fault[0] == Fault.POSITION_LIMIT  # nothing was cleared
     mock.glitch.clear()  # the sensor is fixed
     engine.run_cycles(1)
     assert "error" not in engine.reset()

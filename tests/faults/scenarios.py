@@ -150,9 +150,12 @@ class Step:
     action: Callable[[], None]
 
 
-def recover(rig: Lockstep, before: Sequence[Step] = (), enable: bool | None = None, reset: bool = True) -> str:
-    """Fix the cause (``before``), ``reset``; ``enable`` when a fault remains (or when told); check the arm holds
-    where it is, then that a new goal succeeds. Returns what was done, as the table says it."""
+def recover(
+    rig: Lockstep, before: Sequence[Step] = (), enable: bool | None = None, reset: bool = True, settle: float = 0.0
+) -> str:
+    """Fix the cause (``before``), ``reset``; ``enable`` when a fault remains (or when told); after ``settle`` s
+    (a damped arm may still be moving when the hold catches it) check the arm holds where it is, then that a new
+    goal succeeds. Returns what was done, as the table says it."""
     done = []
     for step in before:
         step.action()
@@ -168,9 +171,10 @@ def recover(rig: Lockstep, before: Sequence[Step] = (), enable: bool | None = No
         done.append("`enable`")
         rig.seconds(0.2)
     assert not rig.any_fault(), f"still faulted after {done}: {rig.faulted()}"
+    caught = watch(rig, settle) if settle else 0.0
     moved = watch(rig, 0.3)
     assert moved < 2e-3, f"the arm moved {moved:.4g} rad while holding after recovery"
-    outcome = "holds where it is"
+    outcome = f"caught within {caught * 1000:.0f} mrad, then holds" if settle else "holds where it is"
     if rig.engine.manager.records[JTC].state != "active":
         rig.switch([JTC])
     result = rig.finish(rig.move(-0.3))
@@ -515,6 +519,110 @@ def _overruns() -> tuple[str, str, str, str]:
         return f"{detected} (`max_consecutive_overruns` {limit})", joints, first_event(rig, since), recover(rig)
     finally:
         rig.close()
+
+
+# ---- glitching sensors (issue [trust]): the commanded position never moves toward a bad reading ----------------------
+GLITCH_JOINT = 1  # the joint whose readings lie: on arm6 the shoulder_lift, which carries the arm's weight
+
+
+@dataclass(frozen=True)
+class Glitch:
+    key: str
+    fault: str
+    injected: str
+    persistent: bool  # it stays until the sensor is fixed: the joint must fault (a short one must not)
+    moving: bool = False  # injected mid-move (a frozen encoder only shows while the joint moves)
+
+
+GLITCHES = (
+    Glitch("short", "encoder glitch, short", "3 readings of +7 rad (beyond the hard limit)", False),
+    Glitch("jump", "encoder glitch, persistent jump", "every reading +0.5 rad from now on", True),
+    Glitch("spike", "encoder glitch, persistent spike beyond limits", "every reading +7 rad", True),
+    Glitch("frozen", "frozen encoder", "position frozen mid-move, velocity still reported", True, moving=True),
+    Glitch("flip", "encoder sign flip", "every reading −q (the joint away from 0)", True),
+)
+
+
+def inject_glitch(component: Any, i: int, kind: str, q: float) -> float:
+    """Corrupt joint ``i``'s readings on a simulated driver (drivers/glitch.py); returns the bad reading."""
+    glitch = component.glitch
+    if kind == "short":
+        glitch.set(i, value=7.0, replies=3)
+        return 7.0
+    if kind == "jump":
+        glitch.set(i, offset=0.5)
+        return q + 0.5
+    if kind == "spike":
+        glitch.set(i, value=7.0)
+        return 7.0
+    if kind == "frozen":
+        glitch.freeze(i)
+        return q
+    glitch.flip(i)
+    return -q
+
+
+def glitch_run(rig: Lockstep, glitch: Glitch, component: Any) -> tuple[str, str, str, str]:
+    """Inject ``glitch`` on GLITCH_JOINT (held, or mid-move), watch the commanded position for 1 s, recover."""
+    engine, i = rig.engine, GLITCH_JOINT
+    joint = rig.joints[i]
+    goal = None
+    if glitch.moving:
+        rig.switch([JTC])
+        goal = rig.move(MOVE)
+        rig.seconds(INTO_MOVE)
+    p0, q = float(engine.final.position[i]), float(engine.state.position[i])
+    since = rig.cycles
+    bad = inject_glitch(component, i, glitch.key, q)
+    direction = math.copysign(1.0, bad - p0) if bad != p0 else 0.0
+    toward = 0.0
+    detected = -1
+    for k in range(round(OBSERVE * engine.update_rate)):
+        rig.cycle()
+        if direction:  # how far the command went toward the bad reading; a move's own progress counts too
+            toward = max(toward, (float(engine.final.position[i]) - p0) * direction)
+        if detected < 0 and engine.supervisor.fault[i]:
+            detected = k + 1
+    faulted = rig.faulted()
+    if glitch.persistent:
+        assert faulted == [joint], (glitch.key, faulted)
+        assert engine.final.kp[i] == 0.0  # no position to trust: damping only, never a spring
+        assert engine.supervisor.latched[i] != bad
+    else:
+        assert not faulted and detected < 0, faulted
+    if goal is None:
+        assert toward == 0.0, f"the command moved {toward:.4g} rad toward the bad reading"
+    text = "; ".join(
+        part
+        for part in (
+            joints_text(rig, None, goal),
+            f"{joint} damped, gravity at its last accepted pose" if glitch.persistent else "",
+            f"command moved {toward * 1000:.0f} mrad toward the reading" if goal is None else "",
+        )
+        if part
+    )
+    component.glitch.clear()
+    recovery = "nothing: readings plausible again"
+    if glitch.persistent:  # the sensor fixed, its readings agree again: reset takes them (re-anchored if they moved)
+        recovery = recover(rig, [Step("sensor fixed", lambda: rig.seconds(0.05))], settle=0.5 if glitch.moving else 0.0)
+    stale = engine.supervisor.safety.stale_feedback_cycles
+    shown = str(detected) if detected > 0 else f"— (3 readings rejected, < {stale}; reported)"
+    return shown, text, first_event(rig, since, "reading rejected"), recovery
+
+
+def _twin_glitch(glitch: Glitch) -> Callable[[], tuple[str, str, str, str]]:
+    def run() -> tuple[str, str, str, str]:
+        rig = TwinRig()
+        try:
+            return glitch_run(rig, glitch, rig.engine.hardware[0].component)
+        finally:
+            rig.close()
+
+    return run
+
+
+for _glitch in GLITCHES:
+    scenario(f"twin_glitch_{_glitch.key}", f"{_glitch.fault} (twin)", _glitch.injected)(_twin_glitch(_glitch))
 
 
 # ---- the goal's client disappears (Zenoh liveliness) -------------------------------------------------------------
