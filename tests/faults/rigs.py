@@ -41,7 +41,7 @@ from hild.config import load_config
 from hild.config.loader import LoadedConfig
 from hild.config.model import ZenohSection
 from hild.controllers.joint_trajectory import JointTrajectoryController
-from hild.engine import Engine
+from hild.engine import MAX_STEP_PERIODS, Engine
 from hild.events import Event
 from hild.modes import MODE_NAMES
 from tests.conftest import CONFIGS
@@ -64,12 +64,14 @@ class Guard(JumpGuard):
         super().__init__(engine)
         self.worst = 0.0  # largest step seen, as a fraction of the bound
 
-    def check(self) -> None:
+    def check(self, late: bool = False) -> None:
+        """``late``: the cycle came after a stall; its bound is the engine's clamp (MAX_STEP_PERIODS periods)."""
         final = self.engine.final
         origin = np.where(self.prev_stiff, self.prev, self.engine.state.position)
         step = np.abs(final.position - origin) * (final.kp > 0.0)
-        assert (step <= self.max_step).all(), f"command stepped by {step} at t={self.engine.t}"
-        self.worst = max(self.worst, float((step / self.max_step).max()))
+        bound = self.max_step * (MAX_STEP_PERIODS if late else 1.0)
+        assert (step <= bound).all(), f"command stepped by {step} at t={self.engine.t}"
+        self.worst = max(self.worst, float((step / bound).max()))
         self.prev[:] = final.position
         self.prev_stiff[:] = final.kp > 0.0
 
@@ -99,6 +101,21 @@ class Lockstep:
 
     def seconds(self, duration: float) -> None:
         self.cycle(round(duration * self.engine.update_rate))
+
+    def stall(self, duration: float) -> None:
+        """No cycle for ``duration`` s (a page fault, a hung call, a debugger, SIGSTOP), then the late one. The
+        world goes on meanwhile (``_meanwhile``); the guard's bound for the late cycle is the engine's clamp."""
+        self._meanwhile(duration)
+        engine = self.engine
+        dt = duration + engine.period
+        engine.step(round(engine.t + dt, 12), dt)
+        self._meanwhile(engine.period)  # the cycle's frames reach the hardware, which answers
+        self.cycles += 1
+        self.guard.check(late=True)
+        self.collect_events()
+
+    def _meanwhile(self, duration: float) -> None:
+        """What the hardware does while no cycle runs (a twin's physics waits for the next write)."""
 
     def until(self, condition: Callable[[], bool], limit: float, what: str) -> int:
         """Run cycles until ``condition()``; returns how many it took (raises after ``limit`` seconds)."""
@@ -228,6 +245,12 @@ class CanRig(Lockstep):
         self.engine.run_cycles(1)
         self.now += self.engine.period
         self.emulator.service(self.now)
+
+    def _meanwhile(self, duration: float) -> None:
+        """The drives run on alone, serviced every 0.1 ms: their watchdogs fire, their replies queue on the bus."""
+        for _ in range(round(duration / 1e-4)):
+            self.now += 1e-4
+            self.emulator.service(self.now)
 
     def firmware(self, joint: str) -> MotorFirmware:
         return self.firmwares[self.joints.index(joint)]

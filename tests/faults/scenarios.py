@@ -39,6 +39,7 @@ from tests.faults.processes import CanProcesses
 from tests.faults.rigs import JTC, ApiRig, CanRig, Lockstep, TwinRig
 
 MOVE = 0.6  # rad: CAN scenarios inject mid-way through a move_to of this size on every joint…
+TWIN_MOVE = 0.3  # rad: …twin ones through this one (arm6's twin gains settle a 0.6 rad move of every joint too late)
 INTO_MOVE = 0.2  # s: …this long after it started (every joint near full speed)
 OBSERVE = 1.0  # s watched after detection
 OPERATOR_PAUSE = 0.5  # s between reset and enable, as an operator takes at least
@@ -623,6 +624,72 @@ def _twin_glitch(glitch: Glitch) -> Callable[[], tuple[str, str, str, str]]:
 
 for _glitch in GLITCHES:
     scenario(f"twin_glitch_{_glitch.key}", f"{_glitch.fault} (twin)", _glitch.injected)(_twin_glitch(_glitch))
+
+
+# ---- a stalled cycle (issue [trust], finding 8): it resumes where it was, never catches up in one step -------------
+def stall_run(rig: Lockstep, seconds: float, move: float = MOVE) -> tuple[str, str, str, str]:
+    """A move on every joint, the cycle stalled ``seconds`` mid-way, then watched; the late cycle's command step
+    is bounded by the guard (MAX_STEP_PERIODS periods of the velocity limit)."""
+    engine = rig.engine
+    rig.switch([JTC])
+    goal = rig.move(move)
+    rig.seconds(INTO_MOVE)
+    since = rig.cycles
+    before = engine.final.position.copy()
+    rig.stall(seconds)
+    step = float(np.abs(engine.final.position - before).max())
+    planned = float(np.abs(engine.final.velocity).max()) * engine.period
+    fault = engine.supervisor.fault.any()
+    detected = "1 (the late cycle)"
+    if not fault and rig.any_fault() is False:
+        rig.until(lambda: rig.result(goal) is not None or rig.any_fault(), 5.0, "the goal's end")
+    if rig.any_fault():
+        detected = f"{rig.cycles - since} (the late cycle)" if fault else f"{rig.cycles - since}"
+    joints = joints_text(rig, None, goal) + f"; command step {step * 1000:.2f} mrad (plan: {planned * 1000:.2f}/cycle)"
+    words = "stalled" if engine.supervisor.fault.any() else "gap"
+    event = first_event(rig, since, words)
+    if event == "none" or words not in event:
+        event = clean(
+            next((f"{e.level} `{e.source}`: {e.message}" for _, e in rig.events if words in e.message), "none")
+        )
+    result = rig.result(goal)
+    if rig.any_fault():  # the hold caught a moving arm: let it settle before checking that it holds
+        recovery = recover(rig, settle=0.5)
+    else:
+        assert result is not None and result.status == "succeeded", result
+        assert rig.finish(rig.move(-move / 2)).status == "succeeded"
+        recovery = "nothing: the goal ran on, re-timed by the gap, and succeeded; next goal succeeds"
+    return detected, joints, event, recovery
+
+
+def _twin_stall(seconds: float) -> Callable[[], tuple[str, str, str, str]]:
+    def run() -> tuple[str, str, str, str]:
+        rig = TwinRig()
+        try:
+            return stall_run(rig, seconds, TWIN_MOVE)
+        finally:
+            rig.close()
+
+    return run
+
+
+def _can_stall(seconds: float) -> Callable[[], tuple[str, str, str, str]]:
+    def run() -> tuple[str, str, str, str]:
+        rig = CanRig()
+        try:
+            return stall_run(rig, seconds)
+        finally:
+            rig.close()
+
+    return run
+
+
+for _seconds in (0.3, 2.0):
+    _what = f"no cycle for {_seconds:g} s mid-move (SIGSTOP, a debugger, a page storm)"
+    scenario(f"stall_twin_{_seconds:g}", f"stalled cycle, {_seconds:g} s (twin)", _what)(_twin_stall(_seconds))
+    scenario(f"stall_damiao_{_seconds:g}", f"stalled cycle, {_seconds:g} s (Damiao, 50 ms watchdog)", _what)(
+        _can_stall(_seconds)
+    )
 
 
 # ---- the goal's client disappears (Zenoh liveliness) -------------------------------------------------------------
