@@ -212,12 +212,15 @@ class Daemon:
 
     async def _shutdown(self) -> None:
         assert self.cycle is not None
-        self.notifier.stopping("stopping: holding every joint, then releasing the hardware")
+        descent = self.engine.stop_descent
+        words = f"a {descent:g} s damped descent" if descent else "holding every joint"
+        self.notifier.stopping(f"stopping: {words}, then releasing the hardware")
         self.cycle.stop()
-        await asyncio.to_thread(self.cycle.join, CYCLE_JOIN_TIMEOUT)
+        timeout = CYCLE_JOIN_TIMEOUT + descent  # the cycle keeps its pace through the descent
+        await asyncio.to_thread(self.cycle.join, timeout)
         stuck = self.cycle.is_alive()
         if stuck:
-            log.error("the cycle thread did not stop within %g s", CYCLE_JOIN_TIMEOUT)
+            log.error("the cycle thread did not stop within %g s", timeout)
         self._on_wake()
         await self.close_telemetry()
         if self.api is not None:

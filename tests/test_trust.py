@@ -4,11 +4,14 @@ versions are in the fault-injection suite, tests/faults)."""
 
 from __future__ import annotations
 
+import itertools
+import time
 from collections.abc import Callable
 
 import numpy as np
 import pytest
 
+from hild.arrays import ServoCommand
 from hild.engine import MAX_STEP_PERIODS, Engine
 from hild.supervisor import Fault
 from tests.faults.rigs import JTC, TwinRig
@@ -204,3 +207,34 @@ def test_stopping_with_a_descent_lowers_the_arm_and_never_drops_it() -> None:
     assert engine.stopping_done and engine.final.effort[lift] == pytest.approx(0.0, abs=0.02 * abs(gravity))
     engine.stop()
     assert not engine.started
+
+
+def test_the_cycle_thread_runs_the_descent_before_it_releases_the_hardware() -> None:
+    from hild.config.model import RealtimeSection
+    from hild.cycle import CycleThread
+
+    rig = TwinRig(safety={"stop_descent": 0.5})
+    engine = rig.engine
+    twin = engine.hardware[0].component
+    written: list[tuple[float, float]] = []
+    write = twin.write
+
+    def record(t: float, dt: float, command: ServoCommand) -> None:
+        written.append((float(command.kp[1]), float(command.effort[1])))
+        write(t, dt, command)
+
+    twin.write = record  # type: ignore[method-assign]
+    cycle = CycleThread(engine, "sim", 0.0, RealtimeSection())
+    cycle.start()
+    while len(written) < 100:
+        time.sleep(0.001)
+    cycle.stop()
+    cycle.join(10.0)
+    assert not cycle.is_alive() and not engine.started
+    stiff = [k for k, (kp, _) in enumerate(written) if kp > 0.0]
+    descent = written[stiff[-1] + 1 :]
+    assert len(descent) == round(0.5 * engine.update_rate)  # every cycle of it ran, at the cycle's pace
+    assert all(kp == 0.0 for kp, _ in descent)
+    efforts = [abs(e) for _, e in descent]
+    assert efforts[0] > 1.0 and efforts[-1] < 0.02 * efforts[0]  # the weight fades out, not dropped at once
+    assert all(b <= a + 0.05 * efforts[0] for a, b in itertools.pairwise(efforts))
