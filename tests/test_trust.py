@@ -7,6 +7,7 @@ from __future__ import annotations
 import itertools
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -238,3 +239,45 @@ def test_the_cycle_thread_runs_the_descent_before_it_releases_the_hardware() -> 
     efforts = [abs(e) for _, e in descent]
     assert efforts[0] > 1.0 and efforts[-1] < 0.02 * efforts[0]  # the weight fades out, not dropped at once
     assert all(b <= a + 0.05 * efforts[0] for a, b in itertools.pairwise(efforts))
+
+
+# ---- finding 6: stopping an unbraked arm on Damiao drives (the emulator with the arm6 twin behind it) -----------
+def _stop_an_unbraked_arm(write_config: Callable[..., Path], descent: float) -> tuple[float, float]:
+    """Hold arm6 on emulated Damiao drives (no brakes, gravity from the twin), stop the daemon's engine the way the
+    cycle thread does, and watch the shoulder for 0.5 s after the drives are released. Returns (peak speed of
+    shoulder_lift from the stop on, how far it fell in the 0.5 s after release), in joint space."""
+    from drivers.can.emulator.runtime import RuntimeOptions
+    from tests.drivers.can.test_emulate_runtime import CanRig as EmulatedArm
+    from tests.drivers.can.test_emulate_runtime import arm6
+
+    config = arm6(safety={"stop_descent": descent})
+    arm = EmulatedArm(write_config(config), RuntimeOptions(max_step=0.001, brakes=False)).start()
+    try:
+        twin = arm.runtime.twin
+        lift = list(twin.joints).index("shoulder_lift")
+        arm.cycle(200)
+        peak = 0.0
+        if arm.engine.begin_stop():
+            while not arm.engine.stopping_done:
+                arm.cycle(1)
+                peak = max(peak, abs(float(arm.engine.state.velocity[lift])))
+        arm.engine.stop()
+        released = float(twin.joint_positions()[lift])
+        lowest = released
+        for _ in range(500):  # 0.5 s of the arm on its own
+            arm.now += 0.001
+            arm.runtime.service(arm.now)
+            q = float(twin.joint_positions()[lift])
+            lowest = q if abs(q - released) > abs(lowest - released) else lowest
+            peak = max(peak, abs(float(twin.data.qvel[twin._dofadr[lift]])))
+        return peak, abs(lowest - released)
+    finally:
+        arm.close()
+
+
+def test_finding_6_stopping_never_drops_an_unbraked_arm(write_config: Callable[..., Path]) -> None:
+    dropped_peak, dropped = _stop_an_unbraked_arm(write_config, 0.0)
+    lowered_peak, fell_after = _stop_an_unbraked_arm(write_config, 2.0)
+    assert dropped > 0.5 and dropped_peak > 3.0  # reproduces the finding: released limp, the shoulder falls
+    assert lowered_peak < 0.25 * dropped_peak, (lowered_peak, dropped_peak)
+    assert fell_after < 0.5 * dropped, (fell_after, dropped)
