@@ -9,7 +9,8 @@ A drive's reading is input like any other. A reading is **plausible** when
   by cycles that brought *no* reading: a rejected reading is evidence too, so a persistent jump never becomes
   acceptable just because time passed (it stays rejected until an operator ``reset`` re-anchors the joint);
 * and it is not a **frozen** position: one that stays bit-identical while the velocity reported beside it adds up
-  to more than ``FROZEN_TRAVEL`` of motion.
+  to more than ``FROZEN_TRAVEL`` of motion. Once caught, the same value stays suspect until the reading moves
+  (a frozen encoder whose drive then reports standstill is still frozen).
 
 A rejected reading counts like a missing one: the gate writes the last accepted position and velocity back into
 the state and marks it not fresh, so the supervisor's stale logic decides when nonsense becomes a fault, and
@@ -119,6 +120,8 @@ class FeedbackGate:
                 why = BEYOND_LIMITS
             elif not anchor[i] and abs(q - accepted[i]) > speed[i] * (elapsed[i] + dt) + tol:
                 why = JUMP
+            elif cause[i] == FROZEN and q == last_raw[i]:
+                why = FROZEN  # once caught, a frozen encoder stays suspect until its reading moves again
             else:
                 if q == last_raw[i] and (qd >= FROZEN_MIN_SPEED or qd <= -FROZEN_MIN_SPEED):
                     travel[i] += qd * dt

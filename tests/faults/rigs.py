@@ -266,6 +266,30 @@ class CanRig(Lockstep):
             self._dir.cleanup()
 
 
+class MockRig(Lockstep):
+    """Joints ``j1..jn`` (the CAN rigs' limits and gains) on the mock driver at 1 kHz: a drive with a first-order
+    lag and no physics, the simplest hardware behind the same engine."""
+
+    def __init__(self, n: int = 3) -> None:
+        self._dir = tempfile.TemporaryDirectory(prefix="hild-faults-")
+        doc = can_robot("damiao", n, "unused", 1000.0)
+        names = list(doc["joints"])
+        doc["robot"]["name"] = "faults_mock"
+        params = {"initial_positions": dict(zip(names, START, strict=False)), "dynamics": "first_order"}
+        doc["hardware"] = {"arm": {"driver": "mock", "params": params, "joints": {j: {} for j in names}}}
+        path = Path(self._dir.name) / "robot.yaml"
+        path.write_text(yaml.safe_dump(doc, sort_keys=False))
+        engine = Engine(load_config(path))
+        engine.start()
+        super().__init__(engine)
+
+    def close(self) -> None:
+        try:
+            super().close()
+        finally:
+            self._dir.cleanup()
+
+
 class TwinRig(Lockstep):
     """A shipped MuJoCo twin config (default arm6) on the sim clock; ``controllers`` patches controller params.
 

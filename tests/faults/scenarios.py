@@ -36,7 +36,7 @@ from hild.config import load_config
 from hild.controllers.joint_trajectory import JointTrajectoryController
 from hild.controllers.servo import Phase
 from tests.faults.processes import CanProcesses
-from tests.faults.rigs import JTC, ApiRig, CanRig, Lockstep, TwinRig
+from tests.faults.rigs import JTC, ApiRig, CanRig, Lockstep, MockRig, TwinRig
 
 MOVE = 0.6  # rad: CAN scenarios inject mid-way through a move_to of this size on every joint…
 TWIN_MOVE = 0.3  # rad: …twin ones through this one (arm6's twin gains settle a 0.6 rad move of every joint too late)
@@ -622,8 +622,20 @@ def _twin_glitch(glitch: Glitch) -> Callable[[], tuple[str, str, str, str]]:
     return run
 
 
+def _mock_glitch(glitch: Glitch) -> Callable[[], tuple[str, str, str, str]]:
+    def run() -> tuple[str, str, str, str]:
+        rig = MockRig()
+        try:
+            return glitch_run(rig, glitch, rig.engine.hardware[0].component)
+        finally:
+            rig.close()
+
+    return run
+
+
 for _glitch in GLITCHES:
     scenario(f"twin_glitch_{_glitch.key}", f"{_glitch.fault} (twin)", _glitch.injected)(_twin_glitch(_glitch))
+    scenario(f"mock_glitch_{_glitch.key}", f"{_glitch.fault} (mock)", _glitch.injected)(_mock_glitch(_glitch))
 
 
 # ---- a stalled cycle (issue [trust], finding 8): it resumes where it was, never catches up in one step -------------

@@ -59,12 +59,13 @@ EXACT = {  # cycles from the injection to hild's reaction
 EXACT |= {s.key: 2 for s in SCENARIOS if s.key.startswith("damiao_")}
 # A persistent glitch is rejected from its first reading and faults when the rejections reach the stale bound
 # (the twin's stale_feedback_cycles: 10); a frozen encoder first has to show (FROZEN_TRAVEL of claimed motion).
-EXACT |= {f"twin_glitch_{kind}": 10 for kind in ("jump", "spike", "flip")}
+EXACT |= {f"{rig}_glitch_{kind}": 10 for rig in ("twin", "mock") for kind in ("jump", "spike", "flip")}
 EXACT |= {"stall_twin_2": 1, "stall_damiao_2": 1}  # past max_cycle_gap: the late cycle itself faults
 EXACT |= {"stall_twin_0.3": 1}  # a gap event at the late cycle; the goal runs on
 AT_MOST = {
     "stall_damiao_0.3": 3,  # the drives' 50 ms watchdogs fired during the stall: their next replies say so
     "twin_glitch_frozen": 40,  # 0.02 rad of claimed motion at ≥ 0.5 rad/s, then the stale bound
+    "mock_glitch_frozen": 40,
     "bus_off": 50,  # health is polled at 20 Hz: every 50 cycles at 1 kHz
     "myactuator_error": 34,  # status_poll_ms 100 over 3 motors: one poll every 33 cycles, +1 in transit
     "odrive_error": 101,  # heartbeat_rate_ms 100
