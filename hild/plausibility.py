@@ -64,6 +64,7 @@ class FeedbackGate:
         self.accepted_position = np.full(n, np.nan)  # published: the last reading trusted, per joint
         self.accepted_velocity = np.zeros(n)
         self.rejected = np.zeros(n, dtype=bool)  # published: this cycle's state is a stand-in, not a reading
+        self.all_known = False  # every joint has had an accepted reading (the gravity pose needs no fill-in)
         self.cause = [NONE] * n  # why the current episode began; NONE when the joint's readings are trusted
         self.reason: list[str] = [""] * n  # the words for it (kept after the episode, for fault texts)
         self._accepted = [math.nan] * n
@@ -154,6 +155,8 @@ class FeedbackGate:
             self._stand_in(i, pos, vel, rejected_now=True)
         self.accepted_position[:] = accepted
         self.accepted_velocity[:] = accepted_v
+        if not self.all_known:
+            self.all_known = not any(a != a for a in accepted)  # NaN is the only value unequal to itself
 
     def _stand_in(self, i: int, pos: np.ndarray, vel: np.ndarray, *, rejected_now: bool) -> None:
         """Write the last accepted reading where the driver left a missing or rejected one (NaN when the joint

@@ -362,9 +362,12 @@ class Supervisor:
     def command(self, dt: float, state: JointState, ctrl: ServoCommand, out: ServoCommand) -> None:
         pos, g, pose = state.position, self._g, self._pose
         if self.gravity is not None:  # at the accepted pose (the state holds stand-ins for rejected readings)
-            np.copyto(pose, pos)
-            np.nan_to_num(pose, copy=False, nan=0.0)
-            self.gravity(pose, g)
+            if self.gate.all_known:
+                self.gravity(pos, g)
+            else:  # a joint without any accepted reading yet: its coordinate at 0 (its own feed-forward is dropped)
+                np.copyto(pose, pos)
+                pose[np.isnan(pose)] = 0.0
+                self.gravity(pose, g)
         # One tolist() per array instead of an item() per element, and locals instead of attribute lookups: this
         # loop runs for every joint in every cycle.
         q_all, qd_all, g_all = pos.tolist(), state.velocity.tolist(), g.tolist()
