@@ -63,7 +63,7 @@ EXACT |= {f"{rig}_glitch_{kind}": 10 for rig in ("twin", "mock") for kind in ("j
 EXACT |= {"stall_twin_2": 1, "stall_damiao_2": 1}  # past max_cycle_gap: the late cycle itself faults
 EXACT |= {"stall_twin_0.3": 1}  # a gap event at the late cycle; the goal runs on
 AT_MOST = {
-    "stall_damiao_0.3": 3,  # the drives' 50 ms watchdogs fired during the stall: their next replies say so
+    "stall_damiao_0.3": 3,  # the drives' 50 ms watchdogs fired during the stall: their replies say so
     "twin_glitch_frozen": 40,  # 0.02 rad of claimed motion at ≥ 0.5 rad/s, then the stale bound
     "mock_glitch_frozen": 40,
     "bus_off": 50,  # health is polled at 20 Hz: every 50 cycles at 1 kHz
