@@ -2,7 +2,8 @@
 
 The fault-injection suite uses these to check that no bad reading ever moves the arm. Only the *reported* state
 is corrupted; the simulated shaft keeps its true position, as a real drive's readout glitch would. The CAN
-emulators have the same controls per motor firmware (drivers/can/emulator).
+emulators' firmwares carry one each (``MotorFirmware.glitch``, joint 0, actuator space), applied to the position
+field of the replies they send.
 
 Controls, per joint (plain attribute writes from a test, between cycles):
 ``offset`` rad added to the reported position for the next ``replies`` readings (-1: until cleared — a persistent
@@ -52,15 +53,19 @@ class ReadingGlitch:
     def apply(self, position: np.ndarray, fresh: np.ndarray) -> None:
         """Corrupt the fresh readings in ``position`` in place (after the driver filled it)."""
         for i in range(len(position)):
-            if not fresh[i]:
-                continue
-            if self.frozen[i]:
-                if math.isnan(self._frozen_at[i]):
-                    self._frozen_at[i] = position[i]
-                position[i] = self._frozen_at[i]
-            if self.sign_flip[i]:
-                position[i] = -position[i]
-            if self.replies[i] != 0:
-                position[i] = self.value[i] if not math.isnan(self.value[i]) else position[i] + self.offset[i]
-                if self.replies[i] > 0:
-                    self.replies[i] -= 1
+            if fresh[i]:
+                position[i] = self.corrupt(i, float(position[i]))
+
+    def corrupt(self, i: int, q: float) -> float:
+        """Joint ``i``'s next reading, ``q`` as the sensor reports it (an emulated drive calls this per reply)."""
+        if self.frozen[i]:
+            if math.isnan(self._frozen_at[i]):
+                self._frozen_at[i] = q
+            q = float(self._frozen_at[i])
+        if self.sign_flip[i]:
+            q = -q
+        if self.replies[i] != 0:
+            q = float(self.value[i]) if not math.isnan(self.value[i]) else q + float(self.offset[i])
+            if self.replies[i] > 0:
+                self.replies[i] -= 1
+        return q

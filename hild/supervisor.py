@@ -165,6 +165,7 @@ class Supervisor:
         self._stale = [0] * n
         self._silent = [0.0] * n  # s without an accepted reading
         self._codes = [0] * n  # the drives' fault codes at the last check
+        self._untrusted_fault = [False] * n  # faulted while its readings were untrusted: damped until reset
         self._relatch = [False] * n  # latch at the next command(): after reset and e-stop
         self._new_frame = [False] * n  # the follow window is a set-zero's: re-anchor the gate on every reading
         self._follow = [0] * n  # cycles left during which hold follows the measured position (after set-zero)
@@ -301,6 +302,7 @@ class Supervisor:
         self.mode[:] = JointMode.HOLD
         self._stale = [0] * n
         self._silent = [0.0] * n
+        self._untrusted_fault = [False] * n
         self._relatch = [True] * n
         self.change_seq += 1
         self.events.emit("info", "supervisor", "reset: " + ("; ".join(cleared) if cleared else "nothing to clear"))
@@ -332,6 +334,7 @@ class Supervisor:
         self.fault_text[i] = ""
         self.mode[i] = JointMode.HOLD
         self._stale[i] = 0
+        self._untrusted_fault[i] = False
         self._relatch[i] = True
         self.change_seq += 1
         return True
@@ -382,7 +385,7 @@ class Supervisor:
         hold_kp, hold_kd, soft_lower, soft_upper = self._hold_kp, self._hold_kd, self._soft_lower, self._soft_upper
         vmax_all, emax_all, safe_action = self._vmax, self._emax, self._safe_action
         applies_gains, cause = self._applies_gains, self.gate.cause
-        relatch, follow = self._relatch, self._follow
+        relatch, follow, untrusted_fault = self._relatch, self._follow, self._untrusted_fault
         check_relatch = True in relatch
         check_follow = any(follow)
         left, total = self._descent
@@ -414,8 +417,11 @@ class Supervisor:
                 action = safe_action[i]
                 if descent >= 0.0:
                     action, ff_gravity = _DAMP_GRAVITY, ff_gravity * descent
-                elif action == _HOLD and (cause[i] != NONE or not known):
-                    action = _DAMP_GRAVITY  # no position to hold with a spring: damp, and carry the arm's weight
+                elif action == _HOLD and (cause[i] != NONE or not known or untrusted_fault[i]):
+                    # No position to hold with a spring: damp and carry the arm's weight, until reset (a spring
+                    # back to the old latch once readings recover would pull the arm the way it drifted).
+                    action = _DAMP_GRAVITY
+                    untrusted_fault[i] = True
                 if action == _HOLD:
                     p, v, ff, kp, kd = latched.item(i), 0.0, ff_gravity, hold_kp[i], hold_kd[i]
                 else:  # damp or disable: no stiffness, position field where the arm last was

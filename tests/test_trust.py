@@ -281,3 +281,50 @@ def test_finding_6_stopping_never_drops_an_unbraked_arm(write_config: Callable[.
     assert dropped > 0.5 and dropped_peak > 3.0  # reproduces the finding: released limp, the shoulder falls
     assert lowered_peak < 0.25 * dropped_peak, (lowered_peak, dropped_peak)
     assert fell_after < 0.5 * dropped, (fell_after, dropped)
+
+
+# ---- finding 10: the effort trim on a drive that does not apply hild's gains (ODrive) ----------------------------
+@pytest.mark.parametrize("glitch", [{"offset": 7.0, "replies": 3}, {"offset": 7.0}])
+def test_finding_10_no_feed_forward_a_drive_cannot_take_back(glitch: dict[str, float]) -> None:
+    """An ODrive never applies hild's kp/kd: a glitch used to make the trim "compensate" a −125 N·m spring with
+    torque_ff 0x7FFF on every fault-hold frame. Now the prediction is the feed-forward alone, a stand-in reading is
+    never a spring, and what the drive receives stays at the joint's weight (none on this rig)."""
+    from tests.faults.rigs import CanRig
+
+    rig = CanRig("odrive", 2)
+    try:
+        assert rig.engine.hardware[0].component.APPLIES_GAINS is False
+        fw = rig.firmware("j2")
+        rig.seconds(0.1)
+        fw.glitch.set(0, **glitch)
+        worst = 0.0
+        for _ in range(500):
+            rig.cycle()
+            worst = max(worst, abs(fw.input_torque), abs(float(rig.engine.final.effort[1])))
+        assert worst == 0.0
+        assert rig.driver._ff.clamped == [0, 0]  # nothing ever reached the field's end
+        persistent = glitch.get("replies", -1) < 0
+        assert rig.engine.supervisor.fault[1] == (Fault.POSITION_LIMIT if persistent else Fault.NONE)
+    finally:
+        rig.close()
+
+
+def test_a_feed_forward_beyond_the_drive_field_is_clamped_and_reported_once() -> None:
+    from tests.faults.rigs import CanRig
+
+    rig = CanRig("odrive", 2)
+    try:
+        driver = rig.driver
+        emitted: list[str] = []
+        driver._ff.emit = lambda level, text: emitted.append(f"{level}: {text}")
+        assert driver._ff(1, 40.0) == pytest.approx(32.767)
+        assert driver._ff(1, -50.0) == pytest.approx(-32.767)
+        assert driver._ff(1, 1.0) == 1.0
+        assert driver._ff.clamped == [0, 2]
+        assert emitted == [
+            "warning: j2: feed-forward 40 N·m beyond the drive's Set_Input_Pos torque_ff (±32.767 N·m): "
+            "clamped to 32.767",
+            "info: j2: feed-forward back inside the drive's Set_Input_Pos torque_ff",
+        ]
+    finally:
+        rig.close()

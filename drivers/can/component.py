@@ -11,6 +11,40 @@ from drivers.can.params import CanDriverParams
 from hild.hardware import HardwareComponent, HardwareContext, HardwareError
 
 
+class FeedForwardClamp:
+    """Feed-forward checked against the drive's own frame field before encoding (never silently saturated).
+
+    A value beyond ``±limit`` is clamped to it, counted per motor, and reported once when an episode of clamping
+    starts and once when it ends: events on change only, never per cycle.
+    """
+
+    def __init__(self, emit: Callable[[str, str], None], joints: list[str], limits: list[float], field: str) -> None:
+        self.emit = emit
+        self.joints = joints
+        self.limits = limits
+        self.field = field
+        self.clamped = [0] * len(joints)  # frames whose feed-forward was clamped, per motor
+        self._active = [False] * len(joints)
+
+    def __call__(self, k: int, ff: float) -> float:
+        limit = self.limits[k]
+        if -limit <= ff <= limit:
+            if self._active[k]:
+                self._active[k] = False
+                self.emit("info", f"{self.joints[k]}: feed-forward back inside the drive's {self.field}")
+            return ff
+        clamped = limit if ff > 0.0 else -limit if ff < 0.0 else 0.0  # NaN: no torque at all
+        self.clamped[k] += 1
+        if not self._active[k]:
+            self._active[k] = True
+            self.emit(
+                "warning",
+                f"{self.joints[k]}: feed-forward {ff:.4g} N·m beyond the drive's {self.field} (±{limit:g} N·m): "
+                f"clamped to {clamped:g}",
+            )
+        return clamped
+
+
 class CanComponent(HardwareComponent):
     """Base of ``mit_can`` and ``odrive_can``: one component owns one bus."""
 

@@ -35,7 +35,7 @@ import can
 import numpy as np
 
 from drivers.can.bus import bits_per_second
-from drivers.can.component import CanComponent
+from drivers.can.component import CanComponent, FeedForwardClamp
 from drivers.can.params import MitCanParams
 from drivers.can.protocol import damiao_registers as reg
 from drivers.can.protocol.errors import FrameError
@@ -220,6 +220,8 @@ class MitCanDriver(CanComponent):
         self._route = {reply_id << 8 | key: k for reply_id, keys in self._routes.items() for key, k in keys.items()}
         self._decoders = [self.flavour.reply_decoder(m.ranges, m.id) for m in wiring]
         self._encoders = [command_encoder(m.ranges) for m in wiring]
+        joints = [m.joint for m in wiring]
+        self._ff = FeedForwardClamp(context.emit_event, joints, [m.ranges.t_max for m in wiring], "t_ff field")
         self._native_replies: dict[int, int] = {}
         self._status_requests: list[can.Message] = []
         poll_ms = _status_poll_ms(params)
@@ -442,22 +444,24 @@ class MitCanDriver(CanComponent):
         self.bad_frames.report(t)
 
     def write(self, t: float, dt: float, command: ServoCommand) -> None:
-        send = self.link.send
-        for msg, encode, rezeroing, p, v, kp, kd, ff in zip(
-            self._commands,
-            self._encoders,
-            self._rezero_replies,
-            command.position.tolist(),
-            command.velocity.tolist(),
-            command.kp.tolist(),
-            command.kd.tolist(),
-            command.effort.tolist(),
-            strict=True,
+        send, clamp = self.link.send, self._ff
+        for k, (msg, encode, rezeroing, p, v, kp, kd, ff) in enumerate(
+            zip(
+                self._commands,
+                self._encoders,
+                self._rezero_replies,
+                command.position.tolist(),
+                command.velocity.tolist(),
+                command.kp.tolist(),
+                command.kd.tolist(),
+                command.effort.tolist(),
+                strict=True,
+            )
         ):
             if rezeroing:  # the command was computed in the drive's old frame: no torque until it reports
                 encode(msg.data, 0.0, 0.0, 0.0, 0.0, 0.0)
             else:
-                encode(msg.data, p, v, kp, kd, ff)
+                encode(msg.data, p, v, kp, kd, clamp(k, ff))
             send(msg)
         if self._status_interval:
             self._status_due -= dt

@@ -30,7 +30,7 @@ from collections.abc import Callable, Sequence
 import can
 
 from drivers.can.bus import bits_per_second, rtr_bits
-from drivers.can.component import CanComponent
+from drivers.can.component import CanComponent, FeedForwardClamp
 from drivers.can.params import ODriveCanParams
 from drivers.can.protocol import odrive
 from drivers.can.protocol.errors import FrameError
@@ -100,6 +100,7 @@ class ODriveCanDriver(CanComponent):
 
     Params = ODriveCanParams
     COMMAND_FIELDS = frozenset({"position", "velocity", "effort"})
+    APPLIES_GAINS = False  # position mode runs the axis's own pos_gain/vel_gain: hild's kp/kd never reach it
 
     # ---- config review (class level) -----------------------------------------------------------------------
     @classmethod
@@ -170,6 +171,9 @@ class ODriveCanDriver(CanComponent):
         self._input_pos = [odrive.empty_frame(node, Cmd.SET_INPUT_POS, 8) for node in self.nodes]
         self._input_vel = [odrive.empty_frame(node, Cmd.SET_INPUT_VEL, 8) for node in self.nodes]
         self._input_torque = [odrive.empty_frame(node, Cmd.SET_INPUT_TORQUE, 4) for node in self.nodes]
+        # Set_Input_Pos carries torque_ff as int16 × FEED_FORWARD_SCALE: ±32.767 N·m, saturated silently by the codec.
+        ff_max = 32767 * odrive.FEED_FORWARD_SCALE
+        self._ff = FeedForwardClamp(context.emit_event, list(context.joints), [ff_max] * n, "Set_Input_Pos torque_ff")
         self._estimate_ids = {
             odrive.arbitration_id(node, Cmd.GET_ENCODER_ESTIMATES): k for k, node in enumerate(self.nodes)
         }
@@ -318,7 +322,7 @@ class ODriveCanDriver(CanComponent):
                 modes[k] = mode if sent else _NO_MODE
             if mode == _POSITION_CONTROL:
                 msg = self._input_pos[k]
-                odrive.pack_set_input_pos(msg.data, p / TAU, v / TAU, ff)
+                odrive.pack_set_input_pos(msg.data, p / TAU, v / TAU, self._ff(k, ff))
             elif mode == _VELOCITY_CONTROL:
                 msg = self._input_vel[k]
                 odrive.pack_set_input_vel(msg.data, v / TAU, ff)

@@ -633,9 +633,58 @@ def _mock_glitch(glitch: Glitch) -> Callable[[], tuple[str, str, str, str]]:
     return run
 
 
+CAN_FLAVOURS = (("damiao", "Damiao"), ("tmotor", "T-Motor"), ("myactuator", "MyActuator"), ("odrive", "ODrive"))
+
+
+class DriveGlitches:
+    """A CAN rig's emulated drives' glitch controls, addressed by joint index like a simulated driver's (each
+    firmware corrupts the position field of the replies it sends; its own law keeps the true shaft)."""
+
+    def __init__(self, rig: CanRig) -> None:
+        self.firmwares = rig.firmwares
+
+    def set(self, i: int, **corruption: Any) -> None:
+        self.firmwares[i].glitch.set(0, **corruption)
+
+    def freeze(self, i: int, on: bool = True) -> None:
+        self.firmwares[i].glitch.freeze(0, on)
+
+    def flip(self, i: int, on: bool = True) -> None:
+        self.firmwares[i].glitch.flip(0, on)
+
+    def clear(self) -> None:
+        for fw in self.firmwares:
+            fw.glitch.clear()
+
+
+@dataclass
+class EmulatedDrives:
+    glitch: DriveGlitches
+
+
+def _can_glitch(flavour: str, glitch: Glitch) -> Callable[[], tuple[str, str, str, str]]:
+    def run() -> tuple[str, str, str, str]:
+        rig = CanRig(flavour)
+        try:
+            return glitch_run(rig, glitch, EmulatedDrives(DriveGlitches(rig)))
+        finally:
+            rig.close()
+
+    return run
+
+
 for _glitch in GLITCHES:
     scenario(f"twin_glitch_{_glitch.key}", f"{_glitch.fault} (twin)", _glitch.injected)(_twin_glitch(_glitch))
     scenario(f"mock_glitch_{_glitch.key}", f"{_glitch.fault} (mock)", _glitch.injected)(_mock_glitch(_glitch))
+    for _flavour, _name in (
+        ("damiao", "Damiao"),
+        ("tmotor", "T-Motor"),
+        ("myactuator", "MyActuator"),
+        ("odrive", "ODrive"),
+    ):
+        scenario(f"{_flavour}_glitch_{_glitch.key}", f"{_glitch.fault} ({_name})", _glitch.injected)(
+            _can_glitch(_flavour, _glitch)
+        )
 
 
 # ---- a stalled cycle (issue [trust], finding 8): it resumes where it was, never catches up in one step -------------

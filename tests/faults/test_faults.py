@@ -56,16 +56,21 @@ EXACT = {  # cycles from the injection to hild's reaction
     "client_lost_stop": 1,  # the next cycle takes the notice
     "client_lost_continue": 1,
 }
-EXACT |= {s.key: 2 for s in SCENARIOS if s.key.startswith("damiao_")}
+EXACT |= {s.key: 2 for s in SCENARIOS if s.key.startswith("damiao_0x")}
 # A persistent glitch is rejected from its first reading and faults when the rejections reach the stale bound
 # (the twin's stale_feedback_cycles: 10); a frozen encoder first has to show (FROZEN_TRAVEL of claimed motion).
-EXACT |= {f"{rig}_glitch_{kind}": 10 for rig in ("twin", "mock") for kind in ("jump", "spike", "flip")}
+GLITCH_RIGS = ("twin", "mock", "damiao", "tmotor", "myactuator", "odrive")
+# The stale bound (10) after the first corrupted reading; Damiao and T-Motor drives answer a frame only when they
+# are sent one, so their first corrupted reply is read one cycle later (MyActuator and ODrive had one in flight).
+_GLITCH_DETECT = {"damiao": 11, "tmotor": 11}
+EXACT |= {
+    f"{rig}_glitch_{kind}": _GLITCH_DETECT.get(rig, 10) for rig in GLITCH_RIGS for kind in ("jump", "spike", "flip")
+}
 EXACT |= {"stall_twin_2": 1, "stall_damiao_2": 1}  # past max_cycle_gap: the late cycle itself faults
 EXACT |= {"stall_twin_0.3": 1}  # a gap event at the late cycle; the goal runs on
 AT_MOST = {
     "stall_damiao_0.3": 3,  # the drives' 50 ms watchdogs fired during the stall: their replies say so
-    "twin_glitch_frozen": 40,  # 0.02 rad of claimed motion at ≥ 0.5 rad/s, then the stale bound
-    "mock_glitch_frozen": 40,
+    **{f"{rig}_glitch_frozen": 40 for rig in GLITCH_RIGS},  # 0.02 rad of claimed motion, then the stale bound
     "bus_off": 50,  # health is polled at 20 Hz: every 50 cycles at 1 kHz
     "myactuator_error": 34,  # status_poll_ms 100 over 3 motors: one poll every 33 cycles, +1 in transit
     "odrive_error": 101,  # heartbeat_rate_ms 100

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import can
 
 from drivers.can.protocol.errors import FrameError
+from drivers.glitch import ReadingGlitch
 
 
 @dataclass
@@ -47,10 +48,12 @@ class MotorFirmware:
     `drop_replies` probability of losing each outgoing frame, `reply_delay` seconds before a frame leaves,
     `silent` — the transceiver is cut: nothing is heard or sent (the drive's own watchdog still runs),
     `corrupt_replies` how many of the next outgoing frames leave one byte short (a frame the host must reject),
-    `over_temperature` °C at which the drive faults; plus `inject_fault(code)`, `clear_fault()` and `reboot()`.
+    `over_temperature` °C at which the drive faults, `glitch` (offset, spike, frozen, sign flip of the position its
+    replies report, drivers/glitch.py); plus `inject_fault(code)`, `clear_fault()` and `reboot()`.
     """
 
     def __init__(self, *, rated_torque: float, seed: int = 0, thermal: ThermalModel | None = None) -> None:
+        self.glitch = ReadingGlitch(1)  # corrupts the position its replies report (drivers/glitch.py), never the law
         self.drop_replies = 0.0
         self.reply_delay = 0.0
         self.silent = False

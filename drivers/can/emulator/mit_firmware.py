@@ -131,7 +131,7 @@ class MitFirmware(MotorFirmware):
         return self.flavour.encode_reply(
             self.motor_id,
             self.master_id,
-            self.reported_position,
+            self.glitch.corrupt(0, self.reported_position) if self.glitch.active else self.reported_position,
             self.velocity,
             self.applied_torque,
             self.ranges,

@@ -199,7 +199,10 @@ class ODriveFirmware(MotorFirmware):
         return od.encode_heartbeat(self.node_id, hb)
 
     def encoder_estimates(self) -> can.Message:
-        return od.encode_encoder_estimates(self.node_id, self.pos_estimate, self.vel_estimate)
+        pos = self.pos_estimate
+        if self.glitch.active:  # a glitching readout, in rad like every other glitch control
+            pos = self.glitch.corrupt(0, pos * _TAU) / _TAU
+        return od.encode_encoder_estimates(self.node_id, pos, self.vel_estimate)
 
     def _receive(self, msg: can.Message, now: float) -> list[can.Message]:
         self._last_feed = now

@@ -396,9 +396,11 @@ class EmulatorRuntime:
                 return self._set(payload)
             if op == "bus_off":
                 return self._bus_off(payload)
+            if op == "glitch":
+                return self._glitch(payload)
         except (ValueError, TypeError) as exc:
             return {"ok": False, "error": str(exc)}
-        ops = "status, fault, clear, reboot, set, bus_off, stop"
+        ops = "status, fault, clear, reboot, set, glitch, bus_off, stop"
         return {"ok": False, "error": f"unknown op {op!r} (ops: {ops})"}
 
     def _select(self, payload: Mapping[str, Any], *, required: bool = False) -> list[EmulatedJoint]:
@@ -445,6 +447,36 @@ class EmulatorRuntime:
             for key, value in checked.items():
                 setattr(joint.firmware, key, value)
         return {"ok": True, "joints": [j.name for j in chosen], **checked}
+
+    def _glitch(self, payload: Mapping[str, Any]) -> dict[str, Any]:
+        """Corrupt the position a drive reports (joint space, like the daemon sees it), never its law:
+        ``offset`` (rad) or ``value`` (an absolute position) for the next ``replies`` (-1: until cleared),
+        ``frozen`` / ``sign_flip`` true or false, or ``clear``."""
+        (joint,) = self._select(payload, required=True)
+        glitch = joint.firmware.glitch
+        keys = set(payload) - {"op", "joint"}
+        unknown = keys - {"offset", "value", "replies", "frozen", "sign_flip", "clear"}
+        if unknown or not keys:
+            raise ValueError("glitch takes offset, value, replies, frozen, sign_flip or clear")
+        for key in keys & {"offset", "value", "replies"}:
+            value = payload[key]
+            if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+                raise ValueError(f"{key} must be a finite number")
+        for key in keys & {"frozen", "sign_flip", "clear"}:
+            if not isinstance(payload[key], bool):
+                raise ValueError(f"{key} must be true or false")
+        if payload.get("clear"):
+            glitch.clear()
+        if "offset" in keys or "value" in keys:
+            replies = int(payload.get("replies", -1))
+            offset = float(payload.get("offset", 0.0)) * joint.reduction  # joint → actuator rad
+            value = joint.to_actuator(float(payload["value"])) if "value" in keys else math.nan
+            glitch.set(0, offset=offset * joint.direction, value=value, replies=replies)
+        if "frozen" in keys:
+            glitch.freeze(0, payload["frozen"])
+        if "sign_flip" in keys:
+            glitch.flip(0, payload["sign_flip"])
+        return {"ok": True, "joints": [joint.name]}
 
     def _bus_off(self, payload: Mapping[str, Any]) -> dict[str, Any]:
         duration = payload.get("duration")

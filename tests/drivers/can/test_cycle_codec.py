@@ -178,7 +178,8 @@ def test_odrive_cycle_sends_reference_frames_and_reads_reference_values(channel:
                     want.append(od.encode_set_controller_mode(node, mode, od.InputMode.PASSTHROUGH))
                     modes[k] = mode
                 if mode == od.ControlMode.POSITION_CONTROL:
-                    want.append(od.encode_set_input_pos(node, p / TAU, v / TAU, ff))
+                    # torque_ff is int16 × 1e-3 N·m: the driver clamps to ±32.767 itself (and reports it)
+                    want.append(od.encode_set_input_pos(node, p / TAU, v / TAU, max(-32.767, min(32.767, ff))))
                 elif mode == od.ControlMode.VELOCITY_CONTROL:
                     want.append(od.encode_set_input_vel(node, v / TAU, ff))
                 else:

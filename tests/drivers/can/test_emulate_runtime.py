@@ -418,6 +418,15 @@ def test_control_channel_injects_faults_and_reports_status(running: tuple[Emulat
     assert not any(j.firmware.silent for j in runtime.joints)
 
     assert request(address, {"op": "clear", "joint": "a"})["ok"] and a_fw.fault == 0
+    # Glitches corrupt what a drive reports, in joint space, for the next replies (or until cleared).
+    glitch = runtime.joints[1].firmware.glitch
+    assert request(address, {"op": "glitch", "joint": "b", "value": 7.0, "replies": 3}) == {"ok": True, "joints": ["b"]}
+    b = runtime.joints[1]
+    assert glitch.replies[0] == 3 and glitch.value[0] == b.to_actuator(7.0)
+    assert [glitch.corrupt(0, 0.1) for _ in range(4)] == [b.to_actuator(7.0)] * 3 + [0.1]
+    assert request(address, {"op": "glitch", "joint": "b", "frozen": True, "sign_flip": True})["ok"]
+    assert glitch.frozen[0] and glitch.sign_flip[0]
+    assert request(address, {"op": "glitch", "joint": "b", "clear": True})["ok"] and not glitch.active
     assert request(address, {"op": "fault", "joint": "d", "code": 0x0004})["ok"]  # MyActuator: low voltage
     d_fw = runtime.joints[3].firmware
     assert d_fw.fault == 0x0004
@@ -432,6 +441,10 @@ def test_control_channel_injects_faults_and_reports_status(running: tuple[Emulat
         ({"op": "set", "joint": "a", "drop_replies": 2}, "probability"),
         ({"op": "set", "joint": "a", "silent": "yes"}, "true or false"),
         ({"op": "set", "joint": "a", "volume": 11}, "unknown setting 'volume'"),
+        ({"op": "glitch", "joint": "a", "offset": "big"}, "finite number"),
+        ({"op": "glitch", "joint": "a", "frozen": 1}, "true or false"),
+        ({"op": "glitch", "joint": "a"}, "glitch takes"),
+        ({"op": "glitch", "offset": 1.0}, "needs a 'joint'"),
         ({"op": "dance"}, "unknown op 'dance'"),
     ]
     for payload, why in bad:
