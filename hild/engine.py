@@ -40,6 +40,7 @@ REQUEST_QUEUE = 64
 HEALTH_POLL_HZ = 20.0
 STATUS_STATS_MAX_AGE = 0.1  # s: status polled at 200 Hz recomputes loop percentiles at most 10 times a second
 ENABLE_CONFIRM = 1.0  # s: an operator enable must show in the drive's replies within this
+CLEAR_CONFIRM = 0.5  # s: a reset waits at most this long for the drives to confirm clear-error
 SET_ZERO_MAX_SPEED = 0.05  # rad/s: set-zero only on a still joint
 SET_ZERO_SETTLE = 0.5  # s: hold follows the reading while the drive moves to its new frame (some drop replies ~1 s)
 MAX_STEP_PERIODS = 2.0  # a late cycle advances the control clock (and the slew limit) by at most this many periods
@@ -48,6 +49,14 @@ GAP_EVENT_PERIODS = 10  # a cycle later than this many periods is reported (at m
 
 class RequestRejected(RuntimeError):
     pass
+
+
+@dataclass
+class Deferred:
+    """A request's answer that needs more cycles (e.g. a reset waiting for the drives to confirm clear-error):
+    ``poll`` runs after each cycle's read until it returns the answer."""
+
+    poll: Callable[[], Any]
 
 
 @dataclass
@@ -153,6 +162,7 @@ class Engine:
         self.tap: Any = None  # telemetry: an object with record(...) called once per cycle, or None
         self._rearm: dict[int, int] = {}  # joint → cycle by which its drive must confirm an operator enable
         self._estop_waiters: deque[concurrent.futures.Future[Any]] = deque(maxlen=256)
+        self._deferred: list[tuple[Deferred, concurrent.futures.Future[Any]]] = []
         self._health_every = max(1, round(self.update_rate / HEALTH_POLL_HZ))
         for name, spec in cfg.controllers.items():
             self.load_controller(name, spec.type, loaded.controller_params[name], spec.fallback_controllers)
@@ -374,6 +384,8 @@ class Engine:
         sup.check(self.state, dt)
         if self._rearm:
             self._confirm_enabled()
+        if self._deferred:
+            self._poll_deferred()
         if self.cycle % self._health_every == 0:
             self._poll_health()
         if self.max_consecutive_overruns and self.stats.consecutive_overruns >= self.max_consecutive_overruns:
@@ -469,9 +481,28 @@ class Engine:
             if not future.set_running_or_notify_cancel():
                 continue
             try:
-                future.set_result(action())
+                result = action()
             except Exception as exc:
                 future.set_exception(exc)
+                continue
+            if isinstance(result, Deferred):
+                self._deferred.append((result, future))
+            else:
+                future.set_result(result)
+
+    def _poll_deferred(self) -> None:
+        """Answer the requests that waited for more cycles (after this cycle's read and checks)."""
+        for item in list(self._deferred):
+            deferred, future = item
+            try:
+                result = deferred.poll()
+            except Exception as exc:
+                self._deferred.remove(item)
+                future.set_exception(exc)
+                continue
+            if result is not None:
+                self._deferred.remove(item)
+                future.set_result(result)
 
     def _take_inputs(self) -> None:
         """Streamed commands, taken by the cycle itself (``hild.api.ports.ControllerPorts.take_inputs``)."""
@@ -506,17 +537,43 @@ class Engine:
         stopped = self.manager.deactivate_commanding("e-stop")
         return {"deactivated": stopped}
 
-    def reset(self) -> dict[str, Any]:
+    def reset(self) -> dict[str, Any] | Deferred:
+        """Operator reset (between cycles): clear drive errors, then e-stop and latched faults.
+
+        Drives that repeat clear-error until their replies confirm it make the answer wait (``Deferred``, at most
+        ``CLEAR_CONFIRM`` s): a drive whose error is still there after every try is named and nothing is cleared.
+        """
         refusal = self.supervisor.refusal()
         if refusal:
             return {"cleared": [], "error": refusal}
+        cleared = []
         for slot in self.hardware:
             if slot.lifecycle is Lifecycle.FAULT or self.supervisor.fault[slot.index].any():
                 slot.component.clear_faults()  # drive errors too; it never re-enables a drive (that is enable)
-                problem = slot.component.health()
-                if problem:
-                    return {"cleared": [], "error": f"{slot.name} still faulted: {problem}"}
-                slot.lifecycle, slot.fault = Lifecycle.ACTIVE, ""
+                cleared.append(slot)
+        if any(slot.component.confirming() for slot in cleared):
+            deadline = self.cycle + max(1, round(CLEAR_CONFIRM * self.update_rate))
+
+            def finish() -> dict[str, Any] | None:
+                if self.cycle < deadline and any(slot.component.confirming() for slot in cleared):
+                    return None
+                return self._finish_reset(cleared)
+
+            return Deferred(finish)
+        return self._finish_reset(cleared)
+
+    def _finish_reset(self, cleared: list[HardwareSlot]) -> dict[str, Any]:
+        for slot in cleared:
+            stuck = slot.component.persistent_errors()
+            if stuck:
+                for joint, words in stuck.items():
+                    self.supervisor.rename_fault(self.joints.index(joint), f"{slot.name}: {words}")
+                named = "; ".join(f"{joint}: {words}" for joint, words in stuck.items())
+                return {"cleared": [], "error": f"{slot.name}: {named}"}
+            problem = slot.component.health()
+            if problem:
+                return {"cleared": [], "error": f"{slot.name} still faulted: {problem}"}
+            slot.lifecycle, slot.fault = Lifecycle.ACTIVE, ""
         self.stats.consecutive_overruns = 0
         return {"cleared": self.supervisor.reset()}
 

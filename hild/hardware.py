@@ -154,6 +154,20 @@ class HardwareComponent(abc.ABC):
     def clear_faults(self) -> None:
         """Clear drive-side faults on an operator ``reset``. Must not re-enable a drive by itself."""
 
+    def confirming(self) -> bool:
+        """True while a state-changing command (clear-error, enable) is still being repeated until the drive's
+        replies confirm it: the engine answers an operator ``reset`` only once this is over (bounded)."""
+        return False
+
+    def persistent_errors(self) -> dict[str, str]:
+        """Joint → the drive's own words for an error still reported after every clear-error try; the engine's
+        ``reset`` refuses naming it, and the joint's fault says it, until the drive stops reporting it."""
+        return {}
+
+    def unconfirmed(self) -> dict[str, str]:
+        """Joint → a command whose tries ran out without confirmation (taken: each is returned once)."""
+        return {}
+
     def enable(self, joint: str | None = None) -> list[str]:
         """Operator command: enable a drive a fault disabled (one joint, or all). Never called automatically;
         returns the joints enabled, which the next reads confirm."""

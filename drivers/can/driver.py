@@ -70,11 +70,27 @@ MYACTUATOR_ERRORS = {
 _REPLY_LENGTHS = {"damiao": (8,), "tmotor": (6, 8), "myactuator": (8,)}
 _KEY_MASK = {"damiao": 0x0F, "tmotor": 0xFF, "myactuator": 0xFF}  # D0 bits that name the motor in a reply
 _ID_RANGE = {"damiao": (1, 0x7FE), "tmotor": (0, 0xFF), "myactuator": (1, 32)}
-# Replies that may still carry a cleared error code: those queued in the adapter and the kernel, and those the drive
-# sent before the clear frame reached it (tens of ms on a USB adapter or the loopback bus). A drive that still
-# reports the code after them did not clear it.
-CLEAR_GRACE_REPLIES = 50
+# Commands that change a drive's state (enable, clear-error; disable at shutdown) are repeated until its replies
+# confirm them, as the vendors' own examples do (Damiao: 5× at 2 ms): a lost frame must not leave a drive on.
+REPEAT_TRIES = 5
+# Between two tries: the replies that may still show the old state (queued in the adapter and the kernel, or sent
+# before the frame reached the drive: tens of ms on a USB adapter or the loopback bus), or this many cycles when
+# the drive does not answer. A drive that still reports a cleared error after every try did not clear it.
+REPLIES_PER_TRY = 10
+CYCLES_PER_TRY = 10
 _ENABLED_UNKNOWN, _DISABLED, _ENABLED = -1, 0, 1
+
+
+@dataclass(slots=True)
+class Repeated:
+    """A state-changing frame sent to one motor and repeated until its replies confirm it (or the tries run out)."""
+
+    kind: str  # "clear-error" or "enable"
+    frame: can.Message
+    tries_left: int
+    code: int = 0  # clear-error: the code being cleared
+    replies: int = 0  # replies since the last send
+    cycles: int = 0  # write cycles since the last send
 
 
 @dataclass(frozen=True, slots=True)
@@ -244,9 +260,10 @@ class MitCanDriver(CanComponent):
         self.temperature = [math.nan] * n
         self.fault = [0] * n
         self.status_fault = [0] * n  # MyActuator error flags from the latest status poll
-        # After a clear-error: (the cleared code, replies left) — replies already in flight still carry the old code
-        # and must not re-trip the joint; the first reply without it, or the end of the grace, ends it.
-        self._clearing: list[tuple[int, int]] = [(0, 0)] * n
+        # Enable / clear-error frames being repeated until the replies confirm them; what ran out of tries.
+        self._repeating: list[Repeated | None] = [None] * n
+        self._persistent: dict[int, str] = {}  # motor → a drive error still present after every clear-error
+        self._unconfirmed: dict[int, str] = {}  # motor → a command whose tries ran out, until the engine reads it
         self._replies = [0] * n  # replies accepted per motor since configure
         self.reported_enabled = [_ENABLED_UNKNOWN] * n
         self.expect_enabled = [False] * n
@@ -389,17 +406,20 @@ class MitCanDriver(CanComponent):
         if msg is None:  # MyActuator motion mode: every command frame is obeyed; nothing to switch on
             return True
         if not wait:
-            return self.link.send(msg)
-        before = self._replies[k]
-        self.link.send_wait(msg)
+            return self._start_repeating(k, "enable", msg)
         reports = self.flavour.reports_enabled
+        for _ in range(REPEAT_TRIES):
+            before = self._replies[k]
+            self.link.send_wait(msg)
 
-        def confirmed() -> bool:
-            if self._replies[k] <= before:
-                return False
-            return not reports or self.reported_enabled[k] == _ENABLED or self.fault[k] != 0
+            def confirmed(before: int = before) -> bool:
+                if self._replies[k] <= before:
+                    return False
+                return not reports or self.reported_enabled[k] == _ENABLED or self.fault[k] != 0
 
-        return self.link.collect(self._accept, confirmed, self._timeout) and self.fault[k] == 0
+            if self.link.collect(self._accept, confirmed, self._timeout / REPEAT_TRIES):
+                return self.fault[k] == 0
+        return False
 
     def deactivate(self) -> None:
         if self.link.bus is None:
@@ -413,22 +433,33 @@ class MitCanDriver(CanComponent):
             msg = self.flavour.special(m.id, "disable", fd=self.params.bus.fd)
             if msg is None:
                 continue
+            if not self._disable(k, msg):
+                unconfirmed.append(m.joint)
+        if unconfirmed:
+            self.context.emit_event(
+                "error",
+                f"disable not confirmed by {unconfirmed} after {REPEAT_TRIES} tries: their own watchdogs must act",
+            )
+
+    def _disable(self, k: int, msg: can.Message) -> bool:
+        """Send disable until the replies say so, REPEAT_TRIES times at most; a flavour whose replies cannot say
+        gets every try (as its vendor's examples do). True when confirmed (or sent every time, unconfirmable)."""
+        reports = self.flavour.reports_enabled
+        sent = 0
+        for _ in range(REPEAT_TRIES):
             before = self._replies[k]
             try:
                 self.link.send_wait(msg)
             except HardwareError:
-                unconfirmed.append(m.joint)
                 continue
-            if self.flavour.reports_enabled:
-                ok = self.link.collect(
-                    self._accept,
-                    lambda k=k, before=before: self._replies[k] > before and self.reported_enabled[k] != _ENABLED,
-                    self._timeout,
-                )
-                if not ok:
-                    unconfirmed.append(m.joint)
-        if unconfirmed:
-            self.context.emit_event("error", f"disable not confirmed by {unconfirmed}")
+            sent += 1
+            if reports and self.link.collect(
+                self._accept,
+                lambda before=before: self._replies[k] > before and self.reported_enabled[k] != _ENABLED,
+                self._timeout / REPEAT_TRIES,
+            ):
+                return True
+        return not reports and sent == REPEAT_TRIES
 
     # ---- cycle -------------------------------------------------------------------------------------------------
     def read(self, t: float, dt: float, state: JointState) -> None:
@@ -463,6 +494,8 @@ class MitCanDriver(CanComponent):
             else:
                 encode(msg.data, p, v, kp, kd, clamp(k, ff))
             send(msg)
+        if self._repeats:
+            self._repeat()
         if self._status_interval:
             self._status_due -= dt
             if self._status_due <= 0.0:
@@ -471,6 +504,50 @@ class MitCanDriver(CanComponent):
                 self._status_next = (k + 1) % len(self._status_requests)
                 send(self._status_requests[k])
         self.link.end_cycle()
+
+    @property
+    def _repeats(self) -> bool:
+        return self._repeating.count(None) < len(self._repeating)  # no allocation: this runs every cycle
+
+    def _repeat(self) -> None:
+        """Send each unconfirmed frame again once its replies (or cycles) for this try are in; give up after
+        REPEAT_TRIES: a clear-error whose code stays is a persistent drive error, named from then on."""
+        for k, repeating in enumerate(self._repeating):
+            if repeating is None:
+                continue
+            repeating.cycles += 1
+            if repeating.replies < REPLIES_PER_TRY and repeating.cycles < CYCLES_PER_TRY:
+                continue
+            if repeating.tries_left > 0:
+                self.link.send(repeating.frame)
+                repeating.tries_left -= 1
+                repeating.replies = repeating.cycles = 0
+                continue
+            self._repeating[k] = None
+            joint = self.motors[k].joint
+            if repeating.kind == "clear-error":
+                words = f"{self.describe_fault(repeating.code)}, still present after clear-error ({REPEAT_TRIES} tries)"
+                self._persistent[k] = words
+                self.fault[k] = repeating.code
+                self.context.emit_event("error", f"{joint}: {words}")
+            else:
+                self._unconfirmed[k] = f"enable not confirmed after {REPEAT_TRIES} tries"
+                self.context.emit_event("error", f"{joint}: {self._unconfirmed[k]}")
+
+    def _start_repeating(self, k: int, kind: str, frame: can.Message, code: int = 0) -> bool:
+        """Send ``frame`` now and keep repeating it from ``write`` until the replies confirm it."""
+        self._repeating[k] = Repeated(kind, frame, REPEAT_TRIES - 1, code)
+        return self.link.send(frame)
+
+    def confirming(self) -> bool:
+        return self._repeats
+
+    def persistent_errors(self) -> dict[str, str]:
+        return {self.motors[k].joint: words for k, words in self._persistent.items()}
+
+    def unconfirmed(self) -> dict[str, str]:
+        taken, self._unconfirmed = self._unconfirmed, {}
+        return {self.motors[k].joint: words for k, words in taken.items()}
 
     def _accept(self, msg: can.Message) -> None:
         """Decode one received frame into the newest-feedback lists, or count why it was ignored.
@@ -503,17 +580,25 @@ class MitCanDriver(CanComponent):
         if rezero:
             rezero -= 1
             self._rezero_replies[k] = rezero
-        if self._clearing[k][1]:
-            cleared, left = self._clearing[k]
-            if fault == cleared:  # an echo from before the clear reached the drive
-                fault = 0
-                self._clearing[k] = (cleared, left - 1)
-            else:
-                self._clearing[k] = (0, 0)
+        repeating = self._repeating[k]
+        clearing = repeating is not None and repeating.kind == "clear-error"
+        if repeating is not None:  # confirmed by this reply, or still waiting (decided in write)
+            repeating.replies += 1
+            if repeating.kind == "clear-error":
+                if fault == repeating.code:
+                    fault = 0  # in flight from before the clear, or still there: known when the tries run out
+                else:
+                    self._repeating[k] = repeating = None
+            elif enabled is not False:  # enabled (or a flavour whose replies cannot say: any reply)
+                self._repeating[k] = repeating = None
+        elif fault == 0 and self._persistent:
+            self._persistent.pop(k, None)
         status_fault = self.status_fault[k]
         if fault or status_fault:
             self.fault[k] = fault or status_fault
-        elif enabled is False and self.expect_enabled[k] and not rezero:  # set-zero passes "off" on purpose
+        elif enabled is False and self.expect_enabled[k] and not rezero and not clearing:
+            # Off while it should be on (set-zero passes "off" on purpose; a cleared Damiao drive comes back off,
+            # which is said once the clear-error is decided). A repeated enable is confirmed by this going away.
             self.fault[k] = FAULT_DISABLED
         else:
             self.fault[k] = 0
@@ -587,9 +672,9 @@ class MitCanDriver(CanComponent):
                     "warning", f"{m.joint}: {self.flavour.name} has no clear-error frame; the drive must clear it"
                 )
             else:
-                self.link.send(msg)
-                self._clearing[k] = (code, CLEAR_GRACE_REPLIES)
-            self.fault[k] = 0  # the drive's next reply (or status poll) says what is left
+                self._start_repeating(k, "clear-error", msg, code)
+                self._persistent.pop(k, None)
+            self.fault[k] = 0  # the drive's replies (or status poll) say what is left once the tries are done
             self.status_fault[k] = 0
 
     def enable(self, joint: str | None = None) -> list[str]:
@@ -599,6 +684,12 @@ class MitCanDriver(CanComponent):
         next cycles confirm it (a motor that stays disabled keeps reporting ``FAULT_DISABLED``).
         """
         targets = self._targets(joint)
+        stuck = [f"{self.motors[k].joint}: {self._persistent[k]}" for k in targets if k in self._persistent]
+        if stuck:
+            raise HardwareError(
+                f"{'; '.join(stuck)}: it must clear on the drive itself (let it cool, remove the cause), "
+                "then reset and enable"
+            )
         faulted = [self.motors[k].joint for k in targets if self.fault[k] not in (0, FAULT_DISABLED)]
         if faulted:
             raise HardwareError(f"motors {faulted} report a drive fault: reset first (it clears the drive error)")

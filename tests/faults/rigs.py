@@ -149,9 +149,13 @@ class Lockstep:
 
     # ---- operator requests (through the request queue, like the API) ---------------------------------------------
     def request(self, action: Callable[[], Any]) -> Any:
+        """Submit ``action`` and run cycles until it is answered (a reset waits for the drives' confirmation)."""
         future = self.engine.submit(action)
-        self.cycle()
-        return future.result(timeout=0)
+        for _ in range(round(self.engine.update_rate)):
+            self.cycle()
+            if future.done():
+                return future.result(timeout=0)
+        raise AssertionError("the request was not answered within 1 s")
 
     def reset(self) -> dict[str, Any]:
         return dict(self.request(self.engine.reset))

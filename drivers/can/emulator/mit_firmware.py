@@ -244,11 +244,20 @@ class DamiaoFirmware(MitFirmware):
         elif kind == "zero":
             self.zero_offset = self.position
         elif kind == "clear":
-            self._fault = 0
+            if not self._still_hot():  # an over-temperature cannot be cleared while the drive is still hot
+                self._fault = 0
             self._disable()
         elif self._enabled:
             self._take_command(data)
         return [self._feedback()]
+
+    def _still_hot(self) -> bool:
+        """The latched fault is an over-temperature whose cause is still there (the firmware keeps it)."""
+        if self._fault == self._over_temperature_fault(rotor=True):
+            return self.temperature_rotor > self.over_temperature
+        if self._fault == self._over_temperature_fault(rotor=False):
+            return self.temperature_mos > self.over_temperature
+        return False
 
     def _register_frame(self, msg: can.Message) -> list[can.Message]:
         esc_id, op, rid, raw = reg.decode_request(msg)

@@ -753,8 +753,9 @@ def test_engine_reset_clears_the_drive_fault_but_only_enable_re_arms(two_bus: Tw
     two_bus.run(2)
     assert two_bus.faults()[1] == "left: damiao fault 0xa: over-current"
     assert "reset first" in engine.enable(["b"])["error"]  # the drive still reports its error
-    engine.reset()  # the operator's reset sends clear-error; it never enables a motor
+    reset = engine.submit(engine.reset)  # the operator's reset sends clear-error; it never enables a motor
     two_bus.run(20)
+    assert reset.result(timeout=0)["cleared"] == ["b: left: damiao fault 0xa: over-current"]  # once confirmed
     fw = two_bus.left_fw[1]
     assert fw.fault == 0 and not fw.enabled
     assert two_bus.faults()[1] is not None and "not re-enabled automatically" in two_bus.faults()[1]
