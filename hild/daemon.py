@@ -90,6 +90,7 @@ class Daemon:
     # ---- run -----------------------------------------------------------------------------------------------
     async def run(self) -> int:
         from hild.api.server import ApiServer  # zenoh lives in the api room
+        from hild.api.unique import RobotNameTaken
 
         cfg = self.loaded.config
         self._loop = asyncio.get_running_loop()
@@ -102,6 +103,10 @@ class Daemon:
         try:
             self.api = ApiServer(self.engine, cfg.zenoh, self.listen)
             await self.api.start()
+        except RobotNameTaken as exc:  # checked before any drive is enabled
+            self.api = None
+            self.engine.release()
+            raise StartupError(str(exc)) from exc
         except Exception as exc:  # e.g. the listen port is taken: release the hardware we just configured
             self.api = None
             self.engine.release()

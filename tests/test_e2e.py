@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+import yaml
 
 from hild.api.client import HildClient, HildError, HildUnreachable
 from tests.conftest import CONFIGS
@@ -197,3 +198,26 @@ def test_taken_port_releases_the_hardware_and_exits_1(tmp_path: Path) -> None:
     assert run.returncode == 1, run.stderr
     assert "cannot open the Zenoh API" in run.stderr
     assert "stopped: hardware released" in run.stderr
+
+
+def test_a_second_daemon_of_the_same_robot_exits_1_naming_the_first(
+    daemon: tuple[subprocess.Popen[bytes], str, Path], tmp_path: Path
+) -> None:
+    proc, endpoint, log = daemon
+    connect_when_up(proc, endpoint, log, 60.0).close()
+    config = tmp_path / "second.yaml"
+    data = yaml.safe_load((CONFIGS / "arm6_twin.yaml").read_text())
+    (tmp_path / "arm6.xml").write_text((CONFIGS / "arm6.xml").read_text())  # the robot's and the twin's model
+    data.setdefault("zenoh", {})["connect"] = [endpoint]  # the same network as the first daemon
+    config.write_text(yaml.safe_dump(data, sort_keys=False))
+    run = subprocess.run(
+        [sys.executable, "-m", "hild.cli", "run", str(config), "--listen", f"tcp/127.0.0.1:{free_port()}"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert run.returncode == 1, run.stderr
+    assert "robot 'arm6' already has a daemon on this Zenoh network" in run.stderr
+    assert f"listening on {endpoint}" in run.stderr
+    assert "stopped: hardware released" in run.stderr  # configured, never enabled, released
+    assert proc.poll() is None  # the first one runs on

@@ -32,6 +32,7 @@ from hild.api.ports import ControllerPorts, Counters
 from hild.api.queries import SHUTTING_DOWN, Admitted, Gate, HeavyLane, drop, reply_json
 from hild.api.services import DEFAULT_TIMEOUT, Reply, Services
 from hild.api.session import declare_json_publisher, open_session, server_config
+from hild.api.unique import DaemonIdentity, check_unique, describe_other
 from hild.config.model import ZenohSection
 from hild.engine import Engine
 from hild.events import Event
@@ -68,6 +69,7 @@ class ApiServer:
         self._publishers: dict[str, zenoh.Publisher] = {}
         self._queryables: list[zenoh.Queryable[Any]] = []
         self._token: zenoh.LivelinessToken | None = None
+        self._identity: DaemonIdentity | None = None
         self._client_watch: zenoh.Subscriber[Any] | None = None
         self._status_task: asyncio.Task[None] | None = None
         self._reads_task: asyncio.Task[None] | None = None
@@ -91,7 +93,9 @@ class ApiServer:
             what = f"{self.settings.mode}, listen {endpoints}"
             raise ConnectionError(f"cannot open the Zenoh session ({what}): {exc}") from None
         try:
+            check_unique(self.session, self.keys)  # before anything is declared, and before any drive is enabled
             self._declare(self.session, self._loop)
+            self._identity = DaemonIdentity(self.session, self.keys, endpoints, self._other_daemon(self._loop))
         except BaseException:
             await self.close()
             raise
@@ -128,6 +132,9 @@ class ApiServer:
             with contextlib.suppress(zenoh.ZError):
                 self._token.undeclare()
             self._token = None
+        if self._identity is not None:
+            self._identity.close()
+            self._identity = None
         if self._client_watch is not None:
             with contextlib.suppress(zenoh.ZError):
                 self._client_watch.undeclare()
@@ -234,6 +241,29 @@ class ApiServer:
                     self._publish_status()
             except Exception:
                 log.exception("status publication failed")
+
+    # ---- one robot name, one daemon -----------------------------------------------------------------------------
+    def _other_daemon(self, loop: asyncio.AbstractEventLoop) -> Callable[[str], None]:
+        owner = weakref.ref(self)
+
+        def on_other(zid: str) -> None:  # a Zenoh thread: hop to the loop (the report queries, which may block)
+            me = owner()
+            if me is not None:
+                with contextlib.suppress(RuntimeError):
+                    loop.call_soon_threadsafe(lambda: loop.create_task(me._report_other(zid)))
+
+        return on_other
+
+    async def _report_other(self, zid: str) -> None:
+        if self._closing or self.session is None:
+            return
+        where = await asyncio.to_thread(describe_other, self.session, self.keys, zid)
+        text = (
+            f"another daemon of robot {self.engine.robot!r} appeared on this Zenoh network ({where}): both obey every "
+            "command sent to this robot. Stop one of them"
+        )
+        log.error("%s", text)
+        self.engine.events.emit("error", "api", text)
 
     # ---- goal senders' liveliness -------------------------------------------------------------------------------
     def _watch_clients(self, session: zenoh.Session, loop: asyncio.AbstractEventLoop) -> None:
