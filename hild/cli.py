@@ -46,6 +46,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _cmd_check(args: argparse.Namespace) -> int:
+    from hild.config.stop_review import limp_at_stop
+
     status = 0
     for path in args.configs:
         try:
@@ -55,6 +57,8 @@ def _cmd_check(args: argparse.Namespace) -> int:
             status = 1
             continue
         print(loaded.summary())
+        for warning in limp_at_stop(loaded):
+            print(warning)
         print("ok")
     return status
 

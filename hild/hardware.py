@@ -116,6 +116,18 @@ class HardwareComponent(abc.ABC):
         """The shared media this component loads; the loader sums components per bus (>100 % refused)."""
         return []
 
+    @classmethod
+    def files(cls, params: Params) -> dict[str, str]:
+        """Param name → a file the component needs, relative to the config's directory; the loader refuses a
+        config whose file is missing (``hild check`` says so instead of ``run`` failing)."""
+        return {}
+
+    @classmethod
+    def holds_at_stop(cls, params: Params) -> bool:
+        """True when ``deactivate`` leaves the drives holding (e.g. ``on_deactivate: hold``); False when they go
+        limp, which drops an unbraked, gravity-loaded joint unless ``safety.stop_descent`` lowers it first."""
+        return False
+
     # Lifecycle hooks (non real-time; may block briefly, may raise HardwareError).
     def configure(self) -> None:
         """Open buses or load models and check the hardware matches the config. Drives stay disabled."""

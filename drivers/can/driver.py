@@ -170,6 +170,10 @@ class MitCanDriver(CanComponent):
 
     # ---- config review (class level) -----------------------------------------------------------------------
     @classmethod
+    def holds_at_stop(cls, params: Params) -> bool:
+        return getattr(params, "on_deactivate", "") == "hold"
+
+    @classmethod
     def review(cls, params: Params, joints: Sequence[str], update_rate: float) -> list[Finding]:
         assert isinstance(params, MitCanParams)
         _, problems = wire_motors(params, joints)

@@ -78,8 +78,14 @@ class MujocoTwin(HardwareComponent):
     """
 
     Params = MujocoTwinParams
+
     COMMAND_FIELDS = ALL_COMMAND_FIELDS
     SIMULATED = True
+
+    @classmethod
+    def files(cls, params: Params) -> dict[str, str]:
+        assert isinstance(params, MujocoTwinParams)
+        return {"model": params.model}
 
     def __init__(self, context: HardwareContext, params: MujocoTwinParams) -> None:
         super().__init__(context, params)

@@ -24,7 +24,9 @@ SERVICES = (
     "enable",
 )
 # Second-level chunks the API itself uses; a controller output may not take one of these names.
-RESERVED = frozenset({ALIVE, STATUS, EVENTS, "srv", "ctrl", "client", "daemon"})  # client: goal senders' liveliness tokens
+RESERVED = frozenset(
+    {ALIVE, STATUS, EVENTS, "srv", "ctrl", "client", "daemon"}
+)  # client: goal senders' liveliness tokens
 
 _CHUNK = re.compile(r"^[A-Za-z0-9_\-.]+$")
 

@@ -330,6 +330,13 @@ def _cross_check(loaded: LoadedConfig, file: str, lines: dict[Loc, int], issues:
 
     if c.robot.model is not None and not (loaded.directory / c.robot.model).is_file():
         report(("robot", "model"), f"file not found: {loaded.directory / c.robot.model}")
+    for hw_name in c.hardware:
+        cls, params = loaded.driver_classes.get(hw_name), loaded.driver_params.get(hw_name)
+        if cls is None or params is None:
+            continue
+        for param, relative in cls.files(params).items():
+            if not (loaded.directory / relative).is_file():
+                report(("hardware", hw_name, "params", param), f"file not found: {loaded.directory / relative}")
 
     available = set()
     for joint, hw_name in owner.items():
