@@ -398,11 +398,11 @@ class Supervisor:
             known = isfinite(q)  # False only for a joint that never had an accepted reading
             if not known:
                 ff_gravity = 0.0
+            if known and not was_stiff[i] > 0.0:  # no spring held it anywhere: a stiff command starts at the reading
+                prev_all[i] = q
             if check_relatch and relatch[i] and known:
                 relatch[i] = False
                 latched[i] = q
-                if not was_stiff[i] > 0.0:  # no spring held it anywhere: start at the reading, no slew from nowhere
-                    prev_all[i] = q
             following = False
             if check_follow and follow[i]:  # the reading is not to be held yet: follow it, re-latch at the end
                 follow[i] -= 1
