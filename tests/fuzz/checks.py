@@ -18,6 +18,7 @@ BUG = re.compile(r"^(internal error|[A-Z]\w*(Error|Exception)\b)")  # how an une
 def unharmed(daemon: FuzzDaemon, rss_growth_kb: int = RSS_GROWTH_KB) -> Iterator[None]:
     """Whatever runs inside: the daemon lives, cycles, keeps its modes, moves nothing, and keeps its memory."""
     before = daemon.quiesce()
+    daemon.settle()  # the baseline is a sample taken after the last controller let go, not one from just before
     daemon.motion.arm()
     yield
     assert daemon.alive(), daemon.log.read_text()[-4000:]
