@@ -679,6 +679,7 @@ class Engine:
                     "owner": names.get(slot) if slot >= 0 else None,
                     "fault": sup.fault_text[i] or None,
                     "limits": limit_names(int(sup.limit_flags[i])),
+                    "longest_silence_ms": round(sup.longest_silence[i] * 1000.0, 1),
                 }
             )
         return {

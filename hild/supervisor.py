@@ -164,6 +164,7 @@ class Supervisor:
         self._safe_action = [Action.HOLD] * n
         self._stale = [0] * n
         self._silent = [0.0] * n  # s without an accepted reading
+        self.longest_silence = [0.0] * n  # published: the longest such stretch since start (s), per joint
         self._codes = [0] * n  # the drives' fault codes at the last check
         self._untrusted_fault = [False] * n  # faulted while its readings were untrusted: damped until reset
         self._relatch = [False] * n  # latch at the next command(): after reset and e-stop
@@ -215,7 +216,7 @@ class Supervisor:
         fresh, codes = state.fresh.tolist(), state.fault.tolist()
         self._codes = codes
         qd_all = state.velocity.tolist()
-        stale, silent, fault = self._stale, self._silent, self.fault
+        stale, silent, fault, longest = self._stale, self._silent, self.fault, self.longest_silence
         stale_limit, stale_time = self.safety.stale_feedback_cycles, self.safety.stale_feedback_time
         overspeed = self._overspeed
         for i, qd in enumerate(qd_all):
@@ -228,6 +229,8 @@ class Supervisor:
             else:
                 stale[i] += 1
                 silent[i] += dt
+                if silent[i] > longest[i]:
+                    longest[i] = silent[i]
                 if stale[i] >= stale_limit and silent[i] >= stale_time and not fault.item(i):
                     self._trip_stale(i)
             code = codes[i]

@@ -399,3 +399,26 @@ def test_finding_5_enable_and_disable_are_repeated_until_the_drive_confirms() ->
     finally:
         rig.bus.shutdown()
         rig._dir.cleanup()
+
+
+# ---- finding 7: stale detection in missed replies and in time --------------------------------------------------
+def test_stale_detection_needs_both_the_missed_replies_and_the_time(make_engine: MakeEngine) -> None:
+    """stale_feedback_cycles counts cycles without an accepted reading, stale_feedback_time the wall time: a joint
+    faults only when both have passed, so a late daemon (few cycles, much time: its drive's replies wait in the
+    buffer) and a fast rate (many cycles, little time) are both told from a drive that went silent."""
+    engine = make_engine({"safety": {"stale_feedback_cycles": 5, "stale_feedback_time": 0.05}})
+    mock = engine.hardware[0].component
+    mock.silent[1] = True
+    for _ in range(10):  # 10 missed replies, but only 20 ms: a fast rate's missed replies are not yet a fault
+        engine.run_cycles(1)
+    assert engine.supervisor.fault[1] == Fault.NONE
+    for _ in range(2):  # two cycles 30 ms late each (a stalled host): the time passes, and they were missed too
+        engine.step(engine.t + 0.03, 0.03)
+    assert engine.supervisor.fault[1] == Fault.STALE_FEEDBACK
+    assert engine.status()["joints"][1]["fault"] == "no feedback for 11 cycles"  # 20 + 30 ms: both passed
+    assert engine.status()["joints"][1]["longest_silence_ms"] == pytest.approx(80.0)
+    # Time alone is not enough either: one long late cycle is one missed reply.
+    other = make_engine({"safety": {"stale_feedback_cycles": 5, "stale_feedback_time": 0.05}})
+    other.hardware[0].component.silent[0] = True
+    other.step(other.t + 0.2, 0.2)
+    assert other.supervisor.fault[0] == Fault.NONE

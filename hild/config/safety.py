@@ -187,6 +187,17 @@ def _safety_section(config: RobotConfig, real_joints: list[str]) -> list[SafetyF
             f"{stale:.3g} s; keep it within {DETECTION_MAX:g} s on real hardware"
         )
         findings.append(SafetyFinding("error", ("safety", "stale_feedback_cycles"), message))
+    if s.stale_feedback_time > DETECTION_MAX:
+        message = (
+            f"a servo that stops answering is noticed only after {s.stale_feedback_time:g} s; keep it within "
+            f"{DETECTION_MAX:g} s on real hardware"
+        )
+        findings.append(SafetyFinding("error", ("safety", "stale_feedback_time"), message))
+    if s.max_cycle_gap == 0 or s.max_cycle_gap > DETECTION_MAX:
+        message = (
+            "0 disables the stall fault" if s.max_cycle_gap == 0 else f"a {s.max_cycle_gap:g} s stall is tolerated"
+        ) + ": after a long stall the arm was on its drives' own watchdogs, and the cycle would carry on as if not"
+        findings.append(SafetyFinding("warning", ("safety", "max_cycle_gap"), message))
     if s.max_consecutive_overruns == 0:
         message = "0 disables the overrun fault: a stalled cycle leaves the drives on their last command"
         findings.append(SafetyFinding("warning", ("safety", "max_consecutive_overruns"), message))
