@@ -611,28 +611,6 @@ def glitch_run(rig: Lockstep, glitch: Glitch, component: Any) -> tuple[str, str,
     return shown, text, first_event(rig, since, "reading rejected"), recovery
 
 
-def _twin_glitch(glitch: Glitch) -> Callable[[], tuple[str, str, str, str]]:
-    def run() -> tuple[str, str, str, str]:
-        rig = TwinRig()
-        try:
-            return glitch_run(rig, glitch, rig.engine.hardware[0].component)
-        finally:
-            rig.close()
-
-    return run
-
-
-def _mock_glitch(glitch: Glitch) -> Callable[[], tuple[str, str, str, str]]:
-    def run() -> tuple[str, str, str, str]:
-        rig = MockRig()
-        try:
-            return glitch_run(rig, glitch, rig.engine.hardware[0].component)
-        finally:
-            rig.close()
-
-    return run
-
-
 CAN_FLAVOURS = (("damiao", "Damiao"), ("tmotor", "T-Motor"), ("myactuator", "MyActuator"), ("odrive", "ODrive"))
 
 
@@ -662,28 +640,40 @@ class EmulatedDrives:
     glitch: DriveGlitches
 
 
-def _can_glitch(flavour: str, glitch: Glitch) -> Callable[[], tuple[str, str, str, str]]:
-    def run() -> tuple[str, str, str, str]:
-        rig = CanRig(flavour)
+Outcome = tuple[str, str, str, str]
+
+
+def on_rig(make: Callable[[], Lockstep], body: Callable[[Lockstep], Outcome]) -> Callable[[], Outcome]:
+    """A scenario's run: build its rig, run ``body`` on it, always close it."""
+
+    def run() -> Outcome:
+        rig = make()
         try:
-            return glitch_run(rig, glitch, EmulatedDrives(DriveGlitches(rig)))
+            return body(rig)
         finally:
             rig.close()
 
     return run
 
 
+def _simulated_glitch(glitch: Glitch) -> Callable[[Lockstep], Outcome]:
+    return lambda rig: glitch_run(rig, glitch, rig.engine.hardware[0].component)
+
+
+def _drive_glitch(glitch: Glitch) -> Callable[[Lockstep], Outcome]:
+    return lambda rig: glitch_run(rig, glitch, EmulatedDrives(DriveGlitches(rig)))
+
+
 for _glitch in GLITCHES:
-    scenario(f"twin_glitch_{_glitch.key}", f"{_glitch.fault} (twin)", _glitch.injected)(_twin_glitch(_glitch))
-    scenario(f"mock_glitch_{_glitch.key}", f"{_glitch.fault} (mock)", _glitch.injected)(_mock_glitch(_glitch))
-    for _flavour, _name in (
-        ("damiao", "Damiao"),
-        ("tmotor", "T-Motor"),
-        ("myactuator", "MyActuator"),
-        ("odrive", "ODrive"),
-    ):
+    scenario(f"twin_glitch_{_glitch.key}", f"{_glitch.fault} (twin)", _glitch.injected)(
+        on_rig(TwinRig, _simulated_glitch(_glitch))
+    )
+    scenario(f"mock_glitch_{_glitch.key}", f"{_glitch.fault} (mock)", _glitch.injected)(
+        on_rig(MockRig, _simulated_glitch(_glitch))
+    )
+    for _flavour, _name in CAN_FLAVOURS:
         scenario(f"{_flavour}_glitch_{_glitch.key}", f"{_glitch.fault} ({_name})", _glitch.injected)(
-            _can_glitch(_flavour, _glitch)
+            on_rig(lambda flavour=_flavour: CanRig(flavour), _drive_glitch(_glitch))
         )
 
 
@@ -717,33 +707,13 @@ def stall_run(rig: Lockstep, seconds: float, move: float = MOVE) -> tuple[str, s
     return detected, joints, event, recovery
 
 
-def _twin_stall(seconds: float) -> Callable[[], tuple[str, str, str, str]]:
-    def run() -> tuple[str, str, str, str]:
-        rig = TwinRig()
-        try:
-            return stall_run(rig, seconds, TWIN_MOVE)
-        finally:
-            rig.close()
-
-    return run
-
-
-def _can_stall(seconds: float) -> Callable[[], tuple[str, str, str, str]]:
-    def run() -> tuple[str, str, str, str]:
-        rig = CanRig()
-        try:
-            return stall_run(rig, seconds)
-        finally:
-            rig.close()
-
-    return run
-
-
 for _seconds in (0.3, 2.0):
     _what = f"no cycle for {_seconds:g} s mid-move (SIGSTOP, a debugger, a page storm)"
-    scenario(f"stall_twin_{_seconds:g}", f"stalled cycle, {_seconds:g} s (twin)", _what)(_twin_stall(_seconds))
+    scenario(f"stall_twin_{_seconds:g}", f"stalled cycle, {_seconds:g} s (twin)", _what)(
+        on_rig(TwinRig, lambda rig, seconds=_seconds: stall_run(rig, seconds, TWIN_MOVE))
+    )
     scenario(f"stall_damiao_{_seconds:g}", f"stalled cycle, {_seconds:g} s (Damiao, 50 ms watchdog)", _what)(
-        _can_stall(_seconds)
+        on_rig(CanRig, lambda rig, seconds=_seconds: stall_run(rig, seconds))
     )
 
 
