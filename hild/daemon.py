@@ -1,7 +1,9 @@
 """The daemon: one asyncio main thread around one cycle thread (DESIGN.md §1).
 
-Start-up order matters for safety: the engine configures the hardware and reads it once, so hold starts where the
-arm is; the API opens; the heap is frozen; the drives are enabled last, right before the cycle thread starts.
+Start-up order matters for safety: the Zenoh session opens first and refuses to go on if another daemon of this
+robot is on the network (it may drive this very arm: its bus must not even be opened); the engine configures the
+hardware and reads it once, so hold starts where the arm is; the API declares its keys; the heap is frozen; the
+drives are enabled last, right before the cycle thread starts.
 Shutdown runs the other way: stop accepting commands, hold, release hardware, close.
 
 Under systemd (``Type=notify``) the daemon says READY=1 only once the drives are live and the cycle has run a few
@@ -99,18 +101,26 @@ class Daemon:
         self.engine.realtime_report.update(apply_process_settings(cfg.realtime))
         self.engine.realtime_report["cpu_dma_latency"] = self.cpu_latency.hold(cfg.realtime.cpu_dma_latency_us)
         self._open_telemetry()  # before the hardware: a sink that cannot open is a start-up error, nothing enabled
-        self.engine.bring_up()  # drives configured and read, still disabled
-        try:
-            self.api = ApiServer(self.engine, cfg.zenoh, self.listen)
-            await self.api.start()
-        except RobotNameTaken as exc:  # checked before any drive is enabled
-            self.api = None
-            self.engine.release()
+        self.api = ApiServer(self.engine, cfg.zenoh, self.listen)
+        try:  # one robot name, one daemon: checked before the hardware is touched (the bus may be the other's)
+            await self.api.open()
+        except RobotNameTaken as exc:
+            self._refused()
             raise StartupError(str(exc)) from exc
-        except Exception as exc:  # e.g. the listen port is taken: release the hardware we just configured
-            self.api = None
-            self.engine.release()
+        except Exception as exc:  # e.g. the listen port is taken
+            self._refused()
             raise StartupError(f"cannot open the Zenoh API ({self.listen or cfg.zenoh.listen}): {exc}") from exc
+        try:
+            self.engine.bring_up()  # drives configured and read, still disabled
+        except BaseException:
+            await self.api.close()
+            self.api = None
+            raise
+        try:
+            await self.api.start()
+        except Exception as exc:  # release the hardware we just configured
+            self._refused()
+            raise StartupError(f"cannot start the Zenoh API ({self.listen or cfg.zenoh.listen}): {exc}") from exc
         for sig in (signal.SIGINT, signal.SIGTERM):
             self._loop.add_signal_handler(sig, self._on_signal, sig)
         self.engine.realtime_report["gc"] = freeze_heap(cfg.realtime)
@@ -138,6 +148,11 @@ class Daemon:
         exit_code = await self._wait_for_stop()
         await self._shutdown()
         return exit_code
+
+    def _refused(self) -> None:
+        """The API did not come up: release whatever hardware was configured (none if it failed to open)."""
+        self.api = None
+        self.engine.release()
 
     def request_stop(self) -> None:
         """Stop as on SIGTERM (tests and embedding code)."""

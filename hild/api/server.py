@@ -81,8 +81,10 @@ class ApiServer:
         self._closing = False
 
     # ---- lifecycle ----------------------------------------------------------------------------------------------
-    async def start(self) -> None:
-        """Open the session and declare everything; the liveliness token comes last, once services answer."""
+    async def open(self) -> None:
+        """Open the session and claim the robot's name: raise ``RobotNameTaken`` if another daemon of this robot is
+        on the network. The daemon calls this before it touches any hardware (one of the same arm on the same bus
+        must not even open it); ``start`` then declares the rest."""
         self._loop = asyncio.get_running_loop()
         directory = getattr(getattr(self.engine, "loaded", None), "directory", None)
         config = server_config(self.settings, self.listen, directory)
@@ -93,14 +95,27 @@ class ApiServer:
             what = f"{self.settings.mode}, listen {endpoints}"
             raise ConnectionError(f"cannot open the Zenoh session ({what}): {exc}") from None
         try:
-            check_unique(self.session, self.keys)  # before anything is declared, and before any drive is enabled
-            self._declare(self.session, self._loop)
+            check_unique(self.session, self.keys)  # before anything is declared
+            # Claimed at once, so a daemon of this robot starting while our hardware comes up sees us.
             self._identity = DaemonIdentity(self.session, self.keys, endpoints, self._other_daemon(self._loop))
+        except BaseException:
+            await self.close()
+            raise
+
+    async def start(self) -> None:
+        """Declare everything (opening the session first unless ``open`` did); the liveliness token comes last,
+        once services answer."""
+        if self.session is None:
+            await self.open()
+        assert self.session is not None and self._loop is not None
+        try:
+            self._declare(self.session, self._loop)
         except BaseException:
             await self.close()
             raise
         self._status_task = self._loop.create_task(self._status_loop(), name="hild-api-status")
         self._reads_task = self._loop.create_task(self._read_loop(), name="hild-api-reads")
+        endpoints = endpoints_of(self.settings, self.listen)
         log.info("Zenoh API up: %s (%s, listen %s)", self.keys.root, self.settings.mode, endpoints)
 
     def _declare(self, session: zenoh.Session, loop: asyncio.AbstractEventLoop) -> None:
@@ -166,8 +181,9 @@ class ApiServer:
 
     # ---- publishing (asyncio thread) ----------------------------------------------------------------------------
     def publish(self, events: list[Event]) -> None:
-        """The doorbell rang: publish events, new output samples, and status if anything changed."""
-        if self.session is None or self._closing:
+        """The doorbell rang: publish events, new output samples, and status if anything changed. Between ``open``
+        and ``start`` nothing is declared yet: the daemon logs the events, none are published."""
+        if self.session is None or self._closing or self._ports is None:
             return
         self.answer_reads()  # the loop is awake anyway: answer what queued since
         events_pub = self._publishers[self.keys.events]

@@ -4,6 +4,8 @@ first; one that appears later (the first cannot refuse it) is reported by the fi
 
 from __future__ import annotations
 
+import logging
+import sys
 from pathlib import Path
 
 import pytest
@@ -12,6 +14,7 @@ import yaml
 from hild.api.unique import RobotNameTaken
 from hild.config import load_config
 from hild.config.model import ZenohSection
+from hild.daemon import run_daemon
 from hild.engine import Engine
 from tests.api.conftest import Daemon, free_endpoint, robot_config, wait_for
 
@@ -46,17 +49,44 @@ def test_a_second_daemon_of_the_same_robot_refuses_to_start(daemon: Daemon, tmp_
 
 
 def test_a_daemon_reports_another_that_appears_later(
-    daemon: Daemon, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    daemon: Daemon, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
 ) -> None:
     import hild.api.server as server
 
     # The second one starts without looking (an older hild, or both started at the same instant).
     monkeypatch.setattr(server, "check_unique", lambda session, keys: None)
     second = Daemon(another_engine(tmp_path), free_endpoint(), connected_to(daemon.endpoint))
+    caplog.set_level(logging.ERROR, logger="hild.api")
     second.start()
     try:
         events = wait_for(lambda: daemon.events_with("another daemon of robot 'mock3' appeared"), what="the report")
         assert events[0]["level"] == "error" and f"listening on {second.endpoint}" in events[0]["message"]
         assert len(daemon.events_with("appeared")) == 1  # once, not per cycle
+        logged = [r.getMessage() for r in caplog.records if "appeared" in r.getMessage()]
+        assert logged and f"listening on {second.endpoint}" in logged[0]  # the operator's log names it too
     finally:
         second.stop()
+
+
+def test_a_refused_daemon_never_touches_its_hardware(
+    daemon: Daemon, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Refused before ``configure``: a second daemon of the same arm on the same bus must not open it, and its
+    release after the refusal must not send the drives a disable (that would drop the first daemon's arm)."""
+    data = robot_config()
+    # The real daemon's process settings: keep this test process's GIL switch interval and GC as they are.
+    data["realtime"] = {"gc_freeze": False, "switch_interval": sys.getswitchinterval()}
+    data["zenoh"] = {"connect": [daemon.endpoint]}
+    path = tmp_path / "second.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    loaded = load_config(path)
+    touched: list[str] = []
+    for hook in ("configure", "activate", "deactivate", "cleanup"):
+        monkeypatch.setattr(loaded.driver_classes["bus"], hook, lambda self, hook=hook: touched.append(hook))
+    with caplog.at_level(logging.ERROR, logger="hild.daemon"):
+        code = run_daemon(loaded, [free_endpoint()])
+    assert code == 1
+    assert touched == []
+    assert "robot 'mock3' already has a daemon on this Zenoh network" in caplog.text
+    assert f"listening on {daemon.endpoint}" in caplog.text
+    assert daemon.engine.started and daemon.events_with("appeared") == []  # the first one runs on, undisturbed
