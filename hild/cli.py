@@ -46,19 +46,18 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _cmd_check(args: argparse.Namespace) -> int:
-    from hild.config.stop_review import limp_at_stop
+    from hild.config.stop_review import check_with_model
 
     status = 0
     for path in args.configs:
         try:
             loaded = load_config(path)
+            check_with_model(loaded)  # what the daemon would refuse in the model, and a limp stop under gravity
         except ConfigError as exc:
             print(f"{len(exc.issues)} error(s):\n{exc}", file=sys.stderr)
             status = 1
             continue
         print(loaded.summary())
-        for warning in limp_at_stop(loaded):
-            print(warning)
         print("ok")
     return status
 

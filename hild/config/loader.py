@@ -62,6 +62,14 @@ class LoadedConfig:
     controller_classes: dict[str, type] = field(default_factory=dict)
     controller_params: dict[str, Params] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)  # warnings and figures for `hild check` (e.g. bus load)
+    # The file as it was named and where each key sits in it, kept so checks that run after loading (``hild
+    # check``'s model review) name file:line as the loader's own findings do.
+    file: str = ""
+    lines: dict[Loc, int] = field(default_factory=dict, repr=False)
+
+    def issue(self, loc: Loc, message: str) -> ConfigIssue:
+        """A finding at config key ``loc``, located like the loader's own."""
+        return ConfigIssue(self.file or str(self.path), _line(self.lines, loc), _fmt(loc), message)
 
     @property
     def directory(self) -> Path:
@@ -263,7 +271,7 @@ def load_config(path: str | Path) -> LoadedConfig:
     except ValidationError as exc:
         raise ConfigError(issues + _pydantic_issues(exc, RobotConfig, (), file, lines)) from None
 
-    loaded = LoadedConfig(path=path.resolve(), config=config)
+    loaded = LoadedConfig(path=path.resolve(), config=config, file=file, lines=lines)
     _load_plugins(loaded, file, lines, issues)
     _cross_check(loaded, file, lines, issues)
     _review_hardware(loaded, file, lines, issues)
