@@ -4,7 +4,9 @@ first; one that appears later (the first cannot refuse it) is reported by the fi
 
 from __future__ import annotations
 
+import asyncio
 import logging
+import socket
 import sys
 from pathlib import Path
 
@@ -14,8 +16,10 @@ import yaml
 from hild.api.unique import RobotNameTaken
 from hild.config import load_config
 from hild.config.model import ZenohSection
+from hild.daemon import Daemon as DaemonProcess
 from hild.daemon import run_daemon
 from hild.engine import Engine
+from hild.hardware import HardwareError
 from tests.api.conftest import Daemon, free_endpoint, robot_config, wait_for
 
 
@@ -90,3 +94,36 @@ def test_a_refused_daemon_never_touches_its_hardware(
     assert "robot 'mock3' already has a daemon on this Zenoh network" in caplog.text
     assert f"listening on {daemon.endpoint}" in caplog.text
     assert daemon.engine.started and daemon.events_with("appeared") == []  # the first one runs on, undisturbed
+
+
+def test_the_session_opened_for_the_check_closes_when_the_hardware_fails(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The session now opens before the hardware comes up: a bus that fails must not leave it listening."""
+    import hild.api.server as server
+
+    data = robot_config()
+    data["realtime"] = {"gc_freeze": False, "switch_interval": sys.getswitchinterval()}
+    path = tmp_path / "robot.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    loaded = load_config(path)
+
+    def fail(self: object) -> None:
+        raise HardwareError("bus down")
+
+    monkeypatch.setattr(loaded.driver_classes["bus"], "configure", fail)
+    opened: list[server.ApiServer] = []  # held here, so a session left open is not closed by the collector
+    original_open = server.ApiServer.open
+
+    async def open_and_keep(self: server.ApiServer) -> None:
+        opened.append(self)
+        await original_open(self)
+
+    monkeypatch.setattr(server.ApiServer, "open", open_and_keep)
+    endpoint = free_endpoint()
+    with pytest.raises(HardwareError, match="configure failed: bus down"):
+        asyncio.run(DaemonProcess(loaded, [endpoint]).run())
+    assert len(opened) == 1 and opened[0].session is None
+    host, port = endpoint.removeprefix("tcp/").rsplit(":", 1)
+    with socket.socket() as s:  # closed, not merely idle: the port can be bound again
+        s.bind((host, int(port)))
