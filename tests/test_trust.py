@@ -422,3 +422,34 @@ def test_stale_detection_needs_both_the_missed_replies_and_the_time(make_engine:
     other.hardware[0].component.silent[0] = True
     other.step(other.t + 0.2, 0.2)
     assert other.supervisor.fault[0] == Fault.NONE
+
+
+def test_at_a_fast_rate_the_time_bound_holds_the_fault_back(make_engine: MakeEngine) -> None:
+    """At 1 kHz, 10 missed replies are 10 ms: within what a loaded loopback rig's emulator goes quiet for. With
+    ``stale_feedback_time`` the joint faults when the time has passed, on the cycle after, not before."""
+    engine = make_engine({"update_rate": 1000, "safety": {"stale_feedback_cycles": 10, "stale_feedback_time": 0.05}})
+    engine.hardware[0].component.silent[2] = True
+    engine.run_cycles(49)  # 49 missed replies, 49 ms: the cycle bound long passed, the time bound not yet
+    assert engine.supervisor.fault[2] == Fault.NONE
+    engine.run_cycles(2)  # 50 ms reached on the 50th (or, with float sums, the 51st)
+    assert engine.supervisor.fault[2] == Fault.STALE_FEEDBACK
+    assert engine.supervisor.fault[0] == engine.supervisor.fault[1] == Fault.NONE
+
+
+def test_one_accepted_reading_restarts_both_the_count_and_the_clock(make_engine: MakeEngine) -> None:
+    """A drive that answers now and then is not silent: a single accepted reading restarts the missed replies and
+    the time, so two silences that each stay under the bounds never add up to a fault."""
+    engine = make_engine({"safety": {"stale_feedback_cycles": 5, "stale_feedback_time": 0.05}})
+    mock = engine.hardware[0].component
+    for _ in range(2):
+        mock.silent[0] = True
+        for _ in range(4):  # 4 missed replies in 80 ms: the time passed, the count not
+            engine.step(engine.t + 0.02, 0.02)
+        mock.silent[0] = False
+        engine.run_cycles(1)
+        assert engine.supervisor.fault[0] == Fault.NONE
+    mock.silent[0] = True
+    for _ in range(5):  # now both pass within one silence: 5 missed replies, 100 ms
+        engine.step(engine.t + 0.02, 0.02)
+    assert engine.supervisor.fault[0] == Fault.STALE_FEEDBACK
+    assert engine.status()["joints"][0]["longest_silence_ms"] == pytest.approx(100.0)

@@ -10,6 +10,7 @@ from __future__ import annotations
 import subprocess
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -32,7 +33,7 @@ class ProcessError(AssertionError):
 class CanProcesses:
     """The emulator process, started at once; daemons on demand (``start_daemon``)."""
 
-    def __init__(self, directory: Path) -> None:
+    def __init__(self, directory: Path, emulator_args: Sequence[str] = ()) -> None:
         self.directory = directory
         remote, control, zenoh = distinct_free_ports(3)
         self.control = (HOST, control)
@@ -43,7 +44,7 @@ class CanProcesses:
         with self.emulator_log.open("wb") as out:
             command = ["emulate", str(CONFIGS / CONFIG), "--serve-remote", f"{HOST}:{remote}"]
             self.emulator = subprocess.Popen(
-                [*_hild(), *command, "--control", f"{HOST}:{control}"],
+                [*_hild(), *command, "--control", f"{HOST}:{control}", *emulator_args],
                 stdout=out,
                 stderr=subprocess.STDOUT,
                 cwd=directory,

@@ -15,6 +15,7 @@ import argparse
 import gc
 import logging
 import math
+import os
 import signal
 import sys
 from typing import Any
@@ -89,8 +90,27 @@ def register(subparsers: Any) -> None:
     p.add_argument("--inertia", type=float, default=0.05, help="motors plant: kg·m² per motor (actuator side)")
     p.add_argument("--damping", type=float, default=0.05, help="motors plant: N·m·s/rad per motor")
     p.add_argument("--gravity", type=float, default=0.0, help="motors plant: m·g·l load amplitude per motor (N·m)")
+    p.add_argument(
+        "--priority",
+        type=int,
+        default=0,
+        metavar="N",
+        help="SCHED_FIFO priority for the emulator's threads (0 = normal): drives answer from silicon, whatever "
+        "else the host runs; an emulator starved by a busy host makes every drive look silent at once",
+    )
     p.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"])
     p.set_defaults(func=run)
+
+
+def apply_priority(priority: int) -> str:
+    """SCHED_FIFO for the calling thread and every thread it starts afterwards; the report line either way."""
+    if priority == 0:
+        return "normal (SCHED_OTHER)"
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except OSError as exc:
+        return f"not permitted: {exc.strerror or exc} (needs CAP_SYS_NICE or LimitRTPRIO>={priority})"
+    return f"SCHED_FIFO {priority}"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -107,6 +127,10 @@ def run(args: argparse.Namespace) -> int:
         print(exc, file=sys.stderr)
         return 1
     rate = args.rate or 2.0 * loaded.config.update_rate
+    if not 0 <= args.priority <= 99:
+        print("--priority must be within 0..99", file=sys.stderr)
+        return 2
+    priority = apply_priority(args.priority)  # before any thread starts: the server threads inherit it
     initial = dict(args.initial)
     options = RuntimeOptions(
         plant=args.plant,
@@ -128,6 +152,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         for line in describe(runtime):
             log.info("%s", line)
+        log.info("priority: %s", priority)
         if runtime.remote_address is not None:
             host, port = runtime.remote_address
             log.info("remote bus served on ws://%s:%d/ (clients: bus interface remote, that channel)", host, port)
