@@ -340,7 +340,7 @@ class Engine:
         """
         if not self.started:
             return
-        descended = self.stop_descent > 0.0 and self.supervisor.descent_started
+        descended = self.supervisor.descent_started
         self.started = False
         self.manager.deactivate_all("shutdown")
         if not descended:

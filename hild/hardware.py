@@ -176,10 +176,6 @@ class HardwareComponent(abc.ABC):
         ``reset`` refuses naming it, and the joint's fault says it, until the drive stops reporting it."""
         return {}
 
-    def unconfirmed(self) -> dict[str, str]:
-        """Joint → a command whose tries ran out without confirmation (taken: each is returned once)."""
-        return {}
-
     def enable(self, joint: str | None = None) -> list[str]:
         """Operator command: enable a drive a fault disabled (one joint, or all). Never called automatically;
         returns the joints enabled, which the next reads confirm."""

@@ -286,9 +286,10 @@ class Supervisor:
     def reset(self) -> list[str]:
         """Clear e-stop and latched faults; every joint restarts in hold where it is. Returns what was cleared.
 
-        A joint whose readings are being rejected is re-anchored: its next finite reading inside the limits is
-        accepted as it is. Reset is the operator's word that the readings are right again (a persistent jump is
-        then where the drive's own encoder says the shaft is); the reply says which joints were re-anchored."""
+        Call ``refusal`` first: readings that still glitch must never be made the truth. What it lets through —
+        rejected readings that are steady (a drive's frame that moved, or motion while they were rejected), or on
+        a drive that reports a fault (it is off) — is re-anchored: the next finite reading inside the limits is
+        accepted as it is, and the reply says which joints were."""
         cleared = [f"{self.joints[i]}: {self.fault_text[i]}" for i in np.flatnonzero(self.fault)]
         if self.estop:
             cleared.insert(0, "e-stop")

@@ -73,6 +73,12 @@ def connect_when_up(proc: subprocess.Popen[bytes], endpoint: str, log: Path, tim
             time.sleep(0.2)
 
 
+def run_to_exit(config: Path, endpoint: str) -> subprocess.CompletedProcess[str]:
+    """``hild run`` on ``config`` listening on ``endpoint``, for a daemon expected to refuse to start."""
+    command = [sys.executable, "-m", "hild.cli", "run", str(config), "--listen", endpoint]
+    return subprocess.run(command, capture_output=True, text=True, timeout=120)
+
+
 @pytest.fixture
 def daemon(tmp_path: Path) -> Iterator[tuple[subprocess.Popen[bytes], str, Path]]:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
@@ -189,12 +195,7 @@ def test_taken_port_releases_the_hardware_and_exits_1(tmp_path: Path) -> None:
         taken.bind(("127.0.0.1", 0))
         taken.listen()
         port = taken.getsockname()[1]
-        run = subprocess.run(
-            [sys.executable, "-m", "hild.cli", "run", str(config), "--listen", f"tcp/127.0.0.1:{port}"],
-            capture_output=True,
-            text=True,
-            timeout=120,
-        )
+        run = run_to_exit(config, f"tcp/127.0.0.1:{port}")
     assert run.returncode == 1, run.stderr
     assert "cannot open the Zenoh API" in run.stderr
     assert "stopped: hardware released" in run.stderr
@@ -210,14 +211,9 @@ def test_a_second_daemon_of_the_same_robot_exits_1_naming_the_first(
     (tmp_path / "arm6.xml").write_text((CONFIGS / "arm6.xml").read_text())  # the robot's and the twin's model
     data.setdefault("zenoh", {})["connect"] = [endpoint]  # the same network as the first daemon
     config.write_text(yaml.safe_dump(data, sort_keys=False))
-    run = subprocess.run(
-        [sys.executable, "-m", "hild.cli", "run", str(config), "--listen", f"tcp/127.0.0.1:{free_port()}"],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    run = run_to_exit(config, f"tcp/127.0.0.1:{free_port()}")
     assert run.returncode == 1, run.stderr
     assert "robot 'arm6' already has a daemon on this Zenoh network" in run.stderr
     assert f"listening on {endpoint}" in run.stderr
-    assert "stopped: hardware released" in run.stderr  # configured, never enabled, released
+    assert "stopped: hardware released" in run.stderr  # refused before the hardware was touched; nothing enabled
     assert proc.poll() is None  # the first one runs on

@@ -8,6 +8,7 @@ import can
 
 from drivers.can.bus import BadFrames, CanLink
 from drivers.can.params import CanDriverParams
+from hild.config.params import Params
 from hild.hardware import HardwareComponent, HardwareContext, HardwareError
 
 
@@ -62,6 +63,12 @@ class CanComponent(HardwareComponent):
     @pump.setter
     def pump(self, fn: Callable[[], None] | None) -> None:
         self.link.pump = fn
+
+    @classmethod
+    def holds_at_stop(cls, params: Params) -> bool:
+        """Both CAN drivers leave their drives holding on deactivate only with ``on_deactivate: hold`` (each
+        names its limp choice its own way: ``disable``, ``idle``)."""
+        return getattr(params, "on_deactivate", None) == "hold"
 
     def cleanup(self) -> None:
         self.link.close()

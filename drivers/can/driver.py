@@ -170,10 +170,6 @@ class MitCanDriver(CanComponent):
 
     # ---- config review (class level) -----------------------------------------------------------------------
     @classmethod
-    def holds_at_stop(cls, params: Params) -> bool:
-        return getattr(params, "on_deactivate", "") == "hold"
-
-    @classmethod
     def review(cls, params: Params, joints: Sequence[str], update_rate: float) -> list[Finding]:
         assert isinstance(params, MitCanParams)
         _, problems = wire_motors(params, joints)
@@ -264,10 +260,9 @@ class MitCanDriver(CanComponent):
         self.temperature = [math.nan] * n
         self.fault = [0] * n
         self.status_fault = [0] * n  # MyActuator error flags from the latest status poll
-        # Enable / clear-error frames being repeated until the replies confirm them; what ran out of tries.
+        # Enable / clear-error frames being repeated until the replies confirm them; errors that outlived them.
         self._repeating: list[Repeated | None] = [None] * n
         self._persistent: dict[int, str] = {}  # motor → a drive error still present after every clear-error
-        self._unconfirmed: dict[int, str] = {}  # motor → a command whose tries ran out, until the engine reads it
         self._replies = [0] * n  # replies accepted per motor since configure
         self.reported_enabled = [_ENABLED_UNKNOWN] * n
         self.expect_enabled = [False] * n
@@ -534,9 +529,8 @@ class MitCanDriver(CanComponent):
                 self._persistent[k] = words
                 self.fault[k] = repeating.code
                 self.context.emit_event("error", f"{joint}: {words}")
-            else:
-                self._unconfirmed[k] = f"enable not confirmed after {REPEAT_TRIES} tries"
-                self.context.emit_event("error", f"{joint}: {self._unconfirmed[k]}")
+            else:  # the engine's enable confirmation reports the joint; this says how hard the driver tried
+                self.context.emit_event("error", f"{joint}: enable not confirmed after {REPEAT_TRIES} tries")
 
     def _start_repeating(self, k: int, kind: str, frame: can.Message, code: int = 0) -> bool:
         """Send ``frame`` now and keep repeating it from ``write`` until the replies confirm it."""
@@ -548,10 +542,6 @@ class MitCanDriver(CanComponent):
 
     def persistent_errors(self) -> dict[str, str]:
         return {self.motors[k].joint: words for k, words in self._persistent.items()}
-
-    def unconfirmed(self) -> dict[str, str]:
-        taken, self._unconfirmed = self._unconfirmed, {}
-        return {self.motors[k].joint: words for k, words in taken.items()}
 
     def _accept(self, msg: can.Message) -> None:
         """Decode one received frame into the newest-feedback lists, or count why it was ignored.

@@ -104,10 +104,6 @@ class ODriveCanDriver(CanComponent):
 
     # ---- config review (class level) -----------------------------------------------------------------------
     @classmethod
-    def holds_at_stop(cls, params: Params) -> bool:
-        return getattr(params, "on_deactivate", "") == "hold"
-
-    @classmethod
     def review(cls, params: Params, joints: Sequence[str], update_rate: float) -> list[Finding]:
         assert isinstance(params, ODriveCanParams)
         findings = [Finding("error", p) for p in _problems(params, joints)]
