@@ -2,8 +2,11 @@
 
 The asyncio side accepts or rejects a goal at once (parsing and planning happen there, so the cycle only ever
 receives a prepared goal), assigns its id and hands it to the cycle through a bounded queue. The cycle adopts it
-at the start of an update, reports feedback into a preallocated ring and a final result into a small deque; the
-asyncio side turns both into messages. Results of recent goals are kept so a client that missed the published
+at the start of an update, reports feedback into a preallocated ring and a final result into a bounded queue
+(mailboxes from the controller's context, so the halves may live in two processes); the asyncio side turns both
+into messages. Results wait in that queue for at most ``KEPT_RESULTS`` goals: if the API half collects none for
+that long (it is gone), later results are refused there and the restarted API half learns the goal's end from
+the cycle's own record. Results of recent goals are kept so a client that missed the published
 result can still ask for it.
 
 A goal body may name its sender (``"client": "<id>"``, the id of the sender's Zenoh liveliness token,
@@ -25,13 +28,14 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
-from hild.mailbox import BoundedQueue
-from hild.ring import RingReader, SampleRing
+from hild.crossing.mailboxes import InProcess, Mailboxes, Queue
+from hild.ring import RingReader
 
 G = TypeVar("G")
 
 PENDING_GOALS = 16  # goals accepted but not yet adopted by the cycle; more are refused ("busy")
 KEPT_RESULTS = 256  # finished goals whose result can still be queried
+GOAL_BYTES = 16 << 20  # a prepared goal as it crosses to the cycle process: MAX_POINTS points, planned
 CLIENT_KEY = "client"  # optional key of a goal body: the sender's liveliness id
 _CLIENT_ID = re.compile(r"^[A-Za-z0-9_\-.]{1,64}$")  # one Zenoh key chunk, bounded
 FEEDBACK_FIELDS = (
@@ -108,15 +112,17 @@ class ActionServer(Generic[G]):
         parse: Callable[[Any], G],
         accepting: Callable[[], str | None],
         notify: Callable[[], None],
+        mailboxes: Mailboxes | None = None,
     ) -> None:
         self.joint_names = list(joint_names)
         self._parse = parse
         self._accepting = accepting  # None when goals are welcome, else the reason they are not
         self._notify = notify
-        self.requests: BoundedQueue[GoalRequest[G] | CancelRequest] = BoundedQueue(PENDING_GOALS)
-        self.feedback = SampleRing(len(self.joint_names), (*FEEDBACK_FIELDS, "serial"), capacity=64)
+        boxes = mailboxes or InProcess()
+        self.requests: Queue[GoalRequest[G] | CancelRequest] = boxes.queue("goals", PENDING_GOALS, GOAL_BYTES)
+        self.feedback = boxes.ring("feedback", len(self.joint_names), (*FEEDBACK_FIELDS, "serial"), capacity=64)
         self._feedback_reader = RingReader(self.feedback)
-        self._finished: deque[GoalResult] = deque(maxlen=KEPT_RESULTS)  # cycle → asyncio
+        self._finished: Queue[GoalResult] = boxes.queue("results", KEPT_RESULTS)  # cycle → API half
         self._serials = itertools.count(1)
         self._live: dict[str, int] = {}  # accepted, no result yet: goal id → serial
         self._ids_by_serial: dict[int, str] = {}
@@ -183,8 +189,7 @@ class ActionServer(Generic[G]):
 
     def _absorb(self) -> None:
         """Move results the cycle reported into the store (any asyncio-side thread)."""
-        while self._finished:
-            result = self._finished.popleft()
+        while (result := self._finished.poll()) is not None:
             serial = self._live.pop(result.goal_id, None)
             if serial is not None:
                 self._ids_by_serial.pop(serial, None)
@@ -238,7 +243,7 @@ class ActionServer(Generic[G]):
     # ---- cycle side ----------------------------------------------------------------------------------------
     def finish(self, goal_id: str, status: GoalStatus, code: int = ErrorCode.SUCCESSFUL, text: str = "") -> None:
         """Report a goal's end (once per goal, on a transition: never per cycle)."""
-        self._finished.append(GoalResult(goal_id, status, code, text))
+        self._finished.offer(GoalResult(goal_id, status, code, text))  # full only if the API half is gone: see above
         self._notify()
 
 

@@ -8,8 +8,8 @@ supervisor, so a controller that has nothing to say simply says nothing.
 
 Inputs (commands from Zenoh) arrive on the API side through ``inputs()``: each callable validates a decoded
 JSON payload, raises ``ValueError`` with a reason on bad input, and hands the result to the cycle through a
-:class:`~hild.mailbox.LatestSlot`. It runs on the cycle thread at the start of a cycle (the API's intake; the
-asyncio loop for payloads over 4 KiB), so it must be quick, thread-safe and never wait on anything.
+latest-value mailbox from ``context.mailboxes``. It runs on the cycle thread at the start of a cycle (the API's
+intake; the asyncio loop for payloads over 4 KiB), so it must be quick, thread-safe and never wait on anything.
 Outputs (e.g. joint states) leave through :class:`~hild.ring.SampleRing`\\ s.
 """
 
@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import enum
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import numpy as np
@@ -26,6 +26,7 @@ from hild.action import ActionServer
 from hild.arrays import JointState, ServoCommand
 from hild.config.model import JointLimits
 from hild.config.params import Params
+from hild.crossing.mailboxes import InProcess, Mailboxes
 from hild.ring import SampleRing
 
 
@@ -58,6 +59,9 @@ class ControllerContext:
     emit_event: Callable[[str, str], None]  # (level, message); events only, never per cycle
     notify: Callable[[], None]  # rings the asyncio side after writing an output
     joint_modes: np.ndarray | None = None  # the supervisor's live JointMode per robot joint (read-only)
+    # The doors between the controller's API half and its cycle half: plain objects in one process, cells of the
+    # shared region when the cycle runs in a process of its own (hild.crossing.mailboxes).
+    mailboxes: Mailboxes = field(default_factory=InProcess)
 
     def index_of(self, names: Sequence[str]) -> np.ndarray:
         lookup = {j: i for i, j in enumerate(self.joints)}
@@ -75,10 +79,21 @@ class Controller:
     def __init__(self, context: ControllerContext, params: Params) -> None:
         self.context = context
         self.params = params
+        self._active = context.mailboxes.flag("active")
 
     @property
     def name(self) -> str:
         return self.context.name
+
+    @property
+    def active(self) -> bool:
+        """Whether the controller manager has it active: readable by the API half in either domain, so inputs
+        and goals for an inactive controller are refused before anything crosses."""
+        return bool(self._active)
+
+    def set_active(self, active: bool) -> None:
+        """The controller manager's: set after ``on_activate`` succeeds, cleared before ``on_deactivate``."""
+        self._active.set(active)
 
     @classmethod
     def claims_for(cls, params: Params) -> list[str]:

@@ -162,6 +162,7 @@ class ControllerManager:
                 continue
             rec.state = ControllerState.ACTIVE
             rec.error = ""
+            rec.instance.set_active(True)
             started.append(rec)
             self.active.append(rec)
         self.active.sort(key=lambda r: r.slot)
@@ -225,6 +226,7 @@ class ControllerManager:
         return to_stop, to_start
 
     def _deactivate(self, rec: ControllerRecord, new_state: ControllerState = ControllerState.INACTIVE) -> None:
+        rec.instance.set_active(False)  # first: the API half refuses inputs from now on
         try:
             rec.instance.on_deactivate()
         except Exception as exc:
@@ -240,6 +242,7 @@ class ControllerManager:
             self.events.emit("error", "controller_manager", f"{rec.name}: rollback re-activation raised {exc!r}")
             return
         rec.state = ControllerState.ACTIVE
+        rec.instance.set_active(True)
         self.active.append(rec)
         self.active.sort(key=lambda r: r.slot)
 

@@ -16,8 +16,8 @@ import numpy as np
 from hild.arrays import JointState, ServoCommand
 from hild.config.params import Field, Params
 from hild.controller import Controller, ControllerContext
+from hild.crossing.mailboxes import Latest
 from hild.interfaces import interface_name
-from hild.mailbox import LatestSlot
 
 
 class ForwardCommandParams(Params):
@@ -37,10 +37,9 @@ class ForwardCommandController(Controller):
             raise ValueError(f"{context.name}: joints listed twice in {params.joints}")
         self._index = context.index_of(params.joints)
         self._values = np.zeros(len(params.joints))
-        self._slot: LatestSlot[np.ndarray] = LatestSlot()
+        self._slot: Latest[np.ndarray] = context.mailboxes.latest("commands")
         self._last_rx = -math.inf
         self._streaming = False
-        self.active = False
         lim = context.limits
         if params.interface == "position":
             self._lo, self._hi = lim.lower[self._index], lim.upper[self._index]
@@ -88,10 +87,6 @@ class ForwardCommandController(Controller):
         self._slot.clear()
         self._last_rx = -math.inf
         self._streaming = False
-        self.active = True
-
-    def on_deactivate(self) -> None:
-        self.active = False
 
     def update(self, t: float, dt: float, state: JointState, command: ServoCommand) -> None:
         fresh = self._slot.take()

@@ -29,7 +29,7 @@ class JointStateBroadcaster(Controller):
 
     def __init__(self, context: ControllerContext, params: BroadcasterParams) -> None:
         super().__init__(context, params)
-        self.ring = SampleRing(len(context.joints), PUBLISHED_FIELDS)
+        self.ring = context.mailboxes.ring("joint_states", len(context.joints), PUBLISHED_FIELDS)
         self._interval = 1.0 / min(params.publish_rate, context.update_rate)
         self._next = 0.0
 

@@ -154,7 +154,6 @@ class JointTrajectoryController(Controller):
         self.goal: GoalRequest[PreparedGoal] | None = None
         self.goal_track: Track | None = None
         self.canceling = False
-        self.active = False
         self._feedback_interval = 1.0 / min(params.feedback_rate, context.update_rate)
         self._next_feedback = 0.0
         self._q = np.zeros(n)
@@ -165,7 +164,7 @@ class JointTrajectoryController(Controller):
         self._ff_velocity = np.array([g.ff_velocity_scale if g else 0.0 for g in gains])
         self._integral = np.zeros(n)
         self.action: ActionServer[PreparedGoal] = ActionServer(
-            params.joints, self._parse, self._accepting, context.notify
+            params.joints, self._parse, self._accepting, context.notify, context.mailboxes
         )
 
     @staticmethod
@@ -220,10 +219,8 @@ class JointTrajectoryController(Controller):
         self.goal, self.goal_track, self.canceling = None, None, False
         self._integral[:] = 0.0
         self._next_feedback = 0.0
-        self.active = True
 
     def on_deactivate(self) -> None:
-        self.active = False
         if self.goal is not None:
             self._finish(GoalStatus.ABORTED, ErrorCode.INVALID_GOAL, "the controller was deactivated")
         while (request := self.action.requests.poll()) is not None:

@@ -30,7 +30,7 @@ from hild.config.model import JointLimits
 from hild.config.params import Field, Params, model_validator
 from hild.controller import Controller, ControllerContext
 from hild.controllers.planning import first_taken_over, interface_claims, missing_planning_limits
-from hild.mailbox import LatestSlot
+from hild.crossing.mailboxes import Latest
 
 # Plan a hair inside the limits, so rounding in ruckig's profiles never trips the supervisor's velocity, slew
 # or soft position limits (which compare with no tolerance and would report a limit that is not really hit).
@@ -137,7 +137,7 @@ class ServoController(Controller):
         self._hi = [p - POSITION_MARGIN for p in self._soft_upper]
         self._lookahead = BRAKE_LOOKAHEAD_CYCLES * self._period
 
-        self._slot: LatestSlot[ServoTarget] = LatestSlot()
+        self._slot: Latest[ServoTarget] = context.mailboxes.latest("target")
         self._zeros = [0.0] * n
         self._otg: Ruckig | None = None
         self._inp = InputParameter(n)
@@ -149,7 +149,6 @@ class ServoController(Controller):
         self.phase = Phase.HOLD
         self._last_target = -math.inf
         self._last_clamp = -math.inf
-        self.active = False
 
     @classmethod
     def claims_for(cls, params: Params) -> list[str]:
@@ -247,10 +246,6 @@ class ServoController(Controller):
         self._slot.clear()
         self._last_target = -math.inf
         self._last_clamp = -math.inf
-        self.active = True
-
-    def on_deactivate(self) -> None:
-        self.active = False
 
     def _follow_measured(self, state: JointState) -> None:
         """A joint is faulted or e-stopped: forget the stream and rest where the arm is, so a reset resumes
