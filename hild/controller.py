@@ -48,6 +48,24 @@ class JointLimitArrays:
     acceleration: np.ndarray  # NaN where the config gives none
     jerk: np.ndarray  # NaN where the config gives none
 
+    @classmethod
+    def of(cls, cfg: Any) -> JointLimitArrays:
+        """The robot's joint limits from a validated config, in the robot's joint order."""
+        js = list(cfg.joints.values())
+        lower = np.array([j.limits.position.lower for j in js])
+        upper = np.array([j.limits.position.upper for j in js])
+        margin = np.array([j.limits.soft_margin for j in js])
+        return cls(
+            lower=lower,
+            upper=upper,
+            soft_lower=lower + margin,
+            soft_upper=upper - margin,
+            velocity=np.array([j.limits.velocity for j in js]),
+            effort=np.array([j.limits.effort for j in js]),
+            acceleration=np.array([j.limits.acceleration or np.nan for j in js]),
+            jerk=np.array([j.limits.jerk or np.nan for j in js]),
+        )
+
 
 @dataclass(frozen=True)
 class ControllerContext:

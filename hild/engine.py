@@ -26,6 +26,7 @@ from hild import plugins
 from hild.arrays import JointState, ServoCommand, contiguous_slice, gather_command, scatter_state
 from hild.config.loader import LoadedConfig
 from hild.controller import ControllerContext, JointLimitArrays
+from hild.crossing.mailboxes import InProcess, Mailboxes
 from hild.events import EventLog
 from hild.hardware import HardwareComponent, HardwareContext, HardwareError, Lifecycle
 from hild.interfaces import interface_name
@@ -73,8 +74,11 @@ class HardwareSlot:
 
 
 class Engine:
-    def __init__(self, loaded: LoadedConfig) -> None:
+    def __init__(self, loaded: LoadedConfig, mailboxes: Mailboxes | None = None) -> None:
+        """``mailboxes``: where controllers' doors to their API halves live (in this process by default; cells of
+        the shared region when the API half runs in the client domain)."""
         cfg = loaded.config
+        self.mailboxes = mailboxes or InProcess()
         self.loaded = loaded
         self.robot = cfg.robot.name
         self.joints: tuple[str, ...] = tuple(cfg.joints)
@@ -104,7 +108,7 @@ class Engine:
         self.started = False
         self.realtime_report: dict[str, str] = {}
 
-        self.limits = self._limits(cfg)
+        self.limits = JointLimitArrays.of(cfg)
         self.state = JointState.zeros(n)  # joint space, what controllers see
         self.command = ServoCommand.zeros(n)  # controllers' output
         self.final = ServoCommand.zeros(n)  # the supervisor's output, joint space
@@ -168,22 +172,6 @@ class Engine:
             self.load_controller(name, spec.type, loaded.controller_params[name], spec.fallback_controllers)
 
     # ---- construction ---------------------------------------------------------------------------------------
-    def _limits(self, cfg: Any) -> JointLimitArrays:
-        js = list(cfg.joints.values())
-        lower = np.array([j.limits.position.lower for j in js])
-        upper = np.array([j.limits.position.upper for j in js])
-        margin = np.array([j.limits.soft_margin for j in js])
-        return JointLimitArrays(
-            lower=lower,
-            upper=upper,
-            soft_lower=lower + margin,
-            soft_upper=upper - margin,
-            velocity=np.array([j.limits.velocity for j in js]),
-            effort=np.array([j.limits.effort for j in js]),
-            acceleration=np.array([j.limits.acceleration or np.nan for j in js]),
-            jerk=np.array([j.limits.jerk or np.nan for j in js]),
-        )
-
     @staticmethod
     def _gains(cfg: Any) -> JointGains:
         js = list(cfg.joints.values())
@@ -244,6 +232,7 @@ class Engine:
             emit_event=lambda level, msg: self.events.emit(level, name, msg),
             notify=self._ring,
             joint_modes=self.supervisor.mode,
+            mailboxes=self.mailboxes.scoped(name),
         )
 
     def load_controller(self, name: str, type_name: str, params: Any, fallbacks: Sequence[str] = ()) -> None:

@@ -71,6 +71,10 @@ class PolynomialSegment:
         self._p, self._v, self._a = self._out[:j], self._out[j : 2 * j], self._out[2 * j :]
         self._bounds: tuple[np.ndarray, np.ndarray] | None = None
 
+    def __reduce__(self) -> tuple[Any, ...]:
+        """Crosses to the cycle process as its coefficients: the derived matrices are rebuilt there."""
+        return PolynomialSegment, (self.coefficients, self.duration)
+
     # ---- constructors ---------------------------------------------------------------------------------------
     @classmethod
     def linear(cls, p0: np.ndarray, p1: np.ndarray, duration: float) -> PolynomialSegment:
@@ -225,10 +229,16 @@ class RuckigSegment:
         (pantor/ruckig#215; seen here on a leg whose velocity changes sign inside a phase).
         """
         if self._bounds is None:
-            lo, hi = _ruckig_position_bounds(self.trajectory)
+            start = np.array(self.trajectory.at_time(0.0)[0], dtype=np.float64)
+            end = np.array(self.trajectory.at_time(self.duration)[0], dtype=np.float64)
+            lo, hi = _ruckig_position_bounds(_ruckig_phases(self.trajectory), start, end)
             lo.flags.writeable = hi.flags.writeable = False
             self._bounds = (lo, hi)
         return self._bounds
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        """Crosses to the cycle process as its table of phases."""
+        return PhaseSegment.of(self.trajectory).__reduce__()
 
 
 def _phase_extrema(p0: float, v0: float, a0: float, jerk: float, length: float) -> tuple[float, float]:
@@ -249,36 +259,100 @@ def _phase_extrema(p0: float, v0: float, a0: float, jerk: float, length: float) 
     return min(values), max(values)
 
 
-def _ruckig_position_bounds(trajectory: Any) -> tuple[np.ndarray, np.ndarray]:
-    """Per-joint position extrema, mirroring ruckig's ``Trajectory::at_time``.
+Phase = tuple[float, float, float, float, float, float]  # start, p0, v0, a0, jerk, length
 
-    Per section and joint: an optional two-phase brake pre-profile (first section only), seven constant-jerk
-    phases, then constant acceleration until the section ends.
-    """
-    start = np.array(trajectory.at_time(0.0)[0], dtype=np.float64)
-    end = np.array(trajectory.at_time(float(trajectory.duration))[0], dtype=np.float64)
-    lo, hi = np.minimum(start, end), np.maximum(start, end)  # even if a joint has no phase of non-zero length
+
+def _ruckig_phases(trajectory: Any) -> list[list[Phase]]:
+    """Per joint, the constant-jerk phases of a ruckig trajectory, in time order, mirroring
+    ``Trajectory::at_time``: per section an optional two-phase brake pre-profile (first section only), seven
+    constant-jerk phases, then constant acceleration until the section ends. Phases of zero length are left out
+    (the arrays of an unused phase may be stale: seen on a brake's second phase)."""
     ends = list(trajectory.intermediate_durations)
     starts = [0.0, *ends[:-1]]
+    joints: list[list[Phase]] = [[] for _ in range(int(trajectory.degrees_of_freedom))]
     for section, profiles in enumerate(trajectory.profiles):
         for j, profile in enumerate(profiles):
-            phases: list[tuple[float, ...]] = []
-            elapsed = starts[section]
+            raw: list[tuple[float, ...]] = []
             brake = profile.brake
             if section == 0 and brake.duration > 0.0:
-                phases += zip(brake.p, brake.v, brake.a, brake.j, brake.t, strict=True)
-                elapsed += brake.duration
+                raw += zip(brake.p, brake.v, brake.a, brake.j, brake.t, strict=True)
             p, v, a, t = profile.p, profile.v, profile.a, profile.t  # each attribute read copies a list
-            phases += zip(p[:7], v[:7], a[:7], profile.j, t, strict=True)
-            elapsed += sum(t)
-            phases.append((p[7], v[7], a[7], 0.0, max(ends[section] - elapsed, 0.0)))
-            for phase in phases:
-                if phase[4] <= 0.0:  # the arrays of an unused phase may be stale (seen: a brake's second phase)
-                    continue
-                low, high = _phase_extrema(*phase)
-                lo[j] = min(lo[j], low)
-                hi[j] = max(hi[j], high)
+            raw += zip(p[:7], v[:7], a[:7], profile.j, t, strict=True)
+            elapsed = starts[section] + sum(phase[4] for phase in raw)
+            raw.append((p[7], v[7], a[7], 0.0, max(ends[section] - elapsed, 0.0)))
+            at = starts[section]
+            for p0, v0, a0, jerk, length in raw:
+                if length > 0.0:
+                    joints[j].append((at, p0, v0, a0, jerk, length))
+                at += length
+    return joints
+
+
+def _ruckig_position_bounds(
+    phases: list[list[Phase]], start: np.ndarray, end: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per-joint position extrema over the phases (and the end points, for a joint with no phase of length)."""
+    lo, hi = np.minimum(start, end), np.maximum(start, end)
+    for j, joint in enumerate(phases):
+        for _, p0, v0, a0, jerk, length in joint:
+            low, high = _phase_extrema(p0, v0, a0, jerk, length)
+            lo[j] = min(lo[j], low)
+            hi[j] = max(hi[j], high)
     return lo, hi
+
+
+class PhaseSegment:
+    """A ruckig trajectory as a table of constant-jerk phases: what a :class:`RuckigSegment` becomes when it
+    crosses to the cycle process (ruckig's own object cannot be pickled). Samples as ruckig's ``at_time`` does.
+
+    ``table`` is (J, P, 6): start, p0, v0, a0, jerk, length per joint and phase, padded with copies of the
+    joint's last phase. Sampling keeps a cursor per joint, so a trajectory played forward costs O(1) per joint.
+    """
+
+    def __init__(self, table: np.ndarray, duration: float, start: np.ndarray, end: np.ndarray) -> None:
+        self.table = np.ascontiguousarray(table, dtype=np.float64)
+        self.duration = float(duration)
+        self.joints = self.table.shape[0]
+        self.start, self.end = np.asarray(start, dtype=np.float64), np.asarray(end, dtype=np.float64)
+        self._rows = [[tuple(phase) for phase in joint] for joint in self.table.tolist()]
+        self._cursor = [0] * self.joints
+
+    @classmethod
+    def of(cls, trajectory: Any) -> PhaseSegment:
+        duration = float(trajectory.duration)
+        start = np.array(trajectory.at_time(0.0)[0], dtype=np.float64)
+        end = np.array(trajectory.at_time(duration)[0], dtype=np.float64)
+        phases = _ruckig_phases(trajectory)
+        width = max(1, max(len(joint) for joint in phases))
+        table = np.zeros((len(phases), width, 6))
+        for j, joint in enumerate(phases):
+            rows = joint or [(0.0, end[j], 0.0, 0.0, 0.0, 0.0)]  # a joint that never moves
+            table[j, : len(rows)] = rows
+            table[j, len(rows) :] = rows[-1]
+        return cls(table, duration, start, end)
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        return PhaseSegment, (self.table, self.duration, self.start, self.end)
+
+    def sample(self, t: float, p: np.ndarray, v: np.ndarray, a: np.ndarray) -> None:
+        tau = 0.0 if t <= 0.0 else (self.duration if t >= self.duration else t)
+        for j, rows in enumerate(self._rows):
+            k = self._cursor[j]
+            if tau < rows[k][0]:
+                k = 0
+            last = len(rows) - 1
+            while k < last and tau >= rows[k + 1][0] and rows[k + 1][5] > 0.0:
+                k += 1
+            self._cursor[j] = k
+            at, p0, v0, a0, jerk, length = rows[k]
+            x = min(tau - at, length) if length > 0.0 else 0.0
+            p[j] = p0 + x * (v0 + x * (a0 / 2.0 + x * jerk / 6.0))
+            v[j] = v0 + x * (a0 + x * jerk / 2.0)
+            a[j] = a0 + x * jerk
+
+    def position_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        phases = [[tuple(r) for r in joint if r[5] > 0.0] for joint in self.table.tolist()]
+        return _ruckig_position_bounds(phases, self.start.copy(), self.end.copy())  # type: ignore[arg-type]
 
 
 class HoldSegment:

@@ -168,3 +168,40 @@ def test_ruckig_segment_wraps_any_trajectory_like_object() -> None:
     state_at(seg, 5.0, 2)
     state_at(seg, -1.0, 2)
     assert calls == [1.5, 2.0, 0.0], "time is clamped into [0, duration] before asking ruckig"
+
+
+# ---- crossing to the cycle process: a ruckig plan becomes a table of phases ---------------------------------------
+def _ruckig_plans() -> list:
+    from hild.motion.limits import KinematicLimits
+    from hild.motion.planning import plan_move, plan_stop, plan_waypoints
+
+    rng = np.random.default_rng(7)
+    limits = KinematicLimits(np.array([1.0, 2.0, 0.5]), np.array([2.0, 4.0, 1.0]), np.array([10.0, 20.0, 5.0]))
+    plans = []
+    for _ in range(20):
+        p, target = rng.uniform(-2, 2, 3), rng.uniform(-2, 2, 3)
+        v, a = rng.uniform(-0.4, 0.4, 3), rng.uniform(-0.5, 0.5, 3)
+        plans.append(plan_move(p, v, a, target, None, limits))
+        plans.append(plan_move(p, v * 3.0, a * 3.0, target, rng.uniform(-0.2, 0.2, 3), limits, 3.0))  # brakes first
+        plans.append(plan_stop(p, v, a, limits))
+    _, legs = plan_waypoints(rng.uniform(-1, 1, (5, 3)), limits)
+    return plans + legs
+
+
+def test_a_ruckig_segment_crosses_as_a_phase_table_that_samples_and_bounds_like_ruckig() -> None:
+    import pickle
+
+    from hild.motion.segments import PhaseSegment
+
+    for segment in _ruckig_plans():
+        crossed = pickle.loads(pickle.dumps(segment))
+        assert isinstance(crossed, PhaseSegment) and crossed.duration == segment.duration
+        want, got = [np.zeros(3) for _ in range(3)], [np.zeros(3) for _ in range(3)]
+        times = [*np.linspace(-0.1, segment.duration + 0.1, 157), 0.3, 0.1, segment.duration / 2]  # and backwards
+        for t in times:
+            segment.sample(float(t), *want)
+            crossed.sample(float(t), *got)
+            for w, g in zip(want, got, strict=True):
+                np.testing.assert_allclose(g, w, rtol=0, atol=1e-9)
+        for w, g in zip(segment.position_bounds(), crossed.position_bounds(), strict=True):
+            np.testing.assert_allclose(g, w, rtol=0, atol=1e-12)
