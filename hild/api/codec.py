@@ -14,10 +14,12 @@ event loop.
 
 from __future__ import annotations
 
+import itertools
 import json
 import json.scanner
 import math
 import sys
+from collections.abc import Collection, Mapping
 from typing import Any
 
 MAX_PAYLOAD = 1 << 20  # bytes; anything larger is refused before it is decoded
@@ -26,8 +28,32 @@ MAX_CONTAINERS = 1024  # arrays + objects in a request or command: a few are eve
 GOAL_CONTAINERS = 65_536  # in a goal: 10 000 points with velocities, accelerations and a {sec, nanosec} time each
 
 
+SHOWN_KEYS = 3  # unknown keys a refusal names; the rest are counted
+
+
 class PayloadError(ValueError):
     """The payload cannot be decoded; the message says why, for the sender."""
+
+
+def unknown_keys(obj: Mapping[str, Any], allowed: Collection[str]) -> tuple[list[str], int]:
+    """Up to ``SHOWN_KEYS`` keys of ``obj`` that ``allowed`` lacks, and how many more there are.
+
+    Work in ``len(allowed) + SHOWN_KEYS``, whatever the size of ``obj``: a refusal that sorted and joined all the
+    keys of a 90 000-key object held the GIL for 45 ms to build an 889 000-character error. When every unknown key
+    is shown they are sorted (the error reads as it always did); otherwise the first ones, in the sender's order.
+    """
+    count = len(obj) - sum(1 for key in allowed if key in obj)
+    if count <= 0:
+        return [], 0
+    shown = list(itertools.islice((key for key in obj if key not in allowed), SHOWN_KEYS))
+    if len(shown) == count:
+        shown.sort()
+    return shown, count - len(shown)
+
+
+def and_more(more: int) -> str:
+    """`` and N more`` after a list that ``unknown_keys`` cut short, else nothing."""
+    return f" and {more} more" if more else ""
 
 
 def _reject_constant(name: str) -> Any:

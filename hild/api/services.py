@@ -19,7 +19,7 @@ from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from hild.api.codec import PayloadError, decode, encode
+from hild.api.codec import PayloadError, and_more, decode, encode, unknown_keys
 from hild.api.queries import HeavyLane
 from hild.engine import Engine, RequestRejected
 
@@ -86,10 +86,10 @@ def parse_request(raw: bytes, fields: Mapping[str, Validator]) -> dict[str, Any]
         raise RequestError(str(exc)) from None
     if not isinstance(request, dict):
         raise RequestError(f"request must be a JSON object, not {type(request).__name__}")
-    unknown = sorted(set(request) - set(fields))
+    unknown, more = unknown_keys(request, fields)
     if unknown:
         allowed = ", ".join(sorted(fields)) if fields else "none"
-        raise RequestError(f"unknown field(s) {', '.join(map(repr, unknown))} (allowed: {allowed})")
+        raise RequestError(f"unknown field(s) {', '.join(map(repr, unknown))}{and_more(more)} (allowed: {allowed})")
     return {key: fields[key](key, value) for key, value in request.items()}
 
 
