@@ -32,7 +32,7 @@ from typing import Any
 import zenoh
 
 from hild.action import ActionServer
-from hild.api.codec import FAST_DECODE, GOAL_CONTAINERS, MAX_PAYLOAD, PayloadError, decode, encode
+from hild.api.codec import FAST_DECODE, GOAL_LIMITS, MAX_PAYLOAD, PayloadError, decode, encode
 from hild.api.keys import RESERVED, Keys, check_chunk
 from hild.api.queries import SHUTTING_DOWN, Admitted, Gate, HeavyLane, clip, drop, reply_json
 from hild.api.session import declare_json_publisher
@@ -347,7 +347,7 @@ class ControllerPorts:
         a long trajectory must stall neither the loop nor, with others, the cycle."""
 
         def work() -> dict[str, Any]:
-            return handle(decode(raw, GOAL_CONTAINERS))
+            return handle(decode(raw, GOAL_LIMITS))
 
         try:
             reply = await (self.lane.run(work) if self.lane.needed(raw) else asyncio.to_thread(work))
