@@ -32,7 +32,7 @@ from typing import Any
 import zenoh
 
 from hild.action import ActionServer
-from hild.api.codec import FAST_DECODE, GOAL_LIMITS, MAX_PAYLOAD, PayloadError, decode, encode
+from hild.api.codec import FAST_DECODE, GOAL_LIMITS, MAX_PAYLOAD, REQUEST_LIMITS, Limits, PayloadError, decode, encode
 from hild.api.keys import RESERVED, Keys, check_chunk
 from hild.api.queries import SHUTTING_DOWN, Admitted, Gate, HeavyLane, clip, drop, reply_json
 from hild.api.session import declare_json_publisher
@@ -43,6 +43,12 @@ log = logging.getLogger("hild.api")
 
 INTAKE_CAPACITY = 64  # samples one input queues between two cycles; beyond that Zenoh drops the oldest, uncounted
 CYCLE_DECODE = FAST_DECODE  # bytes: a sample up to this size is decoded by the cycle's intake, larger ones by the loop
+GOAL_ID_REQUEST = 1024  # bytes: a cancel or result request is {"goal_id": "<32 hex digits>"}
+VERBS = {  # a goal endpoint's queries: size limit in bytes (refused larger before copying), decoding caps
+    "goal": (MAX_PAYLOAD, GOAL_LIMITS),
+    "cancel": (GOAL_ID_REQUEST, REQUEST_LIMITS),
+    "result": (GOAL_ID_REQUEST, REQUEST_LIMITS),
+}
 REPORTS_PER_WINDOW = 10
 REPORT_WINDOW = 1.0  # s
 
@@ -252,9 +258,8 @@ class ControllerPorts:
             result=declare_json_publisher(self.session, key("result"), priority=zenoh.Priority.DATA_HIGH),
         )
         for verb, handle in (("goal", server.submit), ("cancel", server.cancel), ("result", server.result)):
-            port.queryables.append(
-                self.session.declare_queryable(key(verb), self._query_handler(key(verb), handle), complete=True)
-            )
+            handler = self._query_handler(key(verb), handle, *VERBS[verb])
+            port.queryables.append(self.session.declare_queryable(key(verb), handler, complete=True))
         return port
 
     def _names(self, ring: SampleRing) -> list[str] | None:
@@ -306,7 +311,9 @@ class ControllerPorts:
                 self.counters.publish_errors += 1
 
     # ---- goal queries ---------------------------------------------------------------------------------------------
-    def _query_handler(self, key: str, handle: Callable[[Any], dict[str, Any]]) -> Callable[[zenoh.Query], None]:
+    def _query_handler(
+        self, key: str, handle: Callable[[Any], dict[str, Any]], limit: int, limits: Limits
+    ) -> Callable[[zenoh.Query], None]:
         # Zenoh may hold callbacks past undeclare and session close: hold the ports and the controller's handler
         # weakly, so a kept callback cannot keep the engine alive to interpreter exit.
         owner, handler = weakref.ref(self), weakref.WeakMethod(handle)  # type: ignore[arg-type]
@@ -316,12 +323,12 @@ class ControllerPorts:
             if me is None or answer is None:
                 drop(query)
                 return
-            admitted = me._gate.admit(query)  # a flood cannot pile up planners
+            admitted = me._gate.admit(query, limit)  # a flood cannot pile up planners
             if not isinstance(admitted, Admitted):
                 reply_json(query, key, admitted)
                 return
             try:
-                me.loop.call_soon_threadsafe(me._start_answer, key, query, answer, admitted)
+                me.loop.call_soon_threadsafe(me._start_answer, key, query, answer, admitted, limits)
             except RuntimeError:  # the loop is closing: the querier times out
                 admitted.release()
                 drop(query)
@@ -329,7 +336,7 @@ class ControllerPorts:
         return on_query
 
     def _start_answer(
-        self, key: str, query: zenoh.Query, handle: Callable[[Any], dict[str, Any]], admitted: Admitted
+        self, key: str, query: zenoh.Query, handle: Callable[[Any], dict[str, Any]], admitted: Admitted, limits: Limits
     ) -> None:
         with self.counters.lock:
             self.counters.queries += 1
@@ -337,17 +344,19 @@ class ControllerPorts:
             admitted.release()
             reply_json(query, key, SHUTTING_DOWN)
             return
-        task = self.loop.create_task(self._answer(key, query, handle, admitted.raw))
+        task = self.loop.create_task(self._answer(key, query, handle, admitted.raw, limits))
         self._answering.add(task)
         task.add_done_callback(self._answering.discard)
         task.add_done_callback(lambda _: admitted.release())
 
-    async def _answer(self, key: str, query: zenoh.Query, handle: Callable[[Any], dict[str, Any]], raw: bytes) -> None:
+    async def _answer(
+        self, key: str, query: zenoh.Query, handle: Callable[[Any], dict[str, Any]], raw: bytes, limits: Limits
+    ) -> None:
         """Goals are decoded, parsed and planned in a worker thread (large ones in the heavy lane, one at a time):
         a long trajectory must stall neither the loop nor, with others, the cycle."""
 
         def work() -> dict[str, Any]:
-            return handle(decode(raw, GOAL_LIMITS))
+            return handle(decode(raw, limits))
 
         try:
             reply = await (self.lane.run(work) if self.lane.needed(raw) else asyncio.to_thread(work))

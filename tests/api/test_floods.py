@@ -12,12 +12,18 @@ Assertions are on counts, outcomes and text lengths; the one CPU bound is genero
 from __future__ import annotations
 
 import json
+import threading
 import time
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
+import yaml
 
 from hild.action import GoalRejected
+from hild.api import services as services_module
+from hild.api.client import HildClient
 from hild.api.codec import (
     FAST_DECODE,
     GOAL_ELEMENTS,
@@ -28,10 +34,14 @@ from hild.api.codec import (
     PayloadError,
     decode,
 )
-from hild.api.services import RequestError, names, parse_request
+from hild.api.ports import GOAL_ID_REQUEST
+from hild.api.services import EMPTY_REQUEST, FIELDS_REQUEST, MAX_NAMES, RequestError, names, parse_request
+from hild.config import load_config
 from hild.controllers.servo import ServoController
 from hild.controllers.trajectory_goals import MAX_POINTS, GoalContext, parse_goal
+from hild.engine import Engine
 from hild.motion.limits import KinematicLimits
+from tests.api.conftest import ROBOT, robot_config
 
 WIDE = 90_000  # keys: the object of the finding (1 MiB of them when sent)
 
@@ -149,3 +159,89 @@ def test_the_largest_legitimate_goal_fits_the_goal_caps() -> None:
     assert decode(raw, GOAL_LIMITS) == fits
     with pytest.raises(PayloadError, match="more than"):  # a command or request holds far less
         decode(raw)
+
+
+# ---- 3. per-key size limits ------------------------------------------------------------------------------------------
+@pytest.fixture
+def engine(tmp_path: Path) -> Engine:
+    """The test robot plus a joint_trajectory controller ``traj``, for goals (as in test_security)."""
+    config = robot_config()
+    for joint in config["joints"].values():
+        joint["limits"].update(acceleration=10.0, jerk=100.0)
+    config["controllers"]["traj"] = {"type": "joint_trajectory", "params": {"joints": ["a", "b", "c"]}}
+    path = tmp_path / "robot.yaml"
+    path.write_text(yaml.safe_dump(config, sort_keys=False))
+    return Engine(load_config(path))
+
+
+class Decodes:
+    """Counts the calls of ``decode`` in one module of the daemon (it runs in this process)."""
+
+    def __init__(self, monkeypatch: pytest.MonkeyPatch, module: Any) -> None:
+        self.calls = 0
+        self.lock = threading.Lock()
+        real = module.decode
+
+        def counted(*args: Any, **kwargs: Any) -> Any:
+            with self.lock:
+                self.calls += 1
+            return real(*args, **kwargs)
+
+        monkeypatch.setattr(module, "decode", counted)
+
+
+def query(client: HildClient, suffix: str, raw: bytes) -> dict[str, Any]:
+    """One query on ``hild/<robot>/<suffix>`` with a raw payload: its one JSON reply."""
+    replies = list(client.session.get(f"hild/{ROBOT}/{suffix}", payload=raw, timeout=5.0))
+    assert len(replies) == 1 and replies[0].ok is not None, replies
+    return dict(json.loads(replies[0].ok.payload.to_bytes()))
+
+
+def test_a_megabyte_status_request_is_refused_by_its_size_unread(
+    client: HildClient, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    raw = json.dumps(wide(), separators=(",", ":")).encode()  # the finding: 90 000 keys
+    assert len(raw) <= MAX_PAYLOAD
+    decodes = Decodes(monkeypatch, services_module)
+    for service in ("status", "list_controllers", "estop", "reset"):
+        reply = query(client, f"srv/{service}", raw)
+        assert reply == {"ok": False, "error": f"payload of {len(raw)} bytes exceeds the {EMPTY_REQUEST}-byte limit"}
+    assert decodes.calls == 0
+    assert client.status()["ok"] is True and client.status()["mode"] == "hold"
+
+
+def test_each_service_refuses_what_it_cannot_need_and_serves_the_rest(
+    client: HildClient, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    decodes = Decodes(monkeypatch, services_module)
+    padded = b"{}" + b" " * (EMPTY_REQUEST - 2)
+    assert query(client, "srv/status", padded)["ok"] is True
+    error = f"payload of {EMPTY_REQUEST + 1} bytes exceeds the {EMPTY_REQUEST}-byte limit"
+    assert query(client, "srv/status", padded + b" ") == {"ok": False, "error": error}
+    big = json.dumps({"activate": ["x" * 100] * 700}).encode()  # 72 KB of names
+    assert len(big) > FIELDS_REQUEST
+    error = f"payload of {len(big)} bytes exceeds the {FIELDS_REQUEST}-byte limit"
+    assert query(client, "srv/switch_controllers", big) == {"ok": False, "error": error}
+    calls = decodes.calls
+    fits = json.dumps({"activate": [f"c{k}" for k in range(MAX_NAMES)]}).encode()
+    assert "unknown controller(s) 'c0'" in query(client, "srv/switch_controllers", fits)["error"]
+    assert decodes.calls == calls + 1  # within its limit: decoded and refused by its content, as before
+    assert client.switch(activate=["fwd"])["activated"] == ["fwd"]
+    blob = b" " * (MAX_PAYLOAD + 1)  # refused as it always was
+    error = f"payload of {MAX_PAYLOAD + 1} bytes exceeds the {MAX_PAYLOAD}-byte limit"
+    assert query(client, "srv/status", blob) == {"ok": False, "error": error}
+    assert query(client, "srv/switch_controllers", blob) == {"ok": False, "error": error}
+
+
+def test_cancel_and_result_requests_are_size_limited_goals_are_not(client: HildClient) -> None:
+    raw = json.dumps({"goal_id": "x" * GOAL_ID_REQUEST}).encode()
+    for verb in ("cancel", "result"):
+        error = f"payload of {len(raw)} bytes exceeds the {GOAL_ID_REQUEST}-byte limit"
+        assert query(client, f"ctrl/traj/{verb}", raw) == {"ok": False, "error": error}
+        reply = query(client, f"ctrl/traj/{verb}", b'{"goal_id": "nope"}')
+        assert reply["ok"] is False and "nope" in reply["error"]  # within its limit: answered by its content
+    client.switch(activate=["traj"])
+    goal = {"trajectory": {"joint_names": ["a", "b", "c"], "points": [{"positions": [0.1, -0.2, 0.0]}]}}
+    pad = b" " * (FIELDS_REQUEST * 2)  # a goal may be as large as any payload
+    reply = query(client, "ctrl/traj/goal", json.dumps(goal).encode() + pad)
+    assert reply["ok"] is True, reply
