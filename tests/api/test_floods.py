@@ -11,6 +11,7 @@ Assertions are on counts, outcomes and text lengths; the one CPU bound is genero
 
 from __future__ import annotations
 
+import asyncio
 import json
 import threading
 import time
@@ -20,8 +21,10 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
+import zenoh
 
 from hild.action import GoalRejected
+from hild.api import ports as ports_module
 from hild.api import services as services_module
 from hild.api.client import HildClient
 from hild.api.codec import (
@@ -34,14 +37,15 @@ from hild.api.codec import (
     PayloadError,
     decode,
 )
-from hild.api.ports import GOAL_ID_REQUEST
+from hild.api.keys import Keys
+from hild.api.ports import GOAL_ID_REQUEST, ControllerPorts, Counters, InputSlot
 from hild.api.services import EMPTY_REQUEST, FIELDS_REQUEST, MAX_NAMES, RequestError, names, parse_request
 from hild.config import load_config
 from hild.controllers.servo import ServoController
 from hild.controllers.trajectory_goals import MAX_POINTS, GoalContext, parse_goal
 from hild.engine import Engine
 from hild.motion.limits import KinematicLimits
-from tests.api.conftest import ROBOT, robot_config
+from tests.api.conftest import ROBOT, WAIT, Daemon, robot_config, wait_for
 
 WIDE = 90_000  # keys: the object of the finding (1 MiB of them when sent)
 
@@ -245,3 +249,188 @@ def test_cancel_and_result_requests_are_size_limited_goals_are_not(client: HildC
     pad = b" " * (FIELDS_REQUEST * 2)  # a goal may be as large as any payload
     reply = query(client, "ctrl/traj/goal", json.dumps(goal).encode() + pad)
     assert reply["ok"] is True, reply
+
+
+# ---- 4. large command samples: one pending per input, none decoded for an inactive controller ----------------------
+FWD_KEY = f"hild/{ROBOT}/ctrl/fwd/commands"
+MIB = 1 << 20
+
+
+def large_command(k: float, size: int = MIB) -> bytes:
+    """A valid forward command for fwd_a padded with whitespace to ``size`` bytes: over FAST_DECODE, under 1 MiB."""
+    body = json.dumps({"values": [k]}).encode()
+    return body + b" " * (size - len(body))
+
+
+class FakePayload:
+    def __init__(self, data: bytes) -> None:
+        self.data = data
+
+    def __len__(self) -> int:
+        return len(self.data)
+
+    def to_bytes(self) -> bytes:
+        return self.data
+
+
+class FakeSample:
+    def __init__(self, raw: bytes) -> None:
+        self.payload = FakePayload(raw)
+
+
+class FakeSubscriber:
+    """A RingChannel subscriber: ``try_recv`` hands out what Zenoh queued, oldest first, then None."""
+
+    def __init__(self) -> None:
+        self.queued: list[FakeSample] = []
+
+    def put(self, raw: bytes) -> None:
+        self.queued.append(FakeSample(raw))
+
+    def try_recv(self) -> FakeSample | None:
+        return self.queued.pop(0) if self.queued else None
+
+
+class FakeEvents:
+    def __init__(self) -> None:
+        self.emitted: list[tuple[str, str, str]] = []
+
+    def emit(self, level: str, source: str, message: str) -> None:
+        self.emitted.append((level, source, message))
+
+
+class FakeEngine:
+    def __init__(self) -> None:
+        self.events = FakeEvents()
+
+
+def intake(loop: asyncio.AbstractEventLoop) -> tuple[ControllerPorts, FakeSubscriber, list[Any]]:
+    ports = ControllerPorts(None, FakeEngine(), Keys("r"), loop, Counters())  # type: ignore[arg-type]
+    accepted: list[Any] = []
+    subscriber = FakeSubscriber()
+    ports._intake = (InputSlot("hild/r/ctrl/fwd/commands", "fwd", accepted.append, subscriber),)
+    return ports, subscriber, accepted
+
+
+def settle(loop: asyncio.AbstractEventLoop, ports: ControllerPorts) -> None:
+    """Run the loop until no delivery is pending (decodes run in worker threads: wait for them)."""
+
+    async def idle() -> None:
+        await asyncio.sleep(0)
+        while ports._delivering:
+            await asyncio.sleep(0.001)
+
+    loop.run_until_complete(asyncio.wait_for(idle(), WAIT))
+
+
+def test_a_flood_of_large_samples_keeps_one_pending_and_decodes_only_the_newest(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    loop = asyncio.new_event_loop()
+    ports, subscriber, accepted = intake(loop)
+    decodes = Decodes(monkeypatch, ports_module)
+    try:
+        for k in range(50):  # 50 × 1 MiB, one per cycle, while the loop is busy elsewhere
+            subscriber.put(large_command(k))
+            ports.take_inputs()
+        loop.run_until_complete(asyncio.sleep(0))  # the loop's turn: it starts what the intake handed it
+        assert len(ports._delivering) <= 1  # was 50 tasks, each holding its 1 MiB until decoded
+        settle(loop, ports)
+        assert decodes.calls == 1 and accepted == [{"values": [49]}]  # was 50 decodes
+        counters = ports.counters
+        assert (counters.commands, counters.accepted, counters.superseded, counters.rejected) == (50, 1, 49, 0)
+        assert not ports._intake[0].pending  # nothing retained after the flood
+    finally:
+        loop.close()
+
+
+def test_samples_arriving_during_a_decode_wait_and_only_the_newest_is_decoded_next(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    loop = asyncio.new_event_loop()
+    ports, subscriber, accepted = intake(loop)
+    decodes = Decodes(monkeypatch, ports_module)
+    try:
+        subscriber.put(large_command(0))
+        ports.take_inputs()
+        loop.run_until_complete(asyncio.sleep(0))
+        wait_for(lambda: decodes.calls == 1, what="the first decode to start")
+        for k in range(1, 21):  # arrive while the first one is being decoded (the loop does not run meanwhile)
+            subscriber.put(large_command(k))
+            ports.take_inputs()
+        settle(loop, ports)
+        # The first, decoded meanwhile, is not handed over: newer ones were taken. Was 21 decodes.
+        assert decodes.calls == 2 and accepted == [{"values": [20]}]
+        counters = ports.counters
+        assert (counters.commands, counters.accepted, counters.superseded) == (21, 1, 20)
+    finally:
+        loop.close()
+
+
+def test_a_large_sample_superseded_by_a_small_one_is_never_decoded(monkeypatch: pytest.MonkeyPatch) -> None:
+    loop = asyncio.new_event_loop()
+    ports, subscriber, accepted = intake(loop)
+    decodes = Decodes(monkeypatch, ports_module)
+    try:
+        subscriber.put(large_command(1))
+        ports.take_inputs()  # handed to the loop, which has not run yet
+        subscriber.put(b'{"values": [2]}')
+        ports.take_inputs()  # the newer, small one is handed over by the intake at once
+        settle(loop, ports)
+        assert accepted == [{"values": [2]}] and decodes.calls == 1  # only the small one's (was 2)
+        assert ports.counters.superseded == 1 and ports.counters.accepted == 1
+    finally:
+        loop.close()
+
+
+def test_large_samples_for_an_inactive_controller_are_refused_undecoded(
+    daemon: Daemon, client: HildClient, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    decodes = Decodes(monkeypatch, ports_module)
+    counters = daemon.server.counters
+    before = (counters.commands, counters.rejected, counters.superseded, counters.accepted)
+    publisher = client.session.declare_publisher(FWD_KEY, congestion_control=zenoh.CongestionControl.BLOCK)
+    try:
+        for k in range(20):  # fwd is inactive: every one of these must be refused unread
+            publisher.put(large_command(k))
+        publisher.put(b'{"values": [0.0, 0.0, 0.0]}')  # a small one last: counted once the flood is all in
+        wait_for(lambda: counters.commands - before[0] == 21, what="the flood to be taken")
+    finally:
+        publisher.undeclare()
+    assert decodes.calls == 0  # was one decode per large sample the intake took
+    rejected, superseded = counters.rejected - before[1], counters.superseded - before[2]
+    assert rejected >= 1 and rejected + superseded == 21 and counters.accepted == before[3]
+    wait_for(lambda: daemon.events_with("controller fwd is not active"), what="the warning")
+    assert len(daemon.events_with("controller fwd is not active")) <= 10  # rate-limited, as before
+    assert not any(slot.pending for slot in daemon.server._ports._intake)  # nothing retained
+    # After the flood: a goal, then a command, are accepted.
+    client.switch(activate=["traj"])
+    goal = {"trajectory": {"joint_names": ["a", "b", "c"], "points": [{"positions": [0.1, -0.2, 0.0]}]}}
+    assert query(client, "ctrl/traj/goal", json.dumps(goal).encode())["ok"] is True
+    client.switch(activate=["fwd"], deactivate=["traj"])
+    accepted = counters.accepted
+    client.send("fwd", [0.1, -0.2, 0.0])
+    wait_for(lambda: counters.accepted == accepted + 1, what="the command")
+
+
+def test_a_flood_on_an_active_input_leaves_nothing_behind_and_the_newest_wins(
+    daemon: Daemon, client: HildClient
+) -> None:
+    client.switch(activate=["fwd_a"])
+    counters = daemon.server.counters
+    before = counters.commands
+    key = f"hild/{ROBOT}/ctrl/fwd_a/commands"
+    publisher = client.session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK)
+    try:
+        for k in range(50):
+            publisher.put(large_command(round(0.01 * k, 2)))
+        publisher.put(large_command(0.5))
+        wait_for(lambda: counters.commands - before == 51, what="the flood to be taken")
+    finally:
+        publisher.undeclare()
+    ports = daemon.server._ports
+    wait_for(lambda: not ports._delivering, what="the deliveries to end")
+    assert not any(slot.pending for slot in ports._intake)  # nothing retained after the flood
+    assert counters.accepted + counters.rejected + counters.superseded == counters.commands
+    fwd_a = daemon.engine.manager.records["fwd_a"].instance
+    wait_for(lambda: list(fwd_a._values) == [0.5], what="the newest command to be adopted")  # type: ignore[attr-defined]
