@@ -33,7 +33,7 @@ READ_MAX_AGE = 0.2
 EMPTY_REQUESTS = frozenset({b"", b"{}"})
 DEFAULT_TIMEOUT = 1.0  # s; below the client's default 2 s so the client sees our error, not its own timeout
 MAX_NAMES = 256
-# Bytes a request may have, refused larger before it is copied or decoded (docs/security.md, "Limits"). A request
+# Bytes a request may have, refused larger before it is copied or decoded (docs/protocol.md, "Limits"). A request
 # without fields is "", "{}" or a little whitespace; the largest with fields, a switch of 2 x MAX_NAMES names of
 # up to ~120 characters. One status poll of 1 MiB cost the cycle 43 ms of GIL to refuse by its keys.
 EMPTY_REQUEST = 256
