@@ -434,3 +434,15 @@ def test_a_flood_on_an_active_input_leaves_nothing_behind_and_the_newest_wins(
     assert counters.accepted + counters.rejected + counters.superseded == counters.commands
     fwd_a = daemon.engine.manager.records["fwd_a"].instance
     wait_for(lambda: list(fwd_a._values) == [0.5], what="the newest command to be adopted")  # type: ignore[attr-defined]
+
+
+def test_a_megabyte_goal_of_unknown_keys_is_answered_in_a_short_sentence(client: HildClient) -> None:
+    """Finding 1 where it stays reachable: a goal may be 1 MiB, so its 90 000 keys are decoded and refused by name."""
+    goal = wide(trajectory={"joint_names": ["a", "b", "c"], "points": [{"positions": [0.1, -0.2, 0.0]}]})
+    raw = json.dumps(goal, separators=(",", ":")).encode()
+    assert len(raw) <= MAX_PAYLOAD
+    client.switch(activate=["traj"])
+    reply = query(client, "ctrl/traj/goal", raw)
+    assert reply["ok"] is False and reply["error"].startswith("goal: unknown keys ['k0', 'k1', 'k2'] and 89997 more")
+    assert len(reply["error"]) < 200  # was clipped from 889 997 characters
+    assert client.status()["ok"] is True
