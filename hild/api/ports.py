@@ -8,9 +8,12 @@ older ones are superseded, like the controllers' own latest-value mailboxes. Thi
 validation themselves, because every time another thread takes the GIL the cycle may have to wait for it and be
 woken again (measured: ``tools/cycle_causes.py`` part 3, docs/performance.md). The intake's work is bounded: one
 decode of at most ``CYCLE_DECODE`` bytes and one validation per input per cycle; larger samples are decoded on
-the asyncio loop in the heavy lane and handed over only if nothing newer was. Anything wrong drops that sample and
-emits a warning event: nothing moves on bad input. Warnings are rate-limited per key so a client streaming garbage
-at 1 kHz cannot flood the event log.
+the asyncio loop in the heavy lane and handed over only if nothing newer was. Of those, each input keeps at most
+one waiting (a newer one replaces it undecoded) and one being decoded: 200 puts of 1 MiB once became 200 tasks,
+each holding its payload until decoded, and decoded before they were found superseded (the daemon grew by
+400 MiB and its cycle overran for a minute after the flood). Samples for an inactive controller are refused by
+the intake unread. Anything wrong drops that sample and emits a warning event: nothing moves on bad input.
+Warnings are rate-limited per key so a client streaming garbage at 1 kHz cannot flood the event log.
 
 Outputs are read from each controller's :class:`~hild.ring.SampleRing` through a private reader and published
 with congestion control DROP: under back-pressure old samples are lost, the loop is never held.
@@ -25,6 +28,7 @@ import logging
 import threading
 import time
 import weakref
+from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -32,10 +36,11 @@ from typing import Any
 import zenoh
 
 from hild.action import ActionServer
-from hild.api.codec import FAST_DECODE, GOAL_CONTAINERS, MAX_PAYLOAD, PayloadError, decode, encode
+from hild.api.codec import FAST_DECODE, GOAL_LIMITS, MAX_PAYLOAD, REQUEST_LIMITS, Limits, PayloadError, decode, encode
 from hild.api.keys import RESERVED, Keys, check_chunk
 from hild.api.queries import SHUTTING_DOWN, Admitted, Gate, HeavyLane, clip, drop, reply_json
 from hild.api.session import declare_json_publisher
+from hild.controller import ControllerState
 from hild.engine import Engine
 from hild.ring import RingReader, SampleRing
 
@@ -43,6 +48,12 @@ log = logging.getLogger("hild.api")
 
 INTAKE_CAPACITY = 64  # samples one input queues between two cycles; beyond that Zenoh drops the oldest, uncounted
 CYCLE_DECODE = FAST_DECODE  # bytes: a sample up to this size is decoded by the cycle's intake, larger ones by the loop
+GOAL_ID_REQUEST = 1024  # bytes: a cancel or result request is {"goal_id": "<32 hex digits>"}
+VERBS = {  # a goal endpoint's queries: size limit in bytes (refused larger before copying), decoding caps
+    "goal": (MAX_PAYLOAD, GOAL_LIMITS),
+    "cancel": (GOAL_ID_REQUEST, REQUEST_LIMITS),
+    "result": (GOAL_ID_REQUEST, REQUEST_LIMITS),
+}
 REPORTS_PER_WINDOW = 10
 REPORT_WINDOW = 1.0  # s
 
@@ -145,15 +156,30 @@ class ActionPort:
     queryables: list[zenoh.Queryable[Any]] = field(default_factory=list)
 
 
+def _always() -> bool:
+    return True
+
+
 @dataclass
 class InputSlot:
-    """One controller input: Zenoh queues its samples in a ring, the cycle's intake takes the newest."""
+    """One controller input: Zenoh queues its samples in a ring, the cycle's intake takes the newest.
+
+    A large sample waits in ``pending`` (one place: a newer one replaces it, undecoded) for the input's one
+    delivery task on the loop. The cycle's intake writes ``taken``, ``large`` and ``pending``; the loop pops
+    ``pending`` and owns ``delivered``, ``kicked`` (cleared) and ``delivery``: no lock, nothing the cycle waits on.
+    """
 
     key: str
     controller: str
     accept: Callable[[Any], None]
     subscriber: Any = None  # zenoh.Subscriber on a RingChannel, once declared
+    active: Callable[[], bool] = _always  # whether the controller is active (read by the cycle's intake)
     taken: int = 0  # samples handed over so far (cycle thread); a large one on the loop checks it is still newest
+    pending: deque[tuple[Any, int, int]] = field(default_factory=lambda: deque(maxlen=1))  # (payload, taken, large)
+    large: int = 0  # large samples put in ``pending`` so far (cycle thread)
+    delivered: int = 0  # the last of those the loop took (loop thread): the gap was superseded undecoded
+    kicked: bool = False  # the loop has been asked to look at ``pending`` and has not yet
+    delivery: asyncio.Task[None] | None = None  # the one task decoding this input's large samples (loop thread)
 
 
 @dataclass
@@ -219,7 +245,7 @@ class ControllerPorts:
                 key = self.keys.input(name, check_chunk(input_name, "input name"))
                 subscriber = self.session.declare_subscriber(key, zenoh.handlers.RingChannel(INTAKE_CAPACITY))
                 endpoints.subscribers.append(subscriber)
-                endpoints.slots.append(InputSlot(key, name, accept, subscriber))
+                endpoints.slots.append(InputSlot(key, name, accept, subscriber, self._activity(name)))
             except (ValueError, zenoh.ZError) as exc:
                 self.engine.events.emit("error", "api", f"controller {name}: input {input_name!r} not declared: {exc}")
         taken = {p.topic for ep in self._controllers.values() for p in ep.outputs}
@@ -244,6 +270,13 @@ class ControllerPorts:
             self.engine.events.emit("error", "api", f"controller {name}: goals not exposed: {exc}")
         return endpoints
 
+    def _activity(self, name: str) -> Callable[[], bool]:
+        """Whether controller ``name`` is active: its record's state, as the cycle sees it (cheap, lock-free)."""
+        record = self.engine.manager.records.get(name)
+        if record is None:  # unloaded meanwhile: the next sync undeclares it
+            return lambda: False
+        return lambda: record.state is ControllerState.ACTIVE
+
     def _declare_action(self, name: str, server: ActionServer[Any]) -> ActionPort:
         key = functools.partial(self.keys.input, name)
         port = ActionPort(
@@ -252,9 +285,8 @@ class ControllerPorts:
             result=declare_json_publisher(self.session, key("result"), priority=zenoh.Priority.DATA_HIGH),
         )
         for verb, handle in (("goal", server.submit), ("cancel", server.cancel), ("result", server.result)):
-            port.queryables.append(
-                self.session.declare_queryable(key(verb), self._query_handler(key(verb), handle), complete=True)
-            )
+            handler = self._query_handler(key(verb), handle, *VERBS[verb])
+            port.queryables.append(self.session.declare_queryable(key(verb), handler, complete=True))
         return port
 
     def _names(self, ring: SampleRing) -> list[str] | None:
@@ -306,7 +338,9 @@ class ControllerPorts:
                 self.counters.publish_errors += 1
 
     # ---- goal queries ---------------------------------------------------------------------------------------------
-    def _query_handler(self, key: str, handle: Callable[[Any], dict[str, Any]]) -> Callable[[zenoh.Query], None]:
+    def _query_handler(
+        self, key: str, handle: Callable[[Any], dict[str, Any]], limit: int, limits: Limits
+    ) -> Callable[[zenoh.Query], None]:
         # Zenoh may hold callbacks past undeclare and session close: hold the ports and the controller's handler
         # weakly, so a kept callback cannot keep the engine alive to interpreter exit.
         owner, handler = weakref.ref(self), weakref.WeakMethod(handle)  # type: ignore[arg-type]
@@ -316,12 +350,12 @@ class ControllerPorts:
             if me is None or answer is None:
                 drop(query)
                 return
-            admitted = me._gate.admit(query)  # a flood cannot pile up planners
+            admitted = me._gate.admit(query, limit)  # a flood cannot pile up planners
             if not isinstance(admitted, Admitted):
                 reply_json(query, key, admitted)
                 return
             try:
-                me.loop.call_soon_threadsafe(me._start_answer, key, query, answer, admitted)
+                me.loop.call_soon_threadsafe(me._start_answer, key, query, answer, admitted, limits)
             except RuntimeError:  # the loop is closing: the querier times out
                 admitted.release()
                 drop(query)
@@ -329,7 +363,7 @@ class ControllerPorts:
         return on_query
 
     def _start_answer(
-        self, key: str, query: zenoh.Query, handle: Callable[[Any], dict[str, Any]], admitted: Admitted
+        self, key: str, query: zenoh.Query, handle: Callable[[Any], dict[str, Any]], admitted: Admitted, limits: Limits
     ) -> None:
         with self.counters.lock:
             self.counters.queries += 1
@@ -337,17 +371,19 @@ class ControllerPorts:
             admitted.release()
             reply_json(query, key, SHUTTING_DOWN)
             return
-        task = self.loop.create_task(self._answer(key, query, handle, admitted.raw))
+        task = self.loop.create_task(self._answer(key, query, handle, admitted.raw, limits))
         self._answering.add(task)
         task.add_done_callback(self._answering.discard)
         task.add_done_callback(lambda _: admitted.release())
 
-    async def _answer(self, key: str, query: zenoh.Query, handle: Callable[[Any], dict[str, Any]], raw: bytes) -> None:
+    async def _answer(
+        self, key: str, query: zenoh.Query, handle: Callable[[Any], dict[str, Any]], raw: bytes, limits: Limits
+    ) -> None:
         """Goals are decoded, parsed and planned in a worker thread (large ones in the heavy lane, one at a time):
         a long trajectory must stall neither the loop nor, with others, the cycle."""
 
         def work() -> dict[str, Any]:
-            return handle(decode(raw, GOAL_CONTAINERS))
+            return handle(decode(raw, limits))
 
         try:
             reply = await (self.lane.run(work) if self.lane.needed(raw) else asyncio.to_thread(work))
@@ -365,7 +401,8 @@ class ControllerPorts:
         to its controller, which validates it and swaps it into its mailbox; the rest are superseded.
 
         Bounded work: per input a few ``try_recv`` calls (Zenoh queued the samples without Python), and for the
-        newest one decode of at most ``CYCLE_DECODE`` bytes and one validation. A larger sample goes to the loop."""
+        newest one decode of at most ``CYCLE_DECODE`` bytes and one validation. A larger sample replaces the one
+        waiting for the loop, if any, undecoded. Nothing is decoded for an inactive controller."""
         tally = self.counters.cycle
         for slot in self._intake:
             newest, count = None, 0
@@ -379,11 +416,19 @@ class ControllerPorts:
             tally.commands += count
             tally.superseded += count - 1
             slot.taken += 1
+            if not slot.active():  # refused unread: a flood at an inactive controller costs a count per cycle
+                tally.rejected += 1
+                self._report(slot, ValueError(f"controller {slot.controller} is not active"))
+                continue
             payload = newest.payload
             size = len(payload)
             if CYCLE_DECODE < size <= MAX_PAYLOAD:
-                with contextlib.suppress(RuntimeError):  # the loop is closed: the sample is lost with it
-                    self.loop.call_soon_threadsafe(self._start_delivery, slot, payload, slot.taken)
+                slot.large += 1
+                slot.pending.append((payload, slot.taken, slot.large))  # replaces the one waiting, undecoded
+                if not slot.kicked:
+                    slot.kicked = True
+                    with contextlib.suppress(RuntimeError):  # the loop is closed: the sample is lost with it
+                        self.loop.call_soon_threadsafe(self._start_delivery, slot)
                 continue
             try:
                 if size > MAX_PAYLOAD:
@@ -395,27 +440,51 @@ class ControllerPorts:
             else:
                 tally.accepted += 1
 
-    def _start_delivery(self, slot: InputSlot, payload: Any, seq: int) -> None:
-        task = self.loop.create_task(self._deliver(slot, payload, seq))
+    def _start_delivery(self, slot: InputSlot) -> None:
+        """The intake put a large sample in ``slot.pending``: start the input's delivery task unless it runs."""
+        slot.kicked = False  # before looking: a sample put after this line kicks again
+        if self.closing:
+            slot.pending.clear()
+            return
+        if slot.delivery is not None and not slot.delivery.done():
+            return  # it takes the pending sample when its decode is done
+        if not slot.pending:
+            return
+        task = self.loop.create_task(self._deliver(slot))
+        slot.delivery = task
         self._delivering.add(task)
         task.add_done_callback(self._delivering.discard)
 
-    async def _deliver(self, slot: InputSlot, payload: Any, seq: int) -> None:
-        """A large sample, decoded in the heavy lane; handed over only if the cycle took nothing newer meanwhile."""
+    async def _deliver(self, slot: InputSlot) -> None:
+        """Large samples of one input, the newest pending each time, decoded in the heavy lane one at a time; each
+        handed over only if the cycle took nothing newer meanwhile (checked before decoding, and after)."""
         tally = self.counters.loop
-        try:
-            value = await self.lane.run(functools.partial(decode, payload.to_bytes()))
-            if self.closing:
+        while not self.closing:
+            try:
+                payload, seq, index = slot.pending.popleft()
+            except IndexError:
                 return
-            if slot.taken != seq:
+            tally.superseded += index - slot.delivered - 1  # replaced while waiting, never decoded
+            slot.delivered = index
+            if slot.taken != seq:  # a newer, small one was handed over by the intake meanwhile
                 tally.superseded += 1
-                return
-            slot.accept(value)
-        except Exception as exc:
-            tally.rejected += 1
-            self._report(slot, exc)
-        else:
-            tally.accepted += 1
+                continue
+            try:
+                if not slot.active():
+                    raise ValueError(f"controller {slot.controller} is not active")
+                value = await self.lane.run(functools.partial(decode, payload.to_bytes()))
+                del payload  # the decoded value is all that is kept
+                if self.closing:
+                    return
+                if slot.taken != seq:
+                    tally.superseded += 1
+                    continue
+                slot.accept(value)
+            except Exception as exc:
+                tally.rejected += 1
+                self._report(slot, exc)
+            else:
+                tally.accepted += 1
 
     def _report(self, slot: InputSlot, exc: Exception) -> None:
         reason = str(exc) if isinstance(exc, ValueError) else f"{type(exc).__name__}: {exc}"

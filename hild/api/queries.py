@@ -88,12 +88,12 @@ class Gate:
         self.small = InFlight(capacity)
         self.large = InFlight(large_capacity)
 
-    def admit(self, query: zenoh.Query) -> Admitted | dict[str, Any]:
-        """The admitted query, or the reply that refuses it (too large, or busy)."""
+    def admit(self, query: zenoh.Query, limit: int = MAX_PAYLOAD) -> Admitted | dict[str, Any]:
+        """The admitted query, or the reply that refuses it (larger than ``limit``, its key's size limit, or busy)."""
         payload = query.payload
         size = 0 if payload is None else len(payload)
-        if size > MAX_PAYLOAD:
-            return too_large(size)
+        if size > limit:
+            return too_large(size, limit)
         large = size > FAST_DECODE
         cap = self.large if large else self.small
         if not cap.admit():
@@ -123,8 +123,10 @@ class HeavyLane:
         return len(raw) > FAST_DECODE
 
 
-def too_large(size: int) -> dict[str, Any]:
-    return {"ok": False, "error": f"payload of {size} bytes exceeds the {MAX_PAYLOAD}-byte limit"}
+def too_large(size: int, limit: int = MAX_PAYLOAD) -> dict[str, Any]:
+    """The refusal of a payload of ``size`` bytes over ``limit``; over ``MAX_PAYLOAD``, the reply it always was."""
+    shown = MAX_PAYLOAD if size > MAX_PAYLOAD else limit
+    return {"ok": False, "error": f"payload of {size} bytes exceeds the {shown}-byte limit"}
 
 
 _ENCODED = {id(BUSY): encode(BUSY), id(BUSY_LARGE): encode(BUSY_LARGE)}  # a flood is refused without re-encoding

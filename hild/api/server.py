@@ -233,7 +233,7 @@ class ApiServer:
                 continue
 
     def _answer_read(self, service: str, query: zenoh.Query) -> None:
-        admitted = self._gate.admit(query)
+        admitted = self._gate.admit(query, self.services.limit(service))
         if not isinstance(admitted, Admitted):
             self._reply(service, query, admitted)
         elif self.services.readable(service, admitted.raw):
@@ -320,6 +320,7 @@ class ApiServer:
     # ---- services -----------------------------------------------------------------------------------------------
     def _query_handler(self, service: str) -> Callable[[zenoh.Query], None]:
         gate = self._priority_gate if service in PRIORITY_SERVICES else self._gate
+        limit = self.services.limit(service)  # bytes: larger is refused before it is copied
         # Zenoh may hold the callback past undeclare and session close; a weak reference keeps it from holding
         # the server, and through it the engine, alive until the interpreter exits.
         server = weakref.ref(self)
@@ -329,7 +330,7 @@ class ApiServer:
             if me is None or me._loop is None:
                 drop(query)
                 return
-            admitted = gate.admit(query)
+            admitted = gate.admit(query, limit)
             if not isinstance(admitted, Admitted):
                 me._reply(service, query, admitted)
                 return

@@ -25,6 +25,7 @@ from typing import Any, Literal
 import numpy as np
 from ruckig import ControlInterface, InputParameter, OutputParameter, Result, Ruckig, RuckigError, Synchronization
 
+from hild.api.codec import and_more, unknown_keys
 from hild.arrays import JointState, ServoCommand
 from hild.config.model import JointLimits
 from hild.config.params import Field, Params, model_validator
@@ -181,9 +182,9 @@ class ServoController(Controller):
             raise ValueError(f"controller {self.name} is not active")
         if not isinstance(payload, dict):
             raise ValueError('expected an object {"positions": [...], "velocities"?: [...]}')
-        unknown = sorted(str(k) for k in set(payload) - {"positions", "velocities"})
+        unknown, more = unknown_keys(payload, ("positions", "velocities"))
         if unknown:
-            raise ValueError(f"unknown keys {unknown}; expected positions and optional velocities")
+            raise ValueError(f"unknown keys {unknown}{and_more(more)}; expected positions and optional velocities")
         if "positions" not in payload:
             raise ValueError("missing positions")
         positions = self._numbers(payload["positions"], "positions")

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from hild.action import GoalRejected
+from hild.api.codec import and_more, unknown_keys
 from hild.motion.limits import KinematicLimits
 from hild.motion.planning import plan_move, plan_stop, plan_waypoints
 from hild.motion.segments import Segment
@@ -235,9 +236,9 @@ def _parse_move(payload: dict[str, Any], ctx: GoalContext) -> PreparedGoal:
 
 # ---- checks ------------------------------------------------------------------------------------------------------
 def _no_unknown(obj: dict[str, Any], allowed: set[str], what: str) -> None:
-    unknown = sorted(set(obj) - allowed)
+    unknown, more = unknown_keys(obj, allowed)
     if unknown:
-        raise GoalRejected(f"{what}: unknown keys {unknown} (allowed: {sorted(allowed)})")
+        raise GoalRejected(f"{what}: unknown keys {unknown}{and_more(more)} (allowed: {sorted(allowed)})")
 
 
 def _is_number(x: Any) -> bool:

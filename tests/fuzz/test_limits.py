@@ -16,6 +16,7 @@ import time
 from collections import Counter
 
 from hild.api.codec import GOAL_CONTAINERS, MAX_CONTAINERS, MAX_PAYLOAD
+from hild.api.services import EMPTY_REQUEST
 from hild.controllers.trajectory_goals import MAX_POINTS, MAX_WAYPOINTS
 from tests.fuzz import tally
 from tests.fuzz.checks import unharmed
@@ -130,5 +131,8 @@ def test_goals_at_the_edge_of_the_limits_are_refused_with_the_reason_quickly(dae
             error, elapsed = timed_reply(daemon, GOAL, raw)
             assert reason in error, (name, error)
             assert elapsed < 3.0, (name, elapsed)
-        error, _ = timed_reply(daemon, "srv/status", b"[" + b"[]," * 2000 + b"[]]")
+        costly_request = b"[" + b"[]," * 2000 + b"[]]"
+        error, _ = timed_reply(daemon, "srv/switch_controllers", costly_request)
         assert f"more than {MAX_CONTAINERS} arrays" in error
+        error, _ = timed_reply(daemon, "srv/status", costly_request)  # a status request is a few bytes at most
+        assert error == f"payload of {len(costly_request)} bytes exceeds the {EMPTY_REQUEST}-byte limit"

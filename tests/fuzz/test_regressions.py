@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from hild.action import GoalRejected
-from hild.api.codec import FAST_DECODE, MAX_CONTAINERS, MAX_PAYLOAD, PayloadError, decode
+from hild.api.codec import FAST_DECODE, GOAL_LIMITS, MAX_CONTAINERS, MAX_ELEMENTS, MAX_PAYLOAD, PayloadError, decode
 from hild.api.keys import Keys
 from hild.api.ports import ControllerPorts, Counters, InputSlot
 from hild.api.queries import BUSY, BUSY_LARGE, MAX_IN_FLIGHT, MAX_LARGE_IN_FLIGHT, Admitted, Gate, clip
@@ -38,8 +38,10 @@ def test_large_payloads_stop_at_the_container_budget() -> None:
     with pytest.raises(PayloadError, match=f"more than {MAX_CONTAINERS} arrays and objects"):
         decode(raw)
     assert len(decode(raw, max_containers=2001)) == 2000
-    flat = json.dumps(list(range(100_000))).encode()  # one container, many numbers: fine
-    assert len(flat) > FAST_DECODE and decode(flat)[-1] == 99_999
+    flat = json.dumps(list(range(100_000))).encode()  # one container of many numbers: a goal's caps allow it
+    assert len(flat) > FAST_DECODE and decode(flat, GOAL_LIMITS)[-1] == 99_999
+    with pytest.raises(PayloadError, match=f"more than {MAX_ELEMENTS} array elements"):  # a request's do not
+        decode(flat)
 
 
 @pytest.mark.parametrize("raw", [b"[" * 100_000, b'{"a":' * 3000 + b"1" + b"}" * 3000, b"[" * 1500 + b"]" * 1500])
