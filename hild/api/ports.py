@@ -40,7 +40,6 @@ from hild.api.codec import FAST_DECODE, GOAL_LIMITS, MAX_PAYLOAD, REQUEST_LIMITS
 from hild.api.keys import RESERVED, Keys, check_chunk
 from hild.api.queries import SHUTTING_DOWN, Admitted, Gate, HeavyLane, clip, drop, reply_json
 from hild.api.session import declare_json_publisher
-from hild.controller import ControllerState
 from hild.engine import Engine
 from hild.ring import RingReader, SampleRing
 
@@ -160,6 +159,12 @@ def _always() -> bool:
     return True
 
 
+def _activity(instance: Any) -> Callable[[], bool]:
+    """Whether a controller is active: its ``active`` flag, which its controller manager sets (a shared cell when the
+    cycle runs in its own process). A plugin without the flag is taken as always active: its ``accept`` decides."""
+    return lambda: bool(getattr(instance, "active", True))
+
+
 @dataclass
 class InputSlot:
     """One controller input: Zenoh queues its samples in a ring, the cycle's intake takes the newest.
@@ -245,7 +250,7 @@ class ControllerPorts:
                 key = self.keys.input(name, check_chunk(input_name, "input name"))
                 subscriber = self.session.declare_subscriber(key, zenoh.handlers.RingChannel(INTAKE_CAPACITY))
                 endpoints.subscribers.append(subscriber)
-                endpoints.slots.append(InputSlot(key, name, accept, subscriber, self._activity(name)))
+                endpoints.slots.append(InputSlot(key, name, accept, subscriber, _activity(instance)))
             except (ValueError, zenoh.ZError) as exc:
                 self.engine.events.emit("error", "api", f"controller {name}: input {input_name!r} not declared: {exc}")
         taken = {p.topic for ep in self._controllers.values() for p in ep.outputs}
@@ -269,13 +274,6 @@ class ControllerPorts:
         except (ValueError, zenoh.ZError) as exc:
             self.engine.events.emit("error", "api", f"controller {name}: goals not exposed: {exc}")
         return endpoints
-
-    def _activity(self, name: str) -> Callable[[], bool]:
-        """Whether controller ``name`` is active: its record's state, as the cycle sees it (cheap, lock-free)."""
-        record = self.engine.manager.records.get(name)
-        if record is None:  # unloaded meanwhile: the next sync undeclares it
-            return lambda: False
-        return lambda: record.state is ControllerState.ACTIVE
 
     def _declare_action(self, name: str, server: ActionServer[Any]) -> ActionPort:
         key = functools.partial(self.keys.input, name)

@@ -43,6 +43,7 @@ from hild.api.services import EMPTY_REQUEST, FIELDS_REQUEST, MAX_NAMES, RequestE
 from hild.config import load_config
 from hild.controllers.servo import ServoController
 from hild.controllers.trajectory_goals import MAX_POINTS, GoalContext, parse_goal
+from hild.crossing.mailboxes import Flag
 from hild.engine import Engine
 from hild.motion.limits import KinematicLimits
 from tests.api.conftest import ROBOT, WAIT, Daemon, robot_config, wait_for
@@ -100,7 +101,8 @@ def test_a_request_of_thousands_of_unknown_fields_is_refused_in_a_short_sentence
 
 def test_a_servo_target_of_thousands_of_unknown_keys_is_refused_in_a_short_sentence() -> None:
     servo = ServoController.__new__(ServoController)  # the key check comes before anything configured is read
-    servo.active = True
+    servo._active = Flag()
+    servo.set_active(True)
     with pytest.raises(ValueError) as info:
         servo.accept(wide(4000, positions=[0.0]))
     expected = "unknown keys ['k0', 'k1', 'k2'] and 3997 more; expected positions and optional velocities"
