@@ -97,10 +97,3 @@ class Region:
     def _end(self) -> int:
         cells = self.cells()
         return max((_align(offset + size) for _, offset, size in cells), default=_DIRECTORY)
-
-    def close(self) -> None:
-        """Unmap and close this side's descriptor (views handed out must be released first)."""
-        self._header = np.empty(0, dtype=np.uint64)
-        self.buffer.release()
-        self._map.close()
-        os.close(self.fd)

@@ -138,6 +138,17 @@ class Daemon:
         return [e for e in list(self.published_events) if text in e["message"]]
 
 
+def engine_with_trajectory(tmp_path: Path) -> Engine:
+    """The test robot plus a joint_trajectory controller ``traj`` (its planner needs acceleration and jerk)."""
+    config = robot_config()
+    for joint in config["joints"].values():
+        joint["limits"].update(acceleration=10.0, jerk=100.0)
+    config["controllers"]["traj"] = {"type": "joint_trajectory", "params": {"joints": ["a", "b", "c"]}}
+    path = tmp_path / "robot.yaml"
+    path.write_text(yaml.safe_dump(config, sort_keys=False))
+    return Engine(load_config(path))
+
+
 @pytest.fixture
 def engine(tmp_path: Path) -> Engine:
     path = tmp_path / "robot.yaml"

@@ -18,9 +18,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pytest
-import yaml
 import zenoh
 
 from hild.action import GoalRejected
@@ -40,36 +38,18 @@ from hild.api.codec import (
 from hild.api.keys import Keys
 from hild.api.ports import GOAL_ID_REQUEST, ControllerPorts, Counters, InputSlot
 from hild.api.services import EMPTY_REQUEST, FIELDS_REQUEST, MAX_NAMES, RequestError, names, parse_request
-from hild.config import load_config
 from hild.controllers.servo import ServoController
-from hild.controllers.trajectory_goals import MAX_POINTS, GoalContext, parse_goal
+from hild.controllers.trajectory_goals import MAX_POINTS, parse_goal
 from hild.crossing.mailboxes import Flag
 from hild.engine import Engine
-from hild.motion.limits import KinematicLimits
-from tests.api.conftest import ROBOT, WAIT, Daemon, robot_config, wait_for
+from tests.api.conftest import ROBOT, WAIT, Daemon, engine_with_trajectory, wait_for
+from tests.fuzz.test_regressions import goal_context
 
 WIDE = 90_000  # keys: the object of the finding (1 MiB of them when sent)
 
 
 def wide(n: int = WIDE, **body: object) -> dict[str, object]:
     return {**{f"k{k}": 0 for k in range(n)}, **body}
-
-
-def goal_context() -> GoalContext:
-    ones = np.ones(2)
-    return GoalContext(
-        joints=("a", "b"),
-        soft_lower=-ones,
-        soft_upper=ones,
-        limits=KinematicLimits(ones, ones, ones),
-        allow_partial=False,
-        path_position=0 * ones,
-        path_velocity=0 * ones,
-        goal_position=0 * ones,
-        goal_velocity=0 * ones,
-        goal_time=1.0,
-        start_tolerance=0.01,
-    )
 
 
 # ---- 1. unknown keys -------------------------------------------------------------------------------------------------
@@ -170,14 +150,7 @@ def test_the_largest_legitimate_goal_fits_the_goal_caps() -> None:
 # ---- 3. per-key size limits ------------------------------------------------------------------------------------------
 @pytest.fixture
 def engine(tmp_path: Path) -> Engine:
-    """The test robot plus a joint_trajectory controller ``traj``, for goals (as in test_security)."""
-    config = robot_config()
-    for joint in config["joints"].values():
-        joint["limits"].update(acceleration=10.0, jerk=100.0)
-    config["controllers"]["traj"] = {"type": "joint_trajectory", "params": {"joints": ["a", "b", "c"]}}
-    path = tmp_path / "robot.yaml"
-    path.write_text(yaml.safe_dump(config, sort_keys=False))
-    return Engine(load_config(path))
+    return engine_with_trajectory(tmp_path)
 
 
 class Decodes:

@@ -20,7 +20,6 @@ from typing import Any
 
 import numpy as np
 import pytest
-import yaml
 
 from hild.api.client import HildClient, HildUnreachable
 from hild.api.ctl import EXIT_OK, EXIT_UNREACHABLE, ZENOH_CONFIG_ENV, add_ctl_parser, run_ctl
@@ -29,7 +28,7 @@ from hild.cli import main as hild_main
 from hild.config import load_config
 from hild.config.model import TelemetrySection, ZenohSection
 from hild.engine import Engine
-from tests.api.conftest import ROBOT, Daemon, free_endpoint, robot_config, wait_for
+from tests.api.conftest import ROBOT, Daemon, engine_with_trajectory, free_endpoint, wait_for
 from tests.conftest import CONFIGS
 
 SECURE = CONFIGS / "secure"
@@ -42,14 +41,7 @@ TARGET = [0.3, -0.2, 0.25]
 # ---- fixtures ---------------------------------------------------------------------------------------------------
 @pytest.fixture
 def engine(tmp_path: Path) -> Engine:
-    """The test robot plus a joint_trajectory controller ``traj`` (its planner needs acceleration and jerk)."""
-    config = robot_config()
-    for joint in config["joints"].values():
-        joint["limits"].update(acceleration=10.0, jerk=100.0)
-    config["controllers"]["traj"] = {"type": "joint_trajectory", "params": {"joints": ["a", "b", "c"]}}
-    path = tmp_path / "robot.yaml"
-    path.write_text(yaml.safe_dump(config, sort_keys=False))
-    return Engine(load_config(path))
+    return engine_with_trajectory(tmp_path)
 
 
 @pytest.fixture

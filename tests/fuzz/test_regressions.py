@@ -187,9 +187,10 @@ def test_an_oversized_sample_is_refused_unread_by_the_intake() -> None:
 
 
 # ---- goals -------------------------------------------------------------------------------------------------------
-def test_repeated_joint_names_are_counted_in_linear_time() -> None:
+def goal_context() -> GoalContext:
+    """Two joints ``a`` and ``b`` with unit limits: enough for parsing goals without a robot."""
     ones = np.ones(2)
-    ctx = GoalContext(
+    return GoalContext(
         joints=("a", "b"),
         soft_lower=-ones,
         soft_upper=ones,
@@ -202,6 +203,10 @@ def test_repeated_joint_names_are_counted_in_linear_time() -> None:
         goal_time=1.0,
         start_tolerance=0.01,
     )
+
+
+def test_repeated_joint_names_are_counted_in_linear_time() -> None:
+    ctx = goal_context()
     start = time.monotonic()
     with pytest.raises(GoalRejected, match=r"joints listed more than once: \['a'\]"):
         parse_goal({"joint_names": ["a"] * 250_000, "positions": []}, ctx)
