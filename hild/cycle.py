@@ -60,6 +60,10 @@ class CycleThread(threading.Thread):
         finally:
             engine.stop()
 
+    def step(self, t: float, dt: float) -> None:
+        """One cycle: the engine's step (the cycle process adds what crosses the shared region around it)."""
+        self.engine.step(t, dt)
+
     def _descending(self) -> bool:
         """Asked to stop: start the engine's stop sequence once, and keep cycling while its descent runs."""
         if not self._stop_begun:
@@ -78,7 +82,7 @@ class CycleThread(threading.Thread):
             deadline += period_ns
             wait_until(deadline, spin_ns)
             wake = time.perf_counter_ns()
-            engine.step((wake - start) / 1e9, (wake - prev_wake) / 1e9)
+            self.step((wake - start) / 1e9, (wake - prev_wake) / 1e9)
             end = time.perf_counter_ns()
             overrun = end > deadline + period_ns
             if overrun:
@@ -102,7 +106,7 @@ class CycleThread(threading.Thread):
             if rtf > 0:
                 wait_until(deadline, spin_ns)
             wake = time.perf_counter_ns()
-            engine.step(t0 + k * period, period)
+            self.step(t0 + k * period, period)
             end = time.perf_counter_ns()
             overrun = rtf > 0 and end > deadline + round(period_ns / rtf)
             if overrun:  # fell behind real time: re-sync instead of bursting to catch up

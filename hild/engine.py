@@ -33,6 +33,8 @@ from hild.interfaces import interface_name
 from hild.mailbox import BoundedQueue
 from hild.manager import ControllerManager, SwitchResult
 from hild.modes import MODE_NAMES, JointMode
+from hild.requests import Enable, Refused, Request, Reset, SetZero, Switch
+from hild.snapshot import Snapshot
 from hild.stats import LoopStats
 from hild.supervisor import Action, Fault, JointGains, SafetySettings, Supervisor, limit_names
 from hild.transmission import Transmissions
@@ -46,10 +48,6 @@ SET_ZERO_MAX_SPEED = 0.05  # rad/s: set-zero only on a still joint
 SET_ZERO_SETTLE = 0.5  # s: hold follows the reading while the drive moves to its new frame (some drop replies ~1 s)
 MAX_STEP_PERIODS = 2.0  # a late cycle advances the control clock (and the slew limit) by at most this many periods
 GAP_EVENT_PERIODS = 10  # a cycle later than this many periods is reported (at most once a second, with a count)
-
-
-class RequestRejected(RuntimeError):
-    pass
 
 
 @dataclass
@@ -94,6 +92,7 @@ class Engine:
         # Set by the API: takes streamed commands at the start of each cycle, so no other thread takes the GIL
         # per sample (docs/performance.md, "A busy neighbour").
         self.intake: Callable[[], None] | None = None
+        self.inputs_on_arrival = False  # the intake above takes them: one GIL handover per cycle, not per sample
         self.write_done_ns = 0  # perf_counter_ns when the last cycle's hardware writes were done
         self.events.doorbell = self._ring
         self.stats = LoopStats()
@@ -234,6 +233,10 @@ class Engine:
             joint_modes=self.supervisor.mode,
             mailboxes=self.mailboxes.scoped(name),
         )
+
+    def controllers(self) -> dict[str, Any]:
+        """Each loaded controller by name: the instance whose inputs and action server the API exposes."""
+        return {name: record.instance for name, record in list(self.manager.records.items())}
 
     def load_controller(self, name: str, type_name: str, params: Any, fallbacks: Sequence[str] = ()) -> None:
         """Load and configure a controller (non real-time; call before start or through ``submit``)."""
@@ -461,8 +464,31 @@ class Engine:
         """Run ``action`` on the cycle thread at the start of the next cycle; refused when the queue is full."""
         future: concurrent.futures.Future[Any] = concurrent.futures.Future()
         if not self._requests.offer((action, future)):
-            future.set_exception(RequestRejected("too many pending requests; try again"))
+            future.set_exception(Refused("too many pending requests; try again"))
         return future
+
+    def request(self, request: Request) -> concurrent.futures.Future[Any]:
+        """An operator request (:mod:`hild.requests`), applied at the start of the next cycle. Its future holds the
+        reply dict, or raises :class:`~hild.requests.Refused`; an e-stop takes its own path and is never refused."""
+        if isinstance(request, Switch | Reset | Enable | SetZero):
+            return self.submit(lambda: self.apply(request))
+        return self.request_estop()
+
+    def apply(self, request: Request) -> dict[str, Any] | Deferred:
+        """Apply one request now (on the cycle thread, between cycles): the reply, or :class:`Refused`."""
+        match request:
+            case Switch(activate, deactivate, strict):
+                return self.switch(activate, deactivate, strict).as_dict()  # carries its own ok and error
+            case Reset():
+                outcome = self.reset()
+                if isinstance(outcome, Deferred):
+                    return Deferred(lambda: _refused_if_error(outcome.poll()))
+                return _refused_if_error(outcome)  # type: ignore[return-value]
+            case Enable(joints):
+                return _refused_if_error(self.enable(joints))  # type: ignore[return-value]
+            case SetZero(joint):
+                return _refused_if_error(self.set_zero(joint))  # type: ignore[return-value]
+        return self.estop()
 
     def _apply_requests(self) -> None:
         while (item := self._requests.poll()) is not None:
@@ -652,59 +678,65 @@ class Engine:
             return "active"
         return "hold"
 
-    def status(self) -> dict[str, Any]:
-        """A snapshot for the API; built from immutable views, so it is safe from any thread."""
+    def snapshot(self) -> Snapshot:
+        """What changes only when ``change_seq`` does (modes, faults, controllers, hardware states), as one
+        immutable value: built from immutable views, so it is safe from any thread, and it pickles to cross."""
         sup = self.supervisor
         controllers = self.manager.snapshot
         owner = self.manager.masks.owner
         names = {c.slot: c.name for c in controllers}
-        joints = []
-        for i, name in enumerate(self.joints):
-            slot = int(owner[i])
-            joints.append(
+        owner_of = {c: info.name for info in controllers if info.state == "active" for c in info.claimed}
+        return Snapshot(
+            change_seq=self.change_seq,
+            mode=self.overall_mode(),
+            joints=tuple(
                 {
                     "name": name,
                     "mode": MODE_NAMES[int(sup.mode[i])],
-                    "owner": names.get(slot) if slot >= 0 else None,
+                    "owner": names.get(int(owner[i])) if int(owner[i]) >= 0 else None,
                     "fault": sup.fault_text[i] or None,
                     "limits": limit_names(int(sup.limit_flags[i])),
-                    "longest_silence_ms": round(sup.longest_silence[i] * 1000.0, 1),
                 }
-            )
-        return {
-            "robot": self.robot,
-            "stamp": self.t,
-            "mode": self.overall_mode(),
-            "joints": joints,
-            "controllers": [c.as_dict() for c in controllers],
-            "hardware": [
-                {"name": s.name, "driver": s.driver, "state": str(s.lifecycle), "fault": s.fault or None}
+                for i, name in enumerate(self.joints)
+            ),
+            controllers=tuple(c.as_dict() for c in controllers),
+            hardware=tuple(
+                {
+                    "name": s.name,
+                    "driver": s.driver,
+                    "state": str(s.lifecycle),
+                    "fault": s.fault or None,
+                    "joints": list(s.component.joints),
+                    "command_fields": sorted(s.component.COMMAND_FIELDS),
+                }
                 for s in self.hardware
-            ],
-            "loop": {
-                "update_rate": self.update_rate,
-                "clock": self.clock_source,
-                **self.stats.summary(STATUS_STATS_MAX_AGE),
-            },
-            "realtime": dict(self.realtime_report),
-        }
+            ),
+            interfaces=tuple({"name": n, "claimed_by": owner_of.get(n)} for n in self.available_interfaces),
+            realtime=dict(self.realtime_report),
+        )
+
+    def status(self) -> dict[str, Any]:
+        """The status reply, as the API renders it (tests and tools that hold the engine itself)."""
+        from hild.api.status import render_status  # the API renders status; tests holding the engine ask here
+
+        return render_status(self.robot, self.snapshot(), self.t, self.supervisor.longest_silence, self._loop_summary())
+
+    def _loop_summary(self) -> dict[str, Any]:
+        return {"update_rate": self.update_rate, "clock": self.clock_source, **self.stats.summary(STATUS_STATS_MAX_AGE)}
 
     def interfaces(self) -> list[dict[str, Any]]:
-        owner_of = {c: info.name for info in self.manager.snapshot if info.state == "active" for c in info.claimed}
-        return [{"name": name, "claimed_by": owner_of.get(name)} for name in self.available_interfaces]
+        return list(self.snapshot().interfaces)
 
     def hardware_info(self) -> list[dict[str, Any]]:
-        return [
-            {
-                "name": s.name,
-                "driver": s.driver,
-                "state": str(s.lifecycle),
-                "fault": s.fault or None,
-                "joints": list(s.component.joints),
-                "command_fields": sorted(s.component.COMMAND_FIELDS),
-            }
-            for s in self.hardware
-        ]
+        return list(self.snapshot().hardware)
 
     def joint_mode(self, name: str) -> JointMode:
         return JointMode(int(self.supervisor.mode[self.joints.index(name)]))
+
+
+def _refused_if_error(reply: dict[str, Any] | None) -> dict[str, Any] | None:
+    """The operator commands answer ``{"error": …}`` when they did nothing: that is a :class:`Refused`."""
+    if reply is not None and reply.get("error"):
+        details = {k: v for k, v in reply.items() if k != "error"}
+        raise Refused(reply["error"], **details)
+    return reply

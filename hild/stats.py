@@ -1,7 +1,8 @@
 """Cheap rolling loop statistics.
 
 The cycle thread only stores integers into preallocated windows and bumps counters; percentiles are computed on
-demand by whoever asks (status, bench) on the asyncio side, from a copy of the window.
+demand by whoever asks (status, bench) on the asyncio side, from a copy of the window. Windows and counters can
+live in a given buffer (a cell of the shared region): the cycle process records, the client domain reads.
 """
 
 from __future__ import annotations
@@ -11,20 +12,42 @@ from dataclasses import dataclass
 
 import numpy as np
 
+_COUNT, _MAX = 0, 1
+_CYCLES, _OVERRUNS, _CONSECUTIVE = 0, 1, 2
+
+
+def window_bytes(size: int) -> int:
+    return 8 * (2 + size)
+
+
+def stats_bytes(window: int) -> int:
+    """The bytes a ``LoopStats`` of ``window`` occupies in a buffer."""
+    return 8 * 3 + 2 * window_bytes(window)
+
 
 class RollingWindow:
-    __slots__ = ("count", "max", "values")
+    __slots__ = ("_head", "values")
 
-    def __init__(self, size: int) -> None:
-        self.values = np.zeros(size, dtype=np.int64)
-        self.count = 0
-        self.max = 0
+    def __init__(self, size: int, buffer: memoryview | None = None) -> None:
+        cells = np.zeros(2 + size, dtype=np.int64) if buffer is None else np.frombuffer(buffer, dtype=np.int64)
+        self._head = cells[:2]  # count, max
+        self.values = cells[2 : 2 + size]
+
+    @property
+    def count(self) -> int:
+        return int(self._head[_COUNT])
+
+    @property
+    def max(self) -> int:
+        return int(self._head[_MAX])
 
     def add(self, value_ns: int) -> None:
-        self.values[self.count % len(self.values)] = value_ns
-        self.count += 1
-        if value_ns > self.max:
-            self.max = value_ns
+        head = self._head
+        count = int(head[_COUNT])
+        self.values[count % len(self.values)] = value_ns
+        head[_COUNT] = count + 1
+        if value_ns > head[_MAX]:
+            head[_MAX] = value_ns
 
     def summary_us(self) -> dict[str, float]:
         n = min(self.count, len(self.values))
@@ -35,8 +58,7 @@ class RollingWindow:
         return {"p50": round(p50, 1), "p99": round(p99, 1), "p999": round(p999, 1), "max": round(self.max / 1e3, 1)}
 
     def reset(self) -> None:
-        self.count = 0
-        self.max = 0
+        self._head[:] = 0
 
 
 @dataclass
@@ -44,25 +66,42 @@ class LoopStats:
     """Cycle duration (wake → write done), period error (|Δwake − T|), overruns (deadline missed)."""
 
     window: int = 10_000
+    buffer: memoryview | None = None  # ``stats_bytes(window)`` to live in (shared memory); private when None
 
     def __post_init__(self) -> None:
-        self.duration = RollingWindow(self.window)
-        self.period_error = RollingWindow(self.window)
-        self.cycles = 0
-        self.overruns = 0
-        self.consecutive_overruns = 0
+        buffer, split = self.buffer, window_bytes(self.window)
+        self._counters = np.zeros(3, dtype=np.int64) if buffer is None else np.frombuffer(buffer[:24], np.int64)
+        self.duration = RollingWindow(self.window, None if buffer is None else buffer[24 : 24 + split])
+        self.period_error = RollingWindow(self.window, None if buffer is None else buffer[24 + split : 24 + 2 * split])
         self._percentiles: tuple[dict[str, float], dict[str, float]] | None = None
         self._percentiles_at = 0.0
 
+    @property
+    def cycles(self) -> int:
+        return int(self._counters[_CYCLES])
+
+    @property
+    def overruns(self) -> int:
+        return int(self._counters[_OVERRUNS])
+
+    @property
+    def consecutive_overruns(self) -> int:
+        return int(self._counters[_CONSECUTIVE])
+
+    @consecutive_overruns.setter
+    def consecutive_overruns(self, value: int) -> None:
+        self._counters[_CONSECUTIVE] = value
+
     def record(self, duration_ns: int, period_error_ns: int, overrun: bool) -> None:
-        self.cycles += 1
+        counters = self._counters
+        counters[_CYCLES] += 1
         self.duration.add(duration_ns)
         self.period_error.add(period_error_ns)
         if overrun:
-            self.overruns += 1
-            self.consecutive_overruns += 1
+            counters[_OVERRUNS] += 1
+            counters[_CONSECUTIVE] += 1
         else:
-            self.consecutive_overruns = 0
+            counters[_CONSECUTIVE] = 0
 
     def summary(self, max_age: float = 0.0) -> dict[str, object]:
         """Counters (always current) and percentiles over the window.
@@ -82,7 +121,10 @@ class LoopStats:
         }
 
     def reset(self) -> None:
-        self.__post_init__()
+        self._counters[:] = 0
+        self.duration.reset()
+        self.period_error.reset()
+        self._percentiles = None
 
 
 def format_loop_table(rows: list[dict[str, object]]) -> str:

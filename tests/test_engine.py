@@ -367,12 +367,13 @@ def test_forward_command_rejects_bad_input(make_engine: MakeEngine) -> None:
 
 
 def test_estop_is_never_refused_even_with_a_full_request_queue(make_engine: MakeEngine) -> None:
-    from hild.engine import REQUEST_QUEUE, RequestRejected
+    from hild.engine import REQUEST_QUEUE
+    from hild.requests import Refused
 
     engine = make_engine()
     engine.switch(["fwd"], [])
     queued = [engine.submit(lambda: None) for _ in range(REQUEST_QUEUE)]
-    with pytest.raises(RequestRejected):
+    with pytest.raises(Refused):
         engine.submit(lambda: None).result(timeout=0)
     stop = engine.request_estop()
     assert not stop.done()

@@ -40,7 +40,7 @@ from hild.api.codec import FAST_DECODE, GOAL_LIMITS, MAX_PAYLOAD, REQUEST_LIMITS
 from hild.api.keys import RESERVED, Keys, check_chunk
 from hild.api.queries import SHUTTING_DOWN, Admitted, Gate, HeavyLane, clip, drop, reply_json
 from hild.api.session import declare_json_publisher
-from hild.engine import Engine
+from hild.domains.link import CycleLink
 from hild.ring import RingReader, SampleRing
 
 log = logging.getLogger("hild.api")
@@ -200,7 +200,7 @@ class ControllerPorts:
     def __init__(
         self,
         session: zenoh.Session,
-        engine: Engine,
+        engine: CycleLink,
         keys: Keys,
         loop: asyncio.AbstractEventLoop,
         counters: Counters,
@@ -224,7 +224,7 @@ class ControllerPorts:
     def sync(self) -> None:
         """Declare endpoints for newly loaded controllers, undeclare those of unloaded ones (asyncio thread)."""
         try:
-            current = {name: rec.instance for name, rec in list(self.engine.manager.records.items())}
+            current = self.engine.controllers()
         except RuntimeError:  # records changed while we copied; the next change_seq brings us back here
             return
         stale = [n for n, ep in self._controllers.items() if current.get(n) is not ep.instance]

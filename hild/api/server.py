@@ -34,7 +34,7 @@ from hild.api.services import DEFAULT_TIMEOUT, Reply, Services
 from hild.api.session import declare_json_publisher, open_session, server_config
 from hild.api.unique import DaemonIdentity, check_unique, describe_other
 from hild.config.model import ZenohSection
-from hild.engine import Engine
+from hild.domains.link import CycleLink
 from hild.events import Event
 
 log = logging.getLogger("hild.api")
@@ -48,7 +48,7 @@ READ_BACKLOG = 1024  # read-only queries Zenoh queues per service between two ba
 class ApiServer:
     def __init__(
         self,
-        engine: Engine,
+        engine: CycleLink,
         settings: ZenohSection,
         listen: list[str] | None = None,
         *,
@@ -299,7 +299,7 @@ class ApiServer:
         if self._closing:
             return
         try:
-            instances = [record.instance for record in list(self.engine.manager.records.values())]
+            instances = list(self.engine.controllers().values())
         except RuntimeError:  # controllers loaded meanwhile: try again on the next turn of the loop
             assert self._loop is not None
             self._loop.call_soon(self._client_gone, client)

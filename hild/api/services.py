@@ -21,7 +21,8 @@ from typing import Any
 
 from hild.api.codec import MAX_PAYLOAD, PayloadError, and_more, decode, encode, unknown_keys
 from hild.api.queries import HeavyLane, too_large
-from hild.engine import Engine, RequestRejected
+from hild.domains.link import CycleLink
+from hild.requests import Enable, Refused, Request, Reset, SetZero, Switch
 
 log = logging.getLogger("hild.api")
 
@@ -120,7 +121,7 @@ class Service:
 
 
 class Services:
-    def __init__(self, engine: Engine, timeout: float = DEFAULT_TIMEOUT, *, lane: HeavyLane | None = None) -> None:
+    def __init__(self, engine: CycleLink, timeout: float = DEFAULT_TIMEOUT, *, lane: HeavyLane | None = None) -> None:
         self.engine = engine
         self.timeout = timeout
         self.lane = lane or HeavyLane()
@@ -197,22 +198,23 @@ class Services:
 
     @staticmethod
     def _failed(name: str, exc: Exception) -> Reply:
+        if isinstance(exc, Refused):
+            return {**exc.details, "ok": False, "error": str(exc)}
         if isinstance(exc, RequestError):
             return {"ok": False, "error": str(exc)}
         log.exception("service %s failed", name, exc_info=exc)  # a bug must cost one reply, not the daemon
         return {"ok": False, "error": f"internal error: {type(exc).__name__}: {exc}"}
 
     # ---- the cycle hop ------------------------------------------------------------------------------------------
-    async def on_cycle(self, action: Callable[[], Any]) -> Any:
-        """Run ``action`` between two cycles and return its result, or raise RequestError after ``timeout``."""
-        return await self.wait_cycle(self.engine.submit(action))
+    async def on_cycle(self, request: Request) -> Any:
+        """Have the cycle apply ``request`` between two cycles and return its reply; :class:`Refused` when it
+        refuses, RequestError after ``timeout``."""
+        return await self.wait_cycle(self.engine.request(request))
 
     async def wait_cycle(self, future: concurrent.futures.Future[Any]) -> Any:
         """Await a request the cycle will apply; withdraw it if the cycle does not get to it in time."""
         try:
             return await asyncio.wait_for(asyncio.wrap_future(future), self.timeout)
-        except RequestRejected as exc:
-            raise RequestError(str(exc)) from None
         except TimeoutError:
             # wait_for's cancellation reaches the engine's future: if it was still queued it is withdrawn.
             if not (future.cancel() or future.cancelled()):
@@ -228,13 +230,13 @@ class Services:
         return self.engine.status()
 
     def _list_controllers(self, request: dict[str, Any]) -> Reply:
-        return {"controllers": [c.as_dict() for c in self.engine.manager.snapshot]}
+        return {"controllers": [dict(c) for c in self.engine.snapshot().controllers]}
 
     def _list_interfaces(self, request: dict[str, Any]) -> Reply:
-        return {"interfaces": self.engine.interfaces()}
+        return {"interfaces": [dict(i) for i in self.engine.snapshot().interfaces]}
 
     def _list_hardware(self, request: dict[str, Any]) -> Reply:
-        return {"hardware": self.engine.hardware_info()}
+        return {"hardware": [dict(h) for h in self.engine.snapshot().hardware]}
 
     async def _switch(self, request: dict[str, Any]) -> Reply:
         activate = request.get("activate", [])
@@ -243,34 +245,26 @@ class Services:
         if not activate and not deactivate:
             raise RequestError("nothing to switch: give activate and/or deactivate")
         if strict:
-            loaded = {c.name for c in self.engine.manager.snapshot}
+            loaded = {c["name"] for c in self.engine.snapshot().controllers}
             unknown = [n for n in (*activate, *deactivate) if n not in loaded]
             if unknown:
                 known = ", ".join(sorted(loaded)) or "none"
                 raise RequestError(f"unknown controller(s) {', '.join(map(repr, unknown))} (loaded: {known})")
-        result = await self.on_cycle(lambda: self.engine.switch(activate, deactivate, strict))
-        return result.as_dict()  # carries its own ok/error, plus what was switched
+        return dict(await self.on_cycle(Switch(tuple(activate), tuple(deactivate), strict)))  # its own ok/error
 
     async def _estop(self, request: dict[str, Any]) -> Reply:
         # Bypasses the request queue, so a flood of other requests can never delay or refuse an e-stop.
         return dict(await self.wait_cycle(self.engine.request_estop()))
 
     async def _reset(self, request: dict[str, Any]) -> Reply:
-        result = dict(await self.on_cycle(self.engine.reset))
-        return {**result, "ok": not result.get("error"), "error": result.get("error") or None}
+        return dict(await self.on_cycle(Reset()))
 
     async def _set_zero(self, request: dict[str, Any]) -> Reply:
         if "joint" not in request:
             raise RequestError('give the joint: {"joint": NAME, "confirm": true}')
         if request.get("confirm") is not True:
             raise RequestError('set-zero redefines the joint\'s position: confirm it with "confirm": true')
-        result = dict(await self.on_cycle(lambda: self.engine.set_zero(request["joint"])))
-        if result.get("error"):
-            raise RequestError(result["error"])
-        return result
+        return dict(await self.on_cycle(SetZero(request["joint"])))
 
     async def _enable(self, request: dict[str, Any]) -> Reply:
-        result = dict(await self.on_cycle(lambda: self.engine.enable(request.get("joints", []))))
-        if result.get("error"):
-            raise RequestError(result["error"])
-        return result
+        return dict(await self.on_cycle(Enable(tuple(request.get("joints", ())))))

@@ -282,6 +282,12 @@ class RealtimeSection(Params):
         "so the cycle never wakes on a cold core); needs write access to the device (root or a udev rule).",
     )
     gc_freeze: bool = Field(default=True, description="gc.collect(); gc.freeze() after start-up.")
+    cycle_process: bool = Field(
+        default=False,
+        description="Run the cycle in a process of its own (hardware, supervisor, controllers' update), apart from "
+        "everything done for clients (Zenoh, decoding, planning, status, telemetry), so no client can reach its "
+        'interpreter lock (docs/architecture.md, "Two domains").',
+    )
     switch_interval: float = Field(
         default=0.0005, gt=0.0, le=0.1, description="sys.setswitchinterval: how long another thread may hold the GIL."
     )

@@ -135,6 +135,14 @@ class Shared:
         full = self.prefix + name
         return self.region.carve(full, nbytes) if self.create else self.region.find(full, nbytes)
 
+    def cell(self, name: str, nbytes: int) -> memoryview:
+        """A raw cell, for a structure that lays itself out (e.g. ``hild.stats.LoopStats``)."""
+        return self._cell(name, nbytes)
+
+    def numbers(self, name: str, count: int, dtype: type[np.generic] = np.int64) -> np.ndarray:
+        """``count`` numbers one side writes and the other reads; each is one aligned 8-byte store, never torn."""
+        return np.frombuffer(self._cell(name, 8 * count), dtype=dtype, count=count)
+
     def latest(self, name: str, max_bytes: int = LATEST_BYTES) -> Latest[Any]:
         return SharedLatest(LatestCell(self._cell(name, latest_bytes(max_bytes)), writer_lock=threading.Lock()))
 
@@ -146,7 +154,7 @@ class Shared:
         return SampleRing(width, fields, capacity, buffer=self._cell(name, ring_bytes(width, fields, capacity)))
 
     def flag(self, name: str) -> Flag:
-        return Flag(np.frombuffer(self._cell(name, 8), dtype=np.int64, count=1))
+        return Flag(self.numbers(name, 1))
 
     def scoped(self, prefix: str) -> Shared:
         return Shared(self.region, create=self.create, prefix=f"{self.prefix}{prefix}/")

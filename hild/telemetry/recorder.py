@@ -108,6 +108,7 @@ class Telemetry:
         self._events = ctx.Queue(EVENT_QUEUE)
         self._events.cancel_join_thread()  # never wait at exit for events a dead recorder will not read
         ring = (self._shared.name, len(self.joints), capacity, every)
+        self.ring_layout = ring  # what another process needs to record into the ring (the cycle process)
         self._process = ctx.Process(
             target=_child_main,
             args=(setup, ring, child_conn, self._events, os.getpid()),

@@ -1,0 +1,30 @@
+"""The status reply, rendered in the client domain from the cycle's snapshot and its live numbers."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+from hild.snapshot import Snapshot
+
+HARDWARE_STATUS_FIELDS = ("name", "driver", "state", "fault")
+
+
+def render_status(
+    robot: str, snapshot: Snapshot, stamp: float, longest_silence: Sequence[float], loop: dict[str, Any]
+) -> dict[str, Any]:
+    """``longest_silence`` in seconds per joint; ``loop`` is the update rate, clock and loop statistics."""
+    joints = [
+        {**joint, "longest_silence_ms": round(float(silence) * 1000.0, 1)}
+        for joint, silence in zip(snapshot.joints, longest_silence, strict=True)
+    ]
+    return {
+        "robot": robot,
+        "stamp": stamp,
+        "mode": snapshot.mode,
+        "joints": joints,
+        "controllers": [dict(c) for c in snapshot.controllers],
+        "hardware": [{k: h[k] for k in HARDWARE_STATUS_FIELDS} for h in snapshot.hardware],
+        "loop": loop,
+        "realtime": dict(snapshot.realtime),
+    }

@@ -1,0 +1,66 @@
+"""The engine's cells in the shared region: carved by the client domain, found by the cycle process.
+
+Who writes what (one writer per cell, so nobody waits on anybody):
+
+- client domain → cycle: ``asks`` (go, stop, the e-stop counter) and the ``requests`` queue;
+- cycle → client domain: ``replies`` and ``events`` queues, the ``snapshot`` (written when ``change_seq`` moves),
+  the e-stop reply, the start-up ``failure``, ``vitals`` (phase, cycle count, change_seq …), ``clock`` (the cycle
+  clock and each joint's longest silence) and the loop statistics.
+"""
+
+from __future__ import annotations
+
+from enum import IntEnum
+
+import numpy as np
+
+from hild.crossing.mailboxes import Latest, Queue, Shared
+from hild.crossing.region import Region
+from hild.stats import LoopStats, stats_bytes
+
+REGION_BYTES = 2 << 30  # virtual: a memfd is backed only where written (goal queues are sized for 1 MiB goals)
+REQUESTS = 64  # requests in flight; more are refused "busy" (as the engine's own queue does)
+RECORD_BYTES = 256 * 1024  # a request or reply record (a request is at most 64 KiB of JSON)
+EVENTS = 4096  # events in flight; the oldest are counted lost when the client domain does not drain them
+EVENT_BYTES = 512 * 1024
+SNAPSHOT_BYTES = 1 << 20
+STATS_WINDOW = 10_000
+
+
+class Phase(IntEnum):
+    FAILED = -1
+    STARTING = 0
+    BROUGHT_UP = 1  # hardware configured and read, drives disabled: waiting for ``go``
+    LIVE = 2
+    STOPPED = 3
+
+
+class Ask(IntEnum):  # the client domain's cells
+    GO = 0
+    STOP = 1
+    ESTOP = 2  # a counter: each e-stop request adds one
+
+
+class Vital(IntEnum):  # the cycle's cells
+    PHASE = 0
+    CYCLE = 1
+    CHANGE_SEQ = 2
+    ESTOP_DONE = 3  # the e-stop counter the last applied e-stop answered
+    EVENTS_LOST = 4
+    PYTHON_THREADS = 5  # threads of the cycle process (steady state: the cycle alone)
+    STARTED = 6
+
+
+class EngineCells:
+    def __init__(self, region: Region, joints: int, *, create: bool) -> None:
+        shared = Shared(region, create=create, prefix="engine/")
+        self.requests: Queue[object] = shared.queue("requests", REQUESTS, RECORD_BYTES)
+        self.replies: Queue[object] = shared.queue("replies", REQUESTS, RECORD_BYTES)
+        self.events: Queue[object] = shared.queue("events", EVENTS, EVENT_BYTES)
+        self.snapshot: Latest[object] = shared.latest("snapshot", SNAPSHOT_BYTES)
+        self.estop_reply: Latest[object] = shared.latest("estop_reply", RECORD_BYTES)
+        self.failure: Latest[object] = shared.latest("failure", RECORD_BYTES)
+        self.asks = shared.numbers("asks", len(Ask))
+        self.vitals = shared.numbers("vitals", len(Vital))
+        self.clock = shared.numbers("clock", 1 + joints, np.float64)  # t, then each joint's longest silence (s)
+        self.stats = LoopStats(STATS_WINDOW, buffer=shared.cell("stats", stats_bytes(STATS_WINDOW)))

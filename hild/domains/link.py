@@ -1,0 +1,43 @@
+"""What the client domain (the API, the daemon's housekeeping) needs of the cycle, wherever the cycle runs."""
+
+from __future__ import annotations
+
+import concurrent.futures
+from collections.abc import Callable
+from typing import Any, Protocol
+
+from hild.config.loader import LoadedConfig
+from hild.events import EventLog
+from hild.requests import Request
+from hild.snapshot import Snapshot
+from hild.stats import LoopStats
+
+
+class CycleLink(Protocol):
+    """Met by :class:`hild.engine.Engine` (the cycle in this process) and :class:`hild.domains.remote.RemoteCycle`
+    (the cycle in a process of its own)."""
+
+    robot: str
+    joints: tuple[str, ...]
+    update_rate: float
+    loaded: LoadedConfig
+    events: EventLog  # where the client domain's own events go; the daemon drains it
+    stats: LoopStats  # readable from the client domain
+    intake: Callable[[], None] | None  # the cycle takes inputs through this, unless inputs_on_arrival
+    inputs_on_arrival: bool  # inputs are handed over as they arrive (the cycle is elsewhere: no intake to share)
+
+    @property
+    def change_seq(self) -> int: ...
+
+    @property
+    def cycle(self) -> int: ...
+
+    def request(self, request: Request) -> concurrent.futures.Future[Any]: ...
+
+    def request_estop(self) -> concurrent.futures.Future[Any]: ...
+
+    def snapshot(self) -> Snapshot: ...
+
+    def status(self) -> dict[str, Any]: ...
+
+    def controllers(self) -> dict[str, Any]: ...

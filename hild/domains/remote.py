@@ -1,0 +1,249 @@
+"""The client domain's side of a cycle that runs in a process of its own.
+
+:class:`RemoteCycle` meets :class:`hild.domains.link.CycleLink` for the API and the daemon: requests go into the
+shared region's queue (a full queue refuses at once, as the engine's own does), e-stops through their own counter
+(never queued behind anything), and replies, events and snapshots come back when the cycle rings the doorbell and
+the loop calls :meth:`RemoteCycle.take`. The controllers' API halves are built here first: building them carves
+the region the cycle process then finds.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import concurrent.futures
+import contextlib
+import itertools
+import os
+import pickle
+import subprocess
+import sys
+import threading
+from typing import Any
+
+from hild.api.status import render_status
+from hild.config.loader import LoadedConfig
+from hild.crossing.mailboxes import Shared
+from hild.crossing.region import Region
+from hild.domains.cycle_process import CycleSpec, TelemetryRing
+from hild.domains.layout import REGION_BYTES, REQUESTS, Ask, EngineCells, Phase, Vital
+from hild.events import Event, EventLog
+from hild.requests import Estop, Refused, Request
+from hild.snapshot import Snapshot
+
+GO_TIMEOUT = 120.0  # s: a cycle process brought up but never told to go releases the hardware and exits
+PHASE_POLL = 0.005  # s
+
+
+class CycleProcessError(RuntimeError):
+    """The cycle process failed to start, or ended."""
+
+
+class RemoteCycle:
+    inputs_on_arrival = True  # no intake to share: inputs are validated and handed over as they arrive
+
+    def __init__(self, loaded: LoadedConfig) -> None:
+        from hild.api.halves import api_halves  # builds every controller plugin: only when the cycle is elsewhere
+
+        cfg = loaded.config
+        self.loaded = loaded
+        self.robot = cfg.robot.name
+        self.joints: tuple[str, ...] = tuple(cfg.joints)
+        self.update_rate = cfg.update_rate
+        self.stop_descent = cfg.safety.stop_descent
+        self.max_consecutive_overruns = cfg.safety.max_consecutive_overruns
+        self.intake = None
+        self.events = EventLog()  # the client domain's own events, stamped with the cycle clock
+        self.events.now = lambda: self.t
+        self.region = Region(REGION_BYTES)
+        self._halves = api_halves(loaded, Shared(self.region, create=True), self.events.emit)
+        self.cells = EngineCells(self.region, len(self.joints), create=True)
+        self.stats = self.cells.stats
+        self.doorbell_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
+        self.process: subprocess.Popen[bytes] | None = None
+        self._lock = threading.Lock()  # request ids, futures, the snapshot cache: several client threads
+        self._ids = itertools.count(1)
+        self._pending: dict[int, concurrent.futures.Future[Any]] = {}
+        self._estops: list[tuple[int, concurrent.futures.Future[Any]]] = []
+        self._snapshot: Snapshot | None = None
+        self._estop_reply: dict[str, Any] = {"deactivated": []}
+
+    # ---- the process --------------------------------------------------------------------------------------
+    def spawn(self, telemetry: TelemetryRing | None = None) -> None:
+        spec = CycleSpec(
+            self.loaded, self.region.fd, self.region.size, self.doorbell_fd, os.getpid(), GO_TIMEOUT, telemetry
+        )
+        self.process = subprocess.Popen(
+            [sys.executable, "-m", "hild.domains.cycle_process"],
+            stdin=subprocess.PIPE,
+            pass_fds=(self.region.fd, self.doorbell_fd),
+        )
+        assert self.process.stdin is not None
+        with self.process.stdin as stdin:
+            stdin.write(pickle.dumps(spec, pickle.HIGHEST_PROTOCOL))
+
+    @property
+    def phase(self) -> Phase:
+        return Phase(int(self.cells.vitals[Vital.PHASE]))
+
+    async def brought_up(self) -> None:
+        """Wait until the cycle process has configured and read the hardware (drives still disabled); raise
+        :class:`CycleProcessError` with its reason if it could not."""
+        while self.phase is Phase.STARTING:
+            if not self.alive():
+                break
+            await asyncio.sleep(PHASE_POLL)
+        if self.phase is not Phase.BROUGHT_UP:
+            raise CycleProcessError(self.failure())
+
+    async def live(self) -> None:
+        """Tell the cycle process to enable the drives and run; wait until it does."""
+        self.cells.asks[Ask.GO] = 1
+        while self.phase is Phase.BROUGHT_UP and self.alive():
+            await asyncio.sleep(PHASE_POLL)
+        if self.phase is not Phase.LIVE:
+            raise CycleProcessError(self.failure())
+
+    def failure(self) -> str:
+        text = self.cells.failure.take()
+        if text is not None:
+            return str(text)
+        code = None if self.process is None else self.process.poll()
+        return f"the cycle process ended (exit code {code})" if code is not None else "the cycle process is stuck"
+
+    def stop(self) -> None:
+        """Ask the cycle to stop (it descends if configured, holds, releases the hardware, exits)."""
+        self.cells.asks[Ask.STOP] = 1
+
+    def join(self, timeout: float) -> bool:
+        """Wait for the process to end (any thread but the loop's); True if it did."""
+        if self.process is None:
+            return True
+        try:
+            self.process.wait(timeout)
+        except subprocess.TimeoutExpired:
+            return False
+        return True
+
+    def kill(self) -> None:
+        if self.process is not None and self.process.poll() is None:
+            self.process.kill()
+            self.process.wait()
+
+    def alive(self) -> bool:
+        return self.process is not None and self.process.poll() is None
+
+    @property
+    def exit_code(self) -> int | None:
+        return None if self.process is None else self.process.poll()
+
+    def close(self) -> None:
+        os.close(self.doorbell_fd)
+
+    # ---- reading back -------------------------------------------------------------------------------------------
+    @property
+    def cycle(self) -> int:
+        return int(self.cells.vitals[Vital.CYCLE])
+
+    @property
+    def t(self) -> float:
+        return float(self.cells.clock[0])
+
+    @property
+    def change_seq(self) -> int:
+        return int(self.cells.vitals[Vital.CHANGE_SEQ])
+
+    @property
+    def started(self) -> bool:
+        return bool(self.cells.vitals[Vital.STARTED])
+
+    @property
+    def python_threads(self) -> int:
+        return int(self.cells.vitals[Vital.PYTHON_THREADS])
+
+    def snapshot(self) -> Snapshot:
+        with self._lock:
+            fresh = self.cells.snapshot.take()
+            if fresh is not None:
+                self._snapshot = fresh  # type: ignore[assignment]
+            if self._snapshot is None:
+                raise CycleProcessError("the cycle process has not reported yet")
+            return self._snapshot
+
+    def overall_mode(self) -> str:
+        return self.snapshot().mode
+
+    def status(self) -> dict[str, Any]:
+        loop = {"update_rate": self.update_rate, "clock": self.loaded.config.clock.source}
+        loop.update(self.stats.summary(0.1))
+        return render_status(self.robot, self.snapshot(), self.t, self.cells.clock[1:].tolist(), loop)
+
+    def controllers(self) -> dict[str, Any]:
+        return dict(self._halves)
+
+    # ---- requests -----------------------------------------------------------------------------------------------
+    def request(self, request: Request) -> concurrent.futures.Future[Any]:
+        if isinstance(request, Estop):
+            return self.request_estop()
+        future: concurrent.futures.Future[Any] = concurrent.futures.Future()
+        with self._lock:
+            ident = next(self._ids)
+            if len(self._pending) >= REQUESTS or not self.cells.requests.offer((ident, request)):
+                future.set_exception(Refused("too many pending requests; try again"))
+                return future
+            self._pending[ident] = future
+            future.set_running_or_notify_cancel()  # in the queue: it will be applied, it cannot be withdrawn
+        return future
+
+    def request_estop(self) -> concurrent.futures.Future[Any]:
+        """Never refused, never queued: the cycle compares a counter at the start of every cycle."""
+        future: concurrent.futures.Future[Any] = concurrent.futures.Future()
+        with self._lock:
+            counter = int(self.cells.asks[Ask.ESTOP]) + 1
+            self._estops.append((counter, future))
+            self.cells.asks[Ask.ESTOP] = counter
+        return future
+
+    def take(self) -> list[Event]:
+        """What the cycle rang for: answer replies and e-stops, and return its events (the loop's thread)."""
+        with contextlib.suppress(BlockingIOError):
+            os.eventfd_read(self.doorbell_fd)
+        while (record := self.cells.replies.poll()) is not None:
+            ident, ok, value = record  # type: ignore[misc]
+            with self._lock:
+                future = self._pending.pop(ident, None)
+            if future is None:
+                continue
+            if ok:
+                future.set_result(value)
+            else:
+                kind, text, details = value
+                error = Refused(text, **details) if kind == "Refused" else RuntimeError(f"{kind}: {text}")
+                future.set_exception(error)
+        self._answer_estops()
+        events = [*self.events.drain()]
+        while (item := self.cells.events.poll()) is not None:
+            events.append(Event(*item))  # type: ignore[misc]
+        return events
+
+    def _answer_estops(self) -> None:
+        done = int(self.cells.vitals[Vital.ESTOP_DONE])
+        with self._lock:
+            if not self._estops or self._estops[0][0] > done:
+                return
+            reply = self.cells.estop_reply.take()
+            if reply is not None:
+                self._estop_reply = reply[1]  # type: ignore[index]
+            answered = [f for n, f in self._estops if n <= done]
+            self._estops = [(n, f) for n, f in self._estops if n > done]
+        for future in answered:
+            future.set_result(self._estop_reply)
+
+    def abandon(self, reason: str) -> None:
+        """The cycle process is gone: every request still waiting gets ``reason``."""
+        with self._lock:
+            waiting = [*self._pending.values(), *(f for _, f in self._estops)]
+            self._pending.clear()
+            self._estops.clear()
+        for future in waiting:
+            if not future.done():
+                future.set_exception(Refused(reason))

@@ -1,0 +1,23 @@
+"""The engine's state that changes only with ``change_seq``, as one immutable value.
+
+The cycle writes a new one whenever something changes (a mode, a fault, a controller, a hardware state) and never
+per cycle; the client domain renders the status and list replies from it (``hild.api.status``) together with the
+numbers that do move every cycle (the clock, the loop statistics, each joint's longest silence), which it reads
+from their own cells. Plain tuples and dicts: it pickles to cross into the other process.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    change_seq: int
+    mode: str  # hold, active, fault or estop
+    joints: tuple[dict[str, Any], ...]  # name, mode, owner, fault, limits
+    controllers: tuple[dict[str, Any], ...]  # list_controllers' entries
+    hardware: tuple[dict[str, Any], ...]  # list_hardware's entries
+    interfaces: tuple[dict[str, Any], ...]  # list_interfaces' entries
+    realtime: dict[str, str] = field(default_factory=dict)
