@@ -248,9 +248,13 @@ class ControllerPorts:
         for input_name, accept in inputs.items():
             try:
                 key = self.keys.input(name, check_chunk(input_name, "input name"))
-                subscriber = self.session.declare_subscriber(key, zenoh.handlers.RingChannel(INTAKE_CAPACITY))
-                endpoints.subscribers.append(subscriber)
-                endpoints.slots.append(InputSlot(key, name, accept, subscriber, _activity(instance)))
+                slot = InputSlot(key, name, accept, None, _activity(instance))
+                if self.engine.inputs_on_arrival:  # the cycle is in its own process: hand over on arrival
+                    slot.subscriber = self.session.declare_subscriber(key, self._arrival_handler(slot))
+                else:
+                    slot.subscriber = self.session.declare_subscriber(key, zenoh.handlers.RingChannel(INTAKE_CAPACITY))
+                    endpoints.slots.append(slot)
+                endpoints.subscribers.append(slot.subscriber)
             except (ValueError, zenoh.ZError) as exc:
                 self.engine.events.emit("error", "api", f"controller {name}: input {input_name!r} not declared: {exc}")
         taken = {p.topic for ep in self._controllers.values() for p in ep.outputs}
@@ -401,7 +405,6 @@ class ControllerPorts:
         Bounded work: per input a few ``try_recv`` calls (Zenoh queued the samples without Python), and for the
         newest one decode of at most ``CYCLE_DECODE`` bytes and one validation. A larger sample replaces the one
         waiting for the loop, if any, undecoded. Nothing is decoded for an inactive controller."""
-        tally = self.counters.cycle
         for slot in self._intake:
             newest, count = None, 0
             try:
@@ -409,34 +412,53 @@ class ControllerPorts:
                     newest, count = sample, count + 1
             except Exception:  # undeclared meanwhile (controller unloaded, closing): nothing more to take
                 continue
-            if newest is None:
-                continue
-            tally.commands += count
-            tally.superseded += count - 1
-            slot.taken += 1
-            if not slot.active():  # refused unread: a flood at an inactive controller costs a count per cycle
-                tally.rejected += 1
-                self._report(slot, ValueError(f"controller {slot.controller} is not active"))
-                continue
-            payload = newest.payload
-            size = len(payload)
-            if CYCLE_DECODE < size <= MAX_PAYLOAD:
-                slot.large += 1
-                slot.pending.append((payload, slot.taken, slot.large))  # replaces the one waiting, undecoded
-                if not slot.kicked:
-                    slot.kicked = True
-                    with contextlib.suppress(RuntimeError):  # the loop is closed: the sample is lost with it
-                        self.loop.call_soon_threadsafe(self._start_delivery, slot)
-                continue
-            try:
-                if size > MAX_PAYLOAD:
-                    raise PayloadError(f"payload of {size} bytes exceeds the {MAX_PAYLOAD}-byte limit")
-                slot.accept(decode(payload.to_bytes()))
-            except Exception as exc:  # ValueError from validation, or a plugin's bug: the sample is dropped
-                tally.rejected += 1
-                self._report(slot, exc)
-            else:
-                tally.accepted += 1
+            if newest is not None:
+                self._hand_over(slot, newest, count)
+
+    def _arrival_handler(self, slot: InputSlot) -> Callable[[zenoh.Sample], None]:
+        """With the cycle in its own process, a sample is handed over on the Zenoh thread it arrives on: its GIL
+        is the client domain's alone, and no intake period is added to the command's way to the hardware."""
+        owner = weakref.ref(self)
+        lock = threading.Lock()  # one input's samples one at a time, so a later one is never overtaken
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            me = owner()
+            if me is not None and not me.closing:
+                with lock:
+                    me._hand_over(slot, sample, 1)
+
+        return on_sample
+
+    def _hand_over(self, slot: InputSlot, newest: zenoh.Sample, count: int) -> None:
+        """The newest of ``count`` samples of one input: refused for an inactive controller, decoded and handed
+        to the controller when small, queued for the loop's heavy lane when large."""
+        tally = self.counters.cycle
+        tally.commands += count
+        tally.superseded += count - 1
+        slot.taken += 1
+        if not slot.active():  # refused unread: a flood at an inactive controller costs a count per cycle
+            tally.rejected += 1
+            self._report(slot, ValueError(f"controller {slot.controller} is not active"))
+            return
+        payload = newest.payload
+        size = len(payload)
+        if CYCLE_DECODE < size <= MAX_PAYLOAD:
+            slot.large += 1
+            slot.pending.append((payload, slot.taken, slot.large))  # replaces the one waiting, undecoded
+            if not slot.kicked:
+                slot.kicked = True
+                with contextlib.suppress(RuntimeError):  # the loop is closed: the sample is lost with it
+                    self.loop.call_soon_threadsafe(self._start_delivery, slot)
+            return
+        try:
+            if size > MAX_PAYLOAD:
+                raise PayloadError(f"payload of {size} bytes exceeds the {MAX_PAYLOAD}-byte limit")
+            slot.accept(decode(payload.to_bytes()))
+        except Exception as exc:  # ValueError from validation, or a plugin's bug: the sample is dropped
+            tally.rejected += 1
+            self._report(slot, exc)
+        else:
+            tally.accepted += 1
 
     def _start_delivery(self, slot: InputSlot) -> None:
         """The intake put a large sample in ``slot.pending``: start the input's delivery task unless it runs."""

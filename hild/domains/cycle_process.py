@@ -32,7 +32,7 @@ from hild.crossing.region import Region
 from hild.cycle import CycleThread
 from hild.domains.layout import Ask, EngineCells, Phase, Vital
 from hild.engine import Engine
-from hild.events import EventLog
+from hild.events import EventLog, log_event
 from hild.realtime import apply_process_settings, freeze_heap, thaw_heap
 
 log = logging.getLogger("hild.cycle")
@@ -89,10 +89,14 @@ class Outbox:
     def __init__(self, cells: EngineCells, bell: Doorbell) -> None:
         self.cells = cells
         self.bell = bell
+        self.orphaned = False  # the daemon is gone: nobody drains the queue, so events go to this process's log
         self._lost = 0
 
     def events(self, log_: EventLog) -> None:
         for event in log_.drain():
+            if self.orphaned:
+                log_event(event)
+                continue
             record = (event.stamp, event.level, event.source, event.message)
             if self.cells.events.offer(record):
                 continue
@@ -158,6 +162,7 @@ class CrossingCycle(CycleThread):
         if asks[Ask.STOP] or self.terminated:
             self.stop()
         if engine.cycle % self._parent_every == 0 and os.getppid() != self.parent_pid:
+            self.outbox.orphaned = True
             engine.events.emit("error", "cycle", "the daemon that started the cycle process is gone: stopping")
             self.stop()
         estop = int(asks[Ask.ESTOP])

@@ -1,0 +1,210 @@
+"""The daemon with its cycle in a process of its own (``realtime.cycle_process``), driven from outside over Zenoh.
+
+Each test runs the real ``hild.daemon.Daemon`` on this thread's event loop (it owns the signal handlers), with a
+client on a free loopback port. The cycle process paces the mock robot on the sim clock at real time.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import signal
+import time
+from collections.abc import Awaitable, Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from hild.api.client import HildClient, HildError
+from hild.config import load_config
+from hild.daemon import Daemon, StartupError
+from hild.domains.layout import Phase
+from tests.api.conftest import free_endpoint
+from tests.conftest import merge, mock_robot
+
+WAIT = 20.0
+SPLIT = {"realtime": {"cycle_process": True}, "clock": {"source": "sim", "real_time_factor": 1.0}}
+
+
+def split_robot(patch: dict[str, Any] | None = None) -> dict[str, Any]:
+    return merge(merge(mock_robot(), SPLIT), patch or {})
+
+
+async def until(condition: Callable[[], Any], what: str, timeout: float = WAIT) -> Any:
+    deadline = time.monotonic() + timeout
+    while not (value := condition()):
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
+        await asyncio.sleep(0.01)
+    return value
+
+
+def run_split(
+    write_config: Callable[..., Path],
+    scenario: Callable[[Daemon, HildClient], Awaitable[None]],
+    patch: dict[str, Any] | None = None,
+) -> tuple[Daemon, int]:
+    endpoint = free_endpoint()
+    daemon = Daemon(load_config(write_config(split_robot(patch))), [endpoint])
+
+    async def main() -> int:
+        task = asyncio.create_task(daemon.run())
+        await until(lambda: daemon.ready or task.done(), "the daemon to be ready")
+        if task.done():
+            return task.result()
+        client = HildClient("mock3", [endpoint], timeout=5.0)
+        try:
+            await scenario(daemon, client)
+        finally:
+            client.close()
+            daemon.request_stop()
+        return await task
+
+    return daemon, asyncio.run(main())
+
+
+def test_a_client_drives_the_arm_through_the_cycle_process(write_config: Callable[..., Path]) -> None:
+    seen: dict[str, Any] = {}
+
+    async def scenario(daemon: Daemon, client: HildClient) -> None:
+        remote = daemon.remote
+        assert remote is not None and remote.process is not None and daemon.engine is None
+        assert remote.process.pid != os.getpid()
+        status = await asyncio.to_thread(client.status)
+        assert status["mode"] == "hold" and [j["name"] for j in status["joints"]] == ["a", "b", "c"]
+        assert status["loop"]["cycles"] > 0
+        reply = await asyncio.to_thread(client.switch, ["fwd"], [])
+        assert reply["activated"] == ["fwd"]
+        joint_states: list[dict[str, Any]] = []
+        client.subscribe("joint_states", joint_states.append)
+
+        def reached() -> bool:
+            client.send("fwd", [0.3, -0.4, 0.5])  # streamed: the controller times out without a fresh sample
+            return bool(joint_states) and joint_states[-1]["position"] == pytest.approx([0.3, -0.4, 0.5])
+
+        await until(reached, "the streamed command to reach the mock's joints")
+        seen["estop"] = await asyncio.to_thread(client.estop)
+        seen["estopped"] = await asyncio.to_thread(client.status)
+        seen["reset"] = await asyncio.to_thread(client.reset)
+        seen["threads"] = await until(lambda: remote.python_threads, "the cycle process to count its threads")
+        seen["controllers"] = await asyncio.to_thread(client.list_controllers)
+
+    daemon, code = run_split(write_config, scenario)
+    assert code == 0
+    assert seen["estop"]["deactivated"] == ["fwd"]
+    assert seen["estopped"]["mode"] == "estop"
+    assert seen["reset"]["cleared"] == ["e-stop"]
+    assert seen["threads"] == 1  # steady state: the cycle alone, on the process's main thread
+    assert {c["name"]: c["state"] for c in seen["controllers"]} == {"jsb": "active", "fwd": "inactive"}
+    assert daemon.remote is not None and daemon.remote.exit_code == 0
+    assert daemon.remote.phase is Phase.STOPPED
+
+
+def test_a_refused_request_answers_as_before(write_config: Callable[..., Path]) -> None:
+    """The one error type crosses with its details: a refused switch, enable, set-zero and reset keep their wire
+    replies."""
+    replies: dict[str, Any] = {}
+
+    async def scenario(daemon: Daemon, client: HildClient) -> None:
+        replies["switch"] = await asyncio.to_thread(
+            client.call, "switch_controllers", {"activate": ["nope"]}, check=False
+        )
+        replies["set_zero"] = await asyncio.to_thread(
+            client.call, "set_zero", {"joint": "a", "confirm": True}
+        )  # the mock's a is held and still: allowed
+        await asyncio.to_thread(client.estop)
+        replies["enable"] = await asyncio.to_thread(client.call, "enable", {}, check=False)
+
+    run_split(write_config, scenario)
+    assert replies["switch"]["ok"] is False and "unknown controller" in replies["switch"]["error"]
+    assert replies["set_zero"]["ok"] is True and replies["set_zero"]["joint"] == "a"
+    assert replies["enable"] == {"ok": False, "error": "the e-stop is engaged: reset first"}
+
+
+def test_a_cycle_process_that_cannot_build_its_hardware_is_a_start_up_error(
+    write_config: Callable[..., Path],
+) -> None:
+    patch = {"hardware": {"bus": {"params": {"initial_positions": {"nope": 1.0}}}}}
+    daemon = Daemon(load_config(write_config(split_robot(patch))), [free_endpoint()])
+    with pytest.raises(StartupError, match="initial_positions names unknown joints"):
+        asyncio.run(daemon.run())
+    assert daemon.remote is not None and daemon.remote.exit_code == 1
+
+
+def test_a_killed_cycle_process_ends_the_daemon_with_the_reason(
+    write_config: Callable[..., Path], caplog: pytest.LogCaptureFixture
+) -> None:
+    async def scenario(daemon: Daemon, client: HildClient) -> None:
+        assert daemon.remote is not None and daemon.remote.process is not None
+        daemon.remote.process.send_signal(signal.SIGKILL)
+        await until(lambda: not daemon.remote.alive(), "the cycle process to die")  # type: ignore[union-attr]
+        await asyncio.sleep(0.5)  # the daemon's next housekeeping tick sees it
+
+    _, code = run_split(write_config, scenario)
+    assert code == 1
+    assert "the cycle process ended unexpectedly (exit code -9)" in caplog.text
+
+
+def test_the_cycle_process_stops_and_releases_the_arm_when_its_daemon_is_gone(
+    write_config: Callable[..., Path],
+) -> None:
+    """A daemon killed outright: the cycle process sees its parent gone, holds, releases the hardware, exits."""
+    import subprocess
+    import sys
+
+    path = write_config(split_robot())
+    endpoint = free_endpoint()
+    daemon = subprocess.Popen(
+        [sys.executable, "-m", "hild.cli", "run", str(path), "--listen", endpoint],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+    )
+    try:
+        deadline = time.monotonic() + WAIT
+        while not _answers(endpoint):
+            assert daemon.poll() is None and time.monotonic() < deadline, "the daemon never answered"
+            time.sleep(0.05)
+        children = _children(daemon.pid)
+        assert len(children) == 1
+        daemon.kill()
+        daemon.wait(WAIT)
+        deadline = time.monotonic() + WAIT
+        while _alive(children[0]):
+            assert time.monotonic() < deadline, "the cycle process outlived its daemon"
+            time.sleep(0.05)
+        output = daemon.stdout.read().decode() if daemon.stdout else ""  # the cycle process shared it
+        assert "the daemon that started the cycle process is gone: stopping" in output
+        assert "stopped: hardware released" in output
+    finally:
+        if daemon.poll() is None:
+            daemon.kill()
+
+
+def _answers(endpoint: str) -> bool:
+    try:
+        with HildClient("mock3", [endpoint], timeout=1.0) as client:
+            return client.status()["loop"]["cycles"] > 0
+    except HildError:
+        return False
+
+
+def _children(pid: int) -> list[int]:
+    found = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[1]) == pid:
+                found.append(int(entry.name))
+    return found
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = (Path("/proc") / str(pid) / "stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
