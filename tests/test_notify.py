@@ -17,7 +17,7 @@ import sys
 import threading
 import time
 import uuid
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -26,75 +26,8 @@ from hild.config import load_config
 from hild.daemon import READY_AFTER_CYCLES, Daemon
 from hild.engine import Engine
 from hild.notify import SystemdNotifier, WatchdogGate, socket_address, status_line, watchdog_interval
-from tests.conftest import CONFIGS, merge, mock_robot
+from tests.conftest import CONFIGS, Systemd, merge, mock_robot, receive
 from tests.test_e2e import free_port
-
-
-@pytest.fixture
-def listener(tmp_path: Path) -> Iterator[tuple[socket.socket, str]]:
-    """A fake systemd: a datagram socket bound to a path; yields it and the NOTIFY_SOCKET value."""
-    path = tmp_path / "notify.sock"
-    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-    sock.bind(str(path))
-    try:
-        yield sock, str(path)
-    finally:
-        sock.close()
-
-
-def receive(sock: socket.socket, timeout: float = 2.0) -> str:
-    sock.settimeout(timeout)
-    return sock.recv(4096).decode()
-
-
-class Systemd:
-    """Reads the fake NOTIFY_SOCKET continuously, as systemd does (an unread unix datagram socket queues only
-    ``net.unix.max_dgram_qlen`` messages, 10 by default, and then the sender's sends fail), stamping each message."""
-
-    def __init__(self, sock: socket.socket) -> None:
-        self.sock = sock
-        self.lock = threading.Lock()
-        self.messages: list[tuple[float, str]] = []
-        self._stop = threading.Event()
-        self.sock.settimeout(0.05)
-        self.thread = threading.Thread(target=self._run, daemon=True)
-        self.thread.start()
-
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            try:
-                data = self.sock.recv(4096)
-            except TimeoutError:
-                continue
-            with self.lock:
-                self.messages.append((time.monotonic(), data.decode()))
-
-    def between(self, start: float, end: float = float("inf")) -> list[str]:
-        with self.lock:
-            return [m for t, m in self.messages if start <= t < end]
-
-    def wait_for(self, prefix: str, timeout: float, alive: Callable[[], bool] = lambda: True) -> tuple[float, str]:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline and alive():
-            with self.lock:
-                for t, m in self.messages:
-                    if m.startswith(prefix):
-                        return t, m
-            time.sleep(0.01)
-        raise AssertionError(f"no {prefix!r} message within {timeout} s (or the sender died)")
-
-    def close(self) -> None:
-        self._stop.set()
-        self.thread.join(2.0)
-
-
-@pytest.fixture
-def systemd(listener: tuple[socket.socket, str]) -> Iterator[tuple[Systemd, str]]:
-    fake = Systemd(listener[0])
-    try:
-        yield fake, listener[1]
-    finally:
-        fake.close()
 
 
 # ---- the client -------------------------------------------------------------------------------------------------

@@ -7,6 +7,7 @@ client on a free loopback port. The cycle process paces the mock robot on the si
 from __future__ import annotations
 
 import asyncio
+import logging
 import os
 import signal
 import time
@@ -21,7 +22,7 @@ from hild.config import load_config
 from hild.daemon import Daemon, StartupError
 from hild.domains.layout import Phase
 from tests.api.conftest import free_endpoint
-from tests.conftest import merge, mock_robot
+from tests.conftest import Systemd, merge, mock_robot
 
 WAIT = 20.0
 SPLIT = {"realtime": {"cycle_process": True}, "clock": {"source": "sim", "real_time_factor": 1.0}}
@@ -208,3 +209,43 @@ def _alive(pid: int) -> bool:
     except OSError:
         return False
     return state != "Z"
+
+
+def test_the_watchdog_follows_the_cycle_process_not_the_daemon(
+    systemd: tuple[Systemd, str],
+    write_config: Callable[..., Path],
+    monkeypatch: pytest.MonkeyPatch,
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """The cycle process stopped (SIGSTOP) while the daemon's loop runs on: systemd's pings stop; they resume when
+    it runs again. The pings are earned by the cycle's own counter in shared memory."""
+    fake, path = systemd
+    monkeypatch.setenv("NOTIFY_SOCKET", path)
+    monkeypatch.setenv("WATCHDOG_USEC", "200000")  # ping period 50 ms
+    monkeypatch.delenv("WATCHDOG_PID", raising=False)
+    marks: dict[str, float] = {}
+
+    async def scenario(daemon: Daemon, client: HildClient) -> None:
+        assert daemon.remote is not None and daemon.remote.process is not None
+        pid = daemon.remote.process.pid
+        marks["ready"] = time.monotonic()
+        await asyncio.sleep(0.5)
+        os.kill(pid, signal.SIGSTOP)
+        marks["stalled"] = time.monotonic()
+        await asyncio.sleep(0.6)
+        marks["released"] = time.monotonic()
+        os.kill(pid, signal.SIGCONT)
+        await asyncio.sleep(0.5)
+        marks["end"] = time.monotonic()
+
+    with caplog.at_level(logging.INFO):
+        _, code = run_split(write_config, scenario, {"clock": {"source": "wall"}})
+    assert code == 0
+    running = fake.between(marks["ready"], marks["stalled"]).count("WATCHDOG=1")
+    stalled = fake.between(marks["stalled"] + 0.1, marks["released"]).count("WATCHDOG=1")
+    resumed = fake.between(marks["released"], marks["end"]).count("WATCHDOG=1")
+    assert running >= 5, running
+    assert stalled == 0
+    assert resumed >= 4, resumed
+    assert "withholding the systemd watchdog ping: the cycle is stalled at cycle" in caplog.text
+    assert fake.between(marks["end"])[-1] == "STATUS=stopped: hardware released"
