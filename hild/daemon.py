@@ -32,7 +32,7 @@ from hild.engine import STATUS_STATS_MAX_AGE, Engine
 from hild.events import Event, log_event
 from hild.hardware import HardwareError
 from hild.notify import SystemdNotifier, WatchdogGate, status_line
-from hild.realtime import CpuLatencyRequest, apply_process_settings, freeze_heap
+from hild.realtime import CpuLatencyRequest, apply_client_settings, apply_process_settings, freeze_heap
 
 log = logging.getLogger("hild.daemon")
 
@@ -72,6 +72,7 @@ class Daemon:
         self.cpu_latency = CpuLatencyRequest()
         self.watchdog = WatchdogGate(loaded.config.safety.max_consecutive_overruns)
         self.ready = False
+        self.client_report: dict[str, str] = {}  # the client domain's realtime settings, as applied
         self._next_ping = 0.0
         self._next_status = 0.0
         self._last_mode = ""
@@ -114,6 +115,7 @@ class Daemon:
 
         cfg = self.loaded.config
         self._loop = asyncio.get_running_loop()
+        self.client_report = apply_client_settings(cfg.realtime)  # before Zenoh's threads start: they inherit it
         self.notifier.status("bringing up the hardware")
         self._open_telemetry()  # before the hardware: a sink that cannot open is a start-up error, nothing enabled
         self.api = ApiServer(self.link, cfg.zenoh, self.listen)
@@ -180,11 +182,13 @@ class Daemon:
                 await asyncio.to_thread(self.remote.join, CYCLE_JOIN_TIMEOUT)
                 self._on_wake()
                 raise StartupError(f"the cycle process: {exc}") from None
-            self.cpu_latency.hold(cfg.realtime.cpu_dma_latency_us)
+            self.remote.realtime_report.update(self.client_report)
+            self.remote.realtime_report["cpu_dma_latency"] = self.cpu_latency.hold(cfg.realtime.cpu_dma_latency_us)
             return
         assert self.engine is not None
         self.engine.doorbell = self._doorbell
         self.engine.realtime_report.update(apply_process_settings(cfg.realtime))
+        self.engine.realtime_report.update(self.client_report)
         self.engine.realtime_report["cpu_dma_latency"] = self.cpu_latency.hold(cfg.realtime.cpu_dma_latency_us)
         self.engine.bring_up()
 

@@ -97,6 +97,17 @@ def thaw_heap() -> None:
     gc.collect()
 
 
+def apply_client_settings(settings: RealtimeSection) -> dict[str, str]:
+    """The client domain's CPUs, set on the daemon's main thread before Zenoh starts its threads (they inherit)."""
+    if not settings.client_cpu_affinity:
+        return {"client_cpu_affinity": "any"}
+    try:
+        os.sched_setaffinity(0, set(settings.client_cpu_affinity))
+    except OSError as exc:
+        return {"client_cpu_affinity": f"not applied: {exc.strerror or exc}"}
+    return {"client_cpu_affinity": ",".join(map(str, sorted(settings.client_cpu_affinity)))}
+
+
 def apply_thread_settings(settings: RealtimeSection) -> dict[str, str]:
     """Settings for the calling thread (the cycle thread)."""
     report = {}

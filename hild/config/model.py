@@ -265,6 +265,11 @@ class TelemetrySection(Params):
 class RealtimeSection(Params):
     priority: int = Field(default=0, ge=0, le=99, description="SCHED_FIFO priority of the cycle thread; 0 = off.")
     cpu_affinity: list[int] = Field(default_factory=list, description="CPUs the cycle thread may run on.")
+    client_cpu_affinity: list[int] = Field(
+        default_factory=list,
+        description="CPUs the client domain (the daemon: Zenoh, the API, planning, status) may run on; keep them "
+        "apart from cpu_affinity to give the cycle a core of its own. Empty: any.",
+    )
     lock_memory: bool = Field(default=False, description="mlockall(MCL_CURRENT|MCL_FUTURE|MCL_ONFAULT).")
     timer_slack_ns: int = Field(default=1, ge=1, description="Timer slack of the cycle thread.")
     spin_us: int = Field(
@@ -272,7 +277,8 @@ class RealtimeSection(Params):
         ge=0,
         le=10_000,
         description="The cycle thread sleeps to this long before each deadline, then spins: longer is steadier "
-        "on a machine whose idle CPU wakes slowly (VMs), at the cost of CPU time.",
+        "on a machine whose idle CPU wakes slowly (VMs), at the cost of CPU time. At least the period (e.g. 1000 "
+        "at 1 kHz): the cycle never sleeps, it spins through the whole period (for an isolated core).",
     )
     cpu_dma_latency_us: int | None = Field(
         default=None,

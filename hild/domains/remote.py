@@ -66,6 +66,7 @@ class RemoteCycle:
         self._estops: list[tuple[int, concurrent.futures.Future[Any]]] = []
         self._snapshot: Snapshot | None = None
         self._estop_reply: dict[str, Any] = {"deactivated": []}
+        self.realtime_report: dict[str, str] = {}  # what the client domain set up (its CPUs, the DMA latency hold)
 
     # ---- the process --------------------------------------------------------------------------------------
     def spawn(self, telemetry: TelemetryRing | None = None) -> None:
@@ -175,7 +176,9 @@ class RemoteCycle:
     def status(self) -> dict[str, Any]:
         loop = {"update_rate": self.update_rate, "clock": self.loaded.config.clock.source}
         loop.update(self.stats.summary(0.1))
-        return render_status(self.robot, self.snapshot(), self.t, self.cells.clock[1:].tolist(), loop)
+        status = render_status(self.robot, self.snapshot(), self.t, self.cells.clock[1:].tolist(), loop)
+        status["realtime"].update(self.realtime_report)
+        return status
 
     def controllers(self) -> dict[str, Any]:
         return dict(self._halves)
