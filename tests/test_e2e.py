@@ -198,7 +198,7 @@ def test_taken_port_releases_the_hardware_and_exits_1(tmp_path: Path) -> None:
         run = run_to_exit(config, f"tcp/127.0.0.1:{port}")
     assert run.returncode == 1, run.stderr
     assert "cannot open the Zenoh API" in run.stderr
-    assert "stopped: hardware released" in run.stderr
+    assert "start-up failed; the hardware was released" in run.stderr  # refused before the cycle process started
 
 
 def test_a_second_daemon_of_the_same_robot_exits_1_naming_the_first(
@@ -215,5 +215,6 @@ def test_a_second_daemon_of_the_same_robot_exits_1_naming_the_first(
     assert run.returncode == 1, run.stderr
     assert "robot 'arm6' already has a daemon on this Zenoh network" in run.stderr
     assert f"listening on {endpoint}" in run.stderr
-    assert "stopped: hardware released" in run.stderr  # refused before the hardware was touched; nothing enabled
+    # Refused before the hardware was touched (the cycle process is started only after the check): nothing enabled.
+    assert "start-up failed; the hardware was released" in run.stderr
     assert proc.poll() is None  # the first one runs on

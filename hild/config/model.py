@@ -289,7 +289,7 @@ class RealtimeSection(Params):
     )
     gc_freeze: bool = Field(default=True, description="gc.collect(); gc.freeze() after start-up.")
     cycle_process: bool = Field(
-        default=False,
+        default=True,
         description="Run the cycle in a process of its own (hardware, supervisor, controllers' update), apart from "
         "everything done for clients (Zenoh, decoding, planning, status, telemetry), so no client can reach its "
         'interpreter lock (docs/architecture.md, "Two domains").',

@@ -46,10 +46,11 @@ class LatestCell:
             published = int(self._published[0])
             k = (published + 1) % 2
             buffer, seq = self._buffers[k], self._seqs[k]
-            seq[0] += 1  # odd: being written
+            writing = int(seq[0]) | 1  # odd: being written (even if a writer that died mid-write left it odd)
+            seq[0] = writing
             _LEN.pack_into(buffer, 8, n)
             buffer[_BUFFER_HEADER : _BUFFER_HEADER + n] = value
-            seq[0] += 1  # even: complete
+            seq[0] = writing + 1  # even: complete
             self._published[0] = published + 1
 
     # ---- reader -------------------------------------------------------------------------------------------

@@ -178,6 +178,9 @@ class RemoteCycle:
         loop.update(self.stats.summary(0.1))
         status = render_status(self.robot, self.snapshot(), self.t, self.cells.clock[1:].tolist(), loop)
         status["realtime"].update(self.realtime_report)
+        if self.process is not None:
+            threads = self.python_threads
+            status["realtime"]["cycle_process"] = f"pid {self.process.pid}, {threads} Python thread(s)"
         return status
 
     def controllers(self) -> dict[str, Any]:

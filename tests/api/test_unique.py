@@ -78,8 +78,9 @@ def test_a_refused_daemon_never_touches_its_hardware(
     """Refused before ``configure``: a second daemon of the same arm on the same bus must not open it, and its
     release after the refusal must not send the drives a disable (that would drop the first daemon's arm)."""
     data = robot_config()
-    # The real daemon's process settings: keep this test process's GIL switch interval and GC as they are.
-    data["realtime"] = {"gc_freeze": False, "switch_interval": sys.getswitchinterval()}
+    # The real daemon's process settings: keep this test process's GIL switch interval and GC as they are; the cycle
+    # as a thread of this process, whose driver class the test patches.
+    data["realtime"] = {"gc_freeze": False, "switch_interval": sys.getswitchinterval(), "cycle_process": False}
     data["zenoh"] = {"connect": [daemon.endpoint]}
     path = tmp_path / "second.yaml"
     path.write_text(yaml.safe_dump(data, sort_keys=False))
@@ -103,7 +104,8 @@ def test_the_session_opened_for_the_check_closes_when_the_hardware_fails(
     import hild.api.server as server
 
     data = robot_config()
-    data["realtime"] = {"gc_freeze": False, "switch_interval": sys.getswitchinterval()}
+    realtime = {"gc_freeze": False, "switch_interval": sys.getswitchinterval(), "cycle_process": False}
+    data["realtime"] = realtime  # the driver class patched below is this process's
     path = tmp_path / "robot.yaml"
     path.write_text(yaml.safe_dump(data, sort_keys=False))
     loaded = load_config(path)

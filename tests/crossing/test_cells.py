@@ -70,6 +70,21 @@ def test_latest_cell_gives_the_newest_value_once(region: Region) -> None:
     assert reader.take() is None and not reader.pending()
 
 
+def test_a_writer_that_died_mid_write_does_not_cost_its_successor_a_value(region: Region) -> None:
+    """A restarted client domain writes the cell a dead one left half-written (its sequence odd): every value the
+    new writer puts must still be taken, none read while it is being written."""
+    cell = region.carve("c", latest_bytes(32))
+    reader = LatestCell(cell)
+    LatestCell(cell).put(b"before")
+    assert reader.take() == b"before"
+    published = int(np.frombuffer(cell, dtype=np.int64, count=1)[0])
+    LatestCell(cell)._seqs[(published + 1) % 2][0] += 1  # the dead writer's first step, and nothing after it
+    successor = LatestCell(cell)
+    for value in (b"one", b"two", b"three", b"four"):
+        successor.put(value)
+        assert reader.take() == value
+
+
 def test_region_directory_is_found_by_name_and_size_mismatches_are_refused(region: Region) -> None:
     view = region.carve("a/b", 100)
     view[:3] = b"abc"

@@ -23,6 +23,7 @@ from hild.daemon import Daemon, StartupError
 from hild.domains.layout import Phase
 from tests.api.conftest import free_endpoint
 from tests.conftest import Systemd, merge, mock_robot
+from tests.faults.processes import child_pids, running
 
 WAIT = 20.0
 SPLIT = {"realtime": {"cycle_process": True}, "clock": {"source": "sim", "real_time_factor": 1.0}}
@@ -90,6 +91,8 @@ def test_a_client_drives_the_arm_through_the_cycle_process(write_config: Callabl
         seen["reset"] = await asyncio.to_thread(client.reset)
         seen["threads"] = await until(lambda: remote.python_threads, "the cycle process to count its threads")
         seen["controllers"] = await asyncio.to_thread(client.list_controllers)
+        seen["realtime"] = (await asyncio.to_thread(client.status))["realtime"]
+        seen["pid"] = remote.process.pid
 
     daemon, code = run_split(write_config, scenario)
     assert code == 0
@@ -97,6 +100,8 @@ def test_a_client_drives_the_arm_through_the_cycle_process(write_config: Callabl
     assert seen["estopped"]["mode"] == "estop"
     assert seen["reset"]["cleared"] == ["e-stop"]
     assert seen["threads"] == 1  # steady state: the cycle alone, on the process's main thread
+    assert seen["realtime"]["cycle_process"] == f"pid {seen['pid']}, 1 Python thread(s)"
+    assert seen["realtime"]["priority"] == "normal (SCHED_OTHER)"  # the cycle's own settings, reported from there
     assert {c["name"]: c["state"] for c in seen["controllers"]} == {"jsb": "active", "fwd": "inactive"}
     assert daemon.remote is not None and daemon.remote.exit_code == 0
     assert daemon.remote.phase is Phase.STOPPED
@@ -166,12 +171,12 @@ def test_the_cycle_process_stops_and_releases_the_arm_when_its_daemon_is_gone(
         while not _answers(endpoint):
             assert daemon.poll() is None and time.monotonic() < deadline, "the daemon never answered"
             time.sleep(0.05)
-        children = _children(daemon.pid)
+        children = child_pids(daemon.pid)
         assert len(children) == 1
         daemon.kill()
         daemon.wait(WAIT)
         deadline = time.monotonic() + WAIT
-        while _alive(children[0]):
+        while running(children[0]):
             assert time.monotonic() < deadline, "the cycle process outlived its daemon"
             time.sleep(0.05)
         output = daemon.stdout.read().decode() if daemon.stdout else ""  # the cycle process shared it
@@ -188,27 +193,6 @@ def _answers(endpoint: str) -> bool:
             return client.status()["loop"]["cycles"] > 0
     except HildError:
         return False
-
-
-def _children(pid: int) -> list[int]:
-    found = []
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-            except OSError:
-                continue
-            if int(fields[1]) == pid:
-                found.append(int(entry.name))
-    return found
-
-
-def _alive(pid: int) -> bool:
-    try:
-        state = (Path("/proc") / str(pid) / "stat").read_text().rsplit(")", 1)[1].split()[0]
-    except OSError:
-        return False
-    return state != "Z"
 
 
 def test_the_watchdog_follows_the_cycle_process_not_the_daemon(
@@ -249,3 +233,48 @@ def test_the_watchdog_follows_the_cycle_process_not_the_daemon(
     assert resumed >= 4, resumed
     assert "withholding the systemd watchdog ping: the cycle is stalled at cycle" in caplog.text
     assert fake.between(marks["end"])[-1] == "STATUS=stopped: hardware released"
+
+
+def test_a_stalled_client_domain_leaves_the_cycle_holding(write_config: Callable[..., Path]) -> None:
+    """The daemon stopped (SIGSTOP) while a client streams commands: the cycle process runs on, the stream times
+    out on the cycle clock and the joints return to hold; resumed, the daemon reports what happened meanwhile."""
+    import subprocess
+    import sys
+
+    path = write_config(split_robot())
+    endpoint = free_endpoint()
+    log = path.parent / "daemon.log"
+    with log.open("wb") as out:
+        daemon = subprocess.Popen(
+            [sys.executable, "-m", "hild.cli", "run", str(path), "--listen", endpoint], stdout=out, stderr=out
+        )
+    try:
+        deadline = time.monotonic() + WAIT
+        while not _answers(endpoint):
+            assert daemon.poll() is None and time.monotonic() < deadline, log.read_text()
+            time.sleep(0.05)
+        with HildClient("mock3", [endpoint], timeout=5.0) as client:
+            client.switch(["fwd"], [])
+            for _ in range(50):  # 0.5 s of a stream: fwd owns the joints
+                client.send("fwd", [0.3, -0.4, 0.5])
+                time.sleep(0.01)
+            before = client.status()
+            assert [j["owner"] for j in before["joints"]] == ["fwd"] * 3, before
+            daemon.send_signal(signal.SIGSTOP)
+            time.sleep(1.0)  # the client domain stalled for 1 s (≥ 5 × fwd's command_timeout of 0.2 s)
+            daemon.send_signal(signal.SIGCONT)
+            after = client.status()
+        # The cycle ran on through the stall (in one process it would have stopped with the daemon): at 500 Hz on
+        # the sim clock paced at real time, a second is 500 cycles; half of them is proof enough on a busy machine.
+        assert after["loop"]["cycles"] - before["loop"]["cycles"] >= 250
+        assert [j["mode"] for j in after["joints"]] == ["hold"] * 3, after["joints"]
+        deadline = time.monotonic() + WAIT
+        while "no command for 0.2 s: joints return to hold" not in log.read_text():
+            assert time.monotonic() < deadline, log.read_text()
+            time.sleep(0.05)
+    finally:
+        daemon.send_signal(signal.SIGCONT)
+        daemon.terminate()
+        daemon.wait(WAIT)
+    assert daemon.returncode == 0, log.read_text()
+    assert "stopped: hardware released" in log.read_text()

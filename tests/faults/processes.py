@@ -7,6 +7,8 @@ Everything here is on the wall clock: each wait is for a condition with a genero
 
 from __future__ import annotations
 
+import os
+import signal
 import subprocess
 import sys
 import time
@@ -108,9 +110,22 @@ class CanProcesses:
         return client
 
     def kill_daemon(self) -> None:
+        """SIGKILL the daemon (the client domain): its cycle process finds itself orphaned and stops on its own."""
         assert self.daemon is not None
-        self.daemon.kill()  # SIGKILL: no hold cycle, no disable frames, nothing
+        self.daemon.kill()
         self.daemon.wait(10)
+
+    def cycle_process(self) -> int:
+        assert self.daemon is not None
+        children = child_pids(self.daemon.pid)
+        assert len(children) == 1, f"the daemon has {len(children)} children: {children}"
+        return children[0]
+
+    def kill_cycle_process(self) -> None:
+        """SIGKILL the cycle process: no hold cycle, no disable frames, nothing; the daemon sees it and exits 1."""
+        os.kill(self.cycle_process(), signal.SIGKILL)
+        assert self.daemon is not None
+        self.daemon.wait(20)
 
     def daemon_log(self) -> str:
         return self.daemon_logs[-1].read_text() if self.daemon_logs else ""
@@ -144,6 +159,29 @@ class CanProcesses:
             except (OSError, subprocess.TimeoutExpired):
                 pass
         stop(self.emulator)
+
+
+def child_pids(pid: int) -> list[int]:
+    """The processes whose parent is ``pid`` (from /proc)."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[1]) == pid:
+                found.append(int(entry.name))
+    return found
+
+
+def running(pid: int) -> bool:
+    """Whether ``pid`` exists and is not a zombie (an orphan's exit is reaped by whoever adopted it, or not)."""
+    try:
+        state = (Path("/proc") / str(pid) / "stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
 
 
 def _hild() -> list[str]:

@@ -35,7 +35,8 @@ from hild.arrays import JointState, ServoCommand
 from hild.config import load_config
 from hild.controllers.joint_trajectory import JointTrajectoryController
 from hild.controllers.servo import Phase
-from tests.faults.processes import CanProcesses
+from hild.domains.cycle_process import PARENT_CHECK
+from tests.faults.processes import CanProcesses, running
 from tests.faults.rigs import JTC, ApiRig, CanRig, Lockstep, MockRig, TwinRig
 
 MOVE = 0.6  # rad: CAN scenarios inject mid-way through a move_to of this size on every joint…
@@ -791,8 +792,9 @@ HOLD_SETTLE = 15e-3
 
 @scenario(
     "sigkill",
-    "daemon SIGKILL and restart",
-    "`kill -9` of `hild run` mid-trajectory (CAN emulator in its own process), then the same config started again",
+    "cycle process SIGKILL and restart",
+    "`kill -9` of the cycle process mid-trajectory (CAN emulator in its own process), then the same config started "
+    "again",
 )
 def _sigkill() -> tuple[str, str, str, str]:
     with tempfile.TemporaryDirectory(prefix="hild-faults-") as tmp:
@@ -805,13 +807,66 @@ def _sigkill() -> tuple[str, str, str, str]:
             rigs.close()
 
 
+@scenario(
+    "daemon_sigkill",
+    "daemon SIGKILL and restart",
+    "`kill -9` of `hild run` (the client domain) mid-trajectory, then the same config started again",
+)
+def _daemon_sigkill() -> tuple[str, str, str, str]:
+    with tempfile.TemporaryDirectory(prefix="hild-faults-") as tmp:
+        rigs = CanProcesses(Path(tmp))
+        try:
+            return _kill_daemon_and_restart(rigs)
+        except AssertionError:
+            raise AssertionError(f"{traceback.format_exc()}\n{rigs.logs()}") from None
+        finally:
+            rigs.close()
+
+
+def _kill_daemon_and_restart(rigs: CanProcesses) -> tuple[str, str, str, str]:
+    with rigs.start_daemon() as arm:
+        arm.switch(activate=[JTC])
+        home = rigs.positions()
+        arm.send_goal(JTC, {"positions": (home + RESTART_OFFSETS).tolist()}, watched=False).close()
+        rigs.wait(lambda: np.abs(rigs.positions() - home).max() > 0.1, "the arm to move")
+        cycle = rigs.cycle_process()
+        rigs.kill_daemon()
+    rigs.wait(lambda: not running(cycle), "the orphaned cycle process to stop")
+    log = rigs.daemon_log()
+    assert "the daemon that started the cycle process is gone: stopping" in log, log
+    assert "stopped: hardware released" in log, log
+    drives = rigs.drives()
+    assert all(not d["enabled"] and d["fault"] == 0 for d in drives), drives  # disabled by the release, not lost
+    stopped = rigs.positions()
+
+    with rigs.start_daemon() as arm:
+        rigs.wait(lambda: arm.status()["mode"] == "hold", "the new daemon to hold every joint")
+        for _ in range(25):  # half a second: the arm stays where the cycle process left it
+            moved = rigs.positions() - stopped
+            assert np.abs(moved).max() < HOLD_SETTLE, f"the arm moved by {moved} after the restart"
+            time.sleep(0.02)
+        arm.switch(activate=[JTC])
+        goal = {"positions": (stopped + 0.1).tolist(), "duration": 2.0, "goal_time_tolerance": 2.0}
+        with arm.send_goal(JTC, goal) as handle:
+            result = handle.wait(30.0)
+        assert result["status"] == "succeeded", result
+    detected = f"the cycle process: its parent is gone (checked every {PARENT_CHECK * 1000:g} ms)"
+    held = "held by the cycle process for a final cycle, then every drive disabled (released), no fault"
+    event = "error `cycle`: the daemon that started the cycle process is gone: stopping (logged by the cycle process)"
+    recovery = "start again: every joint holds where the arm stopped; next goal succeeds"
+    return detected, held, event, recovery
+
+
 def _kill_and_restart(rigs: CanProcesses) -> tuple[str, str, str, str]:
     with rigs.start_daemon() as arm:
         arm.switch(activate=[JTC])
         home = rigs.positions()
         arm.send_goal(JTC, {"positions": (home + RESTART_OFFSETS).tolist()}, watched=False).close()
         rigs.wait(lambda: np.abs(rigs.positions() - home).max() > 0.1, "the arm to move")
-        rigs.kill_daemon()
+        rigs.kill_cycle_process()
+    log = rigs.daemon_log()
+    assert rigs.daemon is not None and rigs.daemon.returncode == 1, log
+    assert "the cycle process ended unexpectedly (exit code -9)" in log, log
 
     def drives_off() -> bool:
         return all(not d["enabled"] and d["fault"] == DAMIAO.LOST_COMM and d["braked"] for d in rigs.drives())
