@@ -51,6 +51,8 @@ class Daemon:
     def __init__(self, loaded: LoadedConfig, listen: list[str] | None = None) -> None:
         self.loaded = loaded
         self.listen = listen
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._wake_pending = False
         # One of the two: the engine in this process (a cycle thread), or the cycle process behind RemoteCycle.
         self.engine: Engine | None = None
         self.remote: RemoteCycle | None = None
@@ -58,10 +60,8 @@ class Daemon:
             self.remote = RemoteCycle(loaded)
             self.link: CycleLink = self.remote
         else:
-            self.engine = Engine(loaded)
+            self.engine = Engine(loaded, doorbell=self._doorbell)
             self.link = self.engine
-        self._loop: asyncio.AbstractEventLoop | None = None
-        self._wake_pending = False
         self._stopping = asyncio.Event()
         self._signals = 0
         self.api = None
@@ -186,7 +186,6 @@ class Daemon:
             self.remote.realtime_report["cpu_dma_latency"] = self.cpu_latency.hold(cfg.realtime.cpu_dma_latency_us)
             return
         assert self.engine is not None
-        self.engine.doorbell = self._doorbell
         self.engine.realtime_report.update(apply_process_settings(cfg.realtime))
         self.engine.realtime_report.update(self.client_report)
         self.engine.realtime_report["cpu_dma_latency"] = self.cpu_latency.hold(cfg.realtime.cpu_dma_latency_us)

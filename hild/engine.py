@@ -72,9 +72,18 @@ class HardwareSlot:
 
 
 class Engine:
-    def __init__(self, loaded: LoadedConfig, mailboxes: Mailboxes | None = None) -> None:
+    def __init__(
+        self,
+        loaded: LoadedConfig,
+        mailboxes: Mailboxes | None = None,
+        *,
+        stats: LoopStats | None = None,
+        doorbell: Callable[[], None] | None = None,
+    ) -> None:
         """``mailboxes``: where controllers' doors to their API halves live (in this process by default; cells of
-        the shared region when the API half runs in the client domain)."""
+        the shared region when the API half runs in the client domain). ``stats``: where the cycle's loop
+        statistics go (a shared cell when another process reads them). ``doorbell``: called, from the cycle, when
+        there is something to publish (events, outputs, replies)."""
         cfg = loaded.config
         self.mailboxes = mailboxes or InProcess()
         self.loaded = loaded
@@ -88,14 +97,14 @@ class Engine:
 
         self.events = EventLog()
         self.events.now = lambda: self.t
-        self.doorbell: Callable[[], None] = lambda: None  # set by the daemon: wakes the asyncio side
+        self.doorbell: Callable[[], None] = doorbell or (lambda: None)
         # Set by the API: takes streamed commands at the start of each cycle, so no other thread takes the GIL
         # per sample (docs/performance.md, "A busy neighbour").
         self.intake: Callable[[], None] | None = None
         self.inputs_on_arrival = False  # the intake above takes them: one GIL handover per cycle, not per sample
         self.write_done_ns = 0  # perf_counter_ns when the last cycle's hardware writes were done
         self.events.doorbell = self._ring
-        self.stats = LoopStats()
+        self.stats = stats or LoopStats()
         self.t = 0.0  # the cycle clock as given: wall time since start, or the sim clock
         # The control clock: what controllers and the slew limit see. It advances by the cycle's dt, but by at
         # most MAX_STEP_PERIODS periods, so a stalled cycle resumes where it stopped instead of catching up in

@@ -136,7 +136,6 @@ class CrossingCycle(CycleThread):
         self._last_change = -1
         self._parent_every = max(1, round(PARENT_CHECK * engine.update_rate))
         self._vitals_every = max(1, round(VITALS_EVERY * engine.update_rate))
-        engine.doorbell = outbox.bell.ring
 
     def step(self, t: float, dt: float) -> None:
         engine, cells = self.engine, self.cells
@@ -220,11 +219,10 @@ def run(spec: CycleSpec) -> int:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # a terminal's Ctrl-C reaches both: the daemon asks the stop
     scratch = EventLog()
     try:
-        engine = Engine(spec.loaded, Shared(region, create=False))
+        engine = Engine(spec.loaded, Shared(region, create=False), stats=cells.stats, doorbell=outbox.bell.ring)
     except Exception as exc:
         outbox.failure(f"cannot build {spec.loaded.path}: {exc}", scratch)
         return 1
-    engine.stats = cells.stats
     engine.realtime_report.update(apply_process_settings(cfg.realtime))
     try:
         engine.bring_up()
