@@ -67,6 +67,7 @@ class RemoteCycle:
         self._snapshot: Snapshot | None = None
         self._estop_reply: dict[str, Any] = {"deactivated": []}
         self.realtime_report: dict[str, str] = {}  # what the client domain set up (its CPUs, the DMA latency hold)
+        self._events_lost = 0  # as last reported
 
     # ---- the process --------------------------------------------------------------------------------------
     def spawn(self, telemetry: TelemetryRing | None = None) -> None:
@@ -229,6 +230,11 @@ class RemoteCycle:
         events = [*self.events.drain()]
         while (item := self.cells.events.poll()) is not None:
             events.append(Event(*item))  # type: ignore[misc]
+        lost = int(self.cells.vitals[Vital.EVENTS_LOST])
+        if lost != self._events_lost:
+            text = f"{lost - self._events_lost} events of the cycle were lost: this process did not drain them in time"
+            events.append(Event(self.t, "warning", "cycle", text))
+            self._events_lost = lost
         return events
 
     def _answer_estops(self) -> None:

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from hild.config import load_config
-from hild.domains.layout import REQUESTS, Ask
+from hild.domains.layout import REQUESTS, Ask, Vital
 from hild.domains.remote import RemoteCycle
 from hild.requests import Refused, Reset
 from tests.conftest import mock_robot
@@ -38,3 +38,12 @@ def test_requests_of_a_cycle_that_is_gone_are_answered(remote: RemoteCycle) -> N
     for future in waiting:
         with pytest.raises(Refused, match="the cycle process ended"):
             future.result(timeout=0)
+
+
+def test_events_the_cycle_could_not_hand_over_are_reported_as_lost(remote: RemoteCycle) -> None:
+    remote.cells.events.offer((1.0, "info", "engine", "kept"))
+    remote.cells.vitals[Vital.EVENTS_LOST] = 7  # the cycle found the queue full seven times
+    events = remote.take()
+    assert len(events) == 2 and events[0].message == "kept"
+    assert events[-1].level == "warning" and events[-1].message.startswith("7 events of the cycle were lost")
+    assert remote.take() == []  # reported once
