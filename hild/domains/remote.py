@@ -32,6 +32,7 @@ from hild.snapshot import Snapshot
 
 GO_TIMEOUT = 120.0  # s: a cycle process brought up but never told to go releases the hardware and exits
 PHASE_POLL = 0.005  # s
+SNAPSHOT_TRIES = 1000  # copies of a snapshot the cycle overtook, taken again at once (it writes one in µs)
 
 
 class CycleProcessError(RuntimeError):
@@ -163,10 +164,16 @@ class RemoteCycle:
         return int(self.cells.vitals[Vital.PYTHON_THREADS])
 
     def snapshot(self) -> Snapshot:
+        """The newest snapshot: at least as new as ``change_seq`` said (a copy the cycle overtook is taken again),
+        so a reply cached under a ``change_seq`` is never built from an older one."""
+        wanted = self.change_seq
         with self._lock:
-            fresh = self.cells.snapshot.take()
-            if fresh is not None:
-                self._snapshot = fresh  # type: ignore[assignment]
+            for _ in range(SNAPSHOT_TRIES):
+                fresh = self.cells.snapshot.take()
+                if fresh is not None:
+                    self._snapshot = fresh  # type: ignore[assignment]
+                if self._snapshot is not None and self._snapshot.change_seq >= wanted:
+                    break
             if self._snapshot is None:
                 raise CycleProcessError("the cycle process has not reported yet")
             return self._snapshot
