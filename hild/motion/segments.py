@@ -178,13 +178,13 @@ _K = np.arange(1, DEGREE + 1, dtype=np.float64)
 
 
 def stack_derivatives(coeffs: np.ndarray, out: np.ndarray) -> np.ndarray:
-    """``out`` (3J, 6) ← the position, velocity and acceleration coefficients of ``coeffs`` (J, 6), so that one
-    matrix-vector product with τ's powers samples all three. Returns ``out``."""
-    j = coeffs.shape[0]
-    out[:j] = coeffs
-    out[j:, -1] = 0.0
-    np.multiply(coeffs[:, 1:], _K, out=out[j : 2 * j, :-1])
-    np.multiply(out[j : 2 * j, 1:], _K, out=out[2 * j :, :-1])
+    """``out`` (..., 3J, 6) ← the position, velocity and acceleration coefficients of ``coeffs`` (..., J, 6), so
+    that one matrix-vector product with τ's powers samples all three. Returns ``out``."""
+    j = coeffs.shape[-2]
+    out[..., :j, :] = coeffs
+    out[..., j:, -1] = 0.0
+    np.multiply(coeffs[..., 1:], _K, out=out[..., j : 2 * j, :-1])
+    np.multiply(out[..., j : 2 * j, 1:], _K, out=out[..., 2 * j :, :-1])
     return out
 
 

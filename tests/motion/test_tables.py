@@ -12,7 +12,7 @@ import pytest
 
 from hild.motion.limits import KinematicLimits
 from hild.motion.planning import plan_move, plan_waypoints
-from hild.motion.segments import HoldSegment, PolynomialSegment, Segment
+from hild.motion.segments import HoldSegment, PolynomialSegment, RuckigSegment, Segment
 from hild.motion.tables import SegmentTable
 from hild.motion.trajectory import Trajectory, timed_segments, timed_table
 
@@ -97,11 +97,15 @@ def waypoint_legs() -> list[Segment]:
     return legs
 
 
-def test_a_waypoint_chain_placed_anew_samples_as_its_crossed_legs() -> None:
+@pytest.mark.parametrize("mixed", [True, False], ids=["legs-holds-quintic", "ruckig-legs-only"])
+def test_a_waypoint_chain_placed_anew_samples_as_its_crossed_legs(mixed: bool) -> None:
     legs = waypoint_legs()
-    legs.append(
-        PolynomialSegment.quintic(np.zeros(J), np.ones(J), np.zeros(J), np.ones(J), np.zeros(J), np.zeros(J), 2)
-    )
+    if mixed:
+        legs.append(
+            PolynomialSegment.quintic(np.zeros(J), np.ones(J), np.zeros(J), np.ones(J), np.zeros(J), np.zeros(J), 2)
+        )
+    else:
+        legs = [leg for leg in legs if isinstance(leg, RuckigSegment)]
     crossed_legs = pickle.loads(pickle.dumps(legs))  # what the cycle sampled before tables: PhaseSegments
     table = pickle.loads(pickle.dumps(SegmentTable.of(legs, J)))
     limits = KinematicLimits(np.ones(J), np.ones(J), np.ones(J))
