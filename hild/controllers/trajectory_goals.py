@@ -30,9 +30,10 @@ from hild.api.codec import and_more, unknown_keys
 from hild.motion.limits import KinematicLimits
 from hild.motion.planning import plan_move, plan_stop, plan_waypoints
 from hild.motion.segments import Segment
-from hild.motion.trajectory import Trajectory, point_velocities, splice, timed_segments
+from hild.motion.tables import SegmentTable
+from hild.motion.trajectory import Trajectory, point_velocities, splice, timed_table
 
-MAX_POINTS = 10_000  # a timed goal this long takes ~0.5 s to prepare (off the event loop, but on the GIL)
+MAX_POINTS = 10_000  # a timed goal this long takes ~0.1 s to prepare (off the event loop, but on the GIL)
 MAX_WAYPOINTS = 250  # untimed: planning takes ~1–2 ms per waypoint
 AT_REST = 1e-9  # |v|, |a| below this count as zero when deciding whether a final stop segment is needed
 
@@ -65,18 +66,20 @@ class Tolerances:
 
 @dataclass(frozen=True)
 class TimedPlan:
+    """A timed trajectory, prepared: its N-1 segments as one table, so the plan crosses to the cycle process as a
+    few arrays and the cycle's adoption adds a splice in front (and maybe a stop behind), whatever N is."""
+
     times: np.ndarray  # (N,) time_from_start, strictly increasing, ≥ 0
     positions: np.ndarray  # (N, J)
     velocities: np.ndarray  # (N, J) velocities to reach each point with (given, or implied by linear segments)
     accelerations: np.ndarray  # (N, J)
-    segments: list[Segment]  # between consecutive points (N-1)
+    table: SegmentTable | None  # the segments between consecutive points (N-1), placed at times[0]; None if N = 1
     start_tolerance: float
 
     def trajectory(self, p: np.ndarray, v: np.ndarray, a: np.ndarray, limits: KinematicLimits) -> Trajectory:
-        segments = list(self.segments)
         if self.times[0] > 0.0:
             first = splice(p, v, a, self.positions[0], self.velocities[0], self.accelerations[0], self.times[0])
-            segments.insert(0, first)
+            rest = self.table
         else:  # point 0 at t = 0 is the start: it must be where the joints already are
             offset = np.abs(self.positions[0] - p)
             if offset.max() > self.start_tolerance:
@@ -85,7 +88,9 @@ class TimedPlan:
                     f"position (start_tolerance {self.start_tolerance:g}); give it a time > 0"
                 )
             duration = float(self.times[1])
-            segments[0] = splice(p, v, a, self.positions[1], self.velocities[1], self.accelerations[1], duration)
+            first = splice(p, v, a, self.positions[1], self.velocities[1], self.accelerations[1], duration)
+            rest = self.table.rows_from(1) if self.table is not None and len(self.table) > 1 else None
+        segments: list[Segment | SegmentTable] = [first] if rest is None else [first, rest]
         return _ending_at_rest(segments, len(p), limits, self.velocities[-1], self.accelerations[-1])
 
 
@@ -93,11 +98,13 @@ class TimedPlan:
 class WaypointPlan:
     waypoints: np.ndarray  # (N, J)
     velocities: np.ndarray  # (N, J) chosen by the planner
-    segments: list[Segment]  # legs between consecutive waypoints (N-1)
+    table: SegmentTable | None  # legs between consecutive waypoints (N-1); None for a single waypoint
 
     def trajectory(self, p: np.ndarray, v: np.ndarray, a: np.ndarray, limits: KinematicLimits) -> Trajectory:
         first = plan_move(p, v, a, self.waypoints[0], self.velocities[0], limits)
-        segments = ([first] if first.duration > 0.0 else []) + list(self.segments)
+        segments: list[Segment | SegmentTable] = [first] if first.duration > 0.0 else []
+        if self.table is not None:
+            segments.append(self.table)
         return Trajectory(segments, len(p))
 
 
@@ -134,14 +141,19 @@ class PreparedGoal:
 
 
 def _ending_at_rest(
-    segments: list[Segment], joints: int, limits: KinematicLimits, final_v: np.ndarray, final_a: np.ndarray
+    segments: list[Segment | SegmentTable],
+    joints: int,
+    limits: KinematicLimits,
+    final_v: np.ndarray,
+    final_a: np.ndarray,
 ) -> Trajectory:
     """A trajectory whose last point still moves gets a jerk-limited stop, so holding it never steps velocity."""
+    trajectory = Trajectory(segments, joints)
     if np.abs(final_v).max(initial=0.0) > AT_REST or np.abs(final_a).max(initial=0.0) > AT_REST:
         p, v, a = np.empty(joints), np.empty(joints), np.empty(joints)
-        segments[-1].sample(segments[-1].duration, p, v, a)
-        segments = [*segments, plan_stop(p, v, a, limits)]
-    return Trajectory(segments, joints)
+        trajectory.end_state(p, v, a)
+        trajectory = Trajectory([*trajectory.segments, plan_stop(p, v, a, limits)], joints)
+    return trajectory
 
 
 # ---- parsing (asyncio side) ------------------------------------------------------------------------------------
@@ -206,14 +218,15 @@ def _parse_trajectory(payload: dict[str, Any], ctx: GoalContext) -> PreparedGoal
             chosen, legs = plan_waypoints(positions, limits, velocities)
         except ValueError as exc:
             raise GoalRejected(f"cannot time-parameterize the waypoints: {exc}") from None
-        return PreparedGoal(cols, WaypointPlan(positions, chosen, legs), tolerances, limits)
+        table = SegmentTable.of(legs, n) if legs else None
+        return PreparedGoal(cols, WaypointPlan(positions, chosen, table), tolerances, limits)
     times = np.array([_time(p["time_from_start"], k) for k, p in enumerate(points)])
     _check_times(times)
     _check_speed(times, positions, limits.velocity, names)
     point_v = point_velocities(times, positions, velocities)
     point_a = accelerations if accelerations is not None else np.zeros_like(positions)
-    segments = timed_segments(times, positions, velocities, accelerations) if len(times) > 1 else []
-    plan = TimedPlan(times, positions, point_v, point_a, segments, ctx.start_tolerance)
+    table = timed_table(times, positions, velocities, accelerations)
+    plan = TimedPlan(times, positions, point_v, point_a, table, ctx.start_tolerance)
     return PreparedGoal(cols, plan, tolerances, limits)
 
 

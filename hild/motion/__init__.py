@@ -1,5 +1,6 @@
 """Trajectory math and jerk-limited planning for the trajectory controllers.
 
-A pure library: no daemon, no threads. ``segments`` and ``trajectory`` are plain numpy and cheap to sample on the
-cycle thread; ``planning`` is the one module that talks to ruckig.
+A pure library: no daemon, no threads. ``segments``, ``tables`` (many segments as a few arrays: how a long plan
+crosses to the cycle process) and ``trajectory`` are plain numpy and cheap to sample on the cycle thread;
+``planning`` is the one module that talks to ruckig.
 """

@@ -59,12 +59,7 @@ class PolynomialSegment:
         self.joints = coeffs.shape[0]
         coeffs.flags.writeable = False
         self.coefficients = coeffs
-        k = np.arange(DEGREE + 1, dtype=np.float64)
-        velocity = np.zeros_like(coeffs)
-        velocity[:, :-1] = coeffs[:, 1:] * k[1:]
-        acceleration = np.zeros_like(coeffs)
-        acceleration[:, :-1] = velocity[:, 1:] * k[1:]
-        self._stacked = np.ascontiguousarray(np.vstack([coeffs, velocity, acceleration]))
+        self._stacked = stack_derivatives(coeffs, np.empty((3 * self.joints, DEGREE + 1)))
         self._powers = np.ones(DEGREE + 1)
         self._out = np.empty(3 * self.joints)
         j = self.joints
@@ -82,10 +77,7 @@ class PolynomialSegment:
         duration = _positive_duration(duration)
         p0 = _vector("p0", p0)
         p1 = _vector("p1", p1, len(p0))
-        coeffs = np.zeros((len(p0), DEGREE + 1))
-        coeffs[:, 0] = p0
-        coeffs[:, 1] = (p1 - p0) / duration
-        return cls(coeffs, duration)
+        return cls(linear_coefficients(p0, p1, duration), duration)
 
     @classmethod
     def cubic(
@@ -96,13 +88,7 @@ class PolynomialSegment:
         p0 = _vector("p0", p0)
         j = len(p0)
         v0, p1, v1 = _vector("v0", v0, j), _vector("p1", p1, j), _vector("v1", v1, j)
-        h = p1 - p0
-        coeffs = np.zeros((j, DEGREE + 1))
-        coeffs[:, 0] = p0
-        coeffs[:, 1] = v0
-        coeffs[:, 2] = (3.0 * h - (2.0 * v0 + v1) * T) / T**2
-        coeffs[:, 3] = (-2.0 * h + (v0 + v1) * T) / T**3
-        return cls(coeffs, T)
+        return cls(cubic_coefficients(p0, v0, p1, v1, T), T)
 
     @classmethod
     def quintic(
@@ -121,54 +107,118 @@ class PolynomialSegment:
         j = len(p0)
         v0, a0 = _vector("v0", v0, j), _vector("a0", a0, j)
         p1, v1, a1 = _vector("p1", p1, j), _vector("v1", v1, j), _vector("a1", a1, j)
-        h = p1 - p0
-        coeffs = np.zeros((j, DEGREE + 1))
-        coeffs[:, 0] = p0
-        coeffs[:, 1] = v0
-        coeffs[:, 2] = 0.5 * a0
-        coeffs[:, 3] = (20.0 * h - (8.0 * v1 + 12.0 * v0) * T - (3.0 * a0 - a1) * T**2) / (2.0 * T**3)
-        coeffs[:, 4] = (-30.0 * h + (14.0 * v1 + 16.0 * v0) * T + (3.0 * a0 - 2.0 * a1) * T**2) / (2.0 * T**4)
-        coeffs[:, 5] = (12.0 * h - 6.0 * (v1 + v0) * T + (a1 - a0) * T**2) / (2.0 * T**5)
-        return cls(coeffs, T)
+        return cls(quintic_coefficients(p0, v0, a0, p1, v1, a1, T), T)
 
     # ---- cycle side -----------------------------------------------------------------------------------------
     def sample(self, t: float, p: np.ndarray, v: np.ndarray, a: np.ndarray) -> None:
         tau = 0.0 if t <= 0.0 else (self.duration if t >= self.duration else t)
-        tau2 = tau * tau
-        pw = self._powers
-        pw[1] = tau
-        pw[2] = tau2
-        pw[3] = tau2 * tau
-        pw[4] = tau2 * tau2
-        pw[5] = tau2 * tau2 * tau
-        self._stacked.dot(pw, out=self._out)
+        evaluate_stacked(self._stacked, tau, self._powers, self._out)
         p[:] = self._p
         v[:] = self._v
         a[:] = self._a
 
     # ---- off the cycle --------------------------------------------------------------------------------------
     def position_bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        """Exact per-joint extrema: the polynomial at both ends and where its derivative vanishes inside.
-
-        Every candidate time is clipped into the segment and the polynomial evaluated there, so a spurious or
-        inexact root can only add a point that is on the curve; it never widens the bounds beyond it.
-        """
+        """Exact per-joint extrema (:func:`polynomial_bounds`)."""
         if self._bounds is None:
-            k = np.arange(1, DEGREE + 1, dtype=np.float64)
-            # The derivative in normalised time s = τ / duration ∈ [0, 1]: there a coefficient's size is its
-            # weight, so negligible top-order terms (rounding left by the constructors) can be dropped; left in,
-            # they make the companion-matrix roots meaningless.
-            derivative = self.coefficients[:, 1:] * k * self.duration ** (k - 1.0)
-            s = _critical_points(derivative)
-            tau = s * self.duration
-            values = np.zeros_like(tau)
-            for c in self.coefficients.T[::-1]:  # Horner, all joints and candidates at once
-                values *= tau
-                values += c[:, None]
-            lo, hi = values.min(axis=1), values.max(axis=1)
+            lo, hi = polynomial_bounds(self.coefficients[None], np.array([self.duration]))
             lo.flags.writeable = hi.flags.writeable = False
             self._bounds = (lo, hi)
         return self._bounds
+
+
+# ---- polynomial arithmetic, shared by a segment and a table of them (hild.motion.tables) ---------------------------
+def _power(T: Any, k: int) -> Any:
+    """``T ** k`` as Python computes it for a float, elementwise for an array of durations.
+
+    numpy's own power differs from C's ``pow`` in the last bit for a few per cent of values (measured: 5 % for
+    k = 3..5), and a table of segments must hold the very coefficients the segment objects hold."""
+    if isinstance(T, np.ndarray):
+        return np.array([x**k for x in T.ravel().tolist()]).reshape(T.shape)
+    return T**k
+
+
+def linear_coefficients(p0: np.ndarray, p1: np.ndarray, T: Any) -> np.ndarray:
+    """Coefficients (..., J, 6) of constant velocity from ``p0`` to ``p1`` (..., J) in ``T`` (a float, or durations
+    (..., 1))."""
+    coeffs = np.zeros((*p0.shape, DEGREE + 1))
+    coeffs[..., 0] = p0
+    coeffs[..., 1] = (p1 - p0) / T
+    return coeffs
+
+
+def cubic_coefficients(p0: np.ndarray, v0: np.ndarray, p1: np.ndarray, v1: np.ndarray, T: Any) -> np.ndarray:
+    """Cubic Hermite coefficients (..., J, 6); shapes as :func:`linear_coefficients`."""
+    h = p1 - p0
+    coeffs = np.zeros((*p0.shape, DEGREE + 1))
+    coeffs[..., 0] = p0
+    coeffs[..., 1] = v0
+    coeffs[..., 2] = (3.0 * h - (2.0 * v0 + v1) * T) / _power(T, 2)
+    coeffs[..., 3] = (-2.0 * h + (v0 + v1) * T) / _power(T, 3)
+    return coeffs
+
+
+def quintic_coefficients(
+    p0: np.ndarray, v0: np.ndarray, a0: np.ndarray, p1: np.ndarray, v1: np.ndarray, a1: np.ndarray, T: Any
+) -> np.ndarray:
+    """Quintic coefficients (..., J, 6) matching p, v, a at both ends; shapes as :func:`linear_coefficients`."""
+    h = p1 - p0
+    T2, T3, T4, T5 = (_power(T, k) for k in (2, 3, 4, 5))
+    coeffs = np.zeros((*p0.shape, DEGREE + 1))
+    coeffs[..., 0] = p0
+    coeffs[..., 1] = v0
+    coeffs[..., 2] = 0.5 * a0
+    coeffs[..., 3] = (20.0 * h - (8.0 * v1 + 12.0 * v0) * T - (3.0 * a0 - a1) * T2) / (2.0 * T3)
+    coeffs[..., 4] = (-30.0 * h + (14.0 * v1 + 16.0 * v0) * T + (3.0 * a0 - 2.0 * a1) * T2) / (2.0 * T4)
+    coeffs[..., 5] = (12.0 * h - 6.0 * (v1 + v0) * T + (a1 - a0) * T2) / (2.0 * T5)
+    return coeffs
+
+
+_K = np.arange(1, DEGREE + 1, dtype=np.float64)
+
+
+def stack_derivatives(coeffs: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """``out`` (..., 3J, 6) ← the position, velocity and acceleration coefficients of ``coeffs`` (..., J, 6), so
+    that one matrix-vector product with τ's powers samples all three. Returns ``out``."""
+    j = coeffs.shape[-2]
+    out[..., :j, :] = coeffs
+    out[..., j:, -1] = 0.0
+    np.multiply(coeffs[..., 1:], _K, out=out[..., j : 2 * j, :-1])
+    np.multiply(out[..., j : 2 * j, 1:], _K, out=out[..., 2 * j :, :-1])
+    return out
+
+
+def evaluate_stacked(stacked: np.ndarray, tau: float, powers: np.ndarray, out: np.ndarray) -> None:
+    """``out`` (3J,) ← p, v, a at ``tau`` from :func:`stack_derivatives`' matrix; ``powers`` (6,) is scratch whose
+    first element is 1."""
+    tau2 = tau * tau
+    powers[1] = tau
+    powers[2] = tau2
+    powers[3] = tau2 * tau
+    powers[4] = tau2 * tau2
+    powers[5] = tau2 * tau2 * tau
+    stacked.dot(powers, out=out)
+
+
+def polynomial_bounds(coefficients: np.ndarray, durations: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Exact per-joint extrema over polynomials (M, J, 6) lasting ``durations`` (M,): each one at both ends and
+    where its derivative vanishes inside.
+
+    Every candidate time is clipped into the segment and the polynomial evaluated there, so a spurious or inexact
+    root can only add a point that is on the curve; it never widens the bounds beyond it.
+    """
+    m, joints, _ = coefficients.shape
+    T = durations[:, None, None]
+    # The derivative in normalised time s = τ / duration ∈ [0, 1]: there a coefficient's size is its weight, so
+    # negligible top-order terms (rounding left by the constructors) can be dropped; left in, they make the
+    # companion-matrix roots meaningless.
+    derivative = coefficients[..., 1:] * _K * T ** (_K - 1.0)
+    tau = _critical_points(derivative.reshape(m * joints, DEGREE)).reshape(m, joints, -1) * T
+    values = np.zeros_like(tau)
+    for c in np.moveaxis(coefficients, -1, 0)[::-1]:  # Horner, all segments, joints and candidates at once
+        values *= tau
+        values += c[..., None]
+    return values.min(axis=(0, 2)), values.max(axis=(0, 2))
 
 
 def _critical_points(derivative: np.ndarray) -> np.ndarray:
@@ -301,6 +351,32 @@ def _ruckig_position_bounds(
     return lo, hi
 
 
+def sample_phases(
+    rows: Sequence[Sequence[Sequence[float]]],
+    cursor: list[int],
+    tau: float,
+    p: np.ndarray,
+    v: np.ndarray,
+    a: np.ndarray,
+) -> None:
+    """p, v, a at ``tau`` (already clamped into the leg) from per-joint phase rows (start, p0, v0, a0, jerk,
+    length), as ruckig's ``at_time`` integrates. ``cursor`` holds each joint's current phase: played forward, a
+    joint costs O(1)."""
+    for j, joint in enumerate(rows):
+        k = cursor[j]
+        if tau < joint[k][0]:
+            k = 0
+        last = len(joint) - 1
+        while k < last and tau >= joint[k + 1][0] and joint[k + 1][5] > 0.0:
+            k += 1
+        cursor[j] = k
+        at, p0, v0, a0, jerk, length = joint[k]
+        x = min(tau - at, length) if length > 0.0 else 0.0
+        p[j] = p0 + x * (v0 + x * (a0 / 2.0 + x * jerk / 6.0))
+        v[j] = v0 + x * (a0 + x * jerk / 2.0)
+        a[j] = a0 + x * jerk
+
+
 class PhaseSegment:
     """A ruckig trajectory as a table of constant-jerk phases: what a :class:`RuckigSegment` becomes when it
     crosses to the cycle process (ruckig's own object cannot be pickled). Samples as ruckig's ``at_time`` does.
@@ -336,19 +412,7 @@ class PhaseSegment:
 
     def sample(self, t: float, p: np.ndarray, v: np.ndarray, a: np.ndarray) -> None:
         tau = 0.0 if t <= 0.0 else (self.duration if t >= self.duration else t)
-        for j, rows in enumerate(self._rows):
-            k = self._cursor[j]
-            if tau < rows[k][0]:
-                k = 0
-            last = len(rows) - 1
-            while k < last and tau >= rows[k + 1][0] and rows[k + 1][5] > 0.0:
-                k += 1
-            self._cursor[j] = k
-            at, p0, v0, a0, jerk, length = rows[k]
-            x = min(tau - at, length) if length > 0.0 else 0.0
-            p[j] = p0 + x * (v0 + x * (a0 / 2.0 + x * jerk / 6.0))
-            v[j] = v0 + x * (a0 + x * jerk / 2.0)
-            a[j] = a0 + x * jerk
+        sample_phases(self._rows, self._cursor, tau, p, v, a)
 
     def position_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         phases = [[tuple(r) for r in joint if r[5] > 0.0] for joint in self.table.tolist()]

@@ -7,30 +7,50 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from hild.motion.segments import PolynomialSegment, Segment
+from hild.motion.segments import (
+    PolynomialSegment,
+    Segment,
+    cubic_coefficients,
+    linear_coefficients,
+    quintic_coefficients,
+)
+from hild.motion.tables import SegmentTable
 
 
 class Trajectory:
     """Segments played back to back from t = 0; after the end it holds the final position with v = a = 0.
 
-    Start times live in a Python list so the per-cycle segment lookup is one ``bisect`` (O(log n), no numpy
-    call overhead).
+    A :class:`~hild.motion.tables.SegmentTable` among the segments is a whole run of them (a long timed goal, a
+    waypoint chain) and one entry here: its rows carry their start times, so it is handed the trajectory's own time
+    (a table placed elsewhere is re-placed first, in numpy). Entry start times live in a Python list so the
+    per-cycle lookup is one ``bisect`` (O(log n) over a few entries, no numpy call overhead).
     """
 
-    def __init__(self, segments: Sequence[Segment], joints: int) -> None:
+    def __init__(self, segments: Sequence[Segment | SegmentTable], joints: int) -> None:
         if not segments:
             raise ValueError("a trajectory needs at least one segment")
-        self.segments: tuple[Segment, ...] = tuple(segments)
         self.joints = int(joints)
+        parts: list[Segment | SegmentTable] = []
         starts: list[float] = []
+        offsets: list[float] = []  # subtracted from t before sampling: a segment's start, 0 for a table
         elapsed = 0.0
-        for i, segment in enumerate(self.segments):
-            duration = float(segment.duration)
-            if not (duration >= 0.0 and np.isfinite(duration)):
-                raise ValueError(f"segment {i} has duration {duration}; expected finite and >= 0")
+        for i, segment in enumerate(segments):
             starts.append(elapsed)
-            elapsed += duration
+            if isinstance(segment, SegmentTable):
+                if segment.start != elapsed:
+                    segment = segment.placed(elapsed)
+                offsets.append(0.0)
+                elapsed = segment.end
+            else:
+                duration = float(segment.duration)
+                if not (duration >= 0.0 and np.isfinite(duration)):
+                    raise ValueError(f"segment {i} has duration {duration}; expected finite and >= 0")
+                offsets.append(elapsed)
+                elapsed += duration
+            parts.append(segment)
+        self.segments: tuple[Segment | SegmentTable, ...] = tuple(parts)
         self._starts = starts
+        self._offsets = offsets
         self.duration = elapsed
         p, v, a = np.empty(self.joints), np.empty(self.joints), np.empty(self.joints)
         for i, segment in enumerate(self.segments):
@@ -39,7 +59,7 @@ class Trajectory:
                 if joints is not None and joints != self.joints:
                     raise ValueError(f"it has {joints}")
                 if joints is None or i == len(self.segments) - 1:
-                    segment.sample(segment.duration, p, v, a)
+                    _sample_end(segment, p, v, a)
             except ValueError as exc:
                 raise ValueError(f"segment {i} does not have {self.joints} joints: {exc}") from exc
         p.flags.writeable = False
@@ -47,7 +67,7 @@ class Trajectory:
         self._bounds: tuple[np.ndarray, np.ndarray] | None = None
 
     def sample(self, t: float, p: np.ndarray, v: np.ndarray, a: np.ndarray) -> int:
-        """Write the desired state at ``t`` into ``p, v, a``; return the segment used (``len`` once finished)."""
+        """Write the desired state at ``t`` into ``p, v, a``; return the entry used (``len`` once finished)."""
         if t >= self.duration:
             p[:] = self._final
             v.fill(0.0)
@@ -56,8 +76,12 @@ class Trajectory:
         i = bisect.bisect_right(self._starts, t) - 1
         if i < 0:
             i = 0
-        self.segments[i].sample(t - self._starts[i], p, v, a)
+        self.segments[i].sample(t - self._offsets[i], p, v, a)
         return i
+
+    def end_state(self, p: np.ndarray, v: np.ndarray, a: np.ndarray) -> None:
+        """The state the last entry ends in, before the final hold zeroes v and a: where a stop must start."""
+        _sample_end(self.segments[-1], p, v, a)
 
     def finished(self, t: float) -> bool:
         return t >= self.duration
@@ -66,7 +90,7 @@ class Trajectory:
         return self._final.copy()
 
     def start_times(self) -> np.ndarray:
-        """Start time of each segment, shape (len(segments),)."""
+        """Start time of each entry, shape (len(segments),)."""
         return np.array(self._starts)
 
     def position_bounds(self) -> tuple[np.ndarray, np.ndarray]:
@@ -81,6 +105,13 @@ class Trajectory:
             lo.flags.writeable = hi.flags.writeable = False
             self._bounds = (lo, hi)
         return self._bounds
+
+
+def _sample_end(segment: Segment | SegmentTable, p: np.ndarray, v: np.ndarray, a: np.ndarray) -> None:
+    if isinstance(segment, SegmentTable):
+        segment.sample(segment.end, p, v, a)
+    else:
+        segment.sample(segment.duration, p, v, a)
 
 
 def _points(name: str, value: np.ndarray | None, shape: tuple[int, int]) -> np.ndarray | None:
@@ -137,6 +168,33 @@ def timed_segments(
                 PolynomialSegment.quintic(pos[i], vel[i], acc[i], pos[i + 1], vel[i + 1], acc[i + 1], duration)
             )
     return segments
+
+
+def timed_table(
+    times: np.ndarray,
+    positions: np.ndarray,
+    velocities: np.ndarray | None,
+    accelerations: np.ndarray | None,
+) -> SegmentTable | None:
+    """:func:`timed_segments` as one table placed at ``times[0]`` (None for a single point): the same coefficients,
+    computed for all segments at once, so a goal of 10 000 points is prepared in milliseconds and crosses to the
+    cycle process as a few arrays."""
+    t, pos = _timed_points(times, positions)
+    vel = _points("velocities", velocities, pos.shape)
+    acc = _points("accelerations", accelerations, pos.shape)
+    if acc is not None and vel is None:
+        raise ValueError("accelerations need velocities too (quintic interpolation uses both)")
+    if len(t) < 2:
+        return None
+    durations = t[1:] - t[:-1]
+    T = durations[:, None]
+    if vel is None:
+        coefficients = linear_coefficients(pos[:-1], pos[1:], T)
+    elif acc is None:
+        coefficients = cubic_coefficients(pos[:-1], vel[:-1], pos[1:], vel[1:], T)
+    else:
+        coefficients = quintic_coefficients(pos[:-1], vel[:-1], acc[:-1], pos[1:], vel[1:], acc[1:], T)
+    return SegmentTable.polynomials(coefficients, durations, start=float(t[0]))
 
 
 def point_velocities(times: np.ndarray, positions: np.ndarray, velocities: np.ndarray | None) -> np.ndarray:

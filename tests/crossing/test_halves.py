@@ -18,6 +18,7 @@ from hild.controller import Controller
 from hild.crossing.mailboxes import Shared
 from hild.crossing.region import Region
 from hild.engine import Engine
+from hild.motion.tables import SegmentTable
 from tests.test_twin_engine import CONFIGS
 
 SIZE = 64 << 20
@@ -112,3 +113,24 @@ def test_a_servo_target_crosses_and_is_reached(split: Split) -> None:
         half.accept({"positions": target.tolist()})
         split.engine.run_cycles(5)
     np.testing.assert_allclose(split.engine.state.position, target, atol=5e-3)
+
+
+def test_a_long_timed_goal_crosses_as_a_segment_table_and_is_executed(split: Split) -> None:
+    assert split.engine.switch(["joint_trajectory"], []).ok
+    half = split.half("joint_trajectory")
+    start = split.engine.state.position.copy()
+    times = np.linspace(0.2, 2.2, 2000)  # about 1 ms apart: more points than cycles (2 ms)
+    offsets = 0.1 * np.sin(np.pi * (times - 0.2) / 4.0)[:, None] * np.array([1.0, -1.0, 1.0, 0.0, 0.5, -0.5])
+    points = [
+        {"positions": (start + d).tolist(), "time_from_start": float(t)} for d, t in zip(offsets, times, strict=True)
+    ]
+    goal = half.action.submit({"trajectory": {"joint_names": list(split.engine.joints), "points": points}})
+    assert goal["ok"], goal
+    split.engine.run_cycles(2)
+    track = split.cycle_half("joint_trajectory").goal_track
+    assert track is not None
+    (table,) = [s for s in track.trajectory.segments if isinstance(s, SegmentTable)]
+    assert len(table) == len(times) - 1
+    result = split.result("joint_trajectory", goal["goal_id"])
+    assert result.status is GoalStatus.SUCCEEDED, result
+    np.testing.assert_allclose(split.engine.state.position, start + offsets[-1], atol=0.01)
