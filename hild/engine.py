@@ -47,6 +47,7 @@ CLEAR_CONFIRM = 0.5  # s: a reset waits at most this long for the drives to conf
 SET_ZERO_MAX_SPEED = 0.05  # rad/s: set-zero only on a still joint
 SET_ZERO_SETTLE = 0.5  # s: hold follows the reading while the drive moves to its new frame (some drop replies ~1 s)
 MAX_STEP_PERIODS = 2.0  # a late cycle advances the control clock (and the slew limit) by at most this many periods
+RESET_OVERTAKEN = "an e-stop took effect after this reset was sent: reset again to clear it"
 GAP_EVENT_PERIODS = 10  # a cycle later than this many periods is reported (at most once a second, with a count)
 
 
@@ -167,14 +168,14 @@ class Engine:
         ]
         self.manager = ControllerManager(self.joints, self.available_interfaces, self.events)
         self.manager.on_claims = self.supervisor.set_claims
-        self._requests: BoundedQueue[tuple[Callable[[], Any], concurrent.futures.Future[Any]]] = BoundedQueue(
+        self._requests: BoundedQueue[tuple[Callable[[], Any], concurrent.futures.Future[Any], bool]] = BoundedQueue(
             REQUEST_QUEUE
         )
         self._estop_requested = False
         self.tap: Any = None  # telemetry: an object with record(...) called once per cycle, or None
         self._rearm: dict[int, int] = {}  # joint → cycle by which its drive must confirm an operator enable
         self._estop_waiters: deque[concurrent.futures.Future[Any]] = deque(maxlen=256)
-        self._deferred: list[tuple[Deferred, concurrent.futures.Future[Any]]] = []
+        self._deferred: list[tuple[Deferred, concurrent.futures.Future[Any], bool]] = []  # …, clears an e-stop
         self._health_every = max(1, round(self.update_rate / HEALTH_POLL_HZ))
         for name, spec in cfg.controllers.items():
             self.load_controller(name, spec.type, loaded.controller_params[name], spec.fallback_controllers)
@@ -375,9 +376,10 @@ class Engine:
             self._late_cycle(dt)
         self.control_t = t - self._clock_lag
         self.cycle += 1
-        if self._estop_requested:
+        estop_now = self._estop_requested
+        if estop_now:
             self._apply_estop()
-        self._apply_requests()
+        self._apply_requests(estop_now)
         if self.intake is not None:
             self._take_inputs()
         self._read(t, dt)
@@ -469,10 +471,12 @@ class Engine:
             self.supervisor.trip(int(i), Fault.HARDWARE, f"{slot.name}: {text}")
 
     # ---- requests (asyncio side → cycle) ---------------------------------------------------------------------
-    def submit(self, action: Callable[[], Any]) -> concurrent.futures.Future[Any]:
-        """Run ``action`` on the cycle thread at the start of the next cycle; refused when the queue is full."""
+    def submit(self, action: Callable[[], Any], *, clears_estop: bool = False) -> concurrent.futures.Future[Any]:
+        """Run ``action`` on the cycle thread at the start of the next cycle; refused when the queue is full.
+        ``clears_estop``: the action may clear an e-stop (a reset), so it is refused if an e-stop is applied in the
+        cycle that would run it: it was sent before that e-stop took effect."""
         future: concurrent.futures.Future[Any] = concurrent.futures.Future()
-        if not self._requests.offer((action, future)):
+        if not self._requests.offer((action, future, clears_estop)):
             future.set_exception(Refused("too many pending requests; try again"))
         return future
 
@@ -480,7 +484,7 @@ class Engine:
         """An operator request (:mod:`hild.requests`), applied at the start of the next cycle. Its future holds the
         reply dict, or raises :class:`~hild.requests.Refused`; an e-stop takes its own path and is never refused."""
         if isinstance(request, Switch | Reset | Enable | SetZero):
-            return self.submit(lambda: self.apply(request))
+            return self.submit(lambda: self.apply(request), clears_estop=isinstance(request, Reset))
         return self.request_estop()
 
     def apply(self, request: Request) -> dict[str, Any] | Deferred:
@@ -499,10 +503,15 @@ class Engine:
                 return _refused_if_error(self.set_zero(joint))  # type: ignore[return-value]
         return self.estop()
 
-    def _apply_requests(self) -> None:
+    def _apply_requests(self, estop_now: bool) -> None:
+        """Apply every queued request. In a cycle that applied an e-stop, a queued reset is refused, never applied
+        after it: an operator's reset sent before the e-stop took effect must not clear it."""
         while (item := self._requests.poll()) is not None:
-            action, future = item
+            action, future, clears_estop = item
             if not future.set_running_or_notify_cancel():
+                continue
+            if estop_now and clears_estop:
+                future.set_exception(Refused(RESET_OVERTAKEN))
                 continue
             try:
                 result = action()
@@ -510,14 +519,14 @@ class Engine:
                 future.set_exception(exc)
                 continue
             if isinstance(result, Deferred):
-                self._deferred.append((result, future))
+                self._deferred.append((result, future, clears_estop))
             else:
                 future.set_result(result)
 
     def _poll_deferred(self) -> None:
         """Answer the requests that waited for more cycles (after this cycle's read and checks)."""
         for item in list(self._deferred):
-            deferred, future = item
+            deferred, future, _ = item
             try:
                 result = deferred.poll()
             except Exception as exc:
@@ -546,6 +555,9 @@ class Engine:
     def _apply_estop(self) -> None:
         self._estop_requested = False
         result = self.estop()
+        for item in [item for item in self._deferred if item[2]]:  # a reset waiting for its drives: not any more
+            self._deferred.remove(item)
+            item[1].set_exception(Refused(RESET_OVERTAKEN))
         while self._estop_waiters:
             future = self._estop_waiters.popleft()
             if future.set_running_or_notify_cancel():

@@ -383,6 +383,42 @@ def test_estop_is_never_refused_even_with_a_full_request_queue(make_engine: Make
     assert all(f.done() for f in queued)
 
 
+def test_a_reset_sent_before_an_estop_took_effect_never_clears_it(make_engine: MakeEngine) -> None:
+    """Found when the two crossed processes: resets already queued when an e-stop arrives were applied right after
+    it, in the same cycle, and cleared it."""
+    from hild.requests import Refused, Reset
+
+    engine = make_engine()
+    engine.switch(["fwd"], [])
+    resets = [engine.request(Reset()) for _ in range(3)]
+    stop = engine.request_estop()
+    engine.run_cycles(1)
+    assert stop.result(timeout=0) == {"deactivated": ["fwd"]}
+    for reset in resets:
+        with pytest.raises(Refused, match="an e-stop took effect after this reset was sent"):
+            reset.result(timeout=0)
+    engine.run_cycles(5)
+    assert engine.status()["mode"] == "estop"
+    later = engine.request(Reset())  # sent after: it clears the e-stop
+    engine.run_cycles(1)
+    assert later.result(timeout=0)["cleared"] == ["e-stop"]
+
+
+def test_a_reset_waiting_for_its_drives_is_refused_by_an_estop(make_engine: MakeEngine) -> None:
+    from hild.engine import Deferred
+    from hild.requests import Refused
+
+    engine = make_engine()
+    waiting = engine.submit(lambda: Deferred(lambda: None), clears_estop=True)  # its drives never confirm
+    engine.run_cycles(1)  # applied: it now waits for its drives
+    assert not waiting.done()
+    engine.request_estop()
+    engine.run_cycles(1)
+    with pytest.raises(Refused, match="an e-stop took effect after this reset was sent"):
+        waiting.result(timeout=0)
+    assert engine.status()["mode"] == "estop"
+
+
 def test_the_intake_runs_first_in_every_cycle_and_a_failing_one_is_switched_off(make_engine: MakeEngine) -> None:
     engine = make_engine()
     assert engine.switch(["fwd"], []).ok

@@ -1,0 +1,85 @@
+"""Both sides of the crossing in this process, in lockstep: the client domain's RemoteCycle, and the cycle side's
+engine and CrossingCycle attached to the same shared region. No process, no clock: each step is one cycle."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+from hild.config import load_config
+from hild.crossing.mailboxes import Shared
+from hild.crossing.region import Region
+from hild.domains.cycle_process import CrossingCycle, Doorbell, Outbox
+from hild.domains.layout import REQUESTS, EngineCells
+from hild.domains.remote import RemoteCycle
+from hild.engine import Engine
+from hild.requests import Refused, Reset, SetZero, Switch
+from tests.conftest import mock_robot
+
+
+@dataclass
+class Lockstep:
+    remote: RemoteCycle
+    engine: Engine
+    cycle: CrossingCycle
+
+    def step(self, count: int = 1) -> None:
+        for _ in range(count):
+            self.cycle.step(round(self.engine.t + self.engine.period, 12), self.engine.period)
+
+
+@pytest.fixture
+def lockstep(write_config: Callable[..., Path]) -> Iterator[Lockstep]:
+    loaded = load_config(write_config(mock_robot()))
+    remote = RemoteCycle(loaded)
+    region = Region.attach(remote.region.fd, remote.region.size)
+    cells = EngineCells(region, len(remote.joints), create=False)
+    outbox = Outbox(cells, Doorbell(remote.doorbell_fd))
+    engine = Engine(loaded, Shared(region, create=False), stats=cells.stats, doorbell=outbox.bell.ring)
+    engine.start()
+    yield Lockstep(remote, engine, CrossingCycle(engine, cells, outbox, os.getppid()))
+    remote.close()
+
+
+def test_an_estop_is_applied_in_the_very_next_cycle_whatever_the_request_queue_holds(lockstep: Lockstep) -> None:
+    remote, engine = lockstep.remote, lockstep.engine
+    assert remote.request(Switch(("fwd",))).done() is False
+    lockstep.step()
+    remote.take()
+    busy = [remote.request(Reset()) for _ in range(REQUESTS - 1)]  # the queue full of requests, none applied yet
+    estop = remote.request_estop()
+    assert not engine.supervisor.estop
+    lockstep.step()  # one cycle
+    assert engine.supervisor.estop
+    remote.take()
+    assert estop.result(timeout=0) == {"deactivated": ["fwd"]}
+    assert all(f.done() for f in busy)  # answered in the same cycle: refused, the e-stop is engaged
+    assert remote.status()["mode"] == "estop"
+
+
+def test_a_request_crosses_and_its_reply_or_refusal_comes_back(lockstep: Lockstep) -> None:
+    remote = lockstep.remote
+    switched = remote.request(Switch(("fwd",)))
+    refused = remote.request(SetZero("nope"))
+    lockstep.step()
+    assert not switched.done()  # the reply waits in the shared queue until the client domain takes it
+    remote.take()
+    assert switched.result(timeout=0) == {"ok": True, "error": None, "activated": ["fwd"], "deactivated": []}
+    with pytest.raises(Refused, match="unknown joint 'nope'"):
+        refused.result(timeout=0)
+    status = remote.status()
+    assert [j["owner"] for j in status["joints"]] == ["fwd"] * 3
+    assert status["loop"]["update_rate"] == 500 and status["stamp"] == lockstep.engine.t
+
+
+def test_a_stop_asked_by_the_client_domain_stops_the_cycle(lockstep: Lockstep) -> None:
+    remote, cycle = lockstep.remote, lockstep.cycle
+    lockstep.step()
+    assert not cycle._stop_requested.is_set()
+    remote.stop()
+    lockstep.step()
+    assert cycle._stop_requested.is_set()
