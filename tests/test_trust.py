@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import itertools
 import time
+import weakref
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -19,12 +20,14 @@ from hild.supervisor import Fault
 from tests.faults.rigs import JTC, TwinRig
 
 MakeEngine = Callable[..., Engine]
-_seen: dict[int, list[str]] = {}
+# Keyed by the engine itself, weakly: an id() is reused by a later test's engine once this one is collected, which
+# handed that engine the old one's events (a failure seen once in CI).
+_seen: weakref.WeakKeyDictionary[Engine, list[str]] = weakref.WeakKeyDictionary()
 
 
 def messages(engine: Engine) -> list[str]:
     """Every event message the engine emitted so far (the log is drained into a per-engine list)."""
-    seen = _seen.setdefault(id(engine), [])
+    seen = _seen.setdefault(engine, [])
     seen.extend(e.message for e in engine.events.drain())
     return seen
 
