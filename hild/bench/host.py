@@ -18,10 +18,13 @@ channel). Requests, answered in order:
   CPU ticks and the rig's counters.
 * ``{"op": "collect"}`` — close it: copy the last slots, then return the window's cycle durations and period
   errors raw (ns) with CPU use (% of one core per process and thread group) and counter deltas.
-* ``{"op": "clock"}`` — when the cycle clock's zero was, in ``perf_counter_ns``: the wall clock's ``t`` is
-  wake − start. In one process a request runs on the cycle thread right after the wake, so start ≈ min(now − t)
-  over a few cycles. With the cycle elsewhere the shared clock cell is polled: it is written after the cycle's
-  work, so start ≈ min(now − t) − the shortest recent cycle duration (a few tens of µs late at most).
+* ``{"op": "clock"}`` — where the cycle clock's zero is in ``perf_counter_ns`` (``t`` = wake − start), and how
+  far behind it the control clock that samples are stamped with had fallen, over time. In one process a request
+  runs on the cycle thread right after the wake, so start ≈ min(now − t) over a few cycles. With the cycle
+  elsewhere the shared clock cell is polled: it is written after the cycle's work, so start ≈ min(now − t) − the
+  shortest recent cycle duration (a few tens of µs late at most). The lag (the stalls the control clock skipped)
+  is summed from every period error since the cycle began, every ``LAG_EVERY_S``
+  (:class:`hild.bench.window.ClockLag`), in either mode.
 * ``{"op": "listen", "on": bool}`` — the rig's frame recording (latencies).
 * ``{"op": "stop"}`` — stop the daemon as SIGTERM would, and exit.
 """
@@ -42,16 +45,20 @@ from pathlib import Path
 from typing import IO, Any, Protocol
 
 from hild.bench.report import cpu_groups, cpu_percent
-from hild.bench.window import DRAIN_S, StatsWindow, window_note
+from hild.bench.window import DRAIN_S, ClockLag, StatsWindow, window_note
 from hild.cli import setup_logging
 from hild.config import ConfigError, load_config
 from hild.config.loader import LoadedConfig
 from hild.daemon import Daemon
+from hild.engine import MAX_STEP_PERIODS
 from hild.realtime import thaw_heap
 
 RIGS = "hild.bench_rigs"
 CLOCK_SAMPLES = 20
-CLOCK_POLL_S = 0.5  # s of polling the shared clock cell (the cycle in a process of its own)
+CLOCK_POLL_S = 0.1  # s of polling the shared clock cell (the cycle in a process of its own)
+LAG_EVERY_S = 1.0  # s between two looks at the control clock's lag: often enough that no cycle is overwritten
+LAG_LISTENING_S = 0.02  # … while latencies are probed: its history then maps a sample's stamp to its lag
+LAG_HISTORY = 20_000  # entries kept (~7 min)
 CLOCK_POLL_GAP_NS = 20_000  # a change seen more than this after the previous look is not used
 READY_TIMEOUT = 60.0  # s from the daemon's start to its READY
 
@@ -114,6 +121,9 @@ class Host:
         self.tick_hz = os.sysconf("SC_CLK_TCK")
         self.window = StatsWindow(self.link.stats)
         self._draining: asyncio.Task[None] | None = None
+        self.lag: ClockLag | None = None  # the control clock's lag behind the cycle clock
+        self._lagging: asyncio.Task[None] | None = None
+        self._lag_every = LAG_EVERY_S
         self._window_start = 0.0
         self._cpu_before: dict[str, int] = {}
         self._counters_before: dict[str, int] = {}
@@ -176,7 +186,9 @@ class Host:
         if op == "listen":
             if self.rig is None:
                 return {"ok": False, "error": "no rig in this scenario"}
-            frames = await asyncio.to_thread(self.rig.listen, bool(request.get("on")))
+            on = bool(request.get("on"))
+            self._lag_every = LAG_LISTENING_S if on else LAG_EVERY_S
+            frames = await asyncio.to_thread(self.rig.listen, on)
             return {"ok": True, **frames}
         if op == "stop":
             await self._stop_draining()
@@ -196,7 +208,33 @@ class Host:
             with contextlib.suppress(asyncio.CancelledError):
                 await task
 
+    def follow_lag(self) -> None:
+        """Start summing the control clock's lag from the period errors (``ClockLag``), read-only, in either
+        mode, and keep when it moved: a sample's stamp is the control clock of its cycle."""
+        if self.loaded_clock != "wall":
+            return
+        period_ns = round(1e9 / self.link.update_rate)
+        self.lag = ClockLag(self.link.stats, period_ns, MAX_STEP_PERIODS)
+        self._lagging = asyncio.create_task(self._follow_lag(), name="bench-clock-lag")
+
+    @property
+    def loaded_clock(self) -> str:
+        return str(self.link.loaded.config.clock.source)
+
+    def cycle_t(self) -> float:
+        engine = self.daemon.engine
+        return float(engine.t if engine is not None else self.link.t)  # type: ignore[attr-defined]
+
+    async def _follow_lag(self) -> None:
+        lag = self.lag
+        assert lag is not None
+        while True:
+            lag.take(round(self.cycle_t() * 1e9))  # t read first: of the last cycle the take sees, or a little older
+            del lag.history[:-LAG_HISTORY]
+            await asyncio.sleep(self._lag_every)
+
     async def clock(self) -> dict[str, Any]:
+        """Where the control clock's zero is in ``perf_counter_ns``: what a sample's stamp counts from."""
         engine = self.daemon.engine
         if engine is not None:
             offsets = []
@@ -204,7 +242,7 @@ class Host:
                 future = engine.submit(lambda: (engine.t, time.perf_counter_ns()))
                 t, now = await asyncio.wrap_future(future)
                 offsets.append(now - round(t * 1e9))
-            return {"ok": True, "start_ns": min(offsets), "spread_ns": max(offsets) - min(offsets), "method": "cycle"}
+            return self._clock_reply(min(offsets), max(offsets) - min(offsets), "cycle")
         remote = self.daemon.remote
         assert remote is not None
         offsets = await asyncio.to_thread(poll_clock, lambda: remote.t, CLOCK_POLL_S)
@@ -212,8 +250,16 @@ class Host:
             return {"ok": False, "error": "the shared cycle clock did not move"}
         stats = remote.stats
         shortest = int(stats.duration.values[: min(stats.duration.count, len(stats.duration.values))].min())
-        start = min(offsets) - shortest
-        return {"ok": True, "start_ns": start, "spread_ns": max(offsets) - min(offsets), "method": "polled"}
+        return self._clock_reply(min(offsets) - shortest, max(offsets) - min(offsets), "polled")
+
+    def _clock_reply(self, start: int, spread: int, method: str) -> dict[str, Any]:
+        """The cycle clock's zero (``start_ns``) and the control clock's lag history: a sample stamped s woke at
+        start + s + lag_at(history, s)."""
+        lag = self.lag
+        if lag is not None and not lag.certain:
+            method += " (lag uncertain: cycles overwritten unread)"
+        history = [[round(when, 6), value] for when, value in (lag.history if lag is not None else [])]
+        return {"ok": True, "start_ns": start, "spread_ns": spread, "method": method, "lag_history": history}
 
     async def collect(self) -> dict[str, Any]:
         await self._stop_draining()
@@ -256,6 +302,7 @@ class Host:
                 await running
                 return 1
             await asyncio.sleep(0.01)
+        self.follow_lag()
         if self.rig is not None and self.daemon.engine is not None:
             self.rig.attach(self.daemon.engine)  # its drivers' counters; with the cycle elsewhere they stay there
         ready = {"event": "ready", "pid": os.getpid(), "robot": self.link.robot, "cycle_pid": self.cycle_pid}
@@ -280,6 +327,8 @@ class Host:
                 reply = {"ok": False, "error": f"{type(exc).__name__}: {exc}"}
             self.send(reply)
         await self._stop_draining()
+        if self._lagging is not None:
+            self._lagging.cancel()
         code = await running
         self.send({"event": "stopped", "exit": code})
         return code

@@ -460,7 +460,8 @@ def measure_latency(s: Session, settings: Settings) -> dict[str, Any]:
     frames = s.host.request("listen", on=False, timeout=120.0)
     tol = PROBE_TOL_LSB * lsb
     command, ambiguous = match_commands(probes, frames["command"], tol)
-    reply, unmatched = match_replies(log.samples, frames["reply"], int(clock["start_ns"]), tol)
+    history = clock.get("lag_history", [])
+    reply, unmatched = match_replies(log.samples, frames["reply"], int(clock["start_ns"]), tol, history)
     return {
         "scenario": s.scenario.name,
         "base": s.scenario.base,
@@ -476,6 +477,7 @@ def measure_latency(s: Session, settings: Settings) -> dict[str, Any]:
         "broadcaster_rate_hz": 100.0,
         "clock_spread_us": round(clock["spread_ns"] / 1e3, 1),
         "clock_method": clock.get("method", "cycle"),
+        "control_clock_lag_us": round(history[-1][1] / 1e3, 1) if history else 0.0,
         "can_bus": "remote (loopback bridge)" if s.host.bridged else "virtual",
     }
 

@@ -6,7 +6,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hild.bench.window import StatsWindow, overwritten, plan_copy, ring_slots, window_note
+from hild.bench.window import (
+    ClockLag,
+    StatsWindow,
+    clock_lag_ns,
+    lag_at,
+    overwritten,
+    plan_copy,
+    ring_slots,
+    stall_history,
+    window_note,
+)
 from hild.stats import LoopStats, stats_bytes
 
 
@@ -133,3 +143,39 @@ def test_slots_overwritten_while_they_were_copied_are_dropped_and_counted() -> N
     window.read_to = 0
     w = window.close()  # sees 6, copies counts 0 … 5; after the copy the writer is at 12: counts 0, 1 reused
     assert w["lost"] == 2 and len(w["duration_ns"]) == 4
+
+
+def test_the_control_clocks_lag_is_the_part_of_each_stall_beyond_two_periods() -> None:
+    period = 1_000_000
+    errors = np.array([3_000, 999_999, 1_000_000, 1_500_000, 40_000_000, 2_000])  # Δwake: …, 2.5 T, 41 T
+    assert clock_lag_ns(errors, period) == 500_000 + 39_000_000
+    assert clock_lag_ns(np.array([], dtype=np.int64), period) == 0
+
+
+def test_clock_lag_reads_every_period_error_from_the_first_cycle() -> None:
+    stats = LoopStats(window=10)
+    for e in (0, 2_500_000, 0, 0):  # a stall of 3.5 periods before anybody looked: 1.5 periods lost
+        stats.record(100, e, False)
+    lag = ClockLag(stats, 1_000_000)
+    assert lag.take() == 1_500_000 and lag.certain
+    for _ in range(25):  # more than the ring holds between two looks: a stall there could have been missed
+        stats.record(100, 0, False)
+    assert lag.take() == 1_500_000 and not lag.certain
+
+
+def test_each_stall_is_keyed_by_the_control_time_of_its_cycle() -> None:
+    period = 1_000_000
+    # cycles woke at 10, 11, 12, 15.5 (a stall: 3.5 T, lag +1.5 T), 16.5, 17.5 ms on the cycle clock
+    errors = np.array([0, 0, 0, 2_500_000, 0, 0])
+    (entry,) = stall_history(errors, period, last_wake_ns=17_500_000, lag_before_ns=200_000)
+    assert entry == (15_500_000 - 1_700_000, 1_700_000)  # that cycle's stamp, and the lag from it on
+    assert lag_at([(0.0138, 1_700_000)], 0.0137) == 0 and lag_at([(0.0138, 1_700_000)], 0.0138) == 1_700_000
+
+
+def test_clock_lag_keeps_a_history_when_given_the_last_wake() -> None:
+    stats = LoopStats(window=10)
+    for e in (0, 0, 1_500_000, 0):
+        stats.record(100, e, False)
+    lag = ClockLag(stats, 1_000_000)
+    assert lag.take(last_wake_ns=6_500_000) == 500_000
+    assert lag.history == [(0.005, 500_000)]  # woke at 5.5 ms, stamped 5.0 ms
