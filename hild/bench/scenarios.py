@@ -407,6 +407,7 @@ def run_scenario(scenario: Scenario, workdir: Path, settings: Settings) -> tuple
             "seconds": window["seconds"],
             "lost": window["lost"],
             "cycle_process": window["cycle_process"],
+            "cycle_python_threads": window["cycle_python_threads"],
             "can_bus": ("remote (loopback bridge)" if s.host.bridged else "virtual")
             if scenario.kind == "can"
             else None,
