@@ -6,8 +6,10 @@
 
 Order: machine facts and load average; the floor (empty thread, Zenoh, python-can, mj_step); the scenarios one
 after the other (never two daemons at once); the interference windows; targets from all of it. Names for
-``--only`` (shell-style patterns): ``floor``, ``interference``, and ``mock6@500`` … ``can6@1000`` (or ``can6`` for
-both rates). See docs/performance.md for what each figure means.
+``--only`` (shell-style patterns): ``floor``, ``interference``, ``mock6@500`` … ``can6@1000`` and
+``twin6@500-nospin``, ``can6@500-nospin`` (or a base name such as ``can6`` for all of its). Every scenario runs
+with the cycle in a process of its own; ``--one-process`` runs them as before, the cycle a thread of the daemon.
+See docs/performance.md for what each figure means.
 """
 
 from __future__ import annotations
@@ -60,6 +62,17 @@ def register(subparsers: Any) -> None:
         type=int,
         metavar="US",
         help="realtime.cpu_dma_latency_us for the daemon and the floor (default: the config's, off)",
+    )
+    parser.add_argument(
+        "--one-process",
+        action="store_true",
+        help="run every scenario with the cycle as a thread of the daemon (before [rt-split]), not in its own process",
+    )
+    parser.add_argument(
+        "--can-remote",
+        action="store_true",
+        help="with --one-process: serve the emulated CAN channels over loopback as the cycle-process mode must "
+        "(same bus medium in both modes)",
     )
     parser.add_argument(
         "--keep", type=Path, metavar="DIR", help="keep each scenario's config, daemon log and recording in DIR"
@@ -195,7 +208,15 @@ def run(args: argparse.Namespace) -> int:
     if args.cpu_dma_latency is not None and args.cpu_dma_latency < 0:
         print("--cpu-dma-latency must be 0 or more", file=sys.stderr)
         return 2
-    settings = Settings.make(args.quick, args.seconds, args.priority, args.spin_us, args.cpu_dma_latency)
+    settings = Settings.make(
+        args.quick,
+        args.seconds,
+        args.priority,
+        args.spin_us,
+        args.cpu_dma_latency,
+        cycle_process=not args.one_process,
+        can_remote=args.can_remote,
+    )
     if args.keep is not None:
         args.keep.mkdir(parents=True, exist_ok=True)
         report = bench(settings, sections, args.keep.resolve())

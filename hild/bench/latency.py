@@ -10,8 +10,9 @@ decoded position is within ``tol`` of the value. A probe whose value the frames 
 would be ambiguous and is skipped; probes are spaced several cycles apart at random, so they do not lock to the
 cycle's phase.
 
-**Reply → sample.** Every ``joint_states`` sample carries the cycle time ``t`` of the cycle that read it; with
-the cycle clock's zero in ``perf_counter_ns`` (``start``), that cycle woke at ``start + t``. The reply it
+**Reply → sample.** Every ``joint_states`` sample carries the control clock of the cycle that read it: the cycle
+time ``t`` less the stalls the control clock skipped (``lag``, known from the period errors); with the cycle
+clock's zero in ``perf_counter_ns`` (``start``), that cycle woke at ``start + stamp + lag``. The reply it
 reflects is the motor's last reply sent before that wake (or one sent in the few µs between wake and read, when
 only that one carries the sample's value). Latency = arrival at the subscriber − that reply's send. It excludes
 the wait for the broadcaster's next sample (uniform in 0 … 1/publish_rate).
@@ -26,6 +27,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from hild.api.client import HildClient
+from hild.bench.window import lag_at
 
 WARMUP_COMMANDS = 5
 READ_AFTER_WAKE_NS = 100_000  # a reply this soon after the wake may still be the one the read took
@@ -76,15 +78,22 @@ def match_commands(
 
 
 def match_replies(
-    samples: Sequence[tuple[int, float, float]], replies: Sequence[Sequence[float]], start_ns: int, tol: float
+    samples: Sequence[tuple[int, float, float]],
+    replies: Sequence[Sequence[float]],
+    start_ns: int,
+    tol: float,
+    lag_history: Sequence[Sequence[float]] = (),
 ) -> tuple[list[int], int]:
     """Latency (ns) from the reply each sample reflects to the sample's arrival; also how many found no reply
-    carrying their value (samples = (arrival ns, cycle time s, first joint's position))."""
+    carrying their value (samples = (arrival ns, control-clock stamp s, first joint's position)). The stamp is the
+    control clock, which lags the cycle clock by the stalls it skipped: ``lag_history`` [(control time, lag ns) …]
+    (``hild.bench.window.lag_at``)."""
     times = [int(r[0]) for r in replies]
+    history = [(float(when), int(value)) for when, value in lag_history]
     latencies: list[int] = []
     unmatched = 0
     for arrived, stamp, position in samples:
-        wake = start_ns + round(stamp * 1e9)
+        wake = start_ns + round(stamp * 1e9) + lag_at(history, stamp)
         i = bisect.bisect_left(times, wake) - 1
         candidates = [j for j in (i, i + 1) if 0 <= j < len(times) and times[j] < wake + READ_AFTER_WAKE_NS]
         chosen = next((j for j in candidates if abs(replies[j][1] - position) <= tol), None)

@@ -5,9 +5,12 @@ would. All are bounded: they stop when told, and pace themselves to an absolute 
 them late rather than bursty.
 
 * ``TrajectoryKeeper`` — sends the standard trajectory (``hild.motion.reference``) to a joint_trajectory
-  controller, waits for its result, sends it again, until stopped; counts results by status.
+  controller, waits for its result, sends it again, until stopped; counts results by status and keeps, for each
+  goal, when it was sent and how long the daemon took to accept it (the operator's view).
 * ``Poller`` — calls one service (``status``, ``list_controllers``) at a fixed rate.
 * ``ServoStreamer`` — publishes servo targets at a fixed rate: a slow sine around a start pose.
+* ``Flooder`` — an observer sending 1 MiB queries as fast as they are answered, a few in flight on one session:
+  the rate its link allows.
 """
 
 from __future__ import annotations
@@ -53,14 +56,17 @@ class TrajectoryKeeper(_Worker):
         self.controller = controller
         self.goal = standard_trajectory(list(joints), list(start), scale=scale)
         self.results: dict[str, int] = {}
+        self.accepts: list[tuple[float, float]] = []  # (perf_counter at send, seconds until accepted)
         self._handle: GoalHandle | None = None
 
     def run(self) -> None:
         try:
             while not self.stopping.is_set():
                 self.results["sent"] = self.results.get("sent", 0) + 1
+                sent = time.perf_counter()
                 try:
                     with self.client.send_goal(self.controller, self.goal) as handle:
+                        self.accepts.append((sent, time.perf_counter() - sent))
                         self._handle = handle
                         result = handle.wait(RESULT_TIMEOUT)
                 except HildError as exc:
@@ -158,6 +164,74 @@ class ServoStreamer(Paced):
 
     def close(self) -> None:
         self.client.close()
+
+
+FLOOD_BYTES = 1 << 20
+FLOOD_IN_FLIGHT = 4  # the daemon admits this many large queries at once (hild.api.queries.MAX_LARGE_IN_FLIGHT)
+FLOOD_TIMEOUT = 2.0  # s
+
+
+def flood_payload(size: int = FLOOD_BYTES) -> bytes:
+    """A JSON object of exactly ``size`` bytes (one padding string): a well-formed query far over any limit."""
+    head, tail = b'{"pad": "', b'"}'
+    return head + b"x" * (size - len(head) - len(tail)) + tail
+
+
+class Flooder(_Worker):
+    """An observer flooding ``service`` with ``size``-byte queries: ``in_flight`` threads of one session, each
+    sending the next query as soon as the last is answered. Counts answers (any reply, a refusal included: the
+    daemon answered) and failures (no reply)."""
+
+    def __init__(
+        self,
+        connect: Sequence[str],
+        robot: str,
+        service: str = "status",
+        size: int = FLOOD_BYTES,
+        in_flight: int = FLOOD_IN_FLIGHT,
+    ) -> None:
+        super().__init__(f"bench-flood-{service}")
+        self.client = HildClient(robot, connect, timeout=FLOOD_TIMEOUT)
+        self.key = self.client.keys.service(service)
+        self.payload = flood_payload(size)
+        self.in_flight = in_flight
+        self.calls = 0
+        self.failures = 0
+        self.started_at = 0.0
+        self.stopped_at = 0.0
+        self._lock = threading.Lock()
+
+    def run(self) -> None:
+        self.started_at = time.perf_counter()
+        senders = [threading.Thread(target=self._send, daemon=True) for _ in range(self.in_flight)]
+        try:
+            for sender in senders:
+                sender.start()
+            for sender in senders:
+                sender.join()
+        finally:
+            self.stopped_at = time.perf_counter()
+            self.client.close()
+
+    def _send(self) -> None:
+        while not self.stopping.is_set():
+            answered = False
+            try:
+                for reply in self.client.session.get(self.key, payload=self.payload, timeout=FLOOD_TIMEOUT):
+                    answered = reply.ok is not None
+                    break
+            except Exception as exc:  # the session closing under us at stop, or Zenoh refusing
+                self.error = f"{type(exc).__name__}: {exc}"
+            with self._lock:
+                if answered:
+                    self.calls += 1
+                else:
+                    self.failures += 1
+
+    @property
+    def achieved_rate(self) -> float:
+        span = self.stopped_at - self.started_at
+        return round(self.calls / span, 1) if span > 0 else 0.0
 
 
 class Counter:

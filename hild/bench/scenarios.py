@@ -7,15 +7,22 @@ joint, the joint_state_broadcaster at 100 Hz, and telemetry recording to a file 
   gravity model): hild's own cost without physics.
 * ``twin6`` — configs/arm6_twin.yaml, ``substeps`` set so the physics step stays 1 ms at either rate.
 * ``can3``, ``can6`` — Damiao motors emulated in the daemon's process by the ``mit_can`` bench rig (a
-  ``hild.bench_rigs`` entry point from drivers/can), on a python-can virtual channel; these also measure the
-  command → frame and reply → sample latencies.
+  ``hild.bench_rigs`` entry point from drivers/can), on a python-can virtual channel (served to the cycle process
+  over loopback when the cycle runs there: ``hild.bench.bridge``); these also measure the command → frame and
+  reply → sample latencies.
+* ``twin6@500-nospin``, ``can6@500-nospin`` — the same at 500 Hz with ``spin_us: 0`` (the cycle sleeps to its
+  deadline): the whole daemon's CPU when the cycle does not spin.
 * ``interference`` — twin6 at 1 kHz with ``joint_trajectory_arm`` (the first three joints, trajectory) and
   ``servo_wrist`` (the last three, streamed targets) active together, windows interleaved between no extra
   clients, two pollers (``srv/status`` and ``srv/list_controllers`` at 200 Hz each), and the pollers plus a
   1 kHz servo stream; then the same two loads aimed at a decoy daemon in another process
   (``hild.api.probe.Decoy``), which load the machine alike while nothing reaches the daemon, so a rise can be
-  split into the machine's part and hild's. The servo gets joints of its own so the trajectory keeps running in
-  every window.
+  split into the machine's part and hild's; and an observer flooding ``srv/status`` with 1 MiB queries as fast
+  as they are answered (``flood``), while the trajectory's goals keep coming (their acceptance time is the
+  operator's view). The servo gets joints of its own so the trajectory keeps running in every window.
+
+Every scenario runs with ``realtime.cycle_process: true`` unless ``Settings.cycle_process`` is off
+(``hild bench --one-process``): the same scenarios, the cycle a thread of the daemon as before [rt-split].
 
 The bench process is the Zenoh client (trajectories, probes, pollers, the stream); the daemon's process answers
 its control requests (``hild.bench.host``).
@@ -43,7 +50,16 @@ from hild.api.client import HildClient, HildError, HildUnreachable
 from hild.api.probe import Decoy
 from hild.bench.host import rig_class
 from hild.bench.latency import SampleLog, match_commands, match_replies, send_probes
-from hild.bench.load import Counter, Paced, Poller, ServoStreamer, TrajectoryKeeper
+from hild.bench.load import (
+    FLOOD_BYTES,
+    FLOOD_IN_FLIGHT,
+    Counter,
+    Flooder,
+    Paced,
+    Poller,
+    ServoStreamer,
+    TrajectoryKeeper,
+)
 from hild.bench.report import loop_figures, rise_pct, summarize_ns
 from hild.config.documents import load_document
 
@@ -63,6 +79,7 @@ PROBE_TOL_LSB = 1.5
 SETTLE_S = 0.3  # s between starting interference clients and opening the window
 POLL_RATE = 200.0
 SERVO_RATE = 1000.0
+NOSPIN = "-nospin"
 
 
 @dataclass(frozen=True)
@@ -71,16 +88,18 @@ class Scenario:
     kind: str  # mock, twin, can
     joints: int
     rate: float
+    spin_us: int | None = None  # realtime.spin_us for this scenario (None: the config's or --spin-us)
 
     @property
     def name(self) -> str:
-        return f"{self.base}@{self.rate:g}"
+        return f"{self.base}@{self.rate:g}" + (NOSPIN if self.spin_us == 0 else "")
 
 
-SCENARIOS = tuple(
-    Scenario(base, kind, joints, rate)
-    for base, kind, joints in (("mock6", "mock", 6), ("twin6", "twin", 6), ("can3", "can", 3), ("can6", "can", 6))
-    for rate in (500.0, 1000.0)
+ARMS = (("mock6", "mock", 6), ("twin6", "twin", 6), ("can3", "can", 3), ("can6", "can", 6))
+SCENARIOS = (
+    *(Scenario(base, kind, joints, rate) for base, kind, joints in ARMS for rate in (500.0, 1000.0)),
+    Scenario("twin6", "twin", 6, 500.0, spin_us=0),
+    Scenario("can6", "can", 6, 500.0, spin_us=0),
 )
 INTERFERENCE = Scenario("twin6", "twin", 6, 1000.0)
 
@@ -105,6 +124,8 @@ class Settings:
     cpu_dma_latency_us: int | None = None
     seed: int = 1
     quick: bool = False
+    cycle_process: bool = True  # realtime.cycle_process for every scenario (False: hild bench --one-process)
+    can_remote: bool = False  # serve the emulated CAN channels over loopback even with the cycle in the daemon
 
     @classmethod
     def make(
@@ -114,6 +135,9 @@ class Settings:
         priority: int | None,
         spin_us: int | None = None,
         cpu_dma_latency_us: int | None = None,
+        *,
+        cycle_process: bool = True,
+        can_remote: bool = False,
     ) -> Settings:
         if quick:
             s = cls(
@@ -138,7 +162,15 @@ class Settings:
         s.priority = priority
         s.spin_us = spin_us
         s.cpu_dma_latency_us = cpu_dma_latency_us
+        s.cycle_process = cycle_process
+        s.can_remote = can_remote
         return s
+
+    @property
+    def bridged(self) -> bool:
+        """Whether CAN scenarios serve their emulated channels over loopback (a virtual channel stays in its
+        process, so always when the cycle has a process of its own)."""
+        return self.cycle_process or self.can_remote
 
     def realtime(self) -> dict[str, int]:
         """The ``realtime:`` settings given on the command line, for every cycle thread, floor included."""
@@ -186,7 +218,11 @@ def scenario_config(
         data = arm6_config(scenario.kind, scenario.rate, interference=interference)
     tag = scenario.name.replace("@", "_") + ("_interference" if interference else "")
     data["telemetry"] = {"enabled": True, "sinks": [{"kind": "file", "path": str(workdir / f"{tag}.rrd")}]}
-    data.setdefault("realtime", {}).update(settings.realtime())
+    realtime = data.setdefault("realtime", {})
+    realtime.update(settings.realtime())
+    if scenario.spin_us is not None:
+        realtime["spin_us"] = scenario.spin_us
+    realtime["cycle_process"] = settings.cycle_process
     return data, rig, scale
 
 
@@ -204,12 +240,14 @@ class HostError(RuntimeError):
 class HostProcess:
     """A ``hild.bench.host`` child: the daemon of one scenario, plus its JSON-lines control channel."""
 
-    def __init__(self, config: Path, log: Path, rig: str | None, capacity: int) -> None:
+    def __init__(self, config: Path, log: Path, rig: str | None, bridge: bool = False) -> None:
         self.endpoint = f"tcp/127.0.0.1:{free_port()}"
         self.log_path = log
         self._log: IO[bytes] = log.open("wb")
+        self.cycle_pid: int | None = None
+        self.bridged = bool(rig and bridge)
         command = [sys.executable, "-m", "hild.bench.host", str(config), "--listen", self.endpoint]
-        command += ["--capacity", str(capacity)] + (["--rig", rig] if rig else [])
+        command += (["--rig", rig] if rig else []) + (["--can-bridge"] if rig and bridge else [])
         self.proc = subprocess.Popen(
             command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._log, text=True, bufsize=1
         )
@@ -242,6 +280,7 @@ class HostProcess:
         message = self._next(START_TIMEOUT)
         if message.get("event") != "ready":
             raise HostError(f"the daemon did not start: {message.get('error', message)}{self.log_tail()}")
+        self.cycle_pid = message.get("cycle_pid")
         return message
 
     def request(self, op: str, timeout: float = REQUEST_TIMEOUT, **fields: Any) -> dict[str, Any]:
@@ -317,8 +356,7 @@ def open_session(scenario: Scenario, workdir: Path, settings: Settings, *, inter
     tag = scenario.name.replace("@", "_") + ("_interference" if interference else "")
     path = workdir / f"{tag}.yaml"
     path.write_text(json.dumps(data, indent=1))  # JSON is YAML
-    longest = max(settings.seconds, settings.interference_seconds)
-    host = HostProcess(path, workdir / f"{tag}.log", rig, int(scenario.rate * (longest + 2.0)))
+    host = HostProcess(path, workdir / f"{tag}.log", rig, settings.bridged)
     client = None
     session = None
     try:
@@ -367,6 +405,12 @@ def run_scenario(scenario: Scenario, workdir: Path, settings: Settings) -> tuple
             "rate_hz": scenario.rate,
             **loop_figures(window["cycles"], window["overruns"], window["duration_ns"], window["period_error_ns"]),
             "seconds": window["seconds"],
+            "lost": window["lost"],
+            "cycle_process": window["cycle_process"],
+            "cycle_python_threads": window["cycle_python_threads"],
+            "can_bus": ("remote (loopback bridge)" if s.host.bridged else "virtual")
+            if scenario.kind == "can"
+            else None,
             "cpu": window["cpu"],
             "goals": dict(keeper.results),
             "mode": window["mode"],
@@ -381,7 +425,7 @@ def run_scenario(scenario: Scenario, workdir: Path, settings: Settings) -> tuple
 
 
 def notes(scenario: Scenario, window: dict[str, Any], keeper: TrajectoryKeeper, events: Counter) -> list[str]:
-    out = []
+    out = list(window.get("window_notes", []))
     if window["faults"]:
         out.append(f"faults: {'; '.join(window['faults'])}")
     bad = {k: v for k, v in keeper.results.items() if k not in ("sent", "succeeded", "ended at stop")}
@@ -417,7 +461,8 @@ def measure_latency(s: Session, settings: Settings) -> dict[str, Any]:
     frames = s.host.request("listen", on=False, timeout=120.0)
     tol = PROBE_TOL_LSB * lsb
     command, ambiguous = match_commands(probes, frames["command"], tol)
-    reply, unmatched = match_replies(log.samples, frames["reply"], int(clock["start_ns"]), tol)
+    history = clock.get("lag_history", [])
+    reply, unmatched = match_replies(log.samples, frames["reply"], int(clock["start_ns"]), tol, history)
     return {
         "scenario": s.scenario.name,
         "base": s.scenario.base,
@@ -432,17 +477,22 @@ def measure_latency(s: Session, settings: Settings) -> dict[str, Any]:
         "reply_to_joint_states_us": summarize_ns(reply),
         "broadcaster_rate_hz": 100.0,
         "clock_spread_us": round(clock["spread_ns"] / 1e3, 1),
+        "clock_method": clock.get("method", "cycle"),
+        "control_clock_lag_us": round(history[-1][1] / 1e3, 1) if history else 0.0,
+        "can_bus": "remote (loopback bridge)" if s.host.bridged else "virtual",
     }
 
 
-INTERFERENCE_CONDITIONS = ("baseline", "polling", "polling+servo", "decoy polling", "decoy polling+servo")
+INTERFERENCE_CONDITIONS = ("baseline", "polling", "polling+servo", "decoy polling", "decoy polling+servo", "flood")
 DECOY = "decoy "  # the condition's clients load the machine the same way but talk to a decoy daemon
 
 
-def interference_clients(condition: str, s: Session, decoy: Decoy) -> list[Paced]:
+def interference_clients(condition: str, s: Session, decoy: Decoy) -> list[Paced | Flooder]:
     endpoint = [decoy.endpoint if condition.startswith(DECOY) else s.host.endpoint]
     load = condition.removeprefix(DECOY)
-    clients: list[Paced] = []
+    clients: list[Paced | Flooder] = []
+    if load == "flood":
+        clients.append(Flooder(endpoint, s.robot, "status"))
     if load in ("polling", "polling+servo"):
         clients += [
             Poller(endpoint, s.robot, "status", POLL_RATE),
@@ -463,12 +513,12 @@ def run_interference(workdir: Path, settings: Settings) -> dict[str, Any]:
     """Interleaved windows of twin6 @ 1 kHz: no clients, clients on the daemon, the same clients on a decoy."""
     scenario = INTERFERENCE
     merged: dict[str, dict[str, Any]] = {
-        c: {"cycles": 0, "overruns": 0, "duration": [], "period_error": [], "rates": {}}
+        c: {"cycles": 0, "overruns": 0, "lost": 0, "duration": [], "period_error": [], "rates": {}, "spans": []}
         for c in INTERFERENCE_CONDITIONS
     }
     with open_session(scenario, workdir, settings, interference=True) as s, open_decoy(s, workdir) as decoy:
         s.client.switch(activate=[JTC_ARM, SERVO_WRIST])
-        s.keeper(JTC_ARM, s.joints[:3], s.home[:3])
+        keeper = s.keeper(JTC_ARM, s.joints[:3], s.home[:3])
         time.sleep(settings.warmup)
         for _ in range(settings.interference_rounds):
             for condition in INTERFERENCE_CONDITIONS:
@@ -477,13 +527,17 @@ def run_interference(workdir: Path, settings: Settings) -> dict[str, Any]:
                     c.start()
                 try:
                     time.sleep(SETTLE_S)
+                    opened = time.perf_counter()
                     window = s.window(settings.interference_seconds)
+                    closed = time.perf_counter()
                 finally:
                     for c in clients:
                         c.stop()
                 m = merged[condition]
+                m["spans"].append((opened, closed))
                 m["cycles"] += window["cycles"]
                 m["overruns"] += window["overruns"]
+                m["lost"] += window["lost"]
                 m["duration"].append(np.asarray(window["duration_ns"], dtype=np.int64))
                 m["period_error"].append(np.asarray(window["period_error_ns"], dtype=np.int64))
                 for c in clients:
@@ -498,7 +552,9 @@ def run_interference(workdir: Path, settings: Settings) -> dict[str, Any]:
             **loop_figures(
                 m["cycles"], m["overruns"], np.concatenate(m["duration"]), np.concatenate(m["period_error"])
             ),
+            "lost": m["lost"],
             "clients": ", ".join(f"{k.removeprefix('bench-')} {np.mean(v):.0f}/s" for k, v in m["rates"].items()),
+            "goal_accept_ms": accepts_during(keeper.accepts, m["spans"]),
         }
         rows.append(row)
     baseline = rows[0]["duration_us"]["p99"]
@@ -511,5 +567,14 @@ def run_interference(workdir: Path, settings: Settings) -> dict[str, Any]:
         "window_s": settings.interference_seconds,
         "poll_rate_hz": POLL_RATE,
         "servo_rate_hz": SERVO_RATE,
+        "flood": f"{FLOOD_IN_FLIGHT} × {FLOOD_BYTES >> 20} MiB status queries in flight, each resent when answered",
         "conditions": rows,
     }
+
+
+def accepts_during(accepts: list[tuple[float, float]], spans: list[tuple[float, float]]) -> dict[str, float]:
+    """Acceptance times (ms) of the goals sent inside any of ``spans`` (perf_counter intervals)."""
+    inside = [seconds * 1e3 for sent, seconds in accepts if any(a <= sent <= b for a, b in spans)]
+    if not inside:
+        return {"n": 0}
+    return {"n": len(inside), "p50": round(float(np.median(inside)), 1), "max": round(max(inside), 1)}

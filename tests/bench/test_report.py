@@ -9,12 +9,18 @@ import pytest
 
 from hild.bench.report import (
     busy,
+    command_to_frame_limit,
+    cpu_groups,
     cpu_percent,
     evaluate_targets,
     format_report,
+    judge,
     loop_figures,
+    overrun_limit,
     per_10k,
+    period_error_limit,
     rise_pct,
+    rt_targets,
     summarize_ns,
 )
 
@@ -113,7 +119,8 @@ def _report() -> dict[str, Any]:
 
 
 def test_targets_pass_or_miss_against_limits_derived_from_the_same_runs_floor() -> None:
-    targets = {(t["target"], t["scenario"]): t for t in evaluate_targets(_report())}
+    earlier = [t for t in evaluate_targets(_report()) if t["group"] == "earlier"]
+    targets = {(t["target"], t["scenario"]): t for t in earlier}
     assert targets[("cycle duration p99", "twin6@1000")]["status"] == "PASS"
     assert targets[("cycle duration p99", "can6@1000")]["status"] == "MISS"
     perr = targets[("period error p99", "twin6@1000")]
@@ -133,13 +140,15 @@ def test_targets_without_their_measurement_are_not_applicable() -> None:
     assert targets and all(t["status"] == "n/a" for t in targets)
     by_name = {(t["target"], t["scenario"]): t for t in targets}
     assert by_name[("cycle duration p99", "mock6@1000")]["limit"] == 250.0  # fixed limits are still stated
+    assert by_name[("whole daemon CPU at 500 Hz", "twin6@500-nospin")]["limit"] == 35.0
 
 
 def test_a_failed_scenario_is_not_used_for_a_target() -> None:
     report = _report()
     report["scenarios"][0] = {"name": "twin6@1000", "base": "twin6", "rate_hz": 1000.0, "error": "did not start"}
-    targets = {(t["target"], t["scenario"]): t for t in evaluate_targets(report)}
-    assert targets[("cycle duration p99", "twin6@1000")]["status"] == "n/a"
+    targets = {(t["target"], t["scenario"], t["group"]): t for t in evaluate_targets(report)}
+    assert targets[("cycle duration p99", "twin6@1000", "earlier")]["status"] == "n/a"
+    assert targets[("period error p99", "twin6@1000", "rt-split")]["status"] == "n/a"
 
 
 def test_the_table_shows_every_section_and_each_targets_status() -> None:
@@ -159,3 +168,109 @@ def test_a_busy_machine_is_flagged_in_the_table() -> None:
     assert not busy(idle) and busy(loaded)
     assert "WARNING" not in format_report({"machine": idle})
     assert "WARNING: the machine was busy" in format_report({"machine": loaded})
+
+
+# ---- [rt-split] -------------------------------------------------------------------------------------------------
+def test_cpu_groups_in_one_process_keep_the_cycle_thread_inside_the_daemon() -> None:
+    use = {"process": 60.0, "asyncio": 5.0, "cycle": 30.0, "emulator": 20.0, "telemetry": 3.0}
+    g = cpu_groups(use, ["emulator"], cycle_process=False)
+    assert g["daemon"] == 40.0 and g["other"] == 5.0 and g["hild"] == 40.0 and g["whole"] == 43.0
+
+
+def test_cpu_groups_with_a_cycle_process_add_it_to_the_daemon() -> None:
+    use = {"process": 50.0, "asyncio": 4.0, "cycle": 25.0, "emulator": 20.0, "bridge": 15.0, "telemetry": 3.0}
+    g = cpu_groups(use, ["emulator", "bridge"], cycle_process=True)
+    assert g["daemon"] == 15.0 and g["other"] == 11.0 and g["hild"] == 40.0 and g["whole"] == 43.0
+    assert cpu_groups({"process": 1.0, "emulator": 1.3}, ["emulator"], cycle_process=True)["daemon"] == 0.0
+
+
+def test_rt_limits() -> None:
+    assert period_error_limit(20.0) == 60.0  # 3 × the floor
+    assert period_error_limit(10.0) == 30.0
+    assert period_error_limit(5.0) == 25.0  # below 10 µs: floor + 20 µs
+    assert overrun_limit(0.0) == 1.0 and overrun_limit(2.5) == 3.5
+    assert command_to_frame_limit(150.0, 1000.0, 300.0) == 1500.0  # one-way + period + cycle p99 + 50 µs
+    assert judge(1.0, 1.0) == "PASS" and judge(1.1, 1.0) == "MISS"
+    assert judge(None, 1.0) == judge(1.0, None) == "n/a"
+
+
+def _condition(name: str, p99_us: float, overruns: int, rise: float, accepts: dict[str, float] | None = None):
+    row = {"name": name, **loop_figures(10_000, overruns, [p99_us * 1000] * 100, [2_000] * 100)}
+    row["p99_rise_pct"] = rise
+    row["clients"] = "flood-status 700/s" if name == "flood" else ""
+    row["goal_accept_ms"] = accepts or {"n": 0}
+    return row
+
+
+def _rt_report(floor_perr: float = 20.0, floor_ovr: float = 0.0) -> dict[str, Any]:
+    report = _report()
+    report["floor"]["empty_thread"][0]["period_error_us"] = _us(floor_perr)
+    report["floor"]["empty_thread"][0]["overruns_per_10k"] = floor_ovr
+    report["scenarios"] += [
+        {**_scenario("twin6", 500.0, 100.0, 10.0, 0.0, 0.0), "name": "twin6@500-nospin", "cycle_process": True},
+        {**_scenario("can6", 500.0, 100.0, 10.0, 0.0, 0.0), "name": "can6@500-nospin", "cycle_process": True},
+    ]
+    report["scenarios"][-2]["cpu"] = {"daemon": 12.0, "cycle": 15.0, "telemetry": 3.0, "whole": 30.0}
+    report["scenarios"][-1]["cpu"] = {"daemon": 14.0, "cycle": 20.0, "telemetry": 3.0, "whole": 37.0}
+    report["interference"]["conditions"] = [
+        _condition("baseline", 80.0, 1, 0.0),
+        _condition("polling+servo", 86.0, 1, 7.5),
+        _condition("flood", 92.0, 4, 15.0, {"n": 3, "p50": 12.0, "max": 61.5}),
+    ]
+    return report
+
+
+def _rt(report: dict[str, Any]) -> dict[tuple[str, str], dict[str, Any]]:
+    return {(t["target"], t["scenario"]): t for t in rt_targets(report)}
+
+
+def test_rt_targets_pass_or_miss_and_a_miss_names_its_numbers() -> None:
+    t = _rt(_rt_report())
+    perr = t[("period error p99", "can6@1000")]
+    assert perr["limit"] == 60.0 and perr["status"] == "PASS"  # 41 µs ≤ 3 × 20 µs
+    ovr = t[("overruns", "can6@1000")]
+    assert ovr["limit"] == 1.0 and ovr["status"] == "MISS"
+    assert ovr["detail"] == "can6@1000: overruns 2 /10k > limit 1 /10k (empty thread 0 /10k + 1 /10k)"
+    assert t[("overruns", "twin6@1000")]["status"] == "PASS"
+    assert t[("polling 200/s + servo 1 kHz: p99 rise", "twin6@1000")]["status"] == "PASS"
+    rise = t[("1 MiB flood: p99 rise", "twin6@1000")]
+    assert (
+        rise["status"] == "MISS"
+        and "15 % > limit 10 %" in rise["detail"]
+        and "92 µs vs baseline 80 µs" in rise["detail"]
+    )
+    burst = t[("1 MiB flood: overruns (no burst)", "twin6@1000")]
+    assert burst["limit"] == 2.0 and burst["measured"] == 4.0 and burst["status"] == "MISS"  # baseline 1/10k + 1
+    goal = t[("1 MiB flood: operator goal accepted", "twin6@1000")]
+    assert goal["measured"] == 61.5 and goal["status"] == "MISS" and "slowest of 3" in goal["detail"]
+    frame = t[("Zenoh command → CAN frame p99", "can6@1000")]
+    assert frame["limit"] == 1500.0 and frame["status"] == "PASS"  # 150 + 1000 + can6's cycle p99 300 + 50
+    assert t[("whole daemon CPU at 500 Hz", "twin6@500-nospin")]["status"] == "PASS"
+    cpu = t[("whole daemon CPU at 500 Hz", "can6@500-nospin")]
+    assert cpu["status"] == "MISS" and "daemon 14 + cycle 20 (process) + telemetry 3 %" in cpu["detail"]
+
+
+def test_a_floor_below_10_us_gives_floor_plus_20_and_the_floors_own_overruns_count() -> None:
+    t = _rt(_rt_report(floor_perr=5.0, floor_ovr=1.5))
+    perr = t[("period error p99", "twin6@1000")]
+    assert perr["limit"] == 25.0 and perr["status"] == "MISS"  # 39 µs > 5 + 20
+    assert "empty thread p99 5 µs + 20 µs" in perr["detail"]
+    assert t[("overruns", "can6@1000")]["status"] == "PASS"  # 2 ≤ 1.5 + 1
+
+
+def test_no_goal_during_the_flood_is_not_a_pass() -> None:
+    report = _rt_report()
+    report["interference"]["conditions"][-1]["goal_accept_ms"] = {"n": 0}
+    goal = _rt(report)[("1 MiB flood: operator goal accepted", "twin6@1000")]
+    assert goal["status"] == "n/a" and "no trajectory goal" in goal["detail"]
+
+
+def test_the_table_prints_each_rt_miss_with_its_numbers() -> None:
+    report = _rt_report()
+    report["targets"] = evaluate_targets(report)
+    report["bench"] = {"settings": {"cycle_process": True}}
+    text = format_report(report)
+    assert "TARGETS [rt-split]" in text and "EARLIER TARGETS" in text
+    assert "MISS: can6@1000: overruns 2 /10k > limit 1 /10k" in text
+    assert "mode: the cycle in a process of its own" in text
+    assert "61.5 (3)" in text  # the flood's slowest goal acceptance, in the interference table
