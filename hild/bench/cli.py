@@ -29,7 +29,15 @@ from typing import Any
 
 from hild.bench.floor import measure_empty_threads, run_probe
 from hild.bench.report import busy, evaluate_targets, format_report, write_json
-from hild.bench.scenarios import ARM6, INTERFERENCE, SCENARIOS, Settings, run_interference, run_scenario
+from hild.bench.scenarios import (
+    ARM6,
+    INTERFERENCE,
+    SCENARIOS,
+    Settings,
+    other_cpus,
+    run_interference,
+    run_scenario,
+)
 from hild.config.model import RealtimeSection
 
 PACKAGES = ("hild", "numpy", "eclipse-zenoh", "python-can", "mujoco", "ruckig", "rerun-sdk", "pydantic")
@@ -73,6 +81,13 @@ def register(subparsers: Any) -> None:
         action="store_true",
         help="with --one-process: serve the emulated CAN channels over loopback as the cycle-process mode must "
         "(same bus medium in both modes)",
+    )
+    parser.add_argument(
+        "--cycle-cpu",
+        type=int,
+        metavar="CPU",
+        help="give the cycle (and the floor's empty thread) this CPU and keep the daemon's client domain and the "
+        "bench's own load off it (realtime.cpu_affinity / client_cpu_affinity), as on a robot PC",
     )
     parser.add_argument(
         "--keep", type=Path, metavar="DIR", help="keep each scenario's config, daemon log and recording in DIR"
@@ -208,6 +223,12 @@ def run(args: argparse.Namespace) -> int:
     if args.cpu_dma_latency is not None and args.cpu_dma_latency < 0:
         print("--cpu-dma-latency must be 0 or more", file=sys.stderr)
         return 2
+    if args.cycle_cpu is not None:
+        cpus = os.sched_getaffinity(0)
+        if args.cycle_cpu not in cpus or len(cpus) < 2:
+            print(f"--cycle-cpu must be one of this process's CPUs {sorted(cpus)}, with another left", file=sys.stderr)
+            return 2
+        os.sched_setaffinity(0, other_cpus(args.cycle_cpu))  # the bench's clients and processes inherit it
     settings = Settings.make(
         args.quick,
         args.seconds,
@@ -216,6 +237,7 @@ def run(args: argparse.Namespace) -> int:
         args.cpu_dma_latency,
         cycle_process=not args.one_process,
         can_remote=args.can_remote,
+        cycle_cpu=args.cycle_cpu,
     )
     if args.keep is not None:
         args.keep.mkdir(parents=True, exist_ok=True)

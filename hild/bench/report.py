@@ -411,6 +411,8 @@ def format_report(report: dict[str, Any]) -> str:
             if settings["cycle_process"]
             else "one process: the cycle a thread of the daemon (--one-process)"
         )
+        if settings.get("cycle_cpu") is not None:
+            where += f"; the cycle on CPU {settings['cycle_cpu']}, everything else off it (--cycle-cpu)"
         lines.append(f"mode: {where}")
     rt = m.get("realtime", {})
     if rt:

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
 import queue
 import random
 import socket
@@ -126,6 +127,7 @@ class Settings:
     quick: bool = False
     cycle_process: bool = True  # realtime.cycle_process for every scenario (False: hild bench --one-process)
     can_remote: bool = False  # serve the emulated CAN channels over loopback even with the cycle in the daemon
+    cycle_cpu: int | None = None  # the cycle (and the floor's empty thread) on this CPU, everything else off it
 
     @classmethod
     def make(
@@ -138,6 +140,7 @@ class Settings:
         *,
         cycle_process: bool = True,
         can_remote: bool = False,
+        cycle_cpu: int | None = None,
     ) -> Settings:
         if quick:
             s = cls(
@@ -164,6 +167,7 @@ class Settings:
         s.cpu_dma_latency_us = cpu_dma_latency_us
         s.cycle_process = cycle_process
         s.can_remote = can_remote
+        s.cycle_cpu = cycle_cpu
         return s
 
     @property
@@ -172,10 +176,22 @@ class Settings:
         process, so always when the cycle has a process of its own)."""
         return self.cycle_process or self.can_remote
 
-    def realtime(self) -> dict[str, int]:
+    def realtime(self) -> dict[str, Any]:
         """The ``realtime:`` settings given on the command line, for every cycle thread, floor included."""
-        given = {"priority": self.priority, "spin_us": self.spin_us, "cpu_dma_latency_us": self.cpu_dma_latency_us}
+        given: dict[str, Any] = {
+            "priority": self.priority,
+            "spin_us": self.spin_us,
+            "cpu_dma_latency_us": self.cpu_dma_latency_us,
+        }
+        if self.cycle_cpu is not None:
+            given["cpu_affinity"] = [self.cycle_cpu]
+            given["client_cpu_affinity"] = other_cpus(self.cycle_cpu)
         return {k: v for k, v in given.items() if v is not None}
+
+
+def other_cpus(cpu: int) -> list[int]:
+    """The CPUs this process may use, but ``cpu``: where the client domain and the bench's own load go."""
+    return sorted(os.sched_getaffinity(0) - {cpu})
 
 
 # ---- configs -----------------------------------------------------------------------------------------------------

@@ -274,3 +274,17 @@ def test_the_table_prints_each_rt_miss_with_its_numbers() -> None:
     assert "MISS: can6@1000: overruns 2 /10k > limit 1 /10k" in text
     assert "mode: the cycle in a process of its own" in text
     assert "61.5 (3)" in text  # the flood's slowest goal acceptance, in the interference table
+
+
+def test_a_cycle_cpu_gives_the_cycle_its_core_and_everything_else_the_others() -> None:
+    import os
+
+    from hild.bench.scenarios import Settings
+
+    cpus = sorted(os.sched_getaffinity(0))
+    if len(cpus) < 2:
+        pytest.fail("this test needs two CPUs (the project's machines have them)")
+    settings = Settings.make(True, None, None, cycle_cpu=cpus[-1])
+    realtime = settings.realtime()
+    assert realtime["cpu_affinity"] == [cpus[-1]]
+    assert realtime["client_cpu_affinity"] == cpus[:-1]
