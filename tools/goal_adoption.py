@@ -72,19 +72,7 @@ def goal(n: int) -> PreparedGoal:
         for p, v, t in zip(positions.tolist(), velocities.tolist(), times.tolist(), strict=True)
     ]
     ones = np.ones(J)
-    ctx = GoalContext(
-        joints=tuple(NAMES),
-        soft_lower=-3.0 * ones,
-        soft_upper=3.0 * ones,
-        limits=KinematicLimits(2.0 * ones, 5.0 * ones, 50.0 * ones),
-        allow_partial=False,
-        path_position=0 * ones,
-        path_velocity=0 * ones,
-        goal_position=0 * ones,
-        goal_velocity=0 * ones,
-        goal_time=1.0,
-        start_tolerance=0.01,
-    )
+    ctx = GoalContext.unchecked(tuple(NAMES), 3.0, KinematicLimits(2.0 * ones, 5.0 * ones, 50.0 * ones))
     return parse_goal({"trajectory": {"joint_names": NAMES, "points": points}}, ctx)
 
 

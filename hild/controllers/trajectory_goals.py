@@ -54,6 +54,15 @@ class GoalContext:
     goal_time: float
     start_tolerance: float
 
+    @classmethod
+    def unchecked(
+        cls, joints: tuple[str, ...], bound: float, limits: KinematicLimits, start_tolerance: float = 0.01
+    ) -> GoalContext:
+        """A context for parsing goals without a controller (tools, tests): soft limits ±``bound``, no path or goal
+        tolerance checked, a goal time of 1 s."""
+        ones, zeros = np.ones(len(joints)), np.zeros(len(joints))
+        return cls(joints, -bound * ones, bound * ones, limits, False, zeros, zeros, zeros, zeros, 1.0, start_tolerance)
+
 
 @dataclass(frozen=True)
 class Tolerances:

@@ -26,19 +26,7 @@ NAMES = [f"j{k}" for k in range(J)]
 
 def context() -> GoalContext:
     ones = np.ones(J)
-    return GoalContext(
-        joints=tuple(NAMES),
-        soft_lower=-3.0 * ones,
-        soft_upper=3.0 * ones,
-        limits=KinematicLimits(2.0 * ones, 5.0 * ones, 50.0 * ones),
-        allow_partial=False,
-        path_position=0 * ones,
-        path_velocity=0 * ones,
-        goal_position=0 * ones,
-        goal_velocity=0 * ones,
-        goal_time=1.0,
-        start_tolerance=0.01,
-    )
+    return GoalContext.unchecked(tuple(NAMES), 3.0, KinematicLimits(2.0 * ones, 5.0 * ones, 50.0 * ones))
 
 
 def timed_goal(n: int, first_time: float, seed: int = 2) -> dict[str, Any]:

@@ -797,14 +797,7 @@ HOLD_SETTLE = 15e-3
     "again",
 )
 def _sigkill() -> tuple[str, str, str, str]:
-    with tempfile.TemporaryDirectory(prefix="hild-faults-") as tmp:
-        rigs = CanProcesses(Path(tmp))
-        try:
-            return _kill_and_restart(rigs)
-        except AssertionError:
-            raise AssertionError(f"{traceback.format_exc()}\n{rigs.logs()}") from None
-        finally:
-            rigs.close()
+    return _with_processes(_kill_and_restart)
 
 
 @scenario(
@@ -813,10 +806,15 @@ def _sigkill() -> tuple[str, str, str, str]:
     "`kill -9` of `hild run` (the client domain) mid-trajectory, then the same config started again",
 )
 def _daemon_sigkill() -> tuple[str, str, str, str]:
+    return _with_processes(_kill_daemon_and_restart)
+
+
+def _with_processes(run: Callable[[CanProcesses], tuple[str, str, str, str]]) -> tuple[str, str, str, str]:
+    """``run`` on a CAN emulator process and daemons started by it; a failure carries every process's log."""
     with tempfile.TemporaryDirectory(prefix="hild-faults-") as tmp:
         rigs = CanProcesses(Path(tmp))
         try:
-            return _kill_daemon_and_restart(rigs)
+            return run(rigs)
         except AssertionError:
             raise AssertionError(f"{traceback.format_exc()}\n{rigs.logs()}") from None
         finally:

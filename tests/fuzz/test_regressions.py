@@ -190,19 +190,7 @@ def test_an_oversized_sample_is_refused_unread_by_the_intake() -> None:
 def goal_context() -> GoalContext:
     """Two joints ``a`` and ``b`` with unit limits: enough for parsing goals without a robot."""
     ones = np.ones(2)
-    return GoalContext(
-        joints=("a", "b"),
-        soft_lower=-ones,
-        soft_upper=ones,
-        limits=KinematicLimits(ones, ones, ones),
-        allow_partial=False,
-        path_position=0 * ones,
-        path_velocity=0 * ones,
-        goal_position=0 * ones,
-        goal_velocity=0 * ones,
-        goal_time=1.0,
-        start_tolerance=0.01,
-    )
+    return GoalContext.unchecked(("a", "b"), 1.0, KinematicLimits(ones, ones, ones))
 
 
 def test_repeated_joint_names_are_counted_in_linear_time() -> None:
