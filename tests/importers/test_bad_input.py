@@ -126,7 +126,7 @@ def test_undefined_xacro_argument(tmp_path: Path) -> None:
     message = fails(
         tmp_path, xacro, MY_ARM / "config" / "my_arm_controllers.yaml", package_roots={"my_arm_description": MY_ARM}
     )
-    assert "Undefined substitution argument use_mock_hardware (pass it with --xacro-arg NAME:=VALUE)" in message
+    assert "Undefined substitution argument use_mock_hardware (pass it with --arg NAME=VALUE)" in message
 
 
 def test_a_mesh_mujoco_cannot_read_fails_after_staging_and_leaves_no_directory(tmp_path: Path) -> None:

@@ -14,7 +14,7 @@ import os
 import re
 import shutil
 import tempfile
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -32,16 +32,22 @@ from hild.importers.ros2_control.xmltree import XmlDocument, XmlSyntaxError, par
 @dataclass(frozen=True)
 class ImportRequest:
     urdf: Path
-    controllers: Path
+    controllers: Path | Sequence[Path]  # several: merged in order, as ROS applies parameter files
     output: Path  # the hild config (.yaml); the twin's URDF is written beside it with the same stem
     package_roots: Mapping[str, Path] = field(default_factory=dict)
     xacro_args: Mapping[str, str] = field(default_factory=dict)
+    args: Mapping[str, str] = field(default_factory=dict)  # launch arguments: xacro args and $(var NAME) in YAML
     robot_name: str | None = None
     force: bool = False
+    allow_partial: bool = False  # accept an import that leaves out controllers or joints it cannot map
 
     @property
     def twin_urdf(self) -> Path:
         return self.output.with_suffix(".urdf")
+
+    @property
+    def controller_files(self) -> tuple[Path, ...]:
+        return (self.controllers,) if isinstance(self.controllers, Path) else tuple(self.controllers)
 
 
 @dataclass(frozen=True)
@@ -63,7 +69,8 @@ def import_ros2_control(request: ImportRequest) -> ImportResult:
     selected = mapping.select_joints(robot, report)
     if not selected:
         raise robot.where.fail("no joint to command: <ros2_control> lists no movable, non-mimic joint")
-    plan = ctl.read_controllers(request.controllers, mapping.catalog(robot, selected), report)
+    files = request.controller_files
+    plan = ctl.read_controllers(files, mapping.catalog(robot, selected), report, request.args)
     mapping.report_hardware(robot, report)
     mapping.check_limits(selected)
     twin.check_inertias(robot)
@@ -87,7 +94,7 @@ def import_ros2_control(request: ImportRequest) -> ImportResult:
             joints,
             plan,
             substeps,
-            [f"URDF: {request.urdf.resolve()}", f"controllers: {request.controllers.resolve()}"],
+            [f"URDF: {request.urdf.resolve()}", *(f"controllers: {f.resolve()}" for f in files)],
             [(b.name, b.plugin or "") for b in robot.ros2_control],
         )
         staged_config.write_text(writer.render(doc))
@@ -96,9 +103,13 @@ def import_ros2_control(request: ImportRequest) -> ImportResult:
         except ConfigError as exc:
             detail = str(exc).replace(str(staged_config), str(config_path))
             raise ImportFailure(f"the imported config does not pass `hild check` (please report):\n{detail}") from None
+        if report.partial and not request.allow_partial:  # last: every real error in the input comes first
+            raise report.partial_failure()
         os.replace(staged_urdf, urdf_path)
         os.replace(staged_config, config_path)
     report.notes.insert(0, f"wrote {config_path} and {urdf_path} (the twin's model)")
+    if report.partial:
+        report.notes.insert(1, f"partial import (--allow-partial): {len(report.partial)} left out, see Not supported")
     return ImportResult(config_path, urdf_path, report)
 
 
@@ -113,7 +124,7 @@ def _read_urdf(
         raise ImportFailure(f"{source}: cannot read the URDF: {exc.strerror or exc}") from None
     label = str(source)
     if is_xacro(source, text):
-        text, warnings = expand_xacro(source, request.xacro_args, packages)
+        text, warnings = expand_xacro(source, {**request.args, **request.xacro_args}, packages)
         label = str(urdf_path)
         report.notes.append(f"xacro: {source} expanded; URDF lines below refer to the expansion, {urdf_path}")
         for warning in warnings:
@@ -143,7 +154,7 @@ def _staging(config_path: Path) -> Iterator[Path]:
 def _check_destination(request: ImportRequest, config_path: Path, urdf_path: Path) -> None:
     if config_path.suffix not in (".yaml", ".yml"):
         raise ImportFailure(f"{request.output}: the output is a hild config and must end in .yaml")
-    for given in (request.urdf, request.controllers):
+    for given in (request.urdf, *request.controller_files):
         if given.resolve() in (config_path, urdf_path):
             raise ImportFailure(f"{given}: the output would overwrite this input; choose another -o")
     if not request.force:

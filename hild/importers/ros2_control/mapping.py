@@ -103,7 +103,7 @@ def select_joints(robot: Robot, report: Report) -> list[Selected]:
                         f"{hw.name}: command interface {spec.name!r} (hild has {', '.join(HILD_INTERFACES)})",
                     )
             if not joint.movable:
-                report.unsupported(hw.where, f"joint {hw.name!r} is {joint.type}: not a commandable joint")
+                report.dropped(hw.where, f"joint {hw.name!r} is {joint.type}: not a commandable joint")
                 continue
             selected.append(Selected(joint, hw, block))
     if robot.ros2_control:
