@@ -131,3 +131,61 @@ def test_a_fixed_joint_in_ros2_control_is_a_joint_left_out(tmp_path: Path) -> No
         import_robot(urdf, [controllers], tmp_path / "out" / "arm3.yaml")
     result = import_robot(urdf, [controllers], tmp_path / "out" / "arm3.yaml", allow_partial=True)
     assert list(load_config(result.config).config.joints) == ["pan", "shoulder"]
+
+
+# ---- cause 3: the twin collides the robot with itself ----------------------------------------------------------
+def meshes(tmp_path: Path, **options: Any) -> ImportResult:
+    return import_robot(XACRO, CLASSIC, tmp_path / "arm3.yaml", xacro_args={"collision": "mesh"}, **options)
+
+
+def excluded(result: ImportResult) -> list[tuple[str, str]]:
+    params = load_config(result.config).config.hardware["twin"].params
+    return [tuple(pair) for pair in params.get("exclude_contacts", [])]  # type: ignore[misc]
+
+
+def test_self_overlapping_collision_meshes_neither_jam_nor_kick_the_twin(tmp_path: Path) -> None:
+    """The turntable sits 2 mm into the base block (adjacent links; the base is welded to the world, so MuJoCo's
+    parent filter does not apply) and the upper arm's clevis hull covers both: on the old twin the pan joint stuck
+    on the base's friction and the goal aborted on path tolerance."""
+    result = meshes(tmp_path)
+    adjacent = [("base_link", "turntable"), ("turntable", "upper_arm"), ("upper_arm", "forearm"), ("upper_arm", "tool")]
+    assert excluded(result) == [*adjacent, ("base_link", "upper_arm")]  # the tool is welded to the forearm
+    approximated = [f.text for f in result.report.of("approximated")]
+    assert "joint 'pan': the twin ignores contacts between the links it joins: base_link–turntable" in approximated
+    assert "joint 'elbow': the twin ignores contacts between the links it joins: upper_arm–forearm, upper_arm–tool" in (
+        approximated
+    )
+    (overlap,) = [t for t in approximated if "links 'base_link' and 'upper_arm'" in t]
+    assert re.search(r"overlap by [\d.]+ mm at the start pose: the twin ignores their contacts", overlap)
+    hold_then_move(result, JOINTS)
+
+
+def test_self_contacts_can_be_kept_but_adjacent_links_never_collide(tmp_path: Path) -> None:
+    result = meshes(tmp_path, keep_self_contacts=True)
+    assert ("base_link", "upper_arm") not in excluded(result)
+    assert ("base_link", "turntable") in excluded(result)
+    assert any(
+        "links 'base_link' and 'upper_arm' overlap" in f.text and "contacts kept" in f.text
+        for f in result.report.of("approximated")
+    )
+
+
+def test_contact_with_the_world_is_kept(tmp_path: Path) -> None:
+    """A post fixed to the world beside the arm is not part of the robot: the forearm swinging into it stops."""
+    post = (
+        '  <joint name="post_joint" type="fixed"><parent link="world"/><child link="post"/>'
+        '<origin xyz="0.3 -0.28 0.2"/></joint>\n'
+        '  <link name="post"><collision><geometry><box size="0.05 0.05 0.4"/></geometry></collision></link>\n'
+        "  <ros2_control"
+    )
+    urdf = tmp_path / "arm3" / "urdf" / "arm3.urdf.xacro"
+    urdf.parent.mkdir(parents=True)
+    urdf.write_text(XACRO.read_text().replace("  <ros2_control", post, 1))
+    (tmp_path / "arm3" / "meshes").symlink_to(ARM3 / "meshes")
+    result = import_robot(urdf, CLASSIC, tmp_path / "out" / "arm3.yaml", xacro_args={"collision": "mesh"})
+    assert not any("post" in pair for pair in excluded(result))
+    engine = lockstep(result.config)
+    pan = engine.joints.index("pan")
+    outcome = run_goal(engine, "arm_controller", waypoints(JOINTS, engine.state.position.copy(), [[-1.2, 0, 0]]))
+    assert outcome.status != "succeeded"  # the post is in the way
+    assert engine.state.position[pan] > -1.0

@@ -80,6 +80,11 @@ def register(subparsers: Any) -> None:
         action="store_true",
         help="import even when controllers or joints given cannot be mapped (they are listed and left out)",
     )
+    p.add_argument(
+        "--keep-self-contacts",
+        action="store_true",
+        help="let the twin collide robot links that overlap at the start pose (adjacent links never collide)",
+    )
     p.add_argument("--robot-name", help="hild robot name (default: the URDF's <robot name>)")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
     p.set_defaults(func=run)
@@ -99,6 +104,7 @@ def run(args: argparse.Namespace) -> int:
         robot_name=args.robot_name,
         force=args.force,
         allow_partial=args.allow_partial,
+        keep_self_contacts=args.keep_self_contacts,
     )
     try:
         result = import_ros2_control(request)

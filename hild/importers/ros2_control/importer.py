@@ -21,6 +21,7 @@ from pathlib import Path
 from hild.config import ConfigError, load_config
 from hild.importers.ros2_control import controllers as ctl
 from hild.importers.ros2_control import mapping, twin, writer
+from hild.importers.ros2_control.contacts import excluded_contacts
 from hild.importers.ros2_control.inertia import joint_inertias
 from hild.importers.ros2_control.packages import PackageRoots
 from hild.importers.ros2_control.report import ImportFailure, Report, SourceRef
@@ -40,6 +41,7 @@ class ImportRequest:
     robot_name: str | None = None
     force: bool = False
     allow_partial: bool = False  # accept an import that leaves out controllers or joints it cannot map
+    keep_self_contacts: bool = False  # let the twin collide robot links that overlap at the start pose
 
     @property
     def twin_urdf(self) -> Path:
@@ -86,6 +88,12 @@ def import_ros2_control(request: ImportRequest) -> ImportResult:
             message = str(exc).replace(str(staged_urdf), str(urdf_path))
             raise ImportFailure(f"{label}: the twin cannot use this URDF: {message}") from None
         joints = mapping.plan_joints(robot, selected, inertias, plan.effort_pid(), report)
+        start = {j.name: j.initial_position for j in joints if j.initial_position is not None}
+        try:
+            exclusions = excluded_contacts(robot, staged_urdf, start, request.keep_self_contacts, report)
+        except ValueError as exc:
+            message = str(exc).replace(str(staged_urdf), str(urdf_path))
+            raise ImportFailure(f"{label}: the twin cannot use this URDF: {message}") from None
         substeps = mapping.choose_substeps(joints, plan.update_rate, report)
         _complete_effort_gains(plan, joints, report)
         doc = writer.build_document(
@@ -96,6 +104,7 @@ def import_ros2_control(request: ImportRequest) -> ImportResult:
             substeps,
             [f"URDF: {request.urdf.resolve()}", *(f"controllers: {f.resolve()}" for f in files)],
             [(b.name, b.plugin or "") for b in robot.ros2_control],
+            exclusions,
         )
         staged_config.write_text(writer.render(doc))
         try:

@@ -37,6 +37,7 @@ class Link:
     where: SourceRef
     mass: float | None  # None: no <inertial>
     meshes: tuple[Mesh, ...]
+    collision: bool = False  # has <collision> geometry (what the twin collides)
 
 
 @dataclass(frozen=True)
@@ -221,7 +222,8 @@ def _link(element: XmlElement, ref: SourceRefFn) -> Link:
             if mesh is not None:
                 filename = _required(mesh, "filename", ref)
                 meshes.append(Mesh(mesh, filename, kind == "collision", ref(mesh)))
-    return Link(name, ref(element), mass, tuple(meshes))
+    collision = any(c.find("geometry") is not None for c in element.elements("collision"))
+    return Link(name, ref(element), mass, tuple(meshes), collision)
 
 
 def _joint(element: XmlElement, ref: SourceRefFn) -> Joint:

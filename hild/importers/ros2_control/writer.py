@@ -42,11 +42,14 @@ def build_document(
     substeps: int,
     sources: Sequence[str],
     hardware_blocks: Sequence[tuple[str, str]],  # (block name, plugin) of each <ros2_control>
+    exclude_contacts: Sequence[tuple[str, str]] = (),
 ) -> Document:
     twin_params: dict[str, Any] = {"model": urdf_name, "substeps": substeps}
     initial = {j.name: j.initial_position for j in joints if j.initial_position is not None}
     if initial:
         twin_params["initial_positions"] = initial
+    if exclude_contacts:
+        twin_params["exclude_contacts"] = [list(pair) for pair in exclude_contacts]
     doc = Document(
         {
             "robot": {"name": robot_name, "model": urdf_name},
@@ -63,6 +66,7 @@ def build_document(
     c[("clock", "source")] = "wall: real-time twin; sim: lockstep (tests)"
     c[("hardware", "twin")] = "the MuJoCo twin stands in for every <ros2_control> hardware (joint space)"
     c[("hardware", "twin", "params", "substeps")] = "physics step ≤ 1 ms, short enough for the gains' stability"
+    c[("hardware", "twin", "params", "exclude_contacts")] = "adjacent links, links overlapping at the start pose"
     for j in joints:
         c[("hardware", "twin", "joints", j.name)] = j.where.short
         c[("joints", j.name, "hold")] = j.gains_from
