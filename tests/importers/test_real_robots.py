@@ -189,3 +189,56 @@ def test_contact_with_the_world_is_kept(tmp_path: Path) -> None:
     outcome = run_goal(engine, "arm_controller", waypoints(JOINTS, engine.state.position.copy(), [[-1.2, 0, 0]]))
     assert outcome.status != "succeeded"  # the post is in the way
     assert engine.state.position[pan] > -1.0
+
+
+# ---- cause 4: an inertia MuJoCo refuses ------------------------------------------------------------------------
+def with_xacro(tmp_path: Path, old: str, new: str) -> Path:
+    """The arm3 xacro with one edit, in a package directory of its own (meshes linked)."""
+    text = XACRO.read_text()
+    assert old in text
+    urdf = tmp_path / "arm3" / "urdf" / "arm3.urdf.xacro"
+    urdf.parent.mkdir(parents=True)
+    urdf.write_text(text.replace(old, new, 1))
+    (tmp_path / "arm3" / "meshes").symlink_to(ARM3 / "meshes")
+    return urdf
+
+
+TOOL_INERTIA = '<xacro:inertial mass="0.2" x="0" ixx="7.2e-05" iyy="7.2e-05" izz="7.2e-05"/>'
+
+
+def test_an_inertia_mujoco_would_refuse_is_balanced_with_a_finding(tmp_path: Path) -> None:
+    """The tool's izz is more than ixx + iyy (a typo, or a CAD export in the wrong frame): MuJoCo refuses such a
+    body unless told to balance it, which sets all three moments to their mean."""
+    urdf = with_xacro(tmp_path, TOOL_INERTIA, TOOL_INERTIA.replace('izz="7.2e-05"', 'izz="4e-4"'))
+    result = import_robot(urdf, CLASSIC, tmp_path / "out" / "arm3.yaml")
+    (finding,) = [f for f in result.report.of("approximated") if "A + B ≥ C" in f.text]
+    assert finding.text == (
+        "link 'tool': principal moments of inertia 7.2e-05, 7.2e-05, 0.0004 break A + B ≥ C, which MuJoCo refuses: "
+        "the twin balances them (each becomes their mean, 0.0001813)"
+    )
+    lines = result.urdf.read_text().splitlines()
+    assert 'izz="0.0004"' in lines[finding.where.line - 1]  # the <inertia> element in the expansion
+    assert 'balanceinertia="true"' in next(line for line in lines if "<compiler" in line)
+    hold_then_move(result, JOINTS)
+
+
+def test_an_inertia_the_urdf_forbids_balancing_is_refused_at_its_line(tmp_path: Path) -> None:
+    """Without balancing, the error names the source's own file and line and the link, never a staging file."""
+    text = (ROBOTS / "rrbot" / "rrbot.urdf").read_text()
+    start = text.index("<inertia ", text.index('<link name="link1">'))
+    end = text.index("/>", start) + 2
+    text = text[:start] + '<inertia ixx="0.001" ixy="0" ixz="0" iyy="0.001" iyz="0" izz="0.01"/>' + text[end:]
+    text = text.replace(
+        '<robot name="rrbot">', '<robot name="rrbot"><mujoco><compiler balanceinertia="false"/></mujoco>'
+    )
+    urdf = tmp_path / "rrbot.urdf"
+    urdf.write_text(text)
+    out = tmp_path / "out"
+    with pytest.raises(ImportFailure) as info:
+        import_robot(urdf, ROBOTS / "rrbot" / "rrbot_controllers.yaml", out / "rrbot.yaml")
+    line = next(i for i, t in enumerate(text.splitlines(), 1) if 'izz="0.01"' in t)
+    assert str(info.value) == (
+        f"{urdf}:{line}: link 'link1': principal moments of inertia 0.001, 0.001, 0.01 break A + B ≥ C, which MuJoCo "
+        'refuses (this URDF sets <compiler balanceinertia="false">): fix the <inertia>'
+    )
+    assert not out.exists()

@@ -25,7 +25,7 @@ from hild.importers.ros2_control.contacts import excluded_contacts
 from hild.importers.ros2_control.inertia import joint_inertias
 from hild.importers.ros2_control.packages import PackageRoots
 from hild.importers.ros2_control.report import ImportFailure, Report, SourceRef
-from hild.importers.ros2_control.urdf import parse_robot
+from hild.importers.ros2_control.urdf import Robot, parse_robot
 from hild.importers.ros2_control.xacro_expand import expand_xacro, is_xacro
 from hild.importers.ros2_control.xmltree import XmlDocument, XmlSyntaxError, parse_xml
 
@@ -85,15 +85,13 @@ def import_ros2_control(request: ImportRequest) -> ImportResult:
             ranges = mapping.position_ranges(robot, selected)
             inertias = joint_inertias(staged_urdf, [s.joint.name for s in selected], ranges)
         except ValueError as exc:
-            message = str(exc).replace(str(staged_urdf), str(urdf_path))
-            raise ImportFailure(f"{label}: the twin cannot use this URDF: {message}") from None
+            raise _refused(exc, robot, label, staging) from None
         joints = mapping.plan_joints(robot, selected, inertias, plan.effort_pid(), report)
         start = {j.name: j.initial_position for j in joints if j.initial_position is not None}
         try:
             exclusions = excluded_contacts(robot, staged_urdf, start, request.keep_self_contacts, report)
         except ValueError as exc:
-            message = str(exc).replace(str(staged_urdf), str(urdf_path))
-            raise ImportFailure(f"{label}: the twin cannot use this URDF: {message}") from None
+            raise _refused(exc, robot, label, staging) from None
         substeps = mapping.choose_substeps(joints, plan.update_rate, report)
         _complete_effort_gains(plan, joints, report)
         doc = writer.build_document(
@@ -170,6 +168,29 @@ def _check_destination(request: ImportRequest, config_path: Path, urdf_path: Pat
         for path in (config_path, urdf_path):
             if path.exists():
                 raise ImportFailure(f"{path} exists: pass --force to overwrite it")
+
+
+def _refused(exc: ValueError, robot: Robot, label: str, staging: Path) -> ImportFailure:
+    """MuJoCo's refusal of the twin's URDF, at the line of the element it names — never the staging file, which
+    is gone by the time anyone reads the message."""
+    detail = str(exc).split("MuJoCo could not load it: ", 1)[-1].removeprefix("Error: ")
+    detail = detail.replace(f"{staging}/", "")
+    found = re.search(r"\nElement name '([^']*)'", detail)
+    detail = " ".join(detail.split("\nElement name")[0].split())
+    where, element = SourceRef(label), ""
+    if found is not None:
+        name = found.group(1)
+        meshes = {Path(m.filename).stem: m.where for link in robot.links.values() for m in link.meshes}
+        if "mesh" in detail.lower() or "stl" in detail.lower() or "obj" in detail.lower():
+            candidates = [("mesh", meshes), ("link", {n: k.where for n, k in robot.links.items()})]
+        else:
+            candidates = [("link", {n: k.where for n, k in robot.links.items()}), ("mesh", meshes)]
+        candidates.append(("joint", {n: j.where for n, j in robot.joints.items()}))
+        for kind, table in candidates:
+            if name in table:
+                where, element = table[name], f" ({kind} {name!r})"
+                break
+    return where.fail(f"the twin cannot use this URDF{element}: MuJoCo refuses it: {detail}")
 
 
 def _robot_name(name: str) -> str:

@@ -32,12 +32,26 @@ class Mesh:
 
 
 @dataclass(frozen=True)
+class Inertia:
+    """An ``<inertia>`` element: the tensor in the link's inertial frame."""
+
+    where: SourceRef
+    ixx: float
+    ixy: float
+    ixz: float
+    iyy: float
+    iyz: float
+    izz: float
+
+
+@dataclass(frozen=True)
 class Link:
     name: str
     where: SourceRef
     mass: float | None  # None: no <inertial>
     meshes: tuple[Mesh, ...]
     collision: bool = False  # has <collision> geometry (what the twin collides)
+    inertia: Inertia | None = None
 
 
 @dataclass(frozen=True)
@@ -211,9 +225,14 @@ def _link(element: XmlElement, ref: SourceRefFn) -> Link:
     name = _required(element, "name", ref)
     inertial = element.find("inertial")
     mass: float | None = None
+    inertia: Inertia | None = None
     if inertial is not None:
         mass_element = inertial.find("mass")
         mass = 0.0 if mass_element is None else (_number(mass_element, "value", ref) or 0.0)
+        tensor = inertial.find("inertia")
+        if tensor is not None:
+            keys = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
+            inertia = Inertia(ref(tensor), *(_number(tensor, key, ref) or 0.0 for key in keys))
     meshes = []
     for kind in ("visual", "collision"):
         for geometry_owner in element.elements(kind):
@@ -223,7 +242,7 @@ def _link(element: XmlElement, ref: SourceRefFn) -> Link:
                 filename = _required(mesh, "filename", ref)
                 meshes.append(Mesh(mesh, filename, kind == "collision", ref(mesh)))
     collision = any(c.find("geometry") is not None for c in element.elements("collision"))
-    return Link(name, ref(element), mass, tuple(meshes), collision)
+    return Link(name, ref(element), mass, tuple(meshes), collision, inertia)
 
 
 def _joint(element: XmlElement, ref: SourceRefFn) -> Joint:
