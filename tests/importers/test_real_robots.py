@@ -242,3 +242,64 @@ def test_an_inertia_the_urdf_forbids_balancing_is_refused_at_its_line(tmp_path: 
         'refuses (this URDF sets <compiler balanceinertia="false">): fix the <inertia>'
     )
     assert not out.exists()
+
+
+# ---- cause 5: a joint that starts on its hard limit ------------------------------------------------------------
+def test_a_start_on_or_just_beyond_a_limit_holds_and_the_report_says_so(tmp_path: Path) -> None:
+    """The elbow is parked on its lower limit with gravity pressing it into the stop; the pan's calibrated rest is
+    0.5 mrad beyond its upper limit (the twin cannot start there: it starts on the limit)."""
+    urdf = with_xacro(
+        tmp_path, '<xacro:arm_joint name="elbow" initial="0.5"/>', '<xacro:arm_joint name="elbow" initial="-2.0"/>'
+    )
+    urdf.write_text(
+        urdf.read_text().replace(
+            '<xacro:arm_joint name="pan" initial="0.0"/>', '<xacro:arm_joint name="pan" initial="2.8005"/>'
+        )
+    )
+    result = import_robot(urdf, CLASSIC, tmp_path / "out" / "arm3.yaml")
+    assert load_config(result.config).config.hardware["twin"].params["initial_positions"] == {
+        "pan": 2.8,
+        "shoulder": 0.0,
+        "elbow": -2.0,
+    }
+    approximated = [f.text for f in result.report.of("approximated")]
+    assert (
+        "pan: initial_value 2.8005 is 0.0005 beyond the upper limit 2.8: the twin starts on the limit; a joint "
+        "resting on its end stop holds (readings within safety.plausibility.margin 0.05 of a limit are accepted)"
+    ) in approximated
+    assert (
+        "elbow: initial_value -2 is on the lower limit: a joint resting on its end stop holds (readings within "
+        "safety.plausibility.margin 0.05 of a limit are accepted)"
+    ) in approximated
+    hold_then_move(result, JOINTS, [[-0.3, 0.2, 0.5], [-0.5, 0.1, 0.3]])
+
+
+def test_a_start_far_beyond_a_limit_is_still_an_error(tmp_path: Path) -> None:
+    urdf = with_xacro(
+        tmp_path, '<xacro:arm_joint name="pan" initial="0.0"/>', '<xacro:arm_joint name="pan" initial="2.9"/>'
+    )
+    with pytest.raises(
+        ImportFailure,
+        match=r"joint .pan.: initial_value 2.9 is outside \[-2.8, 2.8\] by more than the plausibility margin 0.05",
+    ):
+        import_robot(urdf, CLASSIC, tmp_path / "out" / "arm3.yaml")
+
+
+def test_a_zero_pose_outside_the_limits_starts_the_twin_on_the_nearest_limit(tmp_path: Path) -> None:
+    """rrbot's joint1 without an initial_value and with a range that excludes 0: the twin used to start at 0, a
+    reading beyond the limit by more than the margin, and the joint faulted at once."""
+    text = (
+        (ROBOTS / "rrbot" / "rrbot.urdf")
+        .read_text()
+        .replace('lower="-3.1416" upper="3.1416"', 'lower="0.3" upper="3.1416"')
+    )
+    urdf = tmp_path / "rrbot.urdf"
+    urdf.write_text(text)
+    result = import_robot(urdf, ROBOTS / "rrbot" / "rrbot_controllers.yaml", tmp_path / "out" / "rrbot.yaml")
+    assert load_config(result.config).config.hardware["twin"].params["initial_positions"] == {"joint1": 0.3}
+    assert any(
+        f.text == "joint1: no initial_value, and the zero pose is outside [0.3, 3.142]: the twin starts on the "
+        "nearest limit, 0.3"
+        for f in result.report.of("approximated")
+    )
+    hold_then_move(result, ["joint1", "joint2"], [[0.4, -0.3], [0.2, 0.2]])

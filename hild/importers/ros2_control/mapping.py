@@ -11,6 +11,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
+from hild.config.model import PlausibilitySection
 from hild.importers.ros2_control.controllers import JointCatalog, Pid
 from hild.importers.ros2_control.inertia import JointInertia
 from hild.importers.ros2_control.report import Report, SourceRef
@@ -32,6 +33,7 @@ STEP_MARGIN = 0.5
 MAX_SUBSTEPS = 100
 CONTINUOUS_RANGE = round(2.0 * math.pi, 4)  # a continuous joint gets ±one turn
 PHYSICS_STEP = 0.001  # s: the twin's substeps keep MuJoCo's step at or below this (or smaller, see above)
+PLAUSIBILITY_MARGIN = PlausibilitySection().margin  # what the written config uses: it sets no safety.plausibility
 
 SIMULATORS = {
     "gazebo_ros2_control/GazeboSystem": "Gazebo Classic",
@@ -412,29 +414,69 @@ def _hold_gains(
 def _initial_position(
     joint: Joint, hw: HardwareJoint | None, lower: float, upper: float, report: Report
 ) -> float | None:
-    """``initial_value`` of the position interface (state first, as gz/mock read it) → the twin's start pose."""
-    if hw is None:
-        return None
+    """``initial_value`` of the position interface (state first, as gz/mock read it) → the twin's start pose.
+
+    A start on a limit, or beyond it by no more than the plausibility margin (a joint parked on its end stop, a
+    calibration a hair off), is kept — clamped for the twin, which cannot start outside its range — and said so.
+    A zero pose outside the limits (no initial_value) would start the twin beyond a limit: it starts on the
+    nearest one instead."""
     found = None
-    for spec in (*hw.state_interfaces, *hw.command_interfaces):
+    for spec in (*hw.state_interfaces, *hw.command_interfaces) if hw is not None else ():
         raw = spec.params.get("initial_value")
         if raw is None:
             continue
         where = spec.where_of("initial_value")
         if spec.name != "position":
-            report.unsupported(where, f"{joint.name}: initial_value of {spec.name} (the twin starts at rest)")
+            if _number_or_none(raw) != 0.0:  # at rest is what the twin does anyway
+                report.unsupported(where, f"{joint.name}: initial_value of {spec.name} (the twin starts at rest)")
             continue
         if found is not None:
             continue
-        try:
-            value = float(raw)
-        except ValueError:
-            raise where.fail(f"joint {joint.name!r}: initial_value {raw!r} is not a number") from None
-        if not lower <= value <= upper:
-            raise where.fail(f"joint {joint.name!r}: initial_value {value:g} is outside [{lower:g}, {upper:g}]")
-        found = value
+        value = _number_or_none(raw)
+        if value is None:
+            raise where.fail(f"joint {joint.name!r}: initial_value {raw!r} is not a number")
+        found = _start_on_limit(joint, value, lower, upper, where, report)
         report.mapped(where, f"{joint.name}: initial_value {value:g} → twin initial_positions")
+    if found is None and hw is not None and not lower <= 0.0 <= upper:
+        found = lower if lower > 0.0 else upper
+        report.approximated(
+            hw.where,
+            f"{joint.name}: no initial_value, and the zero pose is outside [{lower:.4g}, {upper:.4g}]: the twin "
+            f"starts on the nearest limit, {found:g}",
+        )
     return found
+
+
+def _start_on_limit(joint: Joint, value: float, lower: float, upper: float, where: SourceRef, report: Report) -> float:
+    """The twin's start for ``initial_value``: itself inside the limits, the limit when on or just beyond it."""
+    margin = PLAUSIBILITY_MARGIN
+    holds = (
+        f"a joint resting on its end stop holds (readings within safety.plausibility.margin {margin:g} of a limit "
+        "are accepted)"
+    )
+    for side, limit, beyond in (("lower", lower, lower - value), ("upper", upper, value - upper)):
+        if beyond > margin:
+            raise where.fail(
+                f"joint {joint.name!r}: initial_value {value:g} is outside [{lower:g}, {upper:g}] by more than the "
+                f"plausibility margin {margin:g}: a drive reading it would fault"
+            )
+        if beyond > 0.0:
+            report.approximated(
+                where,
+                f"{joint.name}: initial_value {value:g} is {beyond:.4g} beyond the {side} limit {limit:g}: the twin "
+                f"starts on the limit; {holds}",
+            )
+            return limit
+        if beyond == 0.0:
+            report.approximated(where, f"{joint.name}: initial_value {value:g} is on the {side} limit: {holds}")
+    return value
+
+
+def _number_or_none(raw: str) -> float | None:
+    try:
+        return float(raw)
+    except ValueError:
+        return None
 
 
 def _transmissions(robot: Robot, commanded: set[str], report: Report) -> dict[str, tuple[dict[str, float], SourceRef]]:
