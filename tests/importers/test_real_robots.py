@@ -78,6 +78,7 @@ def test_jazzy_layout_split_over_two_files_with_a_prefix_argument(tmp_path: Path
     assert cfg.controllers["arm_controller"].params["joints"] == ["left_pan", "left_shoulder", "left_elbow"]
     assert cfg.controllers["arm_controller"].params["constraints"]["joints"]["left_elbow"]["goal"] == 0.02
     assert result.report.partial == []
+    assert checked(result) == []
     hold_then_move(result, ["left_pan", "left_shoulder", "left_elbow"])
 
 
@@ -303,3 +304,35 @@ def test_a_zero_pose_outside_the_limits_starts_the_twin_on_the_nearest_limit(tmp
         for f in result.report.of("approximated")
     )
     hold_then_move(result, ["joint1", "joint2"], [[0.4, -0.3], [0.2, 0.2]])
+
+
+# ---- cause 7: smaller surprises ----------------------------------------------------------------------------------
+@pytest.mark.parametrize("variant", ["primitive", "mesh"])
+def test_imported_defaults_pass_hild_check_without_warnings(tmp_path: Path, variant: str) -> None:
+    result = import_robot(XACRO, CLASSIC, tmp_path / "arm3.yaml", xacro_args={"collision": variant})
+    assert checked(result) == []
+    assert not any("initial_value of" in f.text for f in result.report.findings)  # 0 for velocity/effort: silent
+
+
+def test_my_arm_defaults_pass_hild_check_without_warnings(tmp_path: Path) -> None:
+    urdf, controllers = MY_ARM / "urdf" / "my_arm.urdf.xacro", MY_ARM / "config" / "my_arm_controllers.yaml"
+    result = import_robot(urdf, controllers, tmp_path / "arm.yaml", allow_partial=True)
+    assert checked(result) == []
+
+
+def test_check_warnings_about_the_users_own_gains_name_them(tmp_path: Path) -> None:
+    """rrbot's hold gains are its effort PID (p 400, d 60): hild check finds them stiff for the effort limit. The
+    warning is about the user's numbers, so the import report carries it at the PID's own line."""
+    controllers = ROBOTS / "rrbot" / "rrbot_controllers.yaml"
+    result = import_robot(ROBOTS / "rrbot" / "rrbot.urdf", controllers, tmp_path / "rrbot.yaml")
+    warnings = checked(result)
+    assert warnings and all(".hold: kp " in w for w in warnings), warnings
+    pid_line = next(i for i, t in enumerate(controllers.read_text().splitlines(), 1) if "joint1: {p: 400.0" in t)
+    relayed = [f for f in result.report.of("approximated") if f.text.startswith("hild check warns: joints.joint1")]
+    assert [str(f.where) for f in relayed] == [f"{controllers}:{pid_line}"]
+    assert "from your PID gains of joint_trajectory_controller" in relayed[0].text
+    text = result.config.read_text()
+    assert (
+        f"hold: {{kp: 400, kd: 60}}  # kp, kd: PID of joint_trajectory_controller (rrbot_controllers.yaml:{pid_line})"
+        in (text)
+    )

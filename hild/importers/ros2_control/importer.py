@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from hild.config import ConfigError, load_config
+from hild.config.stop_review import check_with_model
 from hild.importers.ros2_control import controllers as ctl
 from hild.importers.ros2_control import mapping, twin, writer
 from hild.importers.ros2_control.contacts import excluded_contacts
@@ -86,7 +87,7 @@ def import_ros2_control(request: ImportRequest) -> ImportResult:
             inertias = joint_inertias(staged_urdf, [s.joint.name for s in selected], ranges)
         except ValueError as exc:
             raise _refused(exc, robot, label, staging) from None
-        joints = mapping.plan_joints(robot, selected, inertias, plan.effort_pid(), report)
+        joints = mapping.plan_joints(robot, selected, inertias, plan.effort_pid(), plan.update_rate, report)
         start = {j.name: j.initial_position for j in joints if j.initial_position is not None}
         try:
             exclusions = excluded_contacts(robot, staged_urdf, start, request.keep_self_contacts, report)
@@ -106,10 +107,12 @@ def import_ros2_control(request: ImportRequest) -> ImportResult:
         )
         staged_config.write_text(writer.render(doc))
         try:
-            load_config(staged_config)  # exactly what `hild check` does
+            loaded = load_config(staged_config)  # exactly what `hild check` does
+            check_with_model(loaded)
         except ConfigError as exc:
             detail = str(exc).replace(str(staged_config), str(config_path))
             raise ImportFailure(f"the imported config does not pass `hild check` (please report):\n{detail}") from None
+        _relay_check_warnings(loaded.notes, joints, robot, report)
         if report.partial and not request.allow_partial:  # last: every real error in the input comes first
             raise report.partial_failure()
         os.replace(staged_urdf, urdf_path)
@@ -168,6 +171,29 @@ def _check_destination(request: ImportRequest, config_path: Path, urdf_path: Pat
         for path in (config_path, urdf_path):
             if path.exists():
                 raise ImportFailure(f"{path} exists: pass --force to overwrite it")
+
+
+_WARNING = re.compile(r"^warning: .*?:\d+: (?P<key>\S+): (?P<message>.*)$", re.S)
+
+
+def _relay_check_warnings(notes: list[str], joints: list[mapping.JointPlan], robot: Robot, report: Report) -> None:
+    """`hild check`'s warnings on the written config, at the source of the values they are about. The importer's own
+    defaults draw none (mapping keeps them within what check demands): what is left is about the user's numbers."""
+    by_name = {j.name: j for j in joints}
+    for note in notes:
+        found = _WARNING.match(note)
+        if found is None:
+            continue
+        key, message = found.group("key"), found.group("message")
+        parts = key.split(".")
+        joint = by_name.get(parts[1]) if len(parts) > 2 and parts[0] == "joints" else None
+        where, origin = robot.where, ""
+        if joint is not None:
+            where = joint.where
+            if parts[2] in ("hold", "position_gains") and joint.gains_pid is not None:
+                controller, where = joint.gains_pid
+                origin = f" (from your PID gains of {controller})"
+        report.approximated(where, f"hild check warns: {key}: {message}{origin}")
 
 
 def _refused(exc: ValueError, robot: Robot, label: str, staging: Path) -> ImportFailure:

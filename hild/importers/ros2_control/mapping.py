@@ -11,7 +11,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from hild.config.model import PlausibilitySection
+from hild.config.model import PlausibilitySection, SafetySection
 from hild.importers.ros2_control.controllers import JointCatalog, Pid
 from hild.importers.ros2_control.inertia import JointInertia
 from hild.importers.ros2_control.report import Report, SourceRef
@@ -34,6 +34,7 @@ MAX_SUBSTEPS = 100
 CONTINUOUS_RANGE = round(2.0 * math.pi, 4)  # a continuous joint gets ±one turn
 PHYSICS_STEP = 0.001  # s: the twin's substeps keep MuJoCo's step at or below this (or smaller, see above)
 PLAUSIBILITY_MARGIN = PlausibilitySection().margin  # what the written config uses: it sets no safety.plausibility
+OVERSPEED_FACTOR = SafetySection().overspeed_factor  # likewise; hild check reasons about gains with it
 
 SIMULATORS = {
     "gazebo_ros2_control/GazeboSystem": "Gazebo Classic",
@@ -74,6 +75,7 @@ class JointPlan:
     transmission_from: SourceRef | None
     block: str
     inertia: JointInertia
+    gains_pid: tuple[str, SourceRef] | None = None  # (controller, where) of the user's PID the hold gains come from
 
 
 def select_joints(robot: Robot, report: Report) -> list[Selected]:
@@ -181,6 +183,7 @@ def plan_joints(
     selected: list[Selected],
     inertias: Mapping[str, JointInertia],
     effort_pid: Mapping[str, tuple[str, Pid]],
+    update_rate: float,
     report: Report,
 ) -> list[JointPlan]:
     transmissions = _transmissions(robot, {s.joint.name for s in selected}, report)
@@ -190,7 +193,9 @@ def plan_joints(
         lower, upper, velocity, effort = _limits(joint, hw, report)
         margin = _soft_margin(joint, lower, upper, report)
         acceleration, jerk = _planning_limits(joint, velocity, effort, inertias[joint.name], report)
-        kp, kd, gains_from = _hold_gains(joint, velocity, inertias[joint.name], effort_pid.get(joint.name), report)
+        pid = effort_pid.get(joint.name)
+        limits = _GainLimits(velocity, effort, margin, 1.0 / update_rate)
+        kp, kd, gains_from = _hold_gains(joint, limits, inertias[joint.name], pid, report)
         reduction = transmissions.get(joint.name)
         plans.append(
             JointPlan(
@@ -211,6 +216,7 @@ def plan_joints(
                 transmission_from=reduction[1] if reduction else None,
                 block=s.block.name if s.block is not None else "",
                 inertia=inertias[joint.name],
+                gains_pid=(pid[0], pid[1].where) if pid is not None else None,
             )
         )
     return plans
@@ -383,32 +389,60 @@ def _planning_limits(
     return acceleration, jerk
 
 
+@dataclass(frozen=True)
+class _GainLimits:
+    """What ``hild check`` holds hold gains to: a collision at full speed, or a spring at overspeed, must not change
+    the drive's torque by more than the effort limit within one cycle; nor may the hold saturate inside the soft
+    margin (hild/config/safety.py)."""
+
+    velocity: float
+    effort: float
+    soft_margin: float
+    dt: float
+
+    def bandwidth(self, inertia: float, damping_ratio: float) -> float:
+        """The highest ω (rad/s) whose gains kp = M·ω², kd = 2ζ·M·ω pass every rule, with a 1 % margin."""
+        v, e, dt = self.velocity, self.effort, self.dt
+        surge = (math.sqrt(damping_ratio**2 + dt * e / (inertia * v)) - damping_ratio) / dt  # kp·v·dt + kd·v ≤ e
+        spring = math.sqrt(e / (OVERSPEED_FACTOR * v * dt * inertia))  # kp · overspeed · v · dt ≤ e
+        margin = math.sqrt(e / (self.soft_margin * inertia)) if self.soft_margin > 0 else math.inf  # kp·margin ≤ e
+        return 0.99 * min(surge, spring, margin)
+
+
 def _hold_gains(
-    joint: Joint, velocity: float, inertia: JointInertia, pid: tuple[str, Pid] | None, report: Report
+    joint: Joint, limits: _GainLimits, inertia: JointInertia, pid: tuple[str, Pid] | None, report: Report
 ) -> tuple[float, float, str]:
     heavy = inertia.heaviest
     if pid is not None:
         controller, gains = pid
         kp, kd = gains.p, gains.d
-        source = f"PID of {controller}"
+        source = f"PID of {controller} ({gains.where.short})"
         if kd <= 0:
             kd = _round(2.0 * HOLD_DAMPING_RATIO * math.sqrt(kp * heavy))
             report.approximated(gains.where, f"{joint.name}: hold kp {kp:g} from {source}, no d → kd {kd:g} (ζ = 1)")
             return kp, kd, f"kp: {source}; kd: critical damping"
         report.mapped(gains.where, f"{joint.name}: hold gains kp {kp:g}, kd {kd:g} from {source}")
-        return kp, kd, source
+        return kp, kd, f"kp, kd: {source}"
     omega = 2.0 * math.pi * HOLD_BANDWIDTH_HZ
     by_bandwidth = heavy * omega**2
-    by_losses = (inertia.damping * velocity + inertia.friction) / DAMPING_LAG
-    kp = _round(max(by_bandwidth, by_losses))
-    kd = _round(2.0 * HOLD_DAMPING_RATIO * math.sqrt(kp * heavy))
+    by_losses = (inertia.damping * limits.velocity + inertia.friction) / DAMPING_LAG
+    kp = max(by_bandwidth, by_losses)
     rule = (
         f"{HOLD_BANDWIDTH_HZ:g} Hz on inertia {heavy:.4g}"
         if by_bandwidth >= by_losses
         else f"damping/friction lag ≤ {DAMPING_LAG:g} at full speed"
     )
+    most = limits.bandwidth(heavy, HOLD_DAMPING_RATIO) if heavy > 0 else math.inf
+    if math.sqrt(kp / heavy) > most:
+        kp = heavy * most**2
+        rule = (
+            f"{most / (2 * math.pi):.3g} Hz on inertia {heavy:.4g}: the most the effort limit {limits.effort:g} allows "
+            f"for a collision at {limits.velocity:g} rad/s"
+        )
+    kp = _round(kp)
+    kd = _round(2.0 * HOLD_DAMPING_RATIO * math.sqrt(kp * heavy))
     report.approximated(joint.where, f"{joint.name}: no effort PID → hold kp {kp:g}, kd {kd:g} ({rule}, ζ = 1)")
-    return kp, kd, f"default: {rule}, critically damped"
+    return kp, kd, f"default: {rule.split(':')[0]}, critically damped"
 
 
 def _initial_position(

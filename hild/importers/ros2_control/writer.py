@@ -15,6 +15,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from hild.config.stop_review import SUGGESTED_DESCENT
 from hild.importers.ros2_control.controllers import ControllerPlan, ControllersPlan
 from hild.importers.ros2_control.mapping import JointPlan
 
@@ -55,6 +56,7 @@ def build_document(
             "robot": {"name": robot_name, "model": urdf_name},
             "update_rate": _whole(controllers.update_rate),
             "clock": {"source": "wall"},
+            "safety": {"stop_descent": SUGGESTED_DESCENT},
             "hardware": {"twin": {"driver": "mujoco", "params": twin_params, "joints": {j.name: {} for j in joints}}},
             "joints": {j.name: _joint(j) for j in joints},
             "controllers": {c.name: _controller(c) for c in controllers.controllers},
@@ -64,6 +66,7 @@ def build_document(
     c[("robot", "model")] = "the twin's URDF: gravity feed-forward in hold"
     c[("update_rate",)] = f"controller_manager update_rate ({controllers.update_rate_where.short})"
     c[("clock", "source")] = "wall: real-time twin; sim: lockstep (tests)"
+    c[("safety", "stop_descent")] = "s: on stop the arm is lowered (damped, gravity fading out), not dropped"
     c[("hardware", "twin")] = "the MuJoCo twin stands in for every <ros2_control> hardware (joint space)"
     c[("hardware", "twin", "params", "substeps")] = "physics step ≤ 1 ms, short enough for the gains' stability"
     c[("hardware", "twin", "params", "exclude_contacts")] = "adjacent links, links overlapping at the start pose"
