@@ -14,8 +14,9 @@ from typing import Any
 
 import numpy as np
 import pytest
+import yaml
 
-from hild.config import load_config
+from hild.config import ConfigError, load_config
 from hild.config.stop_review import check_with_model
 from hild.engine import Engine
 from hild.importers.ros2_control.importer import ImportResult
@@ -336,3 +337,77 @@ def test_check_warnings_about_the_users_own_gains_name_them(tmp_path: Path) -> N
         f"hold: {{kp: 400, kd: 60}}  # kp, kd: PID of joint_trajectory_controller (rrbot_controllers.yaml:{pid_line})"
         in (text)
     )
+
+
+MOCK_HARDWARE = "      <plugin>mock_components/GenericSystem</plugin>\n"
+DAMIAO_HARDWARE = """      <plugin>arm3_hardware/Arm3DamiaoSystem</plugin>
+      <param name="can_interface">can1</param>
+      <param name="can_fd">true</param>
+"""
+
+
+def uncommented_can_template(result: ImportResult, tmp_path: Path) -> Path:
+    """The written config with its commented CAN section in place of the twin (what a user does on hardware)."""
+    text = result.config.read_text()
+    head, template = text.split("# hardware:\n")
+    hardware = "hardware:\n" + "\n".join(line.removeprefix("# ") for line in template.splitlines())
+    twin = re.search(r"^hardware:\n(?:  .*\n|\n)*?(?=^joints:)", head, re.M)
+    assert twin is not None
+    can = result.config.with_name("on_can.yaml")
+    can.write_text(head.replace(twin.group(0), hardware + "\n"))
+    return can
+
+
+def check_errors(config: Path) -> list[str]:
+    """`hild check`'s errors (the keys and messages), or [] when it passes."""
+    try:
+        check_with_model(load_config(config))
+    except ConfigError as exc:
+        return [f"{e.path}: {e.message}" for e in exc.issues]
+    return []
+
+
+def test_the_can_template_carries_the_descriptions_interface_fd_and_motor_models(tmp_path: Path) -> None:
+    urdf = with_xacro(tmp_path, MOCK_HARDWARE, DAMIAO_HARDWARE)
+    models = {"pan": "DM8009", "shoulder": "DM8009", "elbow": "DM4340"}
+    text = urdf.read_text()
+    for joint, model in models.items():
+        old = f'<xacro:arm_joint name="{joint}" initial='
+        text = text.replace(old, f'<xacro:arm_joint name="{joint}" model="{model}" initial=')
+    text = text.replace(
+        '<xacro:macro name="arm_joint" params="name initial">\n      <joint name="${prefix}${name}">',
+        '<xacro:macro name="arm_joint" params="name model initial">\n      <joint name="${prefix}${name}">\n'
+        '        <param name="motor_type">${model}</param>',
+    )
+    urdf.write_text(text)
+    result = import_robot(urdf, CLASSIC, tmp_path / "out" / "arm3.yaml")
+    written = result.config.read_text()
+    assert "#       bus: {interface: socketcan, channel: can1, fd: true}" in written
+    assert "#       flavour: damiao" in written
+    assert re.search(
+        r"#         pan: \{id: 0x01, reply_id: 0x11, model: DM8009\}  # model: arm3\.urdf:\d+; TODO", written
+    )
+    mapped = [f.text for f in result.report.of("mapped")]
+    assert "hardware param can_interface='can1' → CAN template bus channel" in mapped
+    assert "hardware param can_fd='true' → CAN template bus fd" in mapped
+    assert "elbow: param motor_type='DM4340' → CAN template motor model" in mapped
+    # What `hild check` says once it is uncommented: bus and motors are valid; the twin's hold gains on the direct
+    # drives of this arm (no gearbox) exceed a Damiao drive's kd range, and check says so for each joint.
+    can = uncommented_can_template(result, tmp_path)
+    errors = check_errors(can)
+    assert errors and all(re.match(r"joints\.\w+\.hold\.kd: .* above the drive's range 0\.\.5", e) for e in errors), (
+        errors
+    )
+    section = yaml.safe_load(can.read_text())["hardware"]["arm3system"]["params"]
+    assert section["bus"] == {"interface": "socketcan", "channel": "can1", "fd": True}
+    assert {j: m["model"] for j, m in section["motors"].items()} == models
+
+
+def test_the_can_template_says_what_to_fill_in_when_the_description_does_not_say(tmp_path: Path) -> None:
+    result = import_robot(XACRO, CLASSIC, tmp_path / "arm3.yaml")
+    written = result.config.read_text()
+    assert "channel: can0, bitrate: 1000000}  # TODO: your CAN interface (the description names none)" in written
+    assert "flavour: damiao  # TODO: damiao | tmotor | myactuator (the description names no motor model)" in written
+    assert re.search(r"pan: \{id: 0x01, reply_id: 0x11, model: DM4340\}  # TODO: id, reply_id, model", written)
+    errors = check_errors(uncommented_can_template(result, tmp_path))
+    assert all(".hold.kd: " in e for e in errors), errors  # only the gains to tune for the drive

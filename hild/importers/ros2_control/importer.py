@@ -22,6 +22,7 @@ from hild.config import ConfigError, load_config
 from hild.config.stop_review import check_with_model
 from hild.importers.ros2_control import controllers as ctl
 from hild.importers.ros2_control import mapping, twin, writer
+from hild.importers.ros2_control.can_template import read_can_facts
 from hild.importers.ros2_control.contacts import excluded_contacts
 from hild.importers.ros2_control.inertia import joint_inertias
 from hild.importers.ros2_control.packages import PackageRoots
@@ -74,7 +75,8 @@ def import_ros2_control(request: ImportRequest) -> ImportResult:
         raise robot.where.fail("no joint to command: <ros2_control> lists no movable, non-mimic joint")
     files = request.controller_files
     plan = ctl.read_controllers(files, mapping.catalog(robot, selected), report, request.args)
-    mapping.report_hardware(robot, report)
+    can = read_can_facts(robot, report)
+    mapping.report_hardware(robot, {name: facts.used for name, facts in can.items()}, report)
     mapping.check_limits(selected)
     twin.check_inertias(robot)
     urdf_text = twin.build_twin_urdf(document, robot, request.urdf.resolve().parent, packages, report)
@@ -102,7 +104,7 @@ def import_ros2_control(request: ImportRequest) -> ImportResult:
             plan,
             substeps,
             [f"URDF: {request.urdf.resolve()}", *(f"controllers: {f.resolve()}" for f in files)],
-            [(b.name, b.plugin or "") for b in robot.ros2_control],
+            can,
             exclusions,
         )
         staged_config.write_text(writer.render(doc))

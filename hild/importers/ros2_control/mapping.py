@@ -134,8 +134,9 @@ def catalog(robot: Robot, selected: list[Selected]) -> JointCatalog:
     return JointCatalog(tuple(s.joint.name for s in selected), frozenset(robot.joints), mimic, interfaces)
 
 
-def report_hardware(robot: Robot, report: Report) -> None:
-    """What becomes of each hardware plugin, its params, the gazebo plugins and mimic joints."""
+def report_hardware(robot: Robot, read: Mapping[str, set[str]], report: Report) -> None:
+    """What becomes of each hardware plugin, its params (``read``: those the CAN template took, per block), the
+    gazebo plugins and mimic joints."""
     for block in robot.ros2_control:
         plugin = block.plugin
         if plugin in SIMULATORS:
@@ -155,7 +156,8 @@ def report_hardware(robot: Robot, report: Report) -> None:
                 f"hardware plugin {plugin} has no hild driver: the MuJoCo twin stands in; fill in the CAN template",
             )
         for name, (value, where) in block.params.items():
-            report.unsupported(where, f"hardware param {name}={value!r} of {plugin} is not used by the twin")
+            if name not in read.get(block.name, set()):
+                report.unsupported(where, f"hardware param {name}={value!r} of {plugin} is not used by the twin")
     for element in robot.gazebo:
         if element.plugin and "ros2_control" in element.plugin:
             extra = (

@@ -116,6 +116,7 @@ class HardwareJoint:
     state_interfaces: tuple[Interface, ...]
     params: dict[str, str]
     mimic: bool  # <joint mimic="true"> inside <ros2_control>
+    param_where: dict[str, SourceRef] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -318,14 +319,16 @@ def _ros2_control(element: XmlElement, ref: SourceRefFn) -> Ros2Control:
     others = []
     for child in element.elements():
         if child.tag == "joint":
+            params = _params(child, ref)
             joints.append(
                 HardwareJoint(
                     _required(child, "name", ref),
                     ref(child),
                     tuple(_interface(i, ref) for i in child.elements("command_interface")),
                     tuple(_interface(i, ref) for i in child.elements("state_interface")),
-                    {name: value for name, (value, _) in _params(child, ref).items()},
+                    {name: value for name, (value, _) in params.items()},
                     child.attrib.get("mimic", "false").strip().lower() == "true",
+                    {name: where for name, (_, where) in params.items()},
                 )
             )
         elif child.tag not in ("hardware", "transmission"):

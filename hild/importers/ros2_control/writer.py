@@ -11,11 +11,12 @@ from __future__ import annotations
 import json
 import math
 import re
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 from hild.config.stop_review import SUGGESTED_DESCENT
+from hild.importers.ros2_control.can_template import CanFacts, template_lines
 from hild.importers.ros2_control.controllers import ControllerPlan, ControllersPlan
 from hild.importers.ros2_control.mapping import JointPlan
 
@@ -42,7 +43,7 @@ def build_document(
     controllers: ControllersPlan,
     substeps: int,
     sources: Sequence[str],
-    hardware_blocks: Sequence[tuple[str, str]],  # (block name, plugin) of each <ros2_control>
+    can: Mapping[str, CanFacts],  # what each <ros2_control> block says about its CAN drives
     exclude_contacts: Sequence[tuple[str, str]] = (),
 ) -> Document:
     twin_params: dict[str, Any] = {"model": urdf_name, "substeps": substeps}
@@ -81,7 +82,7 @@ def build_document(
         "Hardware is the MuJoCo twin over the URDF beside this file. Read the import report (approximations) and",
         "check limits and gains before running on hardware; the CAN section at the end is a template to fill in.",
     ]
-    doc.footer = _can_template(joints, hardware_blocks)
+    doc.footer = template_lines(joints, can)
     return doc
 
 
@@ -113,41 +114,6 @@ def _controller(plan: ControllerPlan) -> dict[str, Any]:
     out: dict[str, Any] = {"type": plan.type, "params": plan.params}
     if plan.autostart:
         out["autostart"] = True
-    return out
-
-
-def _can_template(joints: Sequence[JointPlan], blocks: Sequence[tuple[str, str]]) -> list[str]:
-    """A commented mit_can hardware section per <ros2_control> block: bus, ids and models to fill in."""
-    groups: dict[str, list[JointPlan]] = {}
-    for j in joints:
-        groups.setdefault(j.block, []).append(j)
-    plugins = dict(blocks)
-    out = [
-        "---- On MIT-protocol CAN servos: replace the hardware section above with this (docs/drivers.md) and fill",
-        "---- in the bus, the motor ids and models. The transmissions come from the URDF's <transmission>s.",
-        "hardware:",
-    ]
-    motor_id = 1
-    for index, (block, members) in enumerate(groups.items()):
-        name = re.sub(r"[^A-Za-z0-9_]+", "_", block).strip("_").lower() or f"arm{index or ''}"
-        origin = f"  # was <ros2_control name={block!r}> {plugins.get(block) or ''}".rstrip() if block else ""
-        out += [
-            f"  {name}:{origin}",
-            "    driver: mit_can",
-            "    params:",
-            f"      bus: {{interface: socketcan, channel: can{index}, bitrate: 1000000}}",
-            "      flavour: damiao              # damiao | tmotor | myactuator",
-            "      timeout_ms: 100",
-            "      motors:                      # TODO: your ids and motor models",
-        ]
-        for j in members:
-            out.append(f"        {j.name}: {{id: {motor_id:#04x}, reply_id: {motor_id + 0x10:#04x}, model: DM4340}}")
-            motor_id += 1
-        out.append("    joints:                        # q_joint = direction · q_motor / reduction + offset")
-        for j in members:
-            spec = _flow(j.transmission or {}) or "{}"
-            note = f"  # {j.transmission_from.short}" if j.transmission_from else ""
-            out.append(f"      {j.name}: {spec}{note}")
     return out
 
 
