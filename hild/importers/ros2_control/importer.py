@@ -1,10 +1,12 @@
-"""``import_ros2_control``: URDF (or xacro) + controllers.yaml → a hild config and the twin's URDF, or nothing.
+"""``import_ros2_control``: URDF (or xacro) + controller YAML files → a hild config and the twin's URDF, or nothing.
 
 The steps, each in its own module: expand xacro (xacro_expand) → parse with lines (xmltree, urdf) → choose the
-joints (mapping) → controllers (controllers) → the twin's URDF and its inertias (twin) → limits, gains,
-transmissions (mapping) → YAML (writer). Both files are written to a temporary directory beside the output,
-checked there the way ``hild check`` checks a config, and only then renamed into place: an error at any step
-leaves nothing behind.
+joints (mapping) → read and merge the controller files (ros_params, controllers) → what the hardware params say
+about CAN drives (can_template) → the twin's URDF and its inertias (twin, inertia) → limits, gains,
+transmissions (mapping) → contacts the twin ignores (contacts) → YAML (writer). Both files are written to a
+temporary directory beside the output, checked there the way ``hild check`` checks a config (its warnings go into
+the report), and only then renamed into place: an error at any step — or a partial import the user did not
+accept — leaves nothing behind.
 """
 
 from __future__ import annotations

@@ -1,8 +1,8 @@
 """URDF joints, limits, ``<ros2_control>`` and transmissions → hild joints, the twin's params and the CAN template.
 
 The defaults below are the documented answers (docs/import.md) to what a ros2_control robot does not say but a
-hild config needs: acceleration and jerk for planning, hold gains without PID gains, finite limits for
-continuous joints.
+hild config needs: acceleration and jerk for planning, finite limits for continuous joints, the twin's physics
+step. Hold gains are ``gains``' job, the twin's start pose ``start_pose``'s.
 """
 
 from __future__ import annotations
@@ -11,10 +11,11 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from hild.config.model import PlausibilitySection, SafetySection
 from hild.importers.ros2_control.controllers import JointCatalog, Pid
+from hild.importers.ros2_control.gains import GainLimits, hold_gains, round4
 from hild.importers.ros2_control.inertia import JointInertia
 from hild.importers.ros2_control.report import Report, SourceRef
+from hild.importers.ros2_control.start_pose import initial_position
 from hild.importers.ros2_control.urdf import HardwareJoint, Joint, Robot, Ros2Control
 
 # Planning limits a URDF does not carry: reach full speed in 0.5 s, but never ask for more than half the effort
@@ -22,19 +23,12 @@ from hild.importers.ros2_control.urdf import HardwareJoint, Joint, Robot, Ros2Co
 ACCELERATION_PER_VELOCITY = 2.0  # 1/s
 ACCELERATION_EFFORT_SHARE = 0.5
 JERK_PER_ACCELERATION = 10.0  # 1/s: full acceleration in 0.1 s
-# Hold gains without an effort PID: a critically damped 5 Hz loop in the joint's heaviest pose, stiff enough that
-# its own damping and friction at full speed cost at most DAMPING_LAG of tracking error.
-HOLD_BANDWIDTH_HZ = 5.0
-HOLD_DAMPING_RATIO = 1.0
-DAMPING_LAG = 0.05  # rad (m)
 # The twin runs the drive law once per physics step: in the joint's lightest pose, kd·h/M and √(kp/M)·h stay
 # below STEP_MARGIN, which sets the number of substeps (at most MAX_SUBSTEPS; beyond that the gains are lowered).
 STEP_MARGIN = 0.5
 MAX_SUBSTEPS = 100
 CONTINUOUS_RANGE = round(2.0 * math.pi, 4)  # a continuous joint gets ±one turn
 PHYSICS_STEP = 0.001  # s: the twin's substeps keep MuJoCo's step at or below this (or smaller, see above)
-PLAUSIBILITY_MARGIN = PlausibilitySection().margin  # what the written config uses: it sets no safety.plausibility
-OVERSPEED_FACTOR = SafetySection().overspeed_factor  # likewise; hild check reasons about gains with it
 
 SIMULATORS = {
     "gazebo_ros2_control/GazeboSystem": "Gazebo Classic",
@@ -196,13 +190,14 @@ def plan_joints(
         margin = _soft_margin(joint, lower, upper, report)
         acceleration, jerk = _planning_limits(joint, velocity, effort, inertias[joint.name], report)
         pid = effort_pid.get(joint.name)
-        limits = _GainLimits(velocity, effort, margin, 1.0 / update_rate)
-        kp, kd, gains_from = _hold_gains(joint, limits, inertias[joint.name], pid, report)
+        declared = hw.where if hw is not None else joint.where
+        limits = GainLimits(velocity, effort, margin, 1.0 / update_rate)
+        kp, kd, gains_from = hold_gains(joint.name, joint.where, limits, inertias[joint.name], pid, report)
         reduction = transmissions.get(joint.name)
         plans.append(
             JointPlan(
                 name=joint.name,
-                where=hw.where if hw is not None else joint.where,
+                where=declared,
                 lower=lower,
                 upper=upper,
                 soft_margin=margin,
@@ -213,7 +208,7 @@ def plan_joints(
                 kp=kp,
                 kd=kd,
                 gains_from=gains_from,
-                initial_position=_initial_position(joint, hw, lower, upper, report),
+                initial_position=initial_position(joint.name, declared, hw, lower, upper, report),
                 transmission=reduction[0] if reduction else None,
                 transmission_from=reduction[1] if reduction else None,
                 block=s.block.name if s.block is not None else "",
@@ -256,8 +251,8 @@ def choose_substeps(plans: list[JointPlan], update_rate: float, report: Report) 
         if limit < h * (1 - 1e-9):
             light = plan.inertia.lightest
             kp, kd = plan.kp, plan.kd
-            plan.kd = _round(min(kd, STEP_MARGIN * light / h))
-            plan.kp = _round(min(kp, light * (STEP_MARGIN / h) ** 2))
+            plan.kd = round4(min(kd, STEP_MARGIN * light / h))
+            plan.kp = round4(min(kp, light * (STEP_MARGIN / h) ** 2))
             report.approximated(
                 plan.where,
                 f"{plan.name}: gains kp {kp:g}, kd {kd:g} need a physics step below {limit * 1e6:.0f} µs in its "
@@ -277,11 +272,6 @@ def _stable_step(plan: JointPlan) -> float:
 
 
 # ---- pieces ---------------------------------------------------------------------------------------------------
-
-
-def _round(value: float) -> float:
-    """Four significant digits: derived numbers read better and nothing depends on the fifth."""
-    return float(f"{value:.4g}")
 
 
 def _interface_bound(hw: HardwareJoint | None, interface: str, joint: str) -> tuple[float | None, ...]:
@@ -359,7 +349,7 @@ def _soft_margin(joint: Joint, lower: float, upper: float, report: Report) -> fl
     if safety.soft_upper is not None:
         margins.append(upper - safety.soft_upper)
     margins = [max(0.0, m) for m in margins]
-    margin = _round(max(margins, default=0.0))
+    margin = round4(max(margins, default=0.0))
     if 2 * margin >= upper - lower:
         raise safety.where.fail(f"joint {joint.name!r}: soft limits leave no room inside [{lower:g}, {upper:g}]")
     text = f"{joint.name}: <safety_controller> soft limits → soft_margin {margin:g}"
@@ -380,8 +370,8 @@ def _planning_limits(
     heaviest = inertia.heaviest
     by_speed = ACCELERATION_PER_VELOCITY * velocity
     by_effort = ACCELERATION_EFFORT_SHARE * effort / heaviest if heaviest > 0 else math.inf
-    acceleration = _round(min(by_speed, by_effort))
-    jerk = _round(JERK_PER_ACCELERATION * acceleration)
+    acceleration = round4(min(by_speed, by_effort))
+    jerk = round4(JERK_PER_ACCELERATION * acceleration)
     rule = f"{ACCELERATION_PER_VELOCITY:g} × velocity" if by_speed <= by_effort else "½ effort / inertia"
     report.approximated(
         joint.limit.where if joint.limit else joint.where,
@@ -389,130 +379,6 @@ def _planning_limits(
         f"{heaviest:.4g}), jerk {jerk:g} ({JERK_PER_ACCELERATION:g} × acceleration)",
     )
     return acceleration, jerk
-
-
-@dataclass(frozen=True)
-class _GainLimits:
-    """What ``hild check`` holds hold gains to: a collision at full speed, or a spring at overspeed, must not change
-    the drive's torque by more than the effort limit within one cycle; nor may the hold saturate inside the soft
-    margin (hild/config/safety.py)."""
-
-    velocity: float
-    effort: float
-    soft_margin: float
-    dt: float
-
-    def bandwidth(self, inertia: float, damping_ratio: float) -> float:
-        """The highest ω (rad/s) whose gains kp = M·ω², kd = 2ζ·M·ω pass every rule, with a 1 % margin."""
-        v, e, dt = self.velocity, self.effort, self.dt
-        surge = (math.sqrt(damping_ratio**2 + dt * e / (inertia * v)) - damping_ratio) / dt  # kp·v·dt + kd·v ≤ e
-        spring = math.sqrt(e / (OVERSPEED_FACTOR * v * dt * inertia))  # kp · overspeed · v · dt ≤ e
-        margin = math.sqrt(e / (self.soft_margin * inertia)) if self.soft_margin > 0 else math.inf  # kp·margin ≤ e
-        return 0.99 * min(surge, spring, margin)
-
-
-def _hold_gains(
-    joint: Joint, limits: _GainLimits, inertia: JointInertia, pid: tuple[str, Pid] | None, report: Report
-) -> tuple[float, float, str]:
-    heavy = inertia.heaviest
-    if pid is not None:
-        controller, gains = pid
-        kp, kd = gains.p, gains.d
-        source = f"PID of {controller} ({gains.where.short})"
-        if kd <= 0:
-            kd = _round(2.0 * HOLD_DAMPING_RATIO * math.sqrt(kp * heavy))
-            report.approximated(gains.where, f"{joint.name}: hold kp {kp:g} from {source}, no d → kd {kd:g} (ζ = 1)")
-            return kp, kd, f"kp: {source}; kd: critical damping"
-        report.mapped(gains.where, f"{joint.name}: hold gains kp {kp:g}, kd {kd:g} from {source}")
-        return kp, kd, f"kp, kd: {source}"
-    omega = 2.0 * math.pi * HOLD_BANDWIDTH_HZ
-    by_bandwidth = heavy * omega**2
-    by_losses = (inertia.damping * limits.velocity + inertia.friction) / DAMPING_LAG
-    kp = max(by_bandwidth, by_losses)
-    rule = (
-        f"{HOLD_BANDWIDTH_HZ:g} Hz on inertia {heavy:.4g}"
-        if by_bandwidth >= by_losses
-        else f"damping/friction lag ≤ {DAMPING_LAG:g} at full speed"
-    )
-    most = limits.bandwidth(heavy, HOLD_DAMPING_RATIO) if heavy > 0 else math.inf
-    if math.sqrt(kp / heavy) > most:
-        kp = heavy * most**2
-        rule = (
-            f"{most / (2 * math.pi):.3g} Hz on inertia {heavy:.4g}: the most the effort limit {limits.effort:g} allows "
-            f"for a collision at {limits.velocity:g} rad/s"
-        )
-    kp = _round(kp)
-    kd = _round(2.0 * HOLD_DAMPING_RATIO * math.sqrt(kp * heavy))
-    report.approximated(joint.where, f"{joint.name}: no effort PID → hold kp {kp:g}, kd {kd:g} ({rule}, ζ = 1)")
-    return kp, kd, f"default: {rule.split(':')[0]}, critically damped"
-
-
-def _initial_position(
-    joint: Joint, hw: HardwareJoint | None, lower: float, upper: float, report: Report
-) -> float | None:
-    """``initial_value`` of the position interface (state first, as gz/mock read it) → the twin's start pose.
-
-    A start on a limit, or beyond it by no more than the plausibility margin (a joint parked on its end stop, a
-    calibration a hair off), is kept — clamped for the twin, which cannot start outside its range — and said so.
-    A zero pose outside the limits (no initial_value) would start the twin beyond a limit: it starts on the
-    nearest one instead."""
-    found = None
-    for spec in (*hw.state_interfaces, *hw.command_interfaces) if hw is not None else ():
-        raw = spec.params.get("initial_value")
-        if raw is None:
-            continue
-        where = spec.where_of("initial_value")
-        if spec.name != "position":
-            if _number_or_none(raw) != 0.0:  # at rest is what the twin does anyway
-                report.unsupported(where, f"{joint.name}: initial_value of {spec.name} (the twin starts at rest)")
-            continue
-        if found is not None:
-            continue
-        value = _number_or_none(raw)
-        if value is None:
-            raise where.fail(f"joint {joint.name!r}: initial_value {raw!r} is not a number")
-        found = _start_on_limit(joint, value, lower, upper, where, report)
-        report.mapped(where, f"{joint.name}: initial_value {value:g} → twin initial_positions")
-    if found is None and hw is not None and not lower <= 0.0 <= upper:
-        found = lower if lower > 0.0 else upper
-        report.approximated(
-            hw.where,
-            f"{joint.name}: no initial_value, and the zero pose is outside [{lower:.4g}, {upper:.4g}]: the twin "
-            f"starts on the nearest limit, {found:g}",
-        )
-    return found
-
-
-def _start_on_limit(joint: Joint, value: float, lower: float, upper: float, where: SourceRef, report: Report) -> float:
-    """The twin's start for ``initial_value``: itself inside the limits, the limit when on or just beyond it."""
-    margin = PLAUSIBILITY_MARGIN
-    holds = (
-        f"a joint resting on its end stop holds (readings within safety.plausibility.margin {margin:g} of a limit "
-        "are accepted)"
-    )
-    for side, limit, beyond in (("lower", lower, lower - value), ("upper", upper, value - upper)):
-        if beyond > margin:
-            raise where.fail(
-                f"joint {joint.name!r}: initial_value {value:g} is outside [{lower:g}, {upper:g}] by more than the "
-                f"plausibility margin {margin:g}: a drive reading it would fault"
-            )
-        if beyond > 0.0:
-            report.approximated(
-                where,
-                f"{joint.name}: initial_value {value:g} is {beyond:.4g} beyond the {side} limit {limit:g}: the twin "
-                f"starts on the limit; {holds}",
-            )
-            return limit
-        if beyond == 0.0:
-            report.approximated(where, f"{joint.name}: initial_value {value:g} is on the {side} limit: {holds}")
-    return value
-
-
-def _number_or_none(raw: str) -> float | None:
-    try:
-        return float(raw)
-    except ValueError:
-        return None
 
 
 def _transmissions(robot: Robot, commanded: set[str], report: Report) -> dict[str, tuple[dict[str, float], SourceRef]]:

@@ -39,10 +39,6 @@ class ParamTree:
     document: dict[str, Any] | None = None  # ROS 1: the merged documents
     lines: dict[KeyPath, SourceRef] = field(default_factory=dict)  # (node, *keys) or the ROS 1 key path
 
-    @property
-    def ros1(self) -> bool:
-        return self.document is not None
-
     def ref(self, path: KeyPath) -> SourceRef:
         """Where the value at ``path`` was set; the nearest enclosing key that was, or the first file."""
         while path and path not in self.lines:
