@@ -39,8 +39,13 @@ def checked(result: ImportResult) -> list[str]:
 
 
 def hold_then_move(result: ImportResult, joints: list[str], offsets: list[list[float]] = MOVE) -> Engine:
-    """Lockstep: one second of hold (nothing moves, nothing faults), then a trajectory through start + offsets that
-    must succeed with every joint within its goal tolerance of the last point."""
+    """`hild check` (any warning is about the description's own values, and in the report), then lockstep: one
+    second of hold (nothing moves, nothing faults), then a trajectory through start + offsets that must succeed
+    with every joint within its goal tolerance of the last point."""
+    relayed = [f.text for f in result.report.findings if f.text.startswith("hild check warns: ")]
+    for warning in checked(result):
+        about = warning.split(": ", 2)[-1]  # "key: message" after the file:line
+        assert any(about in text for text in relayed), warning
     engine = lockstep(result.config)
     start = engine.state.position.copy()
     engine.run_cycles(int(engine.update_rate))
