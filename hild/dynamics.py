@@ -1,4 +1,5 @@
-"""Rigid-body dynamics of the arm model: gravity feed-forward for hold and controllers, kinematics for viewers.
+"""Rigid-body dynamics of the arm model: gravity feed-forward for hold and controllers, kinematics for viewers,
+and what the importer needs to know of a model (inertia over poses, contacts at the start pose).
 
 This and ``drivers/mujoco`` are the only places that import mujoco (DESIGN.md §5). The supervisor and controllers
 use :class:`GravityModel` to add the torque that balances gravity at the held position, so a hold does not sag by
@@ -10,7 +11,7 @@ twin and the feed-forward always agree on the same file.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,10 +22,12 @@ from hild.arrays import contiguous_slice
 
 __all__ = [
     "SCALAR_JOINT_TYPES",
+    "BodyContact",
     "GeomShape",
     "GravityModel",
     "JointDofs",
     "Kinematics",
+    "body_contacts",
     "contiguous_slice",
     "joint_dofs",
     "joint_names",
@@ -36,10 +39,12 @@ __all__ = [
 SCALAR_JOINT_TYPES = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
 
 
-def load_model(path: Path) -> mujoco.MjModel:
+def load_model(path: Path, exclude_contacts: Sequence[tuple[str, str]] = ()) -> mujoco.MjModel:
     """Load and compile an MJCF (``.xml``) or URDF (``.urdf``) model with MuJoCo's loader.
 
-    Raises ``ValueError`` naming the file, with MuJoCo's own message, when the file is missing or does not compile.
+    ``exclude_contacts``: body pairs whose contacts MuJoCo ignores (``<contact><exclude>``), added before the model
+    is compiled, since a URDF cannot say it. Raises ``ValueError`` naming the file, with MuJoCo's own message, when
+    the file is missing or does not compile, or a pair names a body the model does not have.
     """
     path = Path(path)
     if path.suffix.lower() not in (".xml", ".urdf", ".mjcf"):
@@ -47,8 +52,20 @@ def load_model(path: Path) -> mujoco.MjModel:
     if not path.is_file():
         raise ValueError(f"model {path}: file not found")
     try:
-        return mujoco.MjModel.from_xml_path(str(path))
+        if not exclude_contacts:
+            return mujoco.MjModel.from_xml_path(str(path))
+        spec = mujoco.MjSpec.from_file(str(path))
     except Exception as exc:  # mujoco raises ValueError; be robust to other binding errors
+        raise ValueError(f"model {path}: MuJoCo could not load it: {exc}") from exc
+    bodies = {body.name for body in spec.bodies}
+    unknown = sorted({name for pair in exclude_contacts for name in pair} - bodies)
+    if unknown:
+        raise ValueError(f"model {path}: exclude_contacts names bodies it does not have: {', '.join(unknown)}")
+    for first, second in exclude_contacts:
+        spec.add_exclude(bodyname1=first, bodyname2=second)
+    try:
+        return spec.compile()
+    except Exception as exc:
         raise ValueError(f"model {path}: MuJoCo could not load it: {exc}") from exc
 
 
@@ -125,6 +142,32 @@ def joint_dofs(path: Path, joints: Sequence[str], poses: np.ndarray) -> JointDof
         friction=model.dof_frictionloss[dofadr].copy(),
         qpos0=model.qpos0[qposadr].copy(),
     )
+
+
+@dataclass(frozen=True)
+class BodyContact:
+    first: str  # body names, in model order
+    second: str
+    depth: float  # m: the deepest penetration between their geoms
+
+
+def body_contacts(path: Path, pose: Mapping[str, float]) -> list[BodyContact]:
+    """Pairs of bodies whose geoms MuJoCo finds penetrating at ``pose`` (joint name → position; other joints at
+    qpos0), each once, in model order — the contacts the model would fight from its first step."""
+    model = load_model(path)
+    data = mujoco.MjData(model)
+    data.qpos[:] = model.qpos0
+    if pose:
+        _, qposadr, _ = scalar_joint_addresses(model, list(pose))
+        data.qpos[qposadr] = list(pose.values())
+    mujoco.mj_forward(model, data)
+    deepest: dict[tuple[int, int], float] = {}
+    for contact in data.contact[: data.ncon]:
+        if contact.dist >= 0.0:
+            continue
+        a, b = sorted((int(model.geom_bodyid[contact.geom1]), int(model.geom_bodyid[contact.geom2])))
+        deepest[a, b] = max(deepest.get((a, b), 0.0), -float(contact.dist))
+    return [BodyContact(model.body(a).name, model.body(b).name, depth) for (a, b), depth in sorted(deepest.items())]
 
 
 class GravityModel:

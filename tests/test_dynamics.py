@@ -9,7 +9,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from hild.dynamics import GravityModel, load_model
+from hild.dynamics import GravityModel, body_contacts, load_model
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 ARM6 = CONFIGS / "arm6.xml"
@@ -59,6 +59,29 @@ def test_load_model_broken_file_names_it_with_mujoco_message(tmp_path: Path) -> 
         load_model(bad)
     assert "MuJoCo" in str(info.value)
     assert "range" in str(info.value)  # MuJoCo's own complaint is carried along
+
+
+OVERLAPPING = """<mujoco><worldbody>
+  <body name="base"><geom type="box" size="0.1 0.1 0.1"/>
+    <body name="arm" pos="0 0 0.15"><joint name="lift" type="slide" axis="0 0 1" range="-0.1 0.1"/>
+      <geom type="box" size="0.05 0.05 0.06"/></body></body>
+  <body name="post" pos="1 0 0"><joint name="slide" type="slide" axis="1 0 0"/><geom type="sphere" size="0.1"/></body>
+</worldbody></mujoco>"""
+
+
+def test_contacts_at_a_pose_and_excluded_pairs(tmp_path: Path) -> None:
+    path = tmp_path / "overlap.xml"
+    path.write_text(OVERLAPPING)
+    (touching,) = body_contacts(path, {})  # the arm sits 1 cm into its base (a world-welded parent: not filtered)
+    assert (touching.first, touching.second) == ("base", "arm") and touching.depth == pytest.approx(0.01)
+    assert body_contacts(path, {"lift": 0.05}) == []
+    assert [(c.first, c.second) for c in body_contacts(path, {"lift": 0.05, "slide": -0.9})] == [("base", "post")]
+    model = load_model(path, [("base", "arm")])
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    assert data.ncon == 0
+    with pytest.raises(ValueError, match=r"exclude_contacts names bodies it does not have: nope"):
+        load_model(path, [("base", "nope")])
 
 
 def test_load_model_rejects_other_formats(tmp_path: Path) -> None:

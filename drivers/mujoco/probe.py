@@ -35,7 +35,7 @@ def mj_step(count: int = 5000, config: str | Path | None = None, **_: Any) -> di
     if not found:
         raise ValueError(f"{config}: no hardware component uses the mujoco driver")
     name, params = found[0]
-    model = load_model(loaded.directory / params.model)
+    model = load_model(loaded.directory / params.model, params.exclude_contacts)
     model.opt.timestep = 1.0 / cfg.update_rate / params.substeps
     data = mujoco.MjData(model)
     if params.keyframe is not None:

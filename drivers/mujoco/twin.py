@@ -68,6 +68,11 @@ class MujocoTwinParams(Params):
         default_factory=dict, description="Viscous joint damping (N·m·s/rad), overriding the model."
     )
     gravity: bool = Field(default=True, description="False disables gravity in the simulation.")
+    exclude_contacts: list[tuple[str, str]] = Field(
+        default_factory=list,
+        description="Body pairs whose contacts the simulation ignores (MuJoCo <contact><exclude>): links of the arm "
+        "that touch by construction, e.g. collision meshes overlapping at the start pose.",
+    )
 
 
 class MujocoTwin(HardwareComponent):
@@ -102,7 +107,7 @@ class MujocoTwin(HardwareComponent):
         p = self.params
         path = self.context.config_dir / p.model
         try:
-            model = load_model(path)
+            model = load_model(path, p.exclude_contacts)
         except ValueError as exc:
             raise HardwareError(f"{self.context.name}: {exc}") from None
         self._check_names()

@@ -78,7 +78,7 @@ def add_ctl_parser(subparsers: Any) -> None:
     zero.add_argument("joint")
     zero.add_argument("--confirm", action="store_true", help="required: the joint's position origin moves")
     goal = argparse.ArgumentParser(add_help=False)
-    goal.add_argument("--controller", default="joint_trajectory", help="default: joint_trajectory")
+    goal.add_argument("--controller", help="default: the robot's only joint_trajectory controller")
     goal.add_argument("--no-wait", action="store_true", help="print the goal id and return once it is accepted")
     goal.add_argument("--wait", type=float, default=None, metavar="S", help="give up waiting after S seconds")
     move = sub.add_parser("move-to", parents=[common, goal], help="time-optimal jerk-limited move to positions")
@@ -90,7 +90,7 @@ def add_ctl_parser(subparsers: Any) -> None:
     trajectory.add_argument("file", help='YAML/JSON: a goal {"trajectory": {joint_names, points}, ...}')
     cancel = sub.add_parser("cancel", parents=[common], help="stop a running goal (decelerates, then holds)")
     cancel.add_argument("goal_id")
-    cancel.add_argument("--controller", default="joint_trajectory", help="default: joint_trajectory")
+    cancel.add_argument("--controller", help="default: the robot's only joint_trajectory controller")
     watch = sub.add_parser("watch", parents=[common], help="live joint table (Ctrl-C to leave)")
     watch.add_argument("--once", action="store_true", help="print one table and exit")
     watch.add_argument("--rate", type=float, default=10.0, help="redraws per second (default 10)")
@@ -224,10 +224,51 @@ def _trajectory(client: HildClient, args: argparse.Namespace, as_json: bool) -> 
     return _run_goal(client, args, as_json, goal)
 
 
+TRAJECTORY_TYPE = "joint_trajectory"  # the controller type that takes move_to and trajectory goals
+
+
+def _goal_controller(client: HildClient, asked: str | None) -> str:
+    """The controller a goal goes to: the one asked for, or the robot's only trajectory controller."""
+    if asked is not None:
+        return asked
+    controllers = client.list_controllers()
+    found = [c["name"] for c in controllers if c.get("type") == TRAJECTORY_TYPE]
+    if len(found) == 1:
+        return str(found[0])
+    if found:
+        raise HildError(
+            f"robot {client.robot!r} has {len(found)} trajectory controllers: {', '.join(found)}; "
+            "choose one with --controller"
+        )
+    listed = ", ".join(f"{c['name']} ({c.get('type')})" for c in controllers) or "none"
+    raise HildError(f"robot {client.robot!r} has no trajectory controller (controllers: {listed})")
+
+
+def _no_such_goal_controller(client: HildClient, name: str, unreachable: HildUnreachable) -> HildError:
+    """Why a goal key got no reply, when the daemon is there: the controller is missing or takes no goals."""
+    try:
+        controllers = client.list_controllers()
+    except HildError:
+        return unreachable  # the daemon itself does not answer: say that
+    trajectory = ", ".join(c["name"] for c in controllers if c.get("type") == TRAJECTORY_TYPE) or "none"
+    kind = next((c.get("type") for c in controllers if c["name"] == name), None)
+    if kind is None:
+        reason = f"robot {client.robot!r} has no controller {name!r}"
+    elif kind != TRAJECTORY_TYPE:
+        reason = f"controller {name!r} ({kind}) takes no goals"
+    else:
+        return unreachable
+    return HildError(f"{reason} (trajectory controllers: {trajectory}); {unreachable}")
+
+
 def _run_goal(client: HildClient, args: argparse.Namespace, as_json: bool, goal: dict[str, Any]) -> int:
     """Send a goal, then wait for its result (Ctrl-C cancels it); exit 0 only if it succeeded."""
+    controller = _goal_controller(client, args.controller)
     # --no-wait: nobody stays to watch the goal, so it must not be stopped when this command exits
-    handle = client.send_goal(args.controller, goal, watched=not args.no_wait)
+    try:
+        handle = client.send_goal(controller, goal, watched=not args.no_wait)
+    except HildUnreachable as exc:
+        raise _no_such_goal_controller(client, controller, exc) from None
     with handle:
         if args.no_wait:
             print(json.dumps({"ok": True, "goal_id": handle.goal_id}) if as_json else handle.goal_id)
@@ -247,7 +288,11 @@ def _run_goal(client: HildClient, args: argparse.Namespace, as_json: bool, goal:
 
 
 def _cancel(client: HildClient, args: argparse.Namespace, as_json: bool) -> int:
-    reply = client.cancel(args.controller, args.goal_id)
+    controller = _goal_controller(client, args.controller)
+    try:
+        reply = client.cancel(controller, args.goal_id)
+    except HildUnreachable as exc:
+        raise _no_such_goal_controller(client, controller, exc) from None
     print(json.dumps(reply) if as_json else f"cancel requested for {args.goal_id}")
     return EXIT_OK
 

@@ -12,13 +12,13 @@ class DocumentError(ValueError):
     pass
 
 
-def load_document(path: str | Path) -> Any:
-    """Parse a YAML (or JSON, a subset of YAML) file; errors name the file and line."""
+def load_document(path: str | Path, text: str | None = None) -> Any:
+    """Parse a YAML (or JSON, a subset of YAML) file; errors name the file and line.
+
+    ``text``: the file's content as the caller already has it (e.g. after substitutions), named by ``path``."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise DocumentError(f"{path}: cannot read the file: {exc.strerror or exc}") from None
+    if text is None:
+        text = read_text(path)
     try:
         return yaml.safe_load(text)
     except yaml.YAMLError as exc:
@@ -27,16 +27,26 @@ def load_document(path: str | Path) -> Any:
         raise DocumentError(f"{where}: not valid YAML: {getattr(exc, 'problem', None) or exc}") from None
 
 
+def read_text(path: str | Path) -> str:
+    """The file's text; an unreadable file is a DocumentError naming it."""
+    try:
+        return Path(path).read_text()
+    except OSError as exc:
+        raise DocumentError(f"{path}: cannot read the file: {exc.strerror or exc}") from None
+
+
 KeyPath = tuple[str | int, ...]
 
 
-def load_document_lines(path: str | Path) -> tuple[Any, dict[KeyPath, int]]:
+def load_document_lines(path: str | Path, text: str | None = None) -> tuple[Any, dict[KeyPath, int]]:
     """Like :func:`load_document`, plus the 1-based line of every key path (``("a", "b", 0)`` for ``a.b[0]``).
 
     For tools that read foreign YAML (e.g. a ros2_control controllers.yaml) and must point back at its lines.
     """
-    data = load_document(path)  # raises DocumentError with the line of a syntax error
-    root = yaml.compose(Path(path).read_text(), Loader=yaml.SafeLoader)
+    if text is None:
+        text = read_text(path)
+    data = load_document(path, text)  # raises DocumentError with the line of a syntax error
+    root = yaml.compose(text, Loader=yaml.SafeLoader)
     lines: dict[KeyPath, int] = {}
 
     def walk(node: yaml.Node, loc: KeyPath) -> None:

@@ -477,3 +477,23 @@ def test_a_twin_whose_configure_failed_can_still_be_deactivated_and_cleaned_up()
     twin.deactivate()  # the engine's release path after a failed start
     twin.cleanup()
     assert twin.data is None
+
+
+def test_excluded_contacts_are_ignored_and_unknown_bodies_refused(tmp_path: Path) -> None:
+    """A link sitting 1 cm into its world-welded parent: MuJoCo pushes it out unless the pair is excluded."""
+    (tmp_path / "overlap.xml").write_text(
+        """<mujoco><worldbody><body name="base"><geom type="box" size="0.1 0.1 0.1"/>
+        <body name="arm" pos="0 0 0.15"><joint name="lift" type="slide" axis="0 0 1" actuatorfrcrange="-50 50"/>
+        <geom type="box" size="0.05 0.05 0.06" mass="1"/></body></body></worldbody>
+        <option gravity="0 0 0"/></mujoco>"""
+    )
+    for exclude, pushed in (([], True), ([("base", "arm")], False)):
+        twin = make_twin(joints=("lift",), config_dir=tmp_path, model="overlap.xml", exclude_contacts=exclude)
+        state, command = start(twin)
+        for _ in range(50):
+            cycle(twin, state, command)
+        assert (state.position[0] > 1e-3) == pushed
+    with pytest.raises(HardwareError, match=r"exclude_contacts names bodies it does not have: nope"):
+        make_twin(
+            joints=("lift",), config_dir=tmp_path, model="overlap.xml", exclude_contacts=[("arm", "nope")]
+        ).configure()

@@ -19,7 +19,7 @@ ARM2 = ROBOTS / "arm2"
 MY_ARM = ROBOTS / "my_arm_description"
 
 
-def import_robot(urdf: Path, controllers: Path, output: Path, **options: Any) -> ImportResult:
+def import_robot(urdf: Path, controllers: Path | list[Path], output: Path, **options: Any) -> ImportResult:
     return import_ros2_control(ImportRequest(urdf=urdf, controllers=controllers, output=output, **options))
 
 

@@ -126,18 +126,32 @@ def test_undefined_xacro_argument(tmp_path: Path) -> None:
     message = fails(
         tmp_path, xacro, MY_ARM / "config" / "my_arm_controllers.yaml", package_roots={"my_arm_description": MY_ARM}
     )
-    assert "Undefined substitution argument use_mock_hardware (pass it with --xacro-arg NAME:=VALUE)" in message
+    assert "Undefined substitution argument use_mock_hardware (pass it with --arg NAME=VALUE)" in message
 
 
 def test_a_mesh_mujoco_cannot_read_fails_after_staging_and_leaves_no_directory(tmp_path: Path) -> None:
     robot = copy_robot(MY_ARM, tmp_path)
     (robot / "meshes" / "tool.stl").write_bytes(b"not an stl")
     nested = tmp_path / "new" / "deeper"
-    with pytest.raises(ImportFailure, match=r"the twin cannot use this URDF: .*tool\.stl"):
+    with pytest.raises(ImportFailure) as info:
         import_robot(
             robot / "urdf" / "my_arm.urdf.xacro", robot / "config" / "my_arm_controllers.yaml", nested / "arm.yaml"
         )
     assert not (tmp_path / "new").exists()
+    message = str(info.value)  # at the <mesh> element (of the expansion), never naming a staging file
+    assert re.match(
+        rf"{nested / 'arm.urdf'}:\d+: the twin cannot use this URDF \(mesh 'tool'\): MuJoCo refuses", message
+    )
+    assert "invalid header in STL file" in message and str(robot / "meshes" / "tool.stl") in message
+    assert ".hild-import-" not in message
+
+
+def test_a_negative_moment_of_inertia_names_its_line(tmp_path: Path) -> None:
+    urdf = edited(tmp_path, RRBOT / "rrbot.urdf", 'ixx="0.084167"', 'ixx="-0.084167"')
+    message = fails(tmp_path, urdf)
+    line = line_of(urdf, 'ixx="-0.084167"')
+    assert message.startswith(f"{urdf}:{line}: link 'link1': principal moments of inertia -0.08417, ")
+    assert message.endswith("a negative one is no rigid body's; fix the <inertia>")
 
 
 def test_a_collision_mesh_in_a_format_mujoco_lacks(tmp_path: Path) -> None:

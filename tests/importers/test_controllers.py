@@ -124,7 +124,9 @@ leftover:
         unsupported
     )
     assert "12: controller 'fwd': interface 'temperature' (hild forwards position, velocity or effort)" in unsupported
-    assert "13: parameters for 'leftover', which controller_manager does not define" in unsupported
+    assert "13: parameters for 'leftover', which is not a controller: no type here or in controller_manager" in (
+        unsupported
+    )
 
 
 @pytest.mark.parametrize(

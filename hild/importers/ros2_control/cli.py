@@ -27,6 +27,14 @@ def _xacro_arg(text: str) -> tuple[str, str]:
     return name, value
 
 
+def _launch_arg(text: str) -> tuple[str, str]:
+    """``NAME=VALUE`` (or ROS's own ``NAME:=VALUE``); the value may be empty (an empty prefix)."""
+    name, sep, value = text.partition(":=") if ":=" in text else text.partition("=")
+    if not sep or not name.strip():
+        raise argparse.ArgumentTypeError(f"expected NAME=VALUE, got {text!r}")
+    return name.strip(), value
+
+
 def register(subparsers: Any) -> None:
     """Add ``import`` (with its ``ros2-control`` source) to the ``hild`` command line."""
     group = subparsers.add_parser("import", help="make a hild config from another framework's robot description")
@@ -38,7 +46,15 @@ def register(subparsers: Any) -> None:
         "prints what was mapped, approximated and not supported, with file:line. On any error nothing is written.",
     )
     p.add_argument("--urdf", required=True, type=Path, help="the robot's URDF or xacro file")
-    p.add_argument("--controllers", required=True, type=Path, help="controller_manager YAML (controllers.yaml)")
+    p.add_argument(
+        "--controllers",
+        required=True,
+        type=Path,
+        nargs="+",
+        action="extend",
+        metavar="FILE",
+        help="controller_manager YAML; several files (or the option repeated) are merged in order, as ROS does",
+    )
     p.add_argument("-o", "--output", required=True, type=Path, help="hild config to write (ROBOT.yaml)")
     p.add_argument(
         "--package-root",
@@ -49,7 +65,25 @@ def register(subparsers: Any) -> None:
         help="where ROS package NAME lives, for $(find NAME) and package://NAME/ (repeatable)",
     )
     p.add_argument(
+        "--arg",
+        action="append",
+        type=_launch_arg,
+        default=[],
+        metavar="NAME=VALUE",
+        help="a launch argument: a xacro argument and the value of $(var NAME) in the YAML (repeatable)",
+    )
+    p.add_argument(
         "--xacro-arg", action="append", type=_xacro_arg, default=[], metavar="NAME:=VALUE", help="xacro argument"
+    )
+    p.add_argument(
+        "--allow-partial",
+        action="store_true",
+        help="import even when controllers or joints given cannot be mapped (they are listed and left out)",
+    )
+    p.add_argument(
+        "--keep-self-contacts",
+        action="store_true",
+        help="let the twin collide robot links that overlap at the start pose (adjacent links never collide)",
     )
     p.add_argument("--robot-name", help="hild robot name (default: the URDF's <robot name>)")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
@@ -66,8 +100,11 @@ def run(args: argparse.Namespace) -> int:
         output=args.output,
         package_roots=dict(args.package_root),
         xacro_args=dict(args.xacro_arg),
+        args=dict(args.arg),
         robot_name=args.robot_name,
         force=args.force,
+        allow_partial=args.allow_partial,
+        keep_self_contacts=args.keep_self_contacts,
     )
     try:
         result = import_ros2_control(request)

@@ -1,24 +1,31 @@
 """controller_manager YAML → hild controllers, with every key accounted for in the report.
 
-Both layouts are read: ROS 2 (``controller_manager: ros__parameters: {update_rate, <name>: {type}}`` plus one
-``<name>: ros__parameters:`` block per controller, namespaces and ``/**`` allowed) and ROS 1 (``gazebo_ros_control``:
-controllers are mappings with a ``type``, their params beside it).
+The files are read and merged by ``ros_params`` (launch substitutions, several files in order, lines). Every
+layout ROS has used is read:
+
+* ROS 2 with the types in controller_manager: ``controller_manager: ros__parameters: {update_rate, <name>:
+  {type}}`` plus a ``<name>: ros__parameters:`` block per controller (namespaces and ``/**`` allowed);
+* ROS 2 since Jazzy: each controller's ``type`` in its own ``ros__parameters`` block (a controller_manager block
+  may then hold only ``update_rate``, or be in another file, or be absent);
+* ROS 1 (``gazebo_ros_control``): controllers are mappings with a ``type``, their params beside it.
 
 Which controllers a launch file spawned is not in the YAML, so broadcasters autostart and every other controller
 starts inactive. Joint names are checked against the URDF here; a controller naming a joint that is not there
-stops the import with the controller, the joint and the line.
+stops the import with the controller, the joint and the line. A controller hild has no counterpart for is
+``Report.dropped``: the import is then partial, which the user must accept.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from hild.config.documents import DocumentError, KeyPath, load_document_lines
-from hild.importers.ros2_control.report import ImportFailure, Report, SourceRef
+from hild.config.documents import KeyPath
+from hild.importers.ros2_control.report import Report, SourceRef
+from hild.importers.ros2_control.ros_params import WILDCARD, ParamTree, read_param_files
 
 DEFAULT_UPDATE_RATE = 100.0  # Hz: controller_manager's own default
 DEFAULT_PUBLISH_RATE = 100.0  # Hz: ROS 2's broadcaster publishes every update; hild publishes at a rate
@@ -140,20 +147,17 @@ class _Controller:
     params_path: KeyPath  # key path of the params mapping, for lines
 
 
-def read_controllers(path: Path, catalog: JointCatalog, report: Report) -> ControllersPlan:
-    try:
-        data, lines = load_document_lines(path)
-    except DocumentError as exc:
-        raise ImportFailure(str(exc)) from None
-    file = str(path)
-    if not isinstance(data, dict):
-        raise SourceRef(file, 1).fail("expected a mapping of ROS nodes (controller_manager: ros__parameters: ...)")
-    reader = _Reader(file, lines, catalog, report)
-    nodes = dict(_ros2_nodes(data, ()))
-    if any(name == "controller_manager" for name, _ in nodes):
-        rate, rate_where, found = reader.ros2_layout(nodes)
+def read_controllers(
+    paths: Path | Sequence[Path], catalog: JointCatalog, report: Report, variables: Mapping[str, str] | None = None
+) -> ControllersPlan:
+    """Read the controller files (merged in order, ``$(var NAME)`` from ``variables``) into hild controllers."""
+    files = [paths] if isinstance(paths, Path) else list(paths)
+    tree = read_param_files(files, variables or {}, report)
+    reader = _Reader(tree, catalog, report)
+    if tree.document is not None:
+        rate, rate_where, found = reader.ros1_layout(tree.document)
     else:
-        rate, rate_where, found = reader.ros1_layout(data)
+        rate, rate_where, found = reader.ros2_layout(tree.nodes)
     plans = [plan for c in found if (plan := reader.controller(c)) is not None]
     if found:
         report.approximated(
@@ -164,57 +168,56 @@ def read_controllers(path: Path, catalog: JointCatalog, report: Report) -> Contr
     return ControllersPlan(rate, rate_where, plans)
 
 
-def _ros2_nodes(data: Mapping[str, Any], path: KeyPath) -> Iterator[tuple[tuple[str, KeyPath], dict[str, Any]]]:
-    """``((node base name, key path of its ros__parameters), params)`` for every node, however namespaced."""
-    for key, value in data.items():
-        if not isinstance(value, dict):
-            continue
-        here = (*path, str(key))
-        if "ros__parameters" in value:
-            base = str(key).strip("/").split("/")[-1]
-            yield (base, (*here, "ros__parameters")), value["ros__parameters"] or {}
-        else:
-            yield from _ros2_nodes(value, here)
-
-
 class _Reader:
-    def __init__(self, file: str, lines: dict[KeyPath, int], catalog: JointCatalog, report: Report) -> None:
-        self.file, self.lines, self.catalog, self.report = file, lines, catalog, report
+    def __init__(self, tree: ParamTree, catalog: JointCatalog, report: Report) -> None:
+        self.tree, self.catalog, self.report = tree, catalog, report
 
     def ref(self, path: KeyPath) -> SourceRef:
-        while path not in self.lines and path:
-            path = path[:-1]
-        return SourceRef(self.file, self.lines.get(path))
+        return self.tree.ref(path)
 
     # ---- layouts --------------------------------------------------------------------------------------------
-    def ros2_layout(
-        self, nodes: dict[tuple[str, KeyPath], dict[str, Any]]
-    ) -> tuple[float, SourceRef, list[_Controller]]:
-        (_, cm_path), cm = next((k, v) for k, v in nodes.items() if k[0] == "controller_manager")
-        if not isinstance(cm, dict):
-            raise self.ref(cm_path).fail("controller_manager's ros__parameters must be a mapping")
-        rate, rate_where = self.update_rate(cm.get("update_rate"), (*cm_path, "update_rate"), cm_path)
-        params_of = {name: (path, params) for (name, path), params in nodes.items()}
+    def ros2_layout(self, nodes: dict[str, dict[str, Any]]) -> tuple[float, SourceRef, list[_Controller]]:
+        """Controllers named in controller_manager (with their type) and nodes whose own params carry a type."""
+        cm_path: KeyPath = ("controller_manager",)
+        cm = nodes.get("controller_manager")
+        declared: dict[str, tuple[str, SourceRef]] = {}
+        if cm is None:
+            rate, rate_where = self.update_rate(None, (), ())
+        else:
+            rate, rate_where = self.update_rate(cm.get("update_rate"), (*cm_path, "update_rate"), cm_path)
+            for key, value in cm.items():
+                here = (*cm_path, str(key))
+                if isinstance(value, dict) and "type" in value:
+                    for extra in sorted(set(value) - {"type"}):
+                        self.report.unsupported(
+                            self.ref((*here, extra)),
+                            f"controller {key!r}: {extra} is not read (put params in the controller's own block)",
+                        )
+                    declared[str(key)] = (str(value["type"]), self.ref((*here, "type")))
+                elif key != "update_rate":
+                    self.report.unsupported(self.ref(here), f"controller_manager parameter {key!r} is not used by hild")
+        typed = [n for n, p in nodes.items() if n not in declared and n != "controller_manager" and "type" in p]
         found: list[_Controller] = []
-        for key, value in cm.items():
-            here = (*cm_path, str(key))
-            if isinstance(value, dict) and "type" in value:
-                for extra in sorted(set(value) - {"type"}):
-                    self.report.unsupported(
-                        self.ref((*here, extra)), f"controller {key!r}: {extra} is not read (put params inline)"
+        for name in [*declared, *typed]:
+            params = dict(nodes.get(name, {}))
+            own = params.pop("type", None)
+            if name in declared:
+                kind, where = declared[name]
+                if own is not None and str(own) != kind:
+                    raise self.ref((name, "type")).fail(
+                        f"controller {name!r} has two types: {own} here and {kind} at {where}"
                     )
-                path, params = params_of.get(str(key), ((), {}))
-                found.append(_Controller(str(key), str(value["type"]), self.ref((*here, "type")), params, path))
-            elif key != "update_rate":
-                self.report.unsupported(self.ref(here), f"controller_manager parameter {key!r} is not used by hild")
-        defined = {c.name for c in found} | {"controller_manager"}
-        for (name, path), params in nodes.items():
-            if name in ("**", ""):
+            else:
+                kind, where = str(own), self.ref((name, "type"))
+            found.append(_Controller(name, kind, where, params, (name,)))
+        for name, params in nodes.items():
+            if name == WILDCARD:
                 for key in params:
-                    self.report.unsupported(self.ref((*path, key)), f"wildcard parameter {key!r} is not used")
-            elif name not in defined:
+                    self.report.unsupported(self.ref((name, key)), f"wildcard parameter {key!r} is not used")
+            elif name != "controller_manager" and name not in declared and name not in typed:
                 self.report.unsupported(
-                    self.ref(path[:-1]), f"parameters for {name!r}, which controller_manager does not define"
+                    self.ref((name,)),
+                    f"parameters for {name!r}, which is not a controller: no type here or in controller_manager",
                 )
         return rate, rate_where, found
 
@@ -235,7 +238,7 @@ class _Reader:
 
         walk(data, ())
         if not found:
-            raise SourceRef(self.file, 1).fail(
+            raise SourceRef(str(self.tree.files[0]), 1).fail(
                 "no controllers found: expected controller_manager: ros__parameters: with <name>: {type: ...} "
                 "(ROS 2), or mappings with a type (ROS 1)"
             )
@@ -245,8 +248,12 @@ class _Reader:
 
     def update_rate(self, value: Any, path: KeyPath, owner: KeyPath) -> tuple[float, SourceRef]:
         if value is None:
-            where = self.ref(owner) if owner else SourceRef(self.file, 1)
-            self.report.approximated(where, f"no update_rate: controller_manager's default {DEFAULT_UPDATE_RATE:g} Hz")
+            where = self.ref(owner) if owner else SourceRef(str(self.tree.files[0]), 1)
+            self.report.approximated(
+                where,
+                f"no update_rate in {'controller_manager' if owner else 'any file'}: controller_manager's default "
+                f"{DEFAULT_UPDATE_RATE:g} Hz",
+            )
             return DEFAULT_UPDATE_RATE, where
         where = self.ref(path)
         if isinstance(value, bool) or not isinstance(value, int | float) or not 1.0 <= value <= 10000.0:
@@ -269,7 +276,7 @@ class _Reader:
             return self.effort_position(c)
         if c.ros_type in FORWARD_GROUPS:
             return self.forward(c, FORWARD_GROUPS[c.ros_type], c.type_where, set())
-        self.report.unsupported(c.type_where, f"controller {c.name!r}: type {c.ros_type} has no hild counterpart")
+        self.report.dropped(c.type_where, f"controller {c.name!r}: type {c.ros_type} has no hild counterpart")
         return None
 
     def leftovers(self, c: _Controller, used: set[str], why: Mapping[str, str] | None = None) -> None:
@@ -332,7 +339,7 @@ class _Reader:
     def forward(self, c: _Controller, interface: Any, where: SourceRef, used: set[str]) -> ControllerPlan | None:
         joints = self.joints(c, "joint" if "joint" in c.params and "joints" not in c.params else "joints")
         if interface not in ("position", "velocity", "effort"):
-            self.report.unsupported(
+            self.report.dropped(
                 where, f"controller {c.name!r}: interface {interface!r} (hild forwards position, velocity or effort)"
             )
             return None

@@ -1,10 +1,12 @@
-"""``import_ros2_control``: URDF (or xacro) + controllers.yaml → a hild config and the twin's URDF, or nothing.
+"""``import_ros2_control``: URDF (or xacro) + controller YAML files → a hild config and the twin's URDF, or nothing.
 
 The steps, each in its own module: expand xacro (xacro_expand) → parse with lines (xmltree, urdf) → choose the
-joints (mapping) → controllers (controllers) → the twin's URDF and its inertias (twin) → limits, gains,
-transmissions (mapping) → YAML (writer). Both files are written to a temporary directory beside the output,
-checked there the way ``hild check`` checks a config, and only then renamed into place: an error at any step
-leaves nothing behind.
+joints (mapping) → read and merge the controller files (ros_params, controllers) → what the hardware params say
+about CAN drives (can_template) → the twin's URDF and its inertias (twin, inertia) → limits, gains,
+transmissions (mapping) → contacts the twin ignores (contacts) → YAML (writer). Both files are written to a
+temporary directory beside the output, checked there the way ``hild check`` checks a config (its warnings go into
+the report), and only then renamed into place: an error at any step — or a partial import the user did not
+accept — leaves nothing behind.
 """
 
 from __future__ import annotations
@@ -14,17 +16,20 @@ import os
 import re
 import shutil
 import tempfile
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from hild.config import ConfigError, load_config
+from hild.config.stop_review import check_with_model
 from hild.importers.ros2_control import controllers as ctl
 from hild.importers.ros2_control import mapping, twin, writer
+from hild.importers.ros2_control.can_template import read_can_facts
+from hild.importers.ros2_control.contacts import excluded_contacts
 from hild.importers.ros2_control.inertia import joint_inertias
 from hild.importers.ros2_control.packages import PackageRoots
 from hild.importers.ros2_control.report import ImportFailure, Report, SourceRef
-from hild.importers.ros2_control.urdf import parse_robot
+from hild.importers.ros2_control.urdf import Robot, parse_robot
 from hild.importers.ros2_control.xacro_expand import expand_xacro, is_xacro
 from hild.importers.ros2_control.xmltree import XmlDocument, XmlSyntaxError, parse_xml
 
@@ -32,16 +37,23 @@ from hild.importers.ros2_control.xmltree import XmlDocument, XmlSyntaxError, par
 @dataclass(frozen=True)
 class ImportRequest:
     urdf: Path
-    controllers: Path
+    controllers: Path | Sequence[Path]  # several: merged in order, as ROS applies parameter files
     output: Path  # the hild config (.yaml); the twin's URDF is written beside it with the same stem
     package_roots: Mapping[str, Path] = field(default_factory=dict)
     xacro_args: Mapping[str, str] = field(default_factory=dict)
+    args: Mapping[str, str] = field(default_factory=dict)  # launch arguments: xacro args and $(var NAME) in YAML
     robot_name: str | None = None
     force: bool = False
+    allow_partial: bool = False  # accept an import that leaves out controllers or joints it cannot map
+    keep_self_contacts: bool = False  # let the twin collide robot links that overlap at the start pose
 
     @property
     def twin_urdf(self) -> Path:
         return self.output.with_suffix(".urdf")
+
+    @property
+    def controller_files(self) -> tuple[Path, ...]:
+        return (self.controllers,) if isinstance(self.controllers, Path) else tuple(self.controllers)
 
 
 @dataclass(frozen=True)
@@ -63,8 +75,10 @@ def import_ros2_control(request: ImportRequest) -> ImportResult:
     selected = mapping.select_joints(robot, report)
     if not selected:
         raise robot.where.fail("no joint to command: <ros2_control> lists no movable, non-mimic joint")
-    plan = ctl.read_controllers(request.controllers, mapping.catalog(robot, selected), report)
-    mapping.report_hardware(robot, report)
+    files = request.controller_files
+    plan = ctl.read_controllers(files, mapping.catalog(robot, selected), report, request.args)
+    can = read_can_facts(robot, report)
+    mapping.report_hardware(robot, {name: facts.used for name, facts in can.items()}, report)
     mapping.check_limits(selected)
     twin.check_inertias(robot)
     urdf_text = twin.build_twin_urdf(document, robot, request.urdf.resolve().parent, packages, report)
@@ -76,9 +90,13 @@ def import_ros2_control(request: ImportRequest) -> ImportResult:
             ranges = mapping.position_ranges(robot, selected)
             inertias = joint_inertias(staged_urdf, [s.joint.name for s in selected], ranges)
         except ValueError as exc:
-            message = str(exc).replace(str(staged_urdf), str(urdf_path))
-            raise ImportFailure(f"{label}: the twin cannot use this URDF: {message}") from None
-        joints = mapping.plan_joints(robot, selected, inertias, plan.effort_pid(), report)
+            raise _refused(exc, robot, label, staging) from None
+        joints = mapping.plan_joints(robot, selected, inertias, plan.effort_pid(), plan.update_rate, report)
+        start = {j.name: j.initial_position for j in joints if j.initial_position is not None}
+        try:
+            exclusions = excluded_contacts(robot, staged_urdf, start, request.keep_self_contacts, report)
+        except ValueError as exc:
+            raise _refused(exc, robot, label, staging) from None
         substeps = mapping.choose_substeps(joints, plan.update_rate, report)
         _complete_effort_gains(plan, joints, report)
         doc = writer.build_document(
@@ -87,18 +105,25 @@ def import_ros2_control(request: ImportRequest) -> ImportResult:
             joints,
             plan,
             substeps,
-            [f"URDF: {request.urdf.resolve()}", f"controllers: {request.controllers.resolve()}"],
-            [(b.name, b.plugin or "") for b in robot.ros2_control],
+            [f"URDF: {request.urdf.resolve()}", *(f"controllers: {f.resolve()}" for f in files)],
+            can,
+            exclusions,
         )
         staged_config.write_text(writer.render(doc))
         try:
-            load_config(staged_config)  # exactly what `hild check` does
+            loaded = load_config(staged_config)  # exactly what `hild check` does
+            check_with_model(loaded)
         except ConfigError as exc:
             detail = str(exc).replace(str(staged_config), str(config_path))
             raise ImportFailure(f"the imported config does not pass `hild check` (please report):\n{detail}") from None
+        _relay_check_warnings(loaded.notes, joints, robot, report)
+        if report.partial and not request.allow_partial:  # last: every real error in the input comes first
+            raise report.partial_failure()
         os.replace(staged_urdf, urdf_path)
         os.replace(staged_config, config_path)
     report.notes.insert(0, f"wrote {config_path} and {urdf_path} (the twin's model)")
+    if report.partial:
+        report.notes.insert(1, f"partial import (--allow-partial): {len(report.partial)} left out, see Not supported")
     return ImportResult(config_path, urdf_path, report)
 
 
@@ -113,7 +138,7 @@ def _read_urdf(
         raise ImportFailure(f"{source}: cannot read the URDF: {exc.strerror or exc}") from None
     label = str(source)
     if is_xacro(source, text):
-        text, warnings = expand_xacro(source, request.xacro_args, packages)
+        text, warnings = expand_xacro(source, {**request.args, **request.xacro_args}, packages)
         label = str(urdf_path)
         report.notes.append(f"xacro: {source} expanded; URDF lines below refer to the expansion, {urdf_path}")
         for warning in warnings:
@@ -143,13 +168,59 @@ def _staging(config_path: Path) -> Iterator[Path]:
 def _check_destination(request: ImportRequest, config_path: Path, urdf_path: Path) -> None:
     if config_path.suffix not in (".yaml", ".yml"):
         raise ImportFailure(f"{request.output}: the output is a hild config and must end in .yaml")
-    for given in (request.urdf, request.controllers):
+    for given in (request.urdf, *request.controller_files):
         if given.resolve() in (config_path, urdf_path):
             raise ImportFailure(f"{given}: the output would overwrite this input; choose another -o")
     if not request.force:
         for path in (config_path, urdf_path):
             if path.exists():
                 raise ImportFailure(f"{path} exists: pass --force to overwrite it")
+
+
+_WARNING = re.compile(r"^warning: .*?:\d+: (?P<key>\S+): (?P<message>.*)$", re.S)
+
+
+def _relay_check_warnings(notes: list[str], joints: list[mapping.JointPlan], robot: Robot, report: Report) -> None:
+    """`hild check`'s warnings on the written config, at the source of the values they are about. The importer's own
+    defaults draw none (mapping keeps them within what check demands): what is left is about the user's numbers."""
+    by_name = {j.name: j for j in joints}
+    for note in notes:
+        found = _WARNING.match(note)
+        if found is None:
+            continue
+        key, message = found.group("key"), found.group("message")
+        parts = key.split(".")
+        joint = by_name.get(parts[1]) if len(parts) > 2 and parts[0] == "joints" else None
+        where, origin = robot.where, ""
+        if joint is not None:
+            where = joint.where
+            if parts[2] in ("hold", "position_gains") and joint.gains_pid is not None:
+                controller, where = joint.gains_pid
+                origin = f" (from your PID gains of {controller})"
+        report.approximated(where, f"hild check warns: {key}: {message}{origin}")
+
+
+def _refused(exc: ValueError, robot: Robot, label: str, staging: Path) -> ImportFailure:
+    """MuJoCo's refusal of the twin's URDF, at the line of the element it names — never the staging file, which
+    is gone by the time anyone reads the message."""
+    detail = str(exc).split("MuJoCo could not load it: ", 1)[-1].removeprefix("Error: ")
+    detail = detail.replace(f"{staging}/", "")
+    found = re.search(r"\nElement name '([^']*)'", detail)
+    detail = " ".join(detail.split("\nElement name")[0].split())
+    where, element = SourceRef(label), ""
+    if found is not None:
+        name = found.group(1)
+        meshes = {Path(m.filename).stem: m.where for link in robot.links.values() for m in link.meshes}
+        if "mesh" in detail.lower() or "stl" in detail.lower() or "obj" in detail.lower():
+            candidates = [("mesh", meshes), ("link", {n: k.where for n, k in robot.links.items()})]
+        else:
+            candidates = [("link", {n: k.where for n, k in robot.links.items()}), ("mesh", meshes)]
+        candidates.append(("joint", {n: j.where for n, j in robot.joints.items()}))
+        for kind, table in candidates:
+            if name in table:
+                where, element = table[name], f" ({kind} {name!r})"
+                break
+    return where.fail(f"the twin cannot use this URDF{element}: MuJoCo refuses it: {detail}")
 
 
 def _robot_name(name: str) -> str:

@@ -1,8 +1,8 @@
 """URDF joints, limits, ``<ros2_control>`` and transmissions → hild joints, the twin's params and the CAN template.
 
 The defaults below are the documented answers (docs/import.md) to what a ros2_control robot does not say but a
-hild config needs: acceleration and jerk for planning, hold gains without PID gains, finite limits for
-continuous joints.
+hild config needs: acceleration and jerk for planning, finite limits for continuous joints, the twin's physics
+step. Hold gains are ``gains``' job, the twin's start pose ``start_pose``'s.
 """
 
 from __future__ import annotations
@@ -12,8 +12,10 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 from hild.importers.ros2_control.controllers import JointCatalog, Pid
+from hild.importers.ros2_control.gains import GainLimits, hold_gains, round4
 from hild.importers.ros2_control.inertia import JointInertia
 from hild.importers.ros2_control.report import Report, SourceRef
+from hild.importers.ros2_control.start_pose import initial_position
 from hild.importers.ros2_control.urdf import HardwareJoint, Joint, Robot, Ros2Control
 
 # Planning limits a URDF does not carry: reach full speed in 0.5 s, but never ask for more than half the effort
@@ -21,11 +23,6 @@ from hild.importers.ros2_control.urdf import HardwareJoint, Joint, Robot, Ros2Co
 ACCELERATION_PER_VELOCITY = 2.0  # 1/s
 ACCELERATION_EFFORT_SHARE = 0.5
 JERK_PER_ACCELERATION = 10.0  # 1/s: full acceleration in 0.1 s
-# Hold gains without an effort PID: a critically damped 5 Hz loop in the joint's heaviest pose, stiff enough that
-# its own damping and friction at full speed cost at most DAMPING_LAG of tracking error.
-HOLD_BANDWIDTH_HZ = 5.0
-HOLD_DAMPING_RATIO = 1.0
-DAMPING_LAG = 0.05  # rad (m)
 # The twin runs the drive law once per physics step: in the joint's lightest pose, kd·h/M and √(kp/M)·h stay
 # below STEP_MARGIN, which sets the number of substeps (at most MAX_SUBSTEPS; beyond that the gains are lowered).
 STEP_MARGIN = 0.5
@@ -72,6 +69,7 @@ class JointPlan:
     transmission_from: SourceRef | None
     block: str
     inertia: JointInertia
+    gains_pid: tuple[str, SourceRef] | None = None  # (controller, where) of the user's PID the hold gains come from
 
 
 def select_joints(robot: Robot, report: Report) -> list[Selected]:
@@ -103,7 +101,7 @@ def select_joints(robot: Robot, report: Report) -> list[Selected]:
                         f"{hw.name}: command interface {spec.name!r} (hild has {', '.join(HILD_INTERFACES)})",
                     )
             if not joint.movable:
-                report.unsupported(hw.where, f"joint {hw.name!r} is {joint.type}: not a commandable joint")
+                report.dropped(hw.where, f"joint {hw.name!r} is {joint.type}: not a commandable joint")
                 continue
             selected.append(Selected(joint, hw, block))
     if robot.ros2_control:
@@ -130,8 +128,9 @@ def catalog(robot: Robot, selected: list[Selected]) -> JointCatalog:
     return JointCatalog(tuple(s.joint.name for s in selected), frozenset(robot.joints), mimic, interfaces)
 
 
-def report_hardware(robot: Robot, report: Report) -> None:
-    """What becomes of each hardware plugin, its params, the gazebo plugins and mimic joints."""
+def report_hardware(robot: Robot, read: Mapping[str, set[str]], report: Report) -> None:
+    """What becomes of each hardware plugin, its params (``read``: those the CAN template took, per block), the
+    gazebo plugins and mimic joints."""
     for block in robot.ros2_control:
         plugin = block.plugin
         if plugin in SIMULATORS:
@@ -151,7 +150,8 @@ def report_hardware(robot: Robot, report: Report) -> None:
                 f"hardware plugin {plugin} has no hild driver: the MuJoCo twin stands in; fill in the CAN template",
             )
         for name, (value, where) in block.params.items():
-            report.unsupported(where, f"hardware param {name}={value!r} of {plugin} is not used by the twin")
+            if name not in read.get(block.name, set()):
+                report.unsupported(where, f"hardware param {name}={value!r} of {plugin} is not used by the twin")
     for element in robot.gazebo:
         if element.plugin and "ros2_control" in element.plugin:
             extra = (
@@ -179,6 +179,7 @@ def plan_joints(
     selected: list[Selected],
     inertias: Mapping[str, JointInertia],
     effort_pid: Mapping[str, tuple[str, Pid]],
+    update_rate: float,
     report: Report,
 ) -> list[JointPlan]:
     transmissions = _transmissions(robot, {s.joint.name for s in selected}, report)
@@ -188,12 +189,15 @@ def plan_joints(
         lower, upper, velocity, effort = _limits(joint, hw, report)
         margin = _soft_margin(joint, lower, upper, report)
         acceleration, jerk = _planning_limits(joint, velocity, effort, inertias[joint.name], report)
-        kp, kd, gains_from = _hold_gains(joint, velocity, inertias[joint.name], effort_pid.get(joint.name), report)
+        pid = effort_pid.get(joint.name)
+        declared = hw.where if hw is not None else joint.where
+        limits = GainLimits(velocity, effort, margin, 1.0 / update_rate)
+        kp, kd, gains_from = hold_gains(joint.name, joint.where, limits, inertias[joint.name], pid, report)
         reduction = transmissions.get(joint.name)
         plans.append(
             JointPlan(
                 name=joint.name,
-                where=hw.where if hw is not None else joint.where,
+                where=declared,
                 lower=lower,
                 upper=upper,
                 soft_margin=margin,
@@ -204,11 +208,12 @@ def plan_joints(
                 kp=kp,
                 kd=kd,
                 gains_from=gains_from,
-                initial_position=_initial_position(joint, hw, lower, upper, report),
+                initial_position=initial_position(joint.name, declared, hw, lower, upper, report),
                 transmission=reduction[0] if reduction else None,
                 transmission_from=reduction[1] if reduction else None,
                 block=s.block.name if s.block is not None else "",
                 inertia=inertias[joint.name],
+                gains_pid=(pid[0], pid[1].where) if pid is not None else None,
             )
         )
     return plans
@@ -246,8 +251,8 @@ def choose_substeps(plans: list[JointPlan], update_rate: float, report: Report) 
         if limit < h * (1 - 1e-9):
             light = plan.inertia.lightest
             kp, kd = plan.kp, plan.kd
-            plan.kd = _round(min(kd, STEP_MARGIN * light / h))
-            plan.kp = _round(min(kp, light * (STEP_MARGIN / h) ** 2))
+            plan.kd = round4(min(kd, STEP_MARGIN * light / h))
+            plan.kp = round4(min(kp, light * (STEP_MARGIN / h) ** 2))
             report.approximated(
                 plan.where,
                 f"{plan.name}: gains kp {kp:g}, kd {kd:g} need a physics step below {limit * 1e6:.0f} µs in its "
@@ -267,11 +272,6 @@ def _stable_step(plan: JointPlan) -> float:
 
 
 # ---- pieces ---------------------------------------------------------------------------------------------------
-
-
-def _round(value: float) -> float:
-    """Four significant digits: derived numbers read better and nothing depends on the fifth."""
-    return float(f"{value:.4g}")
 
 
 def _interface_bound(hw: HardwareJoint | None, interface: str, joint: str) -> tuple[float | None, ...]:
@@ -349,7 +349,7 @@ def _soft_margin(joint: Joint, lower: float, upper: float, report: Report) -> fl
     if safety.soft_upper is not None:
         margins.append(upper - safety.soft_upper)
     margins = [max(0.0, m) for m in margins]
-    margin = _round(max(margins, default=0.0))
+    margin = round4(max(margins, default=0.0))
     if 2 * margin >= upper - lower:
         raise safety.where.fail(f"joint {joint.name!r}: soft limits leave no room inside [{lower:g}, {upper:g}]")
     text = f"{joint.name}: <safety_controller> soft limits → soft_margin {margin:g}"
@@ -370,8 +370,8 @@ def _planning_limits(
     heaviest = inertia.heaviest
     by_speed = ACCELERATION_PER_VELOCITY * velocity
     by_effort = ACCELERATION_EFFORT_SHARE * effort / heaviest if heaviest > 0 else math.inf
-    acceleration = _round(min(by_speed, by_effort))
-    jerk = _round(JERK_PER_ACCELERATION * acceleration)
+    acceleration = round4(min(by_speed, by_effort))
+    jerk = round4(JERK_PER_ACCELERATION * acceleration)
     rule = f"{ACCELERATION_PER_VELOCITY:g} × velocity" if by_speed <= by_effort else "½ effort / inertia"
     report.approximated(
         joint.limit.where if joint.limit else joint.where,
@@ -379,62 +379,6 @@ def _planning_limits(
         f"{heaviest:.4g}), jerk {jerk:g} ({JERK_PER_ACCELERATION:g} × acceleration)",
     )
     return acceleration, jerk
-
-
-def _hold_gains(
-    joint: Joint, velocity: float, inertia: JointInertia, pid: tuple[str, Pid] | None, report: Report
-) -> tuple[float, float, str]:
-    heavy = inertia.heaviest
-    if pid is not None:
-        controller, gains = pid
-        kp, kd = gains.p, gains.d
-        source = f"PID of {controller}"
-        if kd <= 0:
-            kd = _round(2.0 * HOLD_DAMPING_RATIO * math.sqrt(kp * heavy))
-            report.approximated(gains.where, f"{joint.name}: hold kp {kp:g} from {source}, no d → kd {kd:g} (ζ = 1)")
-            return kp, kd, f"kp: {source}; kd: critical damping"
-        report.mapped(gains.where, f"{joint.name}: hold gains kp {kp:g}, kd {kd:g} from {source}")
-        return kp, kd, source
-    omega = 2.0 * math.pi * HOLD_BANDWIDTH_HZ
-    by_bandwidth = heavy * omega**2
-    by_losses = (inertia.damping * velocity + inertia.friction) / DAMPING_LAG
-    kp = _round(max(by_bandwidth, by_losses))
-    kd = _round(2.0 * HOLD_DAMPING_RATIO * math.sqrt(kp * heavy))
-    rule = (
-        f"{HOLD_BANDWIDTH_HZ:g} Hz on inertia {heavy:.4g}"
-        if by_bandwidth >= by_losses
-        else f"damping/friction lag ≤ {DAMPING_LAG:g} at full speed"
-    )
-    report.approximated(joint.where, f"{joint.name}: no effort PID → hold kp {kp:g}, kd {kd:g} ({rule}, ζ = 1)")
-    return kp, kd, f"default: {rule}, critically damped"
-
-
-def _initial_position(
-    joint: Joint, hw: HardwareJoint | None, lower: float, upper: float, report: Report
-) -> float | None:
-    """``initial_value`` of the position interface (state first, as gz/mock read it) → the twin's start pose."""
-    if hw is None:
-        return None
-    found = None
-    for spec in (*hw.state_interfaces, *hw.command_interfaces):
-        raw = spec.params.get("initial_value")
-        if raw is None:
-            continue
-        where = spec.where_of("initial_value")
-        if spec.name != "position":
-            report.unsupported(where, f"{joint.name}: initial_value of {spec.name} (the twin starts at rest)")
-            continue
-        if found is not None:
-            continue
-        try:
-            value = float(raw)
-        except ValueError:
-            raise where.fail(f"joint {joint.name!r}: initial_value {raw!r} is not a number") from None
-        if not lower <= value <= upper:
-            raise where.fail(f"joint {joint.name!r}: initial_value {value:g} is outside [{lower:g}, {upper:g}]")
-        found = value
-        report.mapped(where, f"{joint.name}: initial_value {value:g} → twin initial_positions")
-    return found
 
 
 def _transmissions(robot: Robot, commanded: set[str], report: Report) -> dict[str, tuple[dict[str, float], SourceRef]]:

@@ -51,6 +51,7 @@ class Finding:
 class Report:
     findings: list[Finding] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)  # printed above the sections (what was written where)
+    partial: list[Finding] = field(default_factory=list)  # given controllers and joints left out (also unsupported)
 
     def mapped(self, where: SourceRef, text: str) -> None:
         self.findings.append(Finding("mapped", where, text))
@@ -60,6 +61,20 @@ class Report:
 
     def unsupported(self, where: SourceRef, text: str) -> None:
         self.findings.append(Finding("unsupported", where, text))
+
+    def dropped(self, where: SourceRef, text: str) -> None:
+        """A controller or joint the source gives that the import leaves out: the import is partial."""
+        finding = Finding("unsupported", where, text)
+        self.findings.append(finding)
+        self.partial.append(finding)
+
+    def partial_failure(self) -> ImportFailure:
+        """The error for a partial import the user did not accept (``--allow-partial``)."""
+        listed = "\n".join(f"  {f.where}: {f.text}" for f in self.partial)
+        return ImportFailure(
+            f"{len(self.partial)} controller(s) or joint(s) given cannot be imported:\n{listed}\n"
+            "pass --allow-partial to import the rest without them"
+        )
 
     def of(self, kind: Kind) -> list[Finding]:
         return [f for f in self.findings if f.kind == kind]

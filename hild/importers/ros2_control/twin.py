@@ -3,17 +3,22 @@
 MuJoCo reads URDF itself and keeps joint names, ``<limit>`` (range; ``effort`` becomes the torque limit the twin
 saturates to), ``<dynamics>`` (damping, friction) and ``<mimic>`` (a joint equality). It ignores
 ``<ros2_control>``, ``<transmission>`` and ``<gazebo>``, so those stay in the copy and its lines match the
-source. What it cannot do is resolve ``package://``; and it needs mass on every moving body. Both are handled
-here, before MuJoCo sees the file.
+source. What it cannot do is resolve ``package://``; it needs mass on every moving body; and it refuses a body
+whose principal moments of inertia break the triangle inequality A + B ≥ C (no rigid body has them; a typo or a
+tensor exported in the wrong frame does). All three are handled here, before MuJoCo sees the file: the last by
+MuJoCo's own ``balanceinertia`` (each moment of such a body becomes their mean), reported per link — or, when the
+URDF itself forbids balancing, refused at the ``<inertia>`` line.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from hild.importers.ros2_control.packages import PackageRoots
 from hild.importers.ros2_control.report import Report, SourceRef
-from hild.importers.ros2_control.urdf import Robot
+from hild.importers.ros2_control.urdf import Inertia, Robot
 from hild.importers.ros2_control.xmltree import XmlDocument, XmlElement, serialize
 
 MESH_FORMATS = (".stl", ".obj", ".msh")  # what MuJoCo's mesh loader reads
@@ -55,6 +60,7 @@ def build_twin_urdf(
 ) -> str:
     """The twin's URDF text (``document`` is changed in place): mesh paths absolute, MuJoCo compiler options set."""
     compiler = _compiler(document.root, robot.where, report)
+    _balance_inertias(robot, compiler, report)
     keep_visuals = compiler.attrib.get("discardvisual", "true").strip().lower() == "false"
     resolved: dict[str, tuple[SourceRef, int]] = {}
     for link in robot.links.values():
@@ -84,6 +90,43 @@ def build_twin_urdf(
     for package, root in packages.inferred.items():
         report.approximated(robot.where, f"ROS package {package!r} taken to be {root} (no --package-root given)")
     return serialize(document)
+
+
+def principal_moments(inertia: Inertia) -> tuple[float, float, float]:
+    """The tensor's eigenvalues, ascending: what MuJoCo checks (it diagonalizes a URDF's full inertia)."""
+    i = inertia
+    tensor = np.array([[i.ixx, i.ixy, i.ixz], [i.ixy, i.iyy, i.iyz], [i.ixz, i.iyz, i.izz]])
+    a, b, c = np.linalg.eigvalsh(tensor)
+    return float(a), float(b), float(c)
+
+
+def _balance_inertias(robot: Robot, compiler: XmlElement, report: Report) -> None:
+    """Links whose inertia MuJoCo refuses: balanced by MuJoCo (one finding each), or refused if the URDF says so."""
+    allowed = compiler.attrib.get("balanceinertia", "").strip().lower() != "false"
+    balanced = False
+    for link in robot.links.values():
+        if link.inertia is None or not link.mass:
+            continue
+        a, b, c = principal_moments(link.inertia)
+        if a < 0.0:
+            raise link.inertia.where.fail(
+                f"link {link.name!r}: principal moments of inertia {a:.4g}, {b:.4g}, {c:.4g}: a negative one is no "
+                "rigid body's; fix the <inertia>"
+            )
+        if a + b >= c:
+            continue
+        moments = f"principal moments of inertia {a:.4g}, {b:.4g}, {c:.4g} break A + B ≥ C, which MuJoCo refuses"
+        if not allowed:
+            raise link.inertia.where.fail(
+                f'link {link.name!r}: {moments} (this URDF sets <compiler balanceinertia="false">): fix the <inertia>'
+            )
+        report.approximated(
+            link.inertia.where,
+            f"link {link.name!r}: {moments}: the twin balances them (each becomes their mean, {(a + b + c) / 3:.4g})",
+        )
+        balanced = True
+    if balanced and "balanceinertia" not in compiler.attrib:
+        compiler.attrib["balanceinertia"] = "true"
 
 
 def _compiler(root: XmlElement, where: SourceRef, report: Report) -> XmlElement:

@@ -32,11 +32,26 @@ class Mesh:
 
 
 @dataclass(frozen=True)
+class Inertia:
+    """An ``<inertia>`` element: the tensor in the link's inertial frame."""
+
+    where: SourceRef
+    ixx: float
+    ixy: float
+    ixz: float
+    iyy: float
+    iyz: float
+    izz: float
+
+
+@dataclass(frozen=True)
 class Link:
     name: str
     where: SourceRef
     mass: float | None  # None: no <inertial>
     meshes: tuple[Mesh, ...]
+    collision: bool = False  # has <collision> geometry (what the twin collides)
+    inertia: Inertia | None = None
 
 
 @dataclass(frozen=True)
@@ -101,6 +116,7 @@ class HardwareJoint:
     state_interfaces: tuple[Interface, ...]
     params: dict[str, str]
     mimic: bool  # <joint mimic="true"> inside <ros2_control>
+    param_where: dict[str, SourceRef] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -210,9 +226,14 @@ def _link(element: XmlElement, ref: SourceRefFn) -> Link:
     name = _required(element, "name", ref)
     inertial = element.find("inertial")
     mass: float | None = None
+    inertia: Inertia | None = None
     if inertial is not None:
         mass_element = inertial.find("mass")
         mass = 0.0 if mass_element is None else (_number(mass_element, "value", ref) or 0.0)
+        tensor = inertial.find("inertia")
+        if tensor is not None:
+            keys = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
+            inertia = Inertia(ref(tensor), *(_number(tensor, key, ref) or 0.0 for key in keys))
     meshes = []
     for kind in ("visual", "collision"):
         for geometry_owner in element.elements(kind):
@@ -221,7 +242,8 @@ def _link(element: XmlElement, ref: SourceRefFn) -> Link:
             if mesh is not None:
                 filename = _required(mesh, "filename", ref)
                 meshes.append(Mesh(mesh, filename, kind == "collision", ref(mesh)))
-    return Link(name, ref(element), mass, tuple(meshes))
+    collision = any(c.find("geometry") is not None for c in element.elements("collision"))
+    return Link(name, ref(element), mass, tuple(meshes), collision, inertia)
 
 
 def _joint(element: XmlElement, ref: SourceRefFn) -> Joint:
@@ -297,14 +319,16 @@ def _ros2_control(element: XmlElement, ref: SourceRefFn) -> Ros2Control:
     others = []
     for child in element.elements():
         if child.tag == "joint":
+            params = _params(child, ref)
             joints.append(
                 HardwareJoint(
                     _required(child, "name", ref),
                     ref(child),
                     tuple(_interface(i, ref) for i in child.elements("command_interface")),
                     tuple(_interface(i, ref) for i in child.elements("state_interface")),
-                    {name: value for name, (value, _) in _params(child, ref).items()},
+                    {name: value for name, (value, _) in params.items()},
                     child.attrib.get("mimic", "false").strip().lower() == "true",
+                    {name: where for name, (_, where) in params.items()},
                 )
             )
         elif child.tag not in ("hardware", "transmission"):

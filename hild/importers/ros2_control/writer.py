@@ -11,10 +11,12 @@ from __future__ import annotations
 import json
 import math
 import re
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from hild.config.stop_review import SUGGESTED_DESCENT
+from hild.importers.ros2_control.can_template import CanFacts, template_lines
 from hild.importers.ros2_control.controllers import ControllerPlan, ControllersPlan
 from hild.importers.ros2_control.mapping import JointPlan
 
@@ -41,17 +43,21 @@ def build_document(
     controllers: ControllersPlan,
     substeps: int,
     sources: Sequence[str],
-    hardware_blocks: Sequence[tuple[str, str]],  # (block name, plugin) of each <ros2_control>
+    can: Mapping[str, CanFacts],  # what each <ros2_control> block says about its CAN drives
+    exclude_contacts: Sequence[tuple[str, str]] = (),
 ) -> Document:
     twin_params: dict[str, Any] = {"model": urdf_name, "substeps": substeps}
     initial = {j.name: j.initial_position for j in joints if j.initial_position is not None}
     if initial:
         twin_params["initial_positions"] = initial
+    if exclude_contacts:
+        twin_params["exclude_contacts"] = [list(pair) for pair in exclude_contacts]
     doc = Document(
         {
             "robot": {"name": robot_name, "model": urdf_name},
             "update_rate": _whole(controllers.update_rate),
             "clock": {"source": "wall"},
+            "safety": {"stop_descent": SUGGESTED_DESCENT},
             "hardware": {"twin": {"driver": "mujoco", "params": twin_params, "joints": {j.name: {} for j in joints}}},
             "joints": {j.name: _joint(j) for j in joints},
             "controllers": {c.name: _controller(c) for c in controllers.controllers},
@@ -61,8 +67,10 @@ def build_document(
     c[("robot", "model")] = "the twin's URDF: gravity feed-forward in hold"
     c[("update_rate",)] = f"controller_manager update_rate ({controllers.update_rate_where.short})"
     c[("clock", "source")] = "wall: real-time twin; sim: lockstep (tests)"
+    c[("safety", "stop_descent")] = "s: on stop the arm is lowered (damped, gravity fading out), not dropped"
     c[("hardware", "twin")] = "the MuJoCo twin stands in for every <ros2_control> hardware (joint space)"
     c[("hardware", "twin", "params", "substeps")] = "physics step ≤ 1 ms, short enough for the gains' stability"
+    c[("hardware", "twin", "params", "exclude_contacts")] = "adjacent links, links overlapping at the start pose"
     for j in joints:
         c[("hardware", "twin", "joints", j.name)] = j.where.short
         c[("joints", j.name, "hold")] = j.gains_from
@@ -74,7 +82,7 @@ def build_document(
         "Hardware is the MuJoCo twin over the URDF beside this file. Read the import report (approximations) and",
         "check limits and gains before running on hardware; the CAN section at the end is a template to fill in.",
     ]
-    doc.footer = _can_template(joints, hardware_blocks)
+    doc.footer = template_lines(joints, can)
     return doc
 
 
@@ -106,41 +114,6 @@ def _controller(plan: ControllerPlan) -> dict[str, Any]:
     out: dict[str, Any] = {"type": plan.type, "params": plan.params}
     if plan.autostart:
         out["autostart"] = True
-    return out
-
-
-def _can_template(joints: Sequence[JointPlan], blocks: Sequence[tuple[str, str]]) -> list[str]:
-    """A commented mit_can hardware section per <ros2_control> block: bus, ids and models to fill in."""
-    groups: dict[str, list[JointPlan]] = {}
-    for j in joints:
-        groups.setdefault(j.block, []).append(j)
-    plugins = dict(blocks)
-    out = [
-        "---- On MIT-protocol CAN servos: replace the hardware section above with this (docs/drivers.md) and fill",
-        "---- in the bus, the motor ids and models. The transmissions come from the URDF's <transmission>s.",
-        "hardware:",
-    ]
-    motor_id = 1
-    for index, (block, members) in enumerate(groups.items()):
-        name = re.sub(r"[^A-Za-z0-9_]+", "_", block).strip("_").lower() or f"arm{index or ''}"
-        origin = f"  # was <ros2_control name={block!r}> {plugins.get(block) or ''}".rstrip() if block else ""
-        out += [
-            f"  {name}:{origin}",
-            "    driver: mit_can",
-            "    params:",
-            f"      bus: {{interface: socketcan, channel: can{index}, bitrate: 1000000}}",
-            "      flavour: damiao              # damiao | tmotor | myactuator",
-            "      timeout_ms: 100",
-            "      motors:                      # TODO: your ids and motor models",
-        ]
-        for j in members:
-            out.append(f"        {j.name}: {{id: {motor_id:#04x}, reply_id: {motor_id + 0x10:#04x}, model: DM4340}}")
-            motor_id += 1
-        out.append("    joints:                        # q_joint = direction · q_motor / reduction + offset")
-        for j in members:
-            spec = _flow(j.transmission or {}) or "{}"
-            note = f"  # {j.transmission_from.short}" if j.transmission_from else ""
-            out.append(f"      {j.name}: {spec}{note}")
     return out
 
 

@@ -75,7 +75,7 @@ def expand_xacro(path: Path, args: Mapping[str, str], packages: PackageRoots) ->
                 ) from None
             detail = " ".join(str(exc).split())
             if "Undefined substitution argument" in detail:
-                detail += " (pass it with --xacro-arg NAME:=VALUE)"
+                detail += " (pass it with --arg NAME=VALUE)"
             raise ImportFailure(f"{where}: xacro could not expand it: {detail}") from None
         finally:
             xacro.filestack = None  # forget this file: a later expansion starts clean
