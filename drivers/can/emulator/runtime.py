@@ -59,13 +59,13 @@ import can
 import numpy as np
 
 from drivers.can.bus import BusSpec, open_bus
-from drivers.can.driver import wire_motors
 from drivers.can.emulator.base import MotorFirmware
 from drivers.can.emulator.core import Emulator
 from drivers.can.emulator.mit_firmware import DamiaoFirmware, MitFirmware, MyActuatorFirmware, TMotorFirmware
 from drivers.can.emulator.odrive_firmware import ODriveFirmware
 from drivers.can.emulator.plant import MotorPlant, Plant
 from drivers.can.params import MitCanParams, ODriveCanParams
+from drivers.can.wiring import wire_motors
 from hild.config.loader import LoadedConfig
 
 __all__ = [
