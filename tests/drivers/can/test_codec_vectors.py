@@ -13,10 +13,9 @@ import can
 import pytest
 
 from drivers.can.protocol import FrameError
-from drivers.can.protocol import damiao_registers as reg
 from drivers.can.protocol import odrive as od
 from drivers.can.protocol.flavours import FLAVOURS
-from drivers.can.protocol.mit import MitRanges, encode_command
+from drivers.can.protocol.mit import MitRanges
 
 NODE = 5
 
@@ -184,12 +183,3 @@ def test_mit_bad_replies_keep_their_reasons(
     msg = can.Message(arbitration_id=arbitration_id, data=bytes.fromhex(data), is_extended_id=False)
     with pytest.raises(FrameError, match=reason):
         FLAVOURS[name].decode_reply(msg, RANGES[name], motor, master_id=master_id)
-
-
-def test_start_up_feedback_requests_keep_their_bytes() -> None:
-    """What configure sends each motor before anything is enabled (the driver built these by flavour name)."""
-    refresh = reg.refresh_request(3)
-    assert (refresh.arbitration_id, bytes(refresh.data).hex()) == (0x7FF, "0300cc0000000000")
-    for name, command_id in (("tmotor", 0x7), ("myactuator", 0x407)):
-        assert FLAVOURS[name].command_id(7) == command_id
-        assert encode_command(0.0, 0.0, 0.0, 0.0, 0.0, RANGES[name]).hex() == "7fff7ff0000007ff"
