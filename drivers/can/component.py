@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Collection, Sequence
 
 import can
 
@@ -10,6 +10,18 @@ from drivers.can.bus import BadFrames, CanLink
 from drivers.can.params import CanDriverParams
 from hild.config.params import Params
 from hild.hardware import HardwareComponent, HardwareContext, HardwareError
+
+
+def coverage_problems(drive: str, drives: str, configured: Collection[str], joints: Sequence[str]) -> list[str]:
+    """Joints without a configured drive, and drives configured for joints this component does not drive."""
+    problems = []
+    missing = [j for j in joints if j not in configured]
+    if missing:
+        problems.append(f"no {drive} configured for joints {missing}")
+    extra = [j for j in configured if j not in joints]
+    if extra:
+        problems.append(f"{drives} configured for joints this component does not drive: {extra}")
+    return problems
 
 
 class FeedForwardClamp:

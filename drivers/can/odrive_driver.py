@@ -24,13 +24,12 @@ by the explicit operator command ``enable``.
 from __future__ import annotations
 
 import math
-import struct
 from collections.abc import Callable, Sequence
 
 import can
 
 from drivers.can.bus import bits_per_second, rtr_bits
-from drivers.can.component import CanComponent, FeedForwardClamp
+from drivers.can.component import CanComponent, FeedForwardClamp, coverage_problems
 from drivers.can.params import ODriveCanParams
 from drivers.can.protocol import odrive
 from drivers.can.protocol.errors import FrameError
@@ -58,9 +57,10 @@ _DRIVE_CMDS = _USED_CMDS | {
     Cmd.GET_BUS_VOLTAGE_CURRENT,
     Cmd.GET_POWERS,
 }
-_GET_TORQUES = struct.Struct("<ff")  # 0.6 Get_Torques: torque target, torque estimate (Nm)
 _INF = math.inf
-_ESTIMATES = odrive.ENCODER_ESTIMATES.unpack
+_ESTIMATES = odrive.ENCODER_ESTIMATES.layout.unpack
+_PACK_INPUT_POS, _PACK_INPUT_VEL = odrive.SET_INPUT_POS.pack, odrive.SET_INPUT_VEL.pack
+_PACK_INPUT_TORQUE = odrive.SET_INPUT_TORQUE.pack
 # Plain ints for the cycle (an IntEnum member is a class-attribute lookup and compares through int anyway).
 _POSITION_CONTROL = int(ControlMode.POSITION_CONTROL)
 _VELOCITY_CONTROL = int(ControlMode.VELOCITY_CONTROL)
@@ -73,13 +73,7 @@ def _all_grew(counts: list[int], before: list[int]) -> bool:
 
 
 def _problems(params: ODriveCanParams, joints: Sequence[str]) -> list[str]:
-    problems = []
-    missing = [j for j in joints if j not in params.axes]
-    if missing:
-        problems.append(f"no axis configured for joints {missing}")
-    extra = [j for j in params.axes if j not in joints]
-    if extra:
-        problems.append(f"axes configured for joints this component does not drive: {extra}")
+    problems = coverage_problems("axis", "axes", params.axes, joints)
     seen: dict[int, str] = {}
     for joint, axis in params.axes.items():
         if axis.node_id in seen:
@@ -168,11 +162,11 @@ class ODriveCanDriver(CanComponent):
         self._mode = [_NO_MODE] * n
         self._rtr = [odrive.request(node, Cmd.GET_ENCODER_ESTIMATES) for node in self.nodes]
         # One frame per axis and input command, refilled in place by write.
-        self._input_pos = [odrive.empty_frame(node, Cmd.SET_INPUT_POS, 8) for node in self.nodes]
-        self._input_vel = [odrive.empty_frame(node, Cmd.SET_INPUT_VEL, 8) for node in self.nodes]
-        self._input_torque = [odrive.empty_frame(node, Cmd.SET_INPUT_TORQUE, 4) for node in self.nodes]
-        # Set_Input_Pos carries torque_ff as int16 × FEED_FORWARD_SCALE: ±32.767 N·m, saturated silently by the codec.
-        ff_max = 32767 * odrive.FEED_FORWARD_SCALE
+        self._input_pos = [odrive.SET_INPUT_POS.frame(node) for node in self.nodes]
+        self._input_vel = [odrive.SET_INPUT_VEL.frame(node) for node in self.nodes]
+        self._input_torque = [odrive.SET_INPUT_TORQUE.frame(node) for node in self.nodes]
+        # Set_Input_Pos carries torque_ff as int16 × 0.001: ±32.767 N·m, saturated silently by the codec.
+        ff_max = odrive.FEED_FORWARD.hi * odrive.FEED_FORWARD.scale
         self._ff = FeedForwardClamp(context.emit_event, list(context.joints), [ff_max] * n, "Set_Input_Pos torque_ff")
         self._estimate_ids = {
             odrive.arbitration_id(node, Cmd.GET_ENCODER_ESTIMATES): k for k, node in enumerate(self.nodes)
@@ -305,6 +299,7 @@ class ODriveCanDriver(CanComponent):
     def write(self, t: float, dt: float, command: ServoCommand) -> None:
         send, modes = self.link.send, self._mode
         request = self._request_estimates
+        pack_pos, pack_vel, pack_torque = _PACK_INPUT_POS, _PACK_INPUT_VEL, _PACK_INPUT_TORQUE
         for k, (node, p, v, ff, kp, kd) in enumerate(
             zip(
                 self.nodes,
@@ -322,13 +317,13 @@ class ODriveCanDriver(CanComponent):
                 modes[k] = mode if sent else _NO_MODE
             if mode == _POSITION_CONTROL:
                 msg = self._input_pos[k]
-                odrive.pack_set_input_pos(msg.data, p / TAU, v / TAU, self._ff(k, ff))
+                pack_pos(msg.data, p / TAU, v / TAU, self._ff(k, ff))
             elif mode == _VELOCITY_CONTROL:
                 msg = self._input_vel[k]
-                odrive.pack_set_input_vel(msg.data, v / TAU, ff)
+                pack_vel(msg.data, v / TAU, ff)
             else:
                 msg = self._input_torque[k]
-                odrive.pack_set_input_torque(msg.data, ff)
+                pack_torque(msg.data, ff)
             send(msg)
             if request:
                 send(self._rtr[k])
@@ -386,9 +381,7 @@ class ODriveCanDriver(CanComponent):
                 temp = odrive.decode_temperature(msg.data)
                 self.temperature[k] = max(temp.fet, temp.motor)
             else:
-                if len(msg.data) != _GET_TORQUES.size:
-                    raise FrameError(f"odrive Get_Torques needs 8 data bytes, got {len(msg.data)}")
-                self.effort[k] = _GET_TORQUES.unpack(msg.data)[1]
+                self.effort[k] = odrive.GET_TORQUES.decode(msg.data)[1]  # (torque target, torque estimate) N·m
         except FrameError as exc:
             kind = "wrong length" if "bytes" in str(exc) else "corrupted"
             self.bad_frames.note(kind, msg.arbitration_id)

@@ -9,6 +9,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+from drivers.can.component import coverage_problems
 from drivers.can.params import MitCanParams
 from drivers.can.protocol.flavours import FLAVOURS, MitFlavour
 from drivers.can.protocol.mit import MitRanges
@@ -29,13 +30,7 @@ class MotorWiring:
 def wire_motors(params: MitCanParams, joints: Sequence[str]) -> tuple[list[MotorWiring], list[str]]:
     """Resolve every joint's motor; also return every reason the params cannot work (empty when they can)."""
     flavour = FLAVOURS[params.flavour]
-    problems: list[str] = []
-    missing = [j for j in joints if j not in params.motors]
-    if missing:
-        problems.append(f"no motor configured for joints {missing}")
-    extra = [j for j in params.motors if j not in joints]
-    if extra:
-        problems.append(f"motors configured for joints this component does not drive: {extra}")
+    problems = coverage_problems("motor", "motors", params.motors, joints)
     ids = flavour.motor_ids
     wiring: list[MotorWiring] = []
     for joint in joints:
