@@ -85,6 +85,24 @@ class CanComponent(HardwareComponent):
     def cleanup(self) -> None:
         self.link.close()
 
+    def _stopping_limp(self, held: str) -> bool:
+        """deactivate's question: should the drives be stopped? Not with the bus closed, nor with
+        ``on_deactivate: hold`` (reported with `held`, what stays as it was)."""
+        if self.link.bus is None:
+            return False
+        if self.params.on_deactivate == "hold":
+            self.context.emit_event("info", f"{held} (on_deactivate: hold)")
+            return False
+        return True
+
+    def _joint_indices(self, joint: str | None) -> list[int]:
+        """Every drive for None, else the one of `joint`; an operator command naming another joint is refused."""
+        if joint is None:
+            return list(range(len(self.joints)))
+        if joint not in self.joints:
+            raise HardwareError(f"{self.context.name} drives no joint {joint!r} (joints: {', '.join(self.joints)})")
+        return [self.joints.index(joint)]
+
     def drain(self, accept: Callable[[can.Message], None]) -> None:
         """Take every frame waiting (up to the budget) without blocking: the cycle never waits on the bus."""
         self.link.receive(accept, self._frame_budget)

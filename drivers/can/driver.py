@@ -327,10 +327,7 @@ class MitCanDriver(CanComponent):
         return False
 
     def deactivate(self) -> None:
-        if self.link.bus is None:
-            return
-        if self.params.on_deactivate == "hold":
-            self.context.emit_event("info", "motors left enabled at their last command (on_deactivate: hold)")
+        if not self._stopping_limp("motors left enabled at their last command"):
             return
         self.expect_enabled[:] = [False] * len(self.motors)
         unconfirmed = []
@@ -577,7 +574,7 @@ class MitCanDriver(CanComponent):
         Refused for a motor that reports a drive fault (reset first). Returns the joints enabled; the replies of the
         next cycles confirm it (a motor that stays disabled keeps reporting ``FAULT_DISABLED``).
         """
-        targets = self._targets(joint)
+        targets = self._joint_indices(joint)
         stuck = [f"{self.motors[k].joint}: {self._persistent[k]}" for k in targets if k in self._persistent]
         if stuck:
             raise HardwareError(
@@ -606,7 +603,7 @@ class MitCanDriver(CanComponent):
         Then hold continues where the joint is, read in the new frame. If the enable does not take, the next
         reply reports ``FAULT_DISABLED``.
         """
-        (k,) = self._targets(joint)
+        (k,) = self._joint_indices(joint)
         m = self.motors[k]
         fd = self.params.bus.fd
         zero = self.flavour.special(m.id, "zero", fd=fd)
@@ -625,14 +622,6 @@ class MitCanDriver(CanComponent):
                 raise HardwareError(f"{joint}: set-zero interrupted after {pending} of its frames ({why})")
             pending += 1
         self._rezero_replies[k] = pending
-
-    def _targets(self, joint: str | None) -> list[int]:
-        if joint is None:
-            return list(range(len(self.motors)))
-        for k, m in enumerate(self.motors):
-            if m.joint == joint:
-                return [k]
-        raise HardwareError(f"{self.context.name} drives no joint {joint!r} (joints: {', '.join(self.joints)})")
 
 
 def _timeout_ms(params: MitCanParams) -> float:

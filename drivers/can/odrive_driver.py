@@ -258,10 +258,7 @@ class ODriveCanDriver(CanComponent):
         self.expect_closed_loop[k] = True
 
     def deactivate(self) -> None:
-        if self.link.bus is None:
-            return
-        if self.params.on_deactivate == "hold":
-            self.context.emit_event("info", "axes left in closed loop at their last input (on_deactivate: hold)")
+        if not self._stopping_limp("axes left in closed loop at their last input"):
             return
         self.expect_closed_loop[:] = [False] * len(self.nodes)
         for node in self.nodes:
@@ -368,15 +365,8 @@ class ODriveCanDriver(CanComponent):
                 self.axis_state[k] = hb.axis_state
                 self._heartbeat_age[k] = 0.0
                 self.heartbeats[k] += 1
-            elif cmd == Cmd.GET_ENCODER_ESTIMATES:
-                est = odrive.decode_encoder_estimates(msg.data)
-                if not (math.isfinite(est.position) and math.isfinite(est.velocity)):
-                    raise FrameError("non-finite encoder estimate")
-                self.position[k] = est.position * TAU
-                self.velocity[k] = est.velocity * TAU
-                self._estimate_age[k] = 0.0
-                self._new_estimate[k] = True
-                self.estimates[k] += 1
+            elif cmd == Cmd.GET_ENCODER_ESTIMATES:  # `_accept` took every 8-byte one: this decode raises
+                odrive.ENCODER_ESTIMATES.decode(msg.data)
             elif cmd == Cmd.GET_TEMPERATURE:
                 temp = odrive.decode_temperature(msg.data)
                 self.temperature[k] = max(temp.fet, temp.motor)
@@ -410,7 +400,7 @@ class ODriveCanDriver(CanComponent):
 
     def enable(self, joint: str | None = None) -> list[str]:
         """Operator command: request closed loop (holding where the axis is) on one axis or all. Never automatic."""
-        targets = list(range(len(self.nodes))) if joint is None else [self._index(joint)]
+        targets = self._joint_indices(joint)
         faulted = [self.joints[k] for k in targets if self.axis_error[k]]
         if faulted:
             raise HardwareError(f"axes {faulted} report errors: reset first (it sends Clear_Errors)")
@@ -422,14 +412,6 @@ class ODriveCanDriver(CanComponent):
                     f"{self.joints[k]}: arming frames not sent ({self.link.problem or 'send queue full'})"
                 )
         return [self.joints[k] for k in targets]
-
-    def _index(self, joint: str) -> int:
-        try:
-            return self.joints.index(joint)
-        except ValueError:
-            raise HardwareError(
-                f"{self.context.name} drives no joint {joint!r} (joints: {', '.join(self.joints)})"
-            ) from None
 
 
 def _state_name(state: int) -> str:

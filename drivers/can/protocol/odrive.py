@@ -191,13 +191,8 @@ class FixedPoint:
 class LowBit:
     """A flag in bit 0 of a byte whose other bits are reserved."""
 
-    @staticmethod
-    def to_wire(value: bool) -> int:
-        return 1 if value else 0
-
-    @staticmethod
-    def from_wire(raw: int) -> bool:
-        return bool(raw & 1)
+    to_wire = staticmethod(lambda value: 1 if value else 0)
+    from_wire = staticmethod(lambda raw: bool(raw & 1))
 
 
 FEED_FORWARD_SCALE = 0.001
@@ -338,7 +333,6 @@ class BusVoltageCurrent(NamedTuple):
     current: float
 
 
-# fmt: off
 HEARTBEAT = Message("heartbeat", Cmd.HEARTBEAT, "<IBBBx", Heartbeat, wire={"trajectory_done": LowBit()})
 ENCODER_ESTIMATES = Message("encoder estimates", Cmd.GET_ENCODER_ESTIMATES, "<ff", EncoderEstimates)
 SET_AXIS_STATE = Message("Set_Axis_State", Cmd.SET_AXIS_STATE, "<I", ("state",))
@@ -356,7 +350,6 @@ GET_ERROR = Message("Get_Error", Cmd.GET_ERROR, "<II", ErrorReport)
 GET_TEMPERATURE = Message("Get_Temperature", Cmd.GET_TEMPERATURE, "<ff", Temperature)
 GET_BUS_VOLTAGE_CURRENT = Message("Get_Bus_Voltage_Current", Cmd.GET_BUS_VOLTAGE_CURRENT, "<ff", BusVoltageCurrent)
 GET_TORQUES = Message("Get_Torques", Cmd.GET_TORQUES, "<ff", ("torque_target", "torque_estimate"))
-# fmt: on
 
 
 def encode_heartbeat(node: int, hb: Heartbeat) -> can.Message:
