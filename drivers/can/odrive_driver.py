@@ -294,8 +294,9 @@ class ODriveCanDriver(CanComponent):
         self.bad_frames.report(t)
 
     def write(self, t: float, dt: float, command: ServoCommand) -> None:
-        send, modes = self.link.send, self._mode
-        request = self._request_estimates
+        send, modes, clamp = self.link.send, self._mode, self._ff
+        rtr = self._rtr if self._request_estimates else None
+        input_pos, input_vel, input_torque = self._input_pos, self._input_vel, self._input_torque
         pack_pos, pack_vel, pack_torque = _PACK_INPUT_POS, _PACK_INPUT_VEL, _PACK_INPUT_TORQUE
         for k, (node, p, v, ff, kp, kd) in enumerate(
             zip(
@@ -313,17 +314,17 @@ class ODriveCanDriver(CanComponent):
                 sent = send(odrive.encode_set_controller_mode(node, mode, InputMode.PASSTHROUGH))
                 modes[k] = mode if sent else _NO_MODE
             if mode == _POSITION_CONTROL:
-                msg = self._input_pos[k]
-                pack_pos(msg.data, p / TAU, v / TAU, self._ff(k, ff))
+                msg = input_pos[k]
+                pack_pos(msg.data, p / TAU, v / TAU, clamp(k, ff))
             elif mode == _VELOCITY_CONTROL:
-                msg = self._input_vel[k]
+                msg = input_vel[k]
                 pack_vel(msg.data, v / TAU, ff)
             else:
-                msg = self._input_torque[k]
+                msg = input_torque[k]
                 pack_torque(msg.data, ff)
             send(msg)
-            if request:
-                send(self._rtr[k])
+            if rtr is not None:
+                send(rtr[k])
         self.link.end_cycle()
 
     def _accept(self, msg: can.Message) -> None:
