@@ -491,15 +491,12 @@ class MitCanDriver(CanComponent):
                 self._repeating[k] = repeating = None
         elif fault == 0 and self._persistent:
             self._persistent.pop(k, None)
-        status_fault = self.status_fault[k]
-        if fault or status_fault:
-            self.fault[k] = fault or status_fault
-        elif enabled is False and self.expect_enabled[k] and not rezero and not clearing:
+        code = fault or self.status_fault[k]
+        if not code and enabled is False and self.expect_enabled[k] and not rezero and not clearing:
             # Off while it should be on (set-zero passes "off" on purpose; a cleared Damiao drive comes back off,
             # which is said once the clear-error is decided). A repeated enable is confirmed by this going away.
-            self.fault[k] = FAULT_DISABLED
-        else:
-            self.fault[k] = 0
+            code = FAULT_DISABLED
+        self.fault[k] = code
         self._replies[k] += 1
         self._fresh[k] = True
 

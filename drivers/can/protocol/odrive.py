@@ -273,21 +273,28 @@ class Message:
 def _packer(pack_into: Callable[..., None], conversions: list[WireConversion | None]) -> Packer:
     """`pack(buffer, *values)` at offset 0, each value through its field's conversion.
 
-    Spelled out for one to three fields, the messages the cycle packs (Set_Input_*), where `*values` would cost an
-    argument tuple per frame; larger messages take the general form.
+    Spelled out for the shapes of the messages the cycle packs, where `*values` would cost an argument tuple per
+    frame and a conversion a call: one or two fields sent as they are (Set_Input_Torque, Set_Input_Vel), and a value
+    followed by two fixed-point fields (Set_Input_Pos), rounded and saturated inline exactly as `FixedPoint.to_wire`
+    does. Every other message takes the general form.
     """
-    to_wire = tuple(c.to_wire if c else None for c in conversions)
-    if len(to_wire) == 1:
-        (w0,) = to_wire
-        return lambda buffer, a: pack_into(buffer, 0, a if w0 is None else w0(a))
-    if len(to_wire) == 2:
-        w0, w1 = to_wire
-        return lambda buffer, a, b: pack_into(buffer, 0, a if w0 is None else w0(a), b if w1 is None else w1(b))
-    if len(to_wire) == 3:
-        w0, w1, w2 = to_wire
-        return lambda buffer, a, b, c: pack_into(
-            buffer, 0, a if w0 is None else w0(a), b if w1 is None else w1(b), c if w2 is None else w2(c)
-        )
+    plain = not any(conversions)
+    if plain and len(conversions) == 1:
+        return lambda buffer, a: pack_into(buffer, 0, a)
+    if plain and len(conversions) == 2:
+        return lambda buffer, a, b: pack_into(buffer, 0, a, b)
+    first, second, third = (*conversions, None, None, None)[:3]
+    if len(conversions) == 3 and first is None and isinstance(second, FixedPoint) and isinstance(third, FixedPoint):
+        s1, lo1, hi1, s2, lo2, hi2 = second.scale, second.lo, second.hi, third.scale, third.lo, third.hi
+
+        def pack_fixed(buffer: bytearray, a: Any, b: float, c: float) -> None:
+            count_b, count_c = round(b / s1), round(c / s2)
+            count_b = lo1 if count_b < lo1 else hi1 if count_b > hi1 else count_b
+            count_c = lo2 if count_c < lo2 else hi2 if count_c > hi2 else count_c
+            pack_into(buffer, 0, a, count_b, count_c)
+
+        return pack_fixed
+    to_wire = [c.to_wire if c else None for c in conversions]
 
     def pack(buffer: bytearray, *values: Any) -> None:
         pack_into(buffer, 0, *[v if w is None else w(v) for w, v in zip(to_wire, values, strict=True)])

@@ -6,6 +6,8 @@ test_protocol_odrive.py; here every message of the table is driven through its d
 
 from __future__ import annotations
 
+import struct
+from collections.abc import Callable
 from typing import Any
 
 import pytest
@@ -83,3 +85,29 @@ def test_fixed_point_rounds_and_saturates() -> None:
     assert [ff.to_wire(x) for x in (0.0004, 0.0005, 0.0015, -0.0006, 40.0, -40.0)] == [0, 0, 2, -1, 32767, -32768]
     with pytest.raises(ValueError):
         ff.to_wire(float("nan"))
+
+
+def outcome(pack: Callable[[], bytes]) -> bytes | type[BaseException]:
+    try:
+        return pack()
+    except (ValueError, OverflowError, struct.error) as exc:
+        return type(exc)
+
+
+near_ff = st.floats() | st.floats(-40.0, 40.0)  # NaN, ±inf and beyond float32, or around the ±32.767 saturation
+
+
+@given(position=st.floats(), vel_ff=near_ff, torque_ff=near_ff)
+def test_the_cycles_inline_fixed_point_is_fixed_point_to_wire(position: float, vel_ff: float, torque_ff: float) -> None:
+    """Set_Input_Pos converts its feed-forwards inline (no call per field): the bytes and errors of `to_wire`."""
+    message, ff = od.SET_INPUT_POS, od.FEED_FORWARD
+    buffer = bytearray(message.size)
+
+    def inline() -> bytes:
+        message.pack(buffer, position, vel_ff, torque_ff)
+        return bytes(buffer)
+
+    def general() -> bytes:
+        return message.layout.pack(position, ff.to_wire(vel_ff), ff.to_wire(torque_ff))
+
+    assert outcome(inline) == outcome(general)
