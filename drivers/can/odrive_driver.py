@@ -369,8 +369,7 @@ class ODriveCanDriver(CanComponent):
             elif cmd == Cmd.GET_ENCODER_ESTIMATES:  # `_accept` took every 8-byte one: this decode raises
                 odrive.ENCODER_ESTIMATES.decode(msg.data)
             elif cmd == Cmd.GET_TEMPERATURE:
-                temp = odrive.decode_temperature(msg.data)
-                self.temperature[k] = max(temp.fet, temp.motor)
+                self.temperature[k] = max(odrive.GET_TEMPERATURE.decode(msg.data))  # (FET, motor) °C
             else:
                 self.effort[k] = odrive.GET_TORQUES.decode(msg.data)[1]  # (torque target, torque estimate) N·m
         except FrameError as exc:

@@ -142,7 +142,16 @@ def run(args: argparse.Namespace) -> int:
         _announce(runtime, args, priority)
         if rate < 2.0 * loaded.config.update_rate:
             log.warning("--rate %g is below twice the config's update_rate: replies may arrive late", rate)
-        _serve(runtime, rate)
+
+        def stop(signum: int, frame: Any) -> None:
+            runtime.stop_event.set()
+
+        signal.signal(signal.SIGINT, stop)
+        signal.signal(signal.SIGTERM, stop)
+        gc.collect()
+        gc.freeze()  # like the daemon: no full collection of the start-up heap stalls the loop for tens of ms
+        log.info("emulating at %g Hz; Ctrl-C stops", rate)
+        runtime.run(1.0 / rate)
     except OSError as exc:
         print(f"hild emulate: {exc}", file=sys.stderr)
         return 1
@@ -177,15 +186,3 @@ def _announce(runtime: EmulatorRuntime, args: argparse.Namespace, priority: str)
     if args.control is not None:
         host, port = runtime.start_control(args.control)
         log.info('control on %s:%d (JSON lines, e.g. {"op": "status"})', host, port)
-
-
-def _serve(runtime: EmulatorRuntime, rate: float) -> None:
-    def stop(signum: int, frame: Any) -> None:
-        runtime.stop_event.set()
-
-    signal.signal(signal.SIGINT, stop)
-    signal.signal(signal.SIGTERM, stop)
-    gc.collect()
-    gc.freeze()  # like the daemon: no full collection of the start-up heap stalls the loop for tens of ms
-    log.info("emulating at %g Hz; Ctrl-C stops", rate)
-    runtime.run(1.0 / rate)

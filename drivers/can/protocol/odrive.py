@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import enum
 import struct
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -234,7 +234,7 @@ class Message:
             self.fields, self.defaults, self._result = fields._fields, tuple(fields._field_defaults.values()), fields
         self.optional = 0 < len(self.fields) == len(self.defaults)
         self.wire = wire or {}
-        self._from_wire = tuple(self.wire[f].from_wire if f in self.wire else None for f in self.fields)
+        self._from_wire = [(i, self.wire[f].from_wire) for i, f in enumerate(self.fields) if f in self.wire]
         self.pack: Packer = _packer(self.layout.pack_into, [self.wire.get(f) for f in self.fields])
         """pack(buffer, *values): the payload written into `buffer` in place (the same bytes `encode` sends)."""
 
@@ -257,17 +257,21 @@ class Message:
             if self.optional:
                 raise FrameError(f"odrive {self.name} carries at most {self.size} byte, got {len(data)}")
             raise FrameError(f"odrive {self.name} needs {self.size} data bytes, got {len(data)}")
-        raw = self.layout.unpack(data)
-        return self._shaped(tuple(r if f is None else f(r) for f, r in zip(self._from_wire, raw, strict=True)))
+        values: Sequence[Any] = self.layout.unpack(data)
+        if self._from_wire:
+            values = list(values)
+            for i, from_wire in self._from_wire:
+                values[i] = from_wire(values[i])
+        return self._shaped(values)
 
     def frame(self, node: int) -> can.Message:
         """A zeroed frame of this message for `node`, for the cycle to refill with `pack`."""
         return empty_frame(node, self.cmd, self.size)
 
-    def _shaped(self, values: tuple[Any, ...]) -> Any:
+    def _shaped(self, values: Sequence[Any]) -> Any:
         if self._result is not None:
-            return self._result(*values)
-        return values[0] if len(values) == 1 else values
+            return tuple.__new__(self._result, values)  # the NamedTuple without a Python-level __new__ call
+        return values[0] if len(values) == 1 else tuple(values)
 
 
 def _packer(pack_into: Callable[..., None], conversions: list[WireConversion | None]) -> Packer:
@@ -325,21 +329,6 @@ class InputPos(NamedTuple):
     """Nm"""
 
 
-class Temperature(NamedTuple):
-    fet: float
-    motor: float
-
-
-class ErrorReport(NamedTuple):
-    active_errors: int
-    disarm_reason: int
-
-
-class BusVoltageCurrent(NamedTuple):
-    voltage: float
-    current: float
-
-
 HEARTBEAT = Message("heartbeat", Cmd.HEARTBEAT, "<IBBBx", Heartbeat, wire={"trajectory_done": LowBit()})
 ENCODER_ESTIMATES = Message("encoder estimates", Cmd.GET_ENCODER_ESTIMATES, "<ff", EncoderEstimates)
 SET_AXIS_STATE = Message("Set_Axis_State", Cmd.SET_AXIS_STATE, "<I", ("state",))
@@ -353,9 +342,9 @@ SET_ABSOLUTE_POSITION = Message("Set_Absolute_Position", Cmd.SET_ABSOLUTE_POSITI
 CLEAR_ERRORS = Message("Clear_Errors", Cmd.CLEAR_ERRORS, "<?", ("identify",), defaults=(False,))
 REBOOT = Message("Reboot", Cmd.REBOOT, "<B", ("action",), defaults=(RebootAction.REBOOT,))
 ESTOP = Message("Estop", Cmd.ESTOP, "<", ())
-GET_ERROR = Message("Get_Error", Cmd.GET_ERROR, "<II", ErrorReport)
-GET_TEMPERATURE = Message("Get_Temperature", Cmd.GET_TEMPERATURE, "<ff", Temperature)
-GET_BUS_VOLTAGE_CURRENT = Message("Get_Bus_Voltage_Current", Cmd.GET_BUS_VOLTAGE_CURRENT, "<ff", BusVoltageCurrent)
+GET_ERROR = Message("Get_Error", Cmd.GET_ERROR, "<II", ("active_errors", "disarm_reason"))
+GET_TEMPERATURE = Message("Get_Temperature", Cmd.GET_TEMPERATURE, "<ff", ("fet", "motor"))
+GET_BUS_VOLTAGE_CURRENT = Message("Get_Bus_Voltage_Current", Cmd.GET_BUS_VOLTAGE_CURRENT, "<ff", ("voltage", "current"))
 GET_TORQUES = Message("Get_Torques", Cmd.GET_TORQUES, "<ff", ("torque_target", "torque_estimate"))
 
 
