@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Collection, Sequence
 
 import can
 
@@ -10,6 +10,18 @@ from drivers.can.bus import BadFrames, CanLink
 from drivers.can.params import CanDriverParams
 from hild.config.params import Params
 from hild.hardware import HardwareComponent, HardwareContext, HardwareError
+
+
+def coverage_problems(drive: str, drives: str, configured: Collection[str], joints: Sequence[str]) -> list[str]:
+    """Joints without a configured drive, and drives configured for joints this component does not drive."""
+    problems = []
+    missing = [j for j in joints if j not in configured]
+    if missing:
+        problems.append(f"no {drive} configured for joints {missing}")
+    extra = [j for j in configured if j not in joints]
+    if extra:
+        problems.append(f"{drives} configured for joints this component does not drive: {extra}")
+    return problems
 
 
 class FeedForwardClamp:
@@ -72,6 +84,24 @@ class CanComponent(HardwareComponent):
 
     def cleanup(self) -> None:
         self.link.close()
+
+    def _stopping_limp(self, held: str) -> bool:
+        """deactivate's question: should the drives be stopped? Not with the bus closed, nor with
+        ``on_deactivate: hold`` (reported with `held`, what stays as it was)."""
+        if self.link.bus is None:
+            return False
+        if self.params.on_deactivate == "hold":
+            self.context.emit_event("info", f"{held} (on_deactivate: hold)")
+            return False
+        return True
+
+    def _joint_indices(self, joint: str | None) -> list[int]:
+        """Every drive for None, else the one of `joint`; an operator command naming another joint is refused."""
+        if joint is None:
+            return list(range(len(self.joints)))
+        if joint not in self.joints:
+            raise HardwareError(f"{self.context.name} drives no joint {joint!r} (joints: {', '.join(self.joints)})")
+        return [self.joints.index(joint)]
 
     def drain(self, accept: Callable[[can.Message], None]) -> None:
         """Take every frame waiting (up to the budget) without blocking: the cycle never waits on the bus."""

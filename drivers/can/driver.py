@@ -39,9 +39,9 @@ from drivers.can.component import CanComponent, FeedForwardClamp
 from drivers.can.params import MitCanParams
 from drivers.can.protocol import damiao_registers as reg
 from drivers.can.protocol.errors import FrameError
-from drivers.can.protocol.flavours import DAMIAO, FLAVOURS, MYACTUATOR, MitFlavour
-from drivers.can.protocol.mit import MitRanges, command_encoder, encode_command
-from drivers.can.protocol.models import ranges_for
+from drivers.can.protocol.flavours import FLAVOURS, MitFlavour
+from drivers.can.protocol.mit import command_encoder
+from drivers.can.wiring import MotorWiring, wire_motors
 from hild.arrays import JointState, ServoCommand
 from hild.config.params import Params
 from hild.hardware import ALL_COMMAND_FIELDS, BusUsage, Finding, GainRange, HardwareContext, HardwareError
@@ -51,25 +51,10 @@ __all__ = ["FAULT_DISABLED", "MitCanDriver", "MotorWiring", "wire_motors"]
 FAULT_DISABLED = 0x1_0000
 """Fault code: the motor reports disabled while it should be enabled (above every vendor's own 16-bit codes)."""
 
-DEFAULT_DAMIAO_TIMEOUT_MS = 100.0
-DEFAULT_MYACTUATOR_STATUS_MS = 100.0
-# MyActuator native "read status 1" (0x9A on 0x140 + id, answered on 0x240 + id): D1 temperature (int8 °C),
-# D4–D5 voltage (0.1 V), D6–D7 error flags (uint16, little-endian). Protocol V4.3.
-_MYACTUATOR_STATUS = 0x9A
-MYACTUATOR_ERRORS = {
-    0x0002: "stall",
-    0x0004: "low voltage",
-    0x0008: "over-voltage",
-    0x0010: "over-current",
-    0x0040: "power overrun",
-    0x0080: "calibration parameter write error",
-    0x0100: "over-speed",
-    0x1000: "over-temperature",
-    0x2000: "encoder calibration error",
-}
-_REPLY_LENGTHS = {"damiao": (8,), "tmotor": (6, 8), "myactuator": (8,)}
-_KEY_MASK = {"damiao": 0x0F, "tmotor": 0xFF, "myactuator": 0xFF}  # D0 bits that name the motor in a reply
-_ID_RANGE = {"damiao": (1, 0x7FE), "tmotor": (0, 0xFF), "myactuator": (1, 32)}
+DEFAULT_TIMEOUT_MS = 100.0
+"""The CAN watchdog written to drives that keep it in a register (``timeout_ms``)."""
+DEFAULT_STATUS_POLL_MS = 100.0
+"""How often each motor's status is polled where replies do not carry it (``status_poll_ms``)."""
 # Commands that change a drive's state (enable, clear-error; disable at shutdown) are repeated until its replies
 # confirm them, as the vendors' own examples do (Damiao: 5× at 2 ms): a lost frame must not leave a drive on.
 REPEAT_TRIES = 5
@@ -78,7 +63,6 @@ REPEAT_TRIES = 5
 # the drive does not answer. A drive that still reports a cleared error after every try did not clear it.
 REPLIES_PER_TRY = 10
 CYCLES_PER_TRY = 10
-_ENABLED_UNKNOWN, _DISABLED, _ENABLED = -1, 0, 1
 
 
 @dataclass(slots=True)
@@ -93,75 +77,6 @@ class Repeated:
     cycles: int = 0  # write cycles since the last send
 
 
-@dataclass(frozen=True, slots=True)
-class MotorWiring:
-    """One motor's ids and ranges, resolved from the config."""
-
-    joint: str
-    id: int
-    command_id: int
-    reply_id: int
-    ranges: MitRanges
-
-
-def wire_motors(params: MitCanParams, joints: Sequence[str]) -> tuple[list[MotorWiring], list[str]]:
-    """Resolve every joint's motor; also return every reason the params cannot work (empty when they can)."""
-    flavour = FLAVOURS[params.flavour]
-    problems: list[str] = []
-    missing = [j for j in joints if j not in params.motors]
-    if missing:
-        problems.append(f"no motor configured for joints {missing}")
-    extra = [j for j in params.motors if j not in joints]
-    if extra:
-        problems.append(f"motors configured for joints this component does not drive: {extra}")
-    lo, hi = _ID_RANGE[params.flavour]
-    wiring: list[MotorWiring] = []
-    for joint in joints:
-        motor = params.motors.get(joint)
-        if motor is None:
-            continue
-        if not lo <= motor.id <= hi:
-            problems.append(f"{joint}: {params.flavour} motor id must be {lo}..{hi:#x}, got {motor.id:#x}")
-            continue
-        if motor.reply_id is not None and params.flavour != "damiao":
-            problems.append(f"{joint}: reply_id applies to damiao only ({params.flavour} derives it from the id)")
-        try:
-            ranges = ranges_for(params.flavour, motor.model, motor.ranges.as_dict() if motor.ranges else None)
-        except ValueError as exc:
-            problems.append(f"{joint}: {exc}")
-            continue
-        reply = motor.reply_id if motor.reply_id is not None else flavour.reply_id(motor.id, params.master_id)
-        wiring.append(MotorWiring(joint, motor.id, flavour.command_id(motor.id), reply, ranges))
-
-    by_command: dict[int, str] = {}
-    for m in wiring:
-        if m.command_id in by_command:
-            problems.append(f"{m.joint}: motor id {m.id:#x} is also used by {by_command[m.command_id]}")
-        by_command.setdefault(m.command_id, m.joint)
-    mask = _KEY_MASK[params.flavour]
-    by_reply: dict[tuple[int, int], str] = {}
-    for m in wiring:
-        if m.reply_id in by_command:
-            problems.append(
-                f"{m.joint}: reply id {m.reply_id:#x} collides with the command id of {by_command[m.reply_id]}"
-            )
-        if params.flavour == "damiao" and m.reply_id == reg.REGISTER_REQUEST_ID:
-            problems.append(f"{m.joint}: reply id 0x7FF is Damiao's register channel")
-        key = (m.reply_id, m.id & mask)
-        if key in by_reply:
-            what = "the low 4 bits of the id" if params.flavour == "damiao" else "the id"
-            problems.append(
-                f"{m.joint}: shares reply id {m.reply_id:#x} with {by_reply[key]} and replies cannot be told apart "
-                f"({what} must differ; give each motor its own reply_id)"
-            )
-        by_reply.setdefault(key, m.joint)
-    if params.flavour != "damiao" and params.timeout_ms is not None:
-        problems.append(f"timeout_ms: {params.flavour} has no CAN timeout register (damiao only)")
-    if params.flavour != "myactuator" and params.status_poll_ms is not None:
-        problems.append(f"status_poll_ms: applies to myactuator only ({params.flavour} replies carry the status)")
-    return wiring, problems
-
-
 class MitCanDriver(CanComponent):
     """MIT-protocol servos on one CAN bus. All five servo-command fields go to the drive."""
 
@@ -174,8 +89,8 @@ class MitCanDriver(CanComponent):
         assert isinstance(params, MitCanParams)
         _, problems = wire_motors(params, joints)
         findings = [Finding("error", p) for p in problems]
-        if params.flavour == "damiao":
-            timeout_ms = _damiao_timeout_ms(params)
+        if FLAVOURS[params.flavour].registers:
+            timeout_ms = _timeout_ms(params)
             period_ms = 1000.0 / update_rate
             if timeout_ms == 0.0:
                 findings.append(
@@ -202,8 +117,9 @@ class MitCanDriver(CanComponent):
 
     @classmethod
     def bus_usage(cls, params: Params, joints: Sequence[str], update_rate: float) -> list[BusUsage]:
-        """One command and one (worst case 8-byte) reply per motor per cycle; MyActuator status polls on top."""
+        """One command and one (worst case 8-byte) reply per motor per cycle; status polls on top."""
         assert isinstance(params, MitCanParams)
+        flavour = FLAVOURS[params.flavour]
         wiring, _ = wire_motors(params, joints)
         n = len(wiring)
         frames = [(8, n * update_rate), (8, n * update_rate)]
@@ -212,8 +128,7 @@ class MitCanDriver(CanComponent):
             frames.append((8, 2 * n * 1000.0 / poll_ms))  # request + reply per motor per poll period
         bps = bits_per_second(params.bus, frames)
         ids = {m.command_id for m in wiring} | {m.reply_id for m in wiring}
-        if params.flavour == "myactuator":  # the native channel carries disable and the status polls
-            ids |= {base + m.id for m in wiring for base in (MYACTUATOR.NATIVE_BASE, MYACTUATOR.NATIVE_REPLY_BASE)}
+        ids |= {native for m in wiring for native in flavour.native_ids(m.id)}
         return [BusUsage(params.bus.name, bps, float(params.bus.bitrate), frozenset(ids))]
 
     # ---- construction --------------------------------------------------------------------------------------
@@ -226,8 +141,8 @@ class MitCanDriver(CanComponent):
         self.flavour: MitFlavour = FLAVOURS[params.flavour]
         self.motors = wiring
         n = len(wiring)
-        self._lengths = _REPLY_LENGTHS[params.flavour]
-        mask = _KEY_MASK[params.flavour]
+        self._lengths = self.flavour.reply_lengths
+        mask = self.flavour.motor_key_mask
         self._key_mask = mask
         self._routes: dict[int, dict[int, int]] = {}  # reply id → motor key (D0 & mask) → motor index
         for k, m in enumerate(wiring):
@@ -238,19 +153,15 @@ class MitCanDriver(CanComponent):
         self._encoders = [command_encoder(m.ranges) for m in wiring]
         joints = [m.joint for m in wiring]
         self._ff = FeedForwardClamp(context.emit_event, joints, [m.ranges.t_max for m in wiring], "t_ff field")
-        self._native_replies: dict[int, int] = {}
+        self._status_replies: dict[int, int] = {}  # status reply id → motor, where the status is polled
         self._status_requests: list[can.Message] = []
         poll_ms = _status_poll_ms(params)
         self._status_interval = poll_ms / 1000.0 / n if poll_ms > 0.0 else 0.0  # one motor per interval
         self._status_due = 0.0
         self._status_next = 0
-        if params.flavour == "myactuator":
-            native_reply = MYACTUATOR.NATIVE_REPLY_BASE
-            self._native_replies = {native_reply + m.id: k for k, m in enumerate(wiring)}
-            native = MYACTUATOR.NATIVE_BASE
-            self._status_requests = [
-                self.link.make_message(native + m.id, bytes([_MYACTUATOR_STATUS, 0, 0, 0, 0, 0, 0, 0])) for m in wiring
-            ]
+        if self.flavour.polls_status:
+            self._status_replies = {self.flavour.status_reply_id(m.id): k for k, m in enumerate(wiring)}
+            self._status_requests = [self.link.make_message(*self.flavour.status_request(m.id)) for m in wiring]
         # Newest feedback per motor (actuator space), written by _accept, copied into the state by read. Plain
         # lists, not numpy arrays: a frame updates single elements, where a list store costs a fraction of a numpy
         # scalar store; read copies each list into the state array once per cycle.
@@ -259,12 +170,12 @@ class MitCanDriver(CanComponent):
         self.effort = [0.0] * n
         self.temperature = [math.nan] * n
         self.fault = [0] * n
-        self.status_fault = [0] * n  # MyActuator error flags from the latest status poll
+        self.status_fault = [0] * n  # error flags from the latest status poll
         # Enable / clear-error frames being repeated until the replies confirm them; errors that outlived them.
         self._repeating: list[Repeated | None] = [None] * n
         self._persistent: dict[int, str] = {}  # motor → a drive error still present after every clear-error
         self._replies = [0] * n  # replies accepted per motor since configure
-        self.reported_enabled = [_ENABLED_UNKNOWN] * n
+        self.reported_enabled: list[bool | None] = [None] * n  # None: the flavour's replies do not say
         self.expect_enabled = [False] * n
         self._rezero_replies = [0] * n  # replies still due to set-zero's frames, per motor
         self._fresh = [False] * n  # a reply arrived since the last read
@@ -286,20 +197,21 @@ class MitCanDriver(CanComponent):
         self.link.open()
         try:
             self.link.drain()
-            if self.params.flavour == "damiao":
-                self._check_damiao_registers()
+            if self.flavour.registers:
+                self._check_registers()
             self._read_start_positions()
         except BaseException:
             self.link.close()
             raise
 
-    def _check_damiao_registers(self) -> None:
-        """Refuse to start when a motor's PMAX/VMAX/TMAX differ from the config or it is not in MIT mode."""
+    def _check_registers(self) -> None:
+        """Refuse to start when a motor's PMAX/VMAX/TMAX differ from the config or it is not in MIT mode; then
+        write the TIMEOUT watchdog (Damiao's register channel)."""
         silent: list[str] = []
         problems: list[str] = []
-        counts = reg.timeout_counts(_damiao_timeout_ms(self.params) / 1000.0)
+        counts = reg.timeout_counts(_timeout_ms(self.params) / 1000.0)
         for m in self.motors:
-            values = self._damiao_exchange(m, [reg.read_request(m.id, r) for r in (reg.PMAX, reg.VMAX, reg.TMAX)])
+            values = self._register_exchange(m, [reg.read_request(m.id, r) for r in (reg.PMAX, reg.VMAX, reg.TMAX)])
             if values is None:
                 silent.append(f"{m.joint} (id {m.id:#x}, reply {m.reply_id:#x})")
                 continue
@@ -314,7 +226,7 @@ class MitCanDriver(CanComponent):
                         f"{m.joint} (id {m.id:#x}): {name} is {device:g} on the motor but {configured:g} in the config "
                         f"(model or ranges); fix the config or the motor's register"
                     )
-            mode = self._damiao_exchange(m, [reg.read_request(m.id, reg.CTRL_MODE)])
+            mode = self._register_exchange(m, [reg.read_request(m.id, reg.CTRL_MODE)])
             if mode is None:
                 silent.append(f"{m.joint} (id {m.id:#x}) for CTRL_MODE")
             elif int(mode[reg.CTRL_MODE]) != reg.CTRL_MODE_MIT:
@@ -330,12 +242,12 @@ class MitCanDriver(CanComponent):
         if problems:
             raise HardwareError("; ".join(problems))
         for m in self.motors:
-            done = self._damiao_exchange(m, [reg.write_request(m.id, reg.TIMEOUT, counts)])
+            done = self._register_exchange(m, [reg.write_request(m.id, reg.TIMEOUT, counts)])
             if done is None or int(done[reg.TIMEOUT]) != counts:
                 found = "no answer" if done is None else f"it answered {int(done[reg.TIMEOUT])}"
                 raise HardwareError(f"{m.joint} (id {m.id:#x}): writing TIMEOUT = {counts} failed ({found})")
 
-    def _damiao_exchange(self, m: MotorWiring, requests: list[can.Message]) -> dict[int, float] | None:
+    def _register_exchange(self, m: MotorWiring, requests: list[can.Message]) -> dict[int, float] | None:
         """Send register requests one by one; the values answered, or None when the motor stays silent."""
         values: dict[int, float] = {}
         for request in requests:
@@ -362,7 +274,7 @@ class MitCanDriver(CanComponent):
         silent = []
         for k, m in enumerate(self.motors):
             before = self._replies[k]
-            self.link.send_wait(self._status_request(k))
+            self.link.send_wait(self.flavour.feedback_request(m.id, m.ranges, self.link.make_message))
             if not self.link.collect(self._accept, lambda k=k, before=before: self._replies[k] > before, self._timeout):
                 silent.append(f"{m.joint} (id {m.id:#x}, reply {m.reply_id:#x})")
         if silent:
@@ -374,12 +286,6 @@ class MitCanDriver(CanComponent):
             code = int(self.fault[k])
             if code:
                 self.context.emit_event("error", f"{m.joint}: motor reports {self.describe_fault(code)} at start-up")
-
-    def _status_request(self, k: int) -> can.Message:
-        m = self.motors[k]
-        if self.params.flavour == "damiao":
-            return reg.refresh_request(m.id)
-        return self.link.make_message(m.command_id, encode_command(0.0, 0.0, 0.0, 0.0, 0.0, m.ranges))
 
     def activate(self) -> None:
         """Enable every motor and wait for its reply; a motor already reporting a fault is left disabled."""
@@ -414,17 +320,14 @@ class MitCanDriver(CanComponent):
             def confirmed(before: int = before) -> bool:
                 if self._replies[k] <= before:
                     return False
-                return not reports or self.reported_enabled[k] == _ENABLED or self.fault[k] != 0
+                return not reports or self.reported_enabled[k] is True or self.fault[k] != 0
 
             if self.link.collect(self._accept, confirmed, self._timeout / REPEAT_TRIES):
                 return self.fault[k] == 0
         return False
 
     def deactivate(self) -> None:
-        if self.link.bus is None:
-            return
-        if self.params.on_deactivate == "hold":
-            self.context.emit_event("info", "motors left enabled at their last command (on_deactivate: hold)")
+        if not self._stopping_limp("motors left enabled at their last command"):
             return
         self.expect_enabled[:] = [False] * len(self.motors)
         unconfirmed = []
@@ -454,7 +357,7 @@ class MitCanDriver(CanComponent):
             sent += 1
             if reports and self.link.collect(
                 self._accept,
-                lambda before=before: self._replies[k] > before and self.reported_enabled[k] != _ENABLED,
+                lambda before=before: self._replies[k] > before and self.reported_enabled[k] is not True,
                 self._timeout / REPEAT_TRIES,
             ):
                 return True
@@ -569,16 +472,17 @@ class MitCanDriver(CanComponent):
             self.temperature[k] = t_mos if t_rotor is None or t_mos >= t_rotor else t_rotor  # the hotter one limits
         elif t_rotor is not None:
             self.temperature[k] = t_rotor
-        self.reported_enabled[k] = _ENABLED_UNKNOWN if enabled is None else (_ENABLED if enabled else _DISABLED)
+        self.reported_enabled[k] = enabled
         rezero = self._rezero_replies[k]
         if rezero:
             rezero -= 1
             self._rezero_replies[k] = rezero
         repeating = self._repeating[k]
-        clearing = repeating is not None and repeating.kind == "clear-error"
+        clearing = False
         if repeating is not None:  # confirmed by this reply, or still waiting (decided in write)
             repeating.replies += 1
-            if repeating.kind == "clear-error":
+            clearing = repeating.kind == "clear-error"
+            if clearing:
                 if fault == repeating.code:
                     fault = 0  # in flight from before the clear, or still there: known when the tries run out
                 else:
@@ -587,15 +491,12 @@ class MitCanDriver(CanComponent):
                 self._repeating[k] = repeating = None
         elif fault == 0 and self._persistent:
             self._persistent.pop(k, None)
-        status_fault = self.status_fault[k]
-        if fault or status_fault:
-            self.fault[k] = fault or status_fault
-        elif enabled is False and self.expect_enabled[k] and not rezero and not clearing:
+        code = fault or self.status_fault[k]
+        if not code and enabled is False and self.expect_enabled[k] and not rezero and not clearing:
             # Off while it should be on (set-zero passes "off" on purpose; a cleared Damiao drive comes back off,
             # which is said once the clear-error is decided). A repeated enable is confirmed by this going away.
-            self.fault[k] = FAULT_DISABLED
-        else:
-            self.fault[k] = 0
+            code = FAULT_DISABLED
+        self.fault[k] = code
         self._replies[k] += 1
         self._fresh[k] = True
 
@@ -607,9 +508,9 @@ class MitCanDriver(CanComponent):
             return
         routes = self._routes.get(arbitration_id)
         if routes is None:
-            native = self._native_replies.get(arbitration_id)
-            if native is not None:
-                self._accept_native(native, msg)
+            polled = self._status_replies.get(arbitration_id)
+            if polled is not None:
+                self._accept_status(polled, msg)
             elif not any(self.flavour.is_ack(msg, m.id) for m in self.motors):
                 self.bad_frames.note("unknown id", arbitration_id)
             return
@@ -619,17 +520,16 @@ class MitCanDriver(CanComponent):
             return
         self.bad_frames.note("unexpected motor id", arbitration_id)
 
-    def _accept_native(self, k: int, msg: can.Message) -> None:
-        """MyActuator native replies: status 1 carries error flags and temperature; others are acknowledgements."""
-        data = msg.data
-        if len(data) != 8:
+    def _accept_status(self, k: int, msg: can.Message) -> None:
+        """A frame on a polled motor's status channel: the status (error flags, temperature) or an acknowledgement."""
+        try:
+            status = self.flavour.decode_status(msg.data)
+        except FrameError:
             self.bad_frames.note("wrong length", msg.arbitration_id)
             return
-        if data[0] != _MYACTUATOR_STATUS:
+        if status is None:
             return
-        temperature = data[1] - 256 if data[1] > 127 else data[1]
-        self.temperature[k] = float(temperature)
-        flags = data[6] | data[7] << 8
+        self.temperature[k], flags = status
         self.status_fault[k] = flags
         if flags:
             self.fault[k] = flags
@@ -641,13 +541,7 @@ class MitCanDriver(CanComponent):
                 "motor reports disabled while it should be enabled (rebooted, zeroed, or its fault was cleared); "
                 "it is not re-enabled automatically: enable it explicitly"
             )
-        if self.params.flavour == "myactuator":
-            names = [name for bit, name in MYACTUATOR_ERRORS.items() if code & bit]
-            unknown = code & ~sum(MYACTUATOR_ERRORS)
-            if unknown:
-                names.append(f"unknown flags {unknown:#x}")
-            return f"myactuator error flags {code:#06x}: {', '.join(names)}"
-        return f"{self.flavour.name} fault {code:#x}: {self.flavour.describe_fault(code)}"
+        return self.flavour.explain_fault(code)
 
     def clear_faults(self) -> None:
         """Operator reset: recover the bus per ``bus_recovery`` and send clear-error to faulted drives.
@@ -677,7 +571,7 @@ class MitCanDriver(CanComponent):
         Refused for a motor that reports a drive fault (reset first). Returns the joints enabled; the replies of the
         next cycles confirm it (a motor that stays disabled keeps reporting ``FAULT_DISABLED``).
         """
-        targets = self._targets(joint)
+        targets = self._joint_indices(joint)
         stuck = [f"{self.motors[k].joint}: {self._persistent[k]}" for k in targets if k in self._persistent]
         if stuck:
             raise HardwareError(
@@ -688,9 +582,9 @@ class MitCanDriver(CanComponent):
         if faulted:
             raise HardwareError(f"motors {faulted} report a drive fault: reset first (it clears the drive error)")
         for k in targets:
-            if self.flavour is DAMIAO:  # a power-cycled drive forgot its RAM watchdog: write it again, unacknowledged
+            if self.flavour.registers:  # a power-cycled drive forgot its RAM watchdog: write it again, unacknowledged
                 m = self.motors[k]
-                counts = reg.timeout_counts(_damiao_timeout_ms(self.params) / 1000.0)
+                counts = reg.timeout_counts(_timeout_ms(self.params) / 1000.0)
                 self.link.send(reg.write_request(m.id, reg.TIMEOUT, counts))
             if not self._enable(k, wait=False):
                 raise HardwareError(f"{self.motors[k].joint}: enable frame not sent ({self.link.problem or 'bus'})")
@@ -706,7 +600,7 @@ class MitCanDriver(CanComponent):
         Then hold continues where the joint is, read in the new frame. If the enable does not take, the next
         reply reports ``FAULT_DISABLED``.
         """
-        (k,) = self._targets(joint)
+        (k,) = self._joint_indices(joint)
         m = self.motors[k]
         fd = self.params.bus.fd
         zero = self.flavour.special(m.id, "zero", fd=fd)
@@ -726,20 +620,12 @@ class MitCanDriver(CanComponent):
             pending += 1
         self._rezero_replies[k] = pending
 
-    def _targets(self, joint: str | None) -> list[int]:
-        if joint is None:
-            return list(range(len(self.motors)))
-        for k, m in enumerate(self.motors):
-            if m.joint == joint:
-                return [k]
-        raise HardwareError(f"{self.context.name} drives no joint {joint!r} (joints: {', '.join(self.joints)})")
 
-
-def _damiao_timeout_ms(params: MitCanParams) -> float:
-    return DEFAULT_DAMIAO_TIMEOUT_MS if params.timeout_ms is None else params.timeout_ms
+def _timeout_ms(params: MitCanParams) -> float:
+    return DEFAULT_TIMEOUT_MS if params.timeout_ms is None else params.timeout_ms
 
 
 def _status_poll_ms(params: MitCanParams) -> float:
-    if params.flavour != "myactuator":
+    if not FLAVOURS[params.flavour].polls_status:
         return 0.0
-    return DEFAULT_MYACTUATOR_STATUS_MS if params.status_poll_ms is None else params.status_poll_ms
+    return DEFAULT_STATUS_POLL_MS if params.status_poll_ms is None else params.status_poll_ms

@@ -24,13 +24,12 @@ by the explicit operator command ``enable``.
 from __future__ import annotations
 
 import math
-import struct
 from collections.abc import Callable, Sequence
 
 import can
 
 from drivers.can.bus import bits_per_second, rtr_bits
-from drivers.can.component import CanComponent, FeedForwardClamp
+from drivers.can.component import CanComponent, FeedForwardClamp, coverage_problems
 from drivers.can.params import ODriveCanParams
 from drivers.can.protocol import odrive
 from drivers.can.protocol.errors import FrameError
@@ -58,9 +57,10 @@ _DRIVE_CMDS = _USED_CMDS | {
     Cmd.GET_BUS_VOLTAGE_CURRENT,
     Cmd.GET_POWERS,
 }
-_GET_TORQUES = struct.Struct("<ff")  # 0.6 Get_Torques: torque target, torque estimate (Nm)
 _INF = math.inf
-_ESTIMATES = odrive.ENCODER_ESTIMATES.unpack
+_ESTIMATES = odrive.ENCODER_ESTIMATES.layout.unpack
+_PACK_INPUT_POS, _PACK_INPUT_VEL = odrive.SET_INPUT_POS.pack, odrive.SET_INPUT_VEL.pack
+_PACK_INPUT_TORQUE = odrive.SET_INPUT_TORQUE.pack
 # Plain ints for the cycle (an IntEnum member is a class-attribute lookup and compares through int anyway).
 _POSITION_CONTROL = int(ControlMode.POSITION_CONTROL)
 _VELOCITY_CONTROL = int(ControlMode.VELOCITY_CONTROL)
@@ -73,13 +73,7 @@ def _all_grew(counts: list[int], before: list[int]) -> bool:
 
 
 def _problems(params: ODriveCanParams, joints: Sequence[str]) -> list[str]:
-    problems = []
-    missing = [j for j in joints if j not in params.axes]
-    if missing:
-        problems.append(f"no axis configured for joints {missing}")
-    extra = [j for j in params.axes if j not in joints]
-    if extra:
-        problems.append(f"axes configured for joints this component does not drive: {extra}")
+    problems = coverage_problems("axis", "axes", params.axes, joints)
     seen: dict[int, str] = {}
     for joint, axis in params.axes.items():
         if axis.node_id in seen:
@@ -168,11 +162,11 @@ class ODriveCanDriver(CanComponent):
         self._mode = [_NO_MODE] * n
         self._rtr = [odrive.request(node, Cmd.GET_ENCODER_ESTIMATES) for node in self.nodes]
         # One frame per axis and input command, refilled in place by write.
-        self._input_pos = [odrive.empty_frame(node, Cmd.SET_INPUT_POS, 8) for node in self.nodes]
-        self._input_vel = [odrive.empty_frame(node, Cmd.SET_INPUT_VEL, 8) for node in self.nodes]
-        self._input_torque = [odrive.empty_frame(node, Cmd.SET_INPUT_TORQUE, 4) for node in self.nodes]
-        # Set_Input_Pos carries torque_ff as int16 × FEED_FORWARD_SCALE: ±32.767 N·m, saturated silently by the codec.
-        ff_max = 32767 * odrive.FEED_FORWARD_SCALE
+        self._input_pos = [odrive.SET_INPUT_POS.frame(node) for node in self.nodes]
+        self._input_vel = [odrive.SET_INPUT_VEL.frame(node) for node in self.nodes]
+        self._input_torque = [odrive.SET_INPUT_TORQUE.frame(node) for node in self.nodes]
+        # Set_Input_Pos carries torque_ff as int16 × 0.001: ±32.767 N·m, saturated silently by the codec.
+        ff_max = odrive.FEED_FORWARD.hi * odrive.FEED_FORWARD.scale
         self._ff = FeedForwardClamp(context.emit_event, list(context.joints), [ff_max] * n, "Set_Input_Pos torque_ff")
         self._estimate_ids = {
             odrive.arbitration_id(node, Cmd.GET_ENCODER_ESTIMATES): k for k, node in enumerate(self.nodes)
@@ -264,10 +258,7 @@ class ODriveCanDriver(CanComponent):
         self.expect_closed_loop[k] = True
 
     def deactivate(self) -> None:
-        if self.link.bus is None:
-            return
-        if self.params.on_deactivate == "hold":
-            self.context.emit_event("info", "axes left in closed loop at their last input (on_deactivate: hold)")
+        if not self._stopping_limp("axes left in closed loop at their last input"):
             return
         self.expect_closed_loop[:] = [False] * len(self.nodes)
         for node in self.nodes:
@@ -303,8 +294,10 @@ class ODriveCanDriver(CanComponent):
         self.bad_frames.report(t)
 
     def write(self, t: float, dt: float, command: ServoCommand) -> None:
-        send, modes = self.link.send, self._mode
-        request = self._request_estimates
+        send, modes, clamp = self.link.send, self._mode, self._ff
+        rtr = self._rtr if self._request_estimates else None
+        input_pos, input_vel, input_torque = self._input_pos, self._input_vel, self._input_torque
+        pack_pos, pack_vel, pack_torque = _PACK_INPUT_POS, _PACK_INPUT_VEL, _PACK_INPUT_TORQUE
         for k, (node, p, v, ff, kp, kd) in enumerate(
             zip(
                 self.nodes,
@@ -321,17 +314,17 @@ class ODriveCanDriver(CanComponent):
                 sent = send(odrive.encode_set_controller_mode(node, mode, InputMode.PASSTHROUGH))
                 modes[k] = mode if sent else _NO_MODE
             if mode == _POSITION_CONTROL:
-                msg = self._input_pos[k]
-                odrive.pack_set_input_pos(msg.data, p / TAU, v / TAU, self._ff(k, ff))
+                msg = input_pos[k]
+                pack_pos(msg.data, p / TAU, v / TAU, clamp(k, ff))
             elif mode == _VELOCITY_CONTROL:
-                msg = self._input_vel[k]
-                odrive.pack_set_input_vel(msg.data, v / TAU, ff)
+                msg = input_vel[k]
+                pack_vel(msg.data, v / TAU, ff)
             else:
-                msg = self._input_torque[k]
-                odrive.pack_set_input_torque(msg.data, ff)
+                msg = input_torque[k]
+                pack_torque(msg.data, ff)
             send(msg)
-            if request:
-                send(self._rtr[k])
+            if rtr is not None:
+                send(rtr[k])
         self.link.end_cycle()
 
     def _accept(self, msg: can.Message) -> None:
@@ -373,22 +366,12 @@ class ODriveCanDriver(CanComponent):
                 self.axis_state[k] = hb.axis_state
                 self._heartbeat_age[k] = 0.0
                 self.heartbeats[k] += 1
-            elif cmd == Cmd.GET_ENCODER_ESTIMATES:
-                est = odrive.decode_encoder_estimates(msg.data)
-                if not (math.isfinite(est.position) and math.isfinite(est.velocity)):
-                    raise FrameError("non-finite encoder estimate")
-                self.position[k] = est.position * TAU
-                self.velocity[k] = est.velocity * TAU
-                self._estimate_age[k] = 0.0
-                self._new_estimate[k] = True
-                self.estimates[k] += 1
+            elif cmd == Cmd.GET_ENCODER_ESTIMATES:  # `_accept` took every 8-byte one: this decode raises
+                odrive.ENCODER_ESTIMATES.decode(msg.data)
             elif cmd == Cmd.GET_TEMPERATURE:
-                temp = odrive.decode_temperature(msg.data)
-                self.temperature[k] = max(temp.fet, temp.motor)
+                self.temperature[k] = max(odrive.GET_TEMPERATURE.decode(msg.data))  # (FET, motor) °C
             else:
-                if len(msg.data) != _GET_TORQUES.size:
-                    raise FrameError(f"odrive Get_Torques needs 8 data bytes, got {len(msg.data)}")
-                self.effort[k] = _GET_TORQUES.unpack(msg.data)[1]
+                self.effort[k] = odrive.GET_TORQUES.decode(msg.data)[1]  # (torque target, torque estimate) N·m
         except FrameError as exc:
             kind = "wrong length" if "bytes" in str(exc) else "corrupted"
             self.bad_frames.note(kind, msg.arbitration_id)
@@ -417,7 +400,7 @@ class ODriveCanDriver(CanComponent):
 
     def enable(self, joint: str | None = None) -> list[str]:
         """Operator command: request closed loop (holding where the axis is) on one axis or all. Never automatic."""
-        targets = list(range(len(self.nodes))) if joint is None else [self._index(joint)]
+        targets = self._joint_indices(joint)
         faulted = [self.joints[k] for k in targets if self.axis_error[k]]
         if faulted:
             raise HardwareError(f"axes {faulted} report errors: reset first (it sends Clear_Errors)")
@@ -429,14 +412,6 @@ class ODriveCanDriver(CanComponent):
                     f"{self.joints[k]}: arming frames not sent ({self.link.problem or 'send queue full'})"
                 )
         return [self.joints[k] for k in targets]
-
-    def _index(self, joint: str) -> int:
-        try:
-            return self.joints.index(joint)
-        except ValueError:
-            raise HardwareError(
-                f"{self.context.name} drives no joint {joint!r} (joints: {', '.join(self.joints)})"
-            ) from None
 
 
 def _state_name(state: int) -> str:

@@ -20,7 +20,7 @@ import signal
 import sys
 from typing import Any
 
-from drivers.can.emulator.runtime import RuntimeOptions, build_runtime, describe
+from drivers.can.emulator.runtime import EmulatorRuntime, RuntimeOptions, build_runtime, describe
 from hild.config import ConfigError, load_config
 from hild.hardware import HardwareError
 
@@ -114,6 +114,7 @@ def apply_priority(priority: int) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    """``hild emulate``: check the arguments, build the config's drives, serve them until SIGINT/SIGTERM."""
     from hild.cli import setup_logging
 
     setup_logging(args.log_level)
@@ -131,34 +132,14 @@ def run(args: argparse.Namespace) -> int:
         print("--priority must be within 0..99", file=sys.stderr)
         return 2
     priority = apply_priority(args.priority)  # before any thread starts: the server threads inherit it
-    initial = dict(args.initial)
-    options = RuntimeOptions(
-        plant=args.plant,
-        components=args.component,
-        keyframe=args.keyframe,
-        initial_positions=initial,
-        brakes=args.brakes,
-        inertia=args.inertia,
-        damping=args.damping,
-        gravity=args.gravity,
-        max_step=min(0.0005, 1.0 / rate),
-    )
     try:
-        runtime = build_runtime(loaded, options)
+        runtime = build_runtime(loaded, _options(args, rate))
         runtime.open(args.serve_remote)
     except (ValueError, HardwareError, OSError) as exc:
         print(f"hild emulate: {exc}", file=sys.stderr)
         return 1
     try:
-        for line in describe(runtime):
-            log.info("%s", line)
-        log.info("priority: %s", priority)
-        if runtime.remote_address is not None:
-            host, port = runtime.remote_address
-            log.info("remote bus served on ws://%s:%d/ (clients: bus interface remote, that channel)", host, port)
-        if args.control is not None:
-            host, port = runtime.start_control(args.control)
-            log.info('control on %s:%d (JSON lines, e.g. {"op": "status"})', host, port)
+        _announce(runtime, args, priority)
         if rate < 2.0 * loaded.config.update_rate:
             log.warning("--rate %g is below twice the config's update_rate: replies may arrive late", rate)
 
@@ -178,3 +159,30 @@ def run(args: argparse.Namespace) -> int:
         runtime.close()
     log.info("stopped")
     return 0
+
+
+def _options(args: argparse.Namespace, rate: float) -> RuntimeOptions:
+    return RuntimeOptions(
+        plant=args.plant,
+        components=args.component,
+        keyframe=args.keyframe,
+        initial_positions=dict(args.initial),
+        brakes=args.brakes,
+        inertia=args.inertia,
+        damping=args.damping,
+        gravity=args.gravity,
+        max_step=min(0.0005, 1.0 / rate),
+    )
+
+
+def _announce(runtime: EmulatorRuntime, args: argparse.Namespace, priority: str) -> None:
+    """Log what is emulated where; start the control socket when asked for."""
+    for line in describe(runtime):
+        log.info("%s", line)
+    log.info("priority: %s", priority)
+    if runtime.remote_address is not None:
+        host, port = runtime.remote_address
+        log.info("remote bus served on ws://%s:%d/ (clients: bus interface remote, that channel)", host, port)
+    if args.control is not None:
+        host, port = runtime.start_control(args.control)
+        log.info('control on %s:%d (JSON lines, e.g. {"op": "status"})', host, port)

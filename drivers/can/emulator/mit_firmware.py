@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import struct
-from typing import ClassVar
+from typing import ClassVar, Self
 
 import can
 
@@ -19,6 +19,7 @@ from drivers.can.protocol import damiao_registers as reg
 from drivers.can.protocol.errors import FrameError
 from drivers.can.protocol.flavours import DAMIAO, MYACTUATOR, TMOTOR, MitFlavour
 from drivers.can.protocol.mit import MitCommand, MitRanges, decode_command, special_kind
+from drivers.can.wiring import MotorWiring
 
 _NO_TORQUE = MitCommand(0.0, 0.0, 0.0, 0.0, 0.0)
 
@@ -32,7 +33,9 @@ class MitFirmware(MotorFirmware):
 
     Reported position is the shaft position minus `zero_offset` (set by the zero frame). With
     `multi_turn_lost_on_reboot` the position after a reboot comes back within ±π of zero, like drives whose
-    multi-turn count lives in RAM; otherwise it is preserved.
+    multi-turn count lives in RAM; otherwise it is preserved. `timeout` (s, 0 = off) is the watchdog where it is a
+    setting (a Damiao drive keeps it in a register); `short_replies` selects a flavour's short reply (T-Motor's
+    older 6-byte layout).
     """
 
     flavour: ClassVar[MitFlavour]
@@ -42,9 +45,11 @@ class MitFirmware(MotorFirmware):
         motor_id: int,
         ranges: MitRanges,
         *,
-        master_id: int = 0,
         seed: int = 0,
         thermal: ThermalModel | None = None,
+        master_id: int = 0,
+        timeout: float = 0.0,
+        short_replies: bool = False,
     ) -> None:
         super().__init__(rated_torque=ranges.t_max / 3.0, seed=seed, thermal=thermal)
         self.motor_id = motor_id
@@ -52,6 +57,8 @@ class MitFirmware(MotorFirmware):
         self.ranges = ranges
         self.zero_offset = 0.0
         self.multi_turn_lost_on_reboot = False
+        self.short_replies = short_replies
+        self._timeout = timeout
         self._enabled = False
         self._fault = 0
         self._command = _NO_TORQUE
@@ -59,6 +66,20 @@ class MitFirmware(MotorFirmware):
         self.command_step = 0.0
         """Largest step of the commanded position since the drive was last enabled (rad, stiff commands only; the
         first one is measured from the shaft): a jump guard on the drive's side of the bus, which outlives hosts."""
+
+    @classmethod
+    def for_motor(cls, motor: MotorWiring, *, seed: int = 0) -> Self:
+        """The drive a host wired as `motor` expects to find."""
+        return cls(motor.id, motor.ranges, master_id=motor.reply_id, seed=seed)
+
+    @property
+    def timeout(self) -> float:
+        """Watchdog period in seconds (0 = off): commands must arrive this often while the drive is enabled."""
+        return self._timeout
+
+    @timeout.setter
+    def timeout(self, seconds: float) -> None:
+        self._timeout = seconds
 
     @property
     def enabled(self) -> bool:
@@ -104,6 +125,15 @@ class MitFirmware(MotorFirmware):
             reported = self.reported_position
             self.zero_offset += reported - _wrap_to_pi(reported)
 
+    def _expire(self, now: float) -> None:
+        timeout = self.timeout
+        if self._enabled and timeout > 0.0 and now - self._last_command_time > timeout:
+            self._watchdog_fired()
+
+    def _watchdog_fired(self) -> None:
+        """What the firmware does when commands stop arriving in time."""
+        raise NotImplementedError
+
     def _enable(self, now: float) -> None:
         if self._fault:
             return  # a latched fault keeps the drive off until it is cleared
@@ -111,6 +141,18 @@ class MitFirmware(MotorFirmware):
         self._command = _NO_TORQUE  # entering motor mode starts limp, never from a stale command
         self._last_command_time = now
         self.command_step = 0.0
+
+    def _special(self, kind: str | None, now: float) -> bool:
+        """Enable, disable or set zero as every MIT firmware does; False for any other frame (left to the caller)."""
+        if kind == "enable":
+            self._enable(now)
+        elif kind == "disable":
+            self._disable()
+        elif kind == "zero":
+            self.zero_offset = self.position
+        else:
+            return False
+        return True
 
     def _take_command(self, data: bytes | bytearray) -> None:
         """Decode an MIT command into the law, keeping `command_step` up to date."""
@@ -127,7 +169,7 @@ class MitFirmware(MotorFirmware):
         self._command = _NO_TORQUE
         self.applied_torque = 0.0
 
-    def _feedback(self, *, short: bool = False) -> can.Message:
+    def _feedback(self) -> can.Message:
         return self.flavour.encode_reply(
             self.motor_id,
             self.master_id,
@@ -139,7 +181,7 @@ class MitFirmware(MotorFirmware):
             fault=self._fault,
             t_mos=self.temperature_mos,
             t_rotor=self.temperature_rotor,
-            short=short,
+            short=self.short_replies,
         )
 
     @staticmethod
@@ -193,9 +235,13 @@ class DamiaoFirmware(MitFirmware):
         self._stored = dict(self.registers)
         self._apply_registers()
 
+    @classmethod
+    def for_motor(cls, motor: MotorWiring, *, seed: int = 0) -> Self:
+        return cls(motor.id, motor.reply_id, motor.ranges, seed=seed)
+
     @property
     def timeout(self) -> float:
-        """Watchdog period in seconds (0 = off)."""
+        """Watchdog period in seconds (0 = off): the TIMEOUT register."""
         return self.registers[reg.TIMEOUT] * reg.TIMEOUT_UNIT_S
 
     def accepts(self, msg: can.Message) -> bool:
@@ -220,10 +266,8 @@ class DamiaoFirmware(MitFirmware):
             raise ValueError(f"damiao fault codes are {sorted(DAMIAO.fault_names)}, got 0x{code:X}")
         super().inject_fault(code)
 
-    def _expire(self, now: float) -> None:
-        timeout = self.timeout
-        if self._enabled and timeout > 0.0 and now - self._last_command_time > timeout:
-            self.inject_fault(DAMIAO.LOST_COMM)
+    def _watchdog_fired(self) -> None:
+        self.inject_fault(DAMIAO.LOST_COMM)
 
     def _receive(self, msg: can.Message, now: float) -> list[can.Message]:
         if msg.arbitration_id == reg.REGISTER_REQUEST_ID:
@@ -237,17 +281,11 @@ class DamiaoFirmware(MitFirmware):
         if kind is None and self.registers[reg.CTRL_MODE] != reg.CTRL_MODE_MIT:
             return self._ignore()
         self._last_command_time = now
-        if kind == "enable":
-            self._enable(now)
-        elif kind == "disable":
-            self._disable()
-        elif kind == "zero":
-            self.zero_offset = self.position
-        elif kind == "clear":
+        if kind == "clear":
             if not self._still_hot():  # an over-temperature cannot be cleared while the drive is still hot
                 self._fault = 0
             self._disable()
-        elif self._enabled:
+        elif not self._special(kind, now) and self._enabled:
             self._take_command(data)
         return [self._feedback()]
 
@@ -318,21 +356,6 @@ class TMotorFirmware(MitFirmware):
 
     flavour = TMOTOR
 
-    def __init__(
-        self,
-        motor_id: int,
-        ranges: MitRanges,
-        *,
-        master_id: int = 0,
-        timeout: float = 0.0,
-        short_replies: bool = False,
-        seed: int = 0,
-        thermal: ThermalModel | None = None,
-    ) -> None:
-        super().__init__(motor_id, ranges, master_id=master_id, seed=seed, thermal=thermal)
-        self.timeout = timeout
-        self.short_replies = short_replies
-
     def accepts(self, msg: can.Message) -> bool:
         return self._standard_data(msg) and msg.arbitration_id == self.motor_id
 
@@ -344,26 +367,18 @@ class TMotorFirmware(MitFirmware):
     def _over_temperature_fault(self, rotor: bool) -> int:
         return 1
 
-    def _expire(self, now: float) -> None:
-        if self._enabled and self.timeout > 0.0 and now - self._last_command_time > self.timeout:
-            self._command = _NO_TORQUE
+    def _watchdog_fired(self) -> None:
+        self._command = _NO_TORQUE
 
     def _receive(self, msg: can.Message, now: float) -> list[can.Message]:
         data = msg.data
         if len(data) != 8:
             raise FrameError(f"tmotor: command needs DLC 8, got {len(data)}")
-        kind = special_kind(data)
-        if kind == "enable":
-            self._enable(now)
-        elif kind == "disable":
-            self._disable()
-        elif kind == "zero":
-            self.zero_offset = self.position
-        else:
+        if not self._special(special_kind(data), now):  # FF…FB is an ordinary command here: no clear frame
             self._last_command_time = now
             if self._enabled:
                 self._take_command(data)
-        return [self._feedback(short=self.short_replies)]
+        return [self._feedback()]
 
 
 class MyActuatorFirmware(MitFirmware):
@@ -379,18 +394,6 @@ class MyActuatorFirmware(MitFirmware):
     flavour = MYACTUATOR
     bus_voltage = 48.0
 
-    def __init__(
-        self,
-        motor_id: int,
-        ranges: MitRanges,
-        *,
-        timeout: float = 0.0,
-        seed: int = 0,
-        thermal: ThermalModel | None = None,
-    ) -> None:
-        super().__init__(motor_id, ranges, seed=seed, thermal=thermal)
-        self.timeout = timeout
-
     def accepts(self, msg: can.Message) -> bool:
         return self._standard_data(msg) and msg.arbitration_id in (
             MYACTUATOR.command_id(self.motor_id),
@@ -405,9 +408,8 @@ class MyActuatorFirmware(MitFirmware):
     def _over_temperature_fault(self, rotor: bool) -> int:
         return 0x1000
 
-    def _expire(self, now: float) -> None:
-        if self._enabled and self.timeout > 0.0 and now - self._last_command_time > self.timeout:
-            self._disable()
+    def _watchdog_fired(self) -> None:
+        self._disable()
 
     def _receive(self, msg: can.Message, now: float) -> list[can.Message]:
         data = msg.data

@@ -59,13 +59,13 @@ import can
 import numpy as np
 
 from drivers.can.bus import BusSpec, open_bus
-from drivers.can.driver import wire_motors
 from drivers.can.emulator.base import MotorFirmware
 from drivers.can.emulator.core import Emulator
 from drivers.can.emulator.mit_firmware import DamiaoFirmware, MitFirmware, MyActuatorFirmware, TMotorFirmware
 from drivers.can.emulator.odrive_firmware import ODriveFirmware
 from drivers.can.emulator.plant import MotorPlant, Plant
 from drivers.can.params import MitCanParams, ODriveCanParams
+from drivers.can.wiring import wire_motors
 from hild.config.loader import LoadedConfig
 
 __all__ = [
@@ -138,15 +138,8 @@ def build_firmware(params: MitCanParams | ODriveCanParams, joints: Sequence[str]
     wiring, problems = wire_motors(params, joints)
     if problems:
         raise ValueError("; ".join(problems))
-    made: list[MotorFirmware] = []
-    for k, m in enumerate(wiring):
-        if params.flavour == "damiao":
-            made.append(DamiaoFirmware(m.id, m.reply_id, m.ranges, seed=k))
-        elif params.flavour == "tmotor":
-            made.append(TMotorFirmware(m.id, m.ranges, master_id=params.master_id, seed=k))
-        else:
-            made.append(MyActuatorFirmware(m.id, m.ranges, seed=k))
-    return made
+    firmware = {cls.flavour.name: cls for cls in (DamiaoFirmware, TMotorFirmware, MyActuatorFirmware)}[params.flavour]
+    return [firmware.for_motor(m, seed=k) for k, m in enumerate(wiring)]
 
 
 class BrakedPlant:

@@ -4,15 +4,18 @@ arbitration id = node_id << 5 | cmd_id on standard frames; every multi-byte fiel
 answered when the host sends a remote (RTR) frame with the same id; heartbeat and encoder estimates are also sent
 cyclically. Firmware 0.5 reuses some ids with other meanings, so this module is only valid for 0.6.
 
-The ``encode_*`` functions build a new frame each; the host's cycle instead keeps one frame per axis and command
-(``empty_frame``) and refills its data with the ``pack_*`` functions, which write the same bytes.
+Every message is one row of a table (`Message`: command id, payload layout, field names, wire conversions); its
+encoder, in-place packer (the host's cycle keeps one frame per axis and command and refills its data) and checked
+decoder are derived from that row. The ``encode_*``/``decode_*``/``pack_*`` names are the rows' methods.
 """
 
 from __future__ import annotations
 
 import enum
 import struct
-from typing import NamedTuple
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any, NamedTuple
 
 import can
 
@@ -156,12 +159,8 @@ def split_id(arb: int) -> tuple[int, int]:
     return arb >> CMD_BITS & MAX_NODE, arb & ((1 << CMD_BITS) - 1)
 
 
-def _frame(node: int, cmd: int, data: bytes) -> can.Message:
-    return can.Message(arbitration_id=arbitration_id(node, cmd), data=data, is_extended_id=False)
-
-
 def empty_frame(node: int, cmd: int, size: int) -> can.Message:
-    """A zeroed data frame of ``size`` bytes for ``cmd``, to be refilled in place every cycle by a ``pack_*``."""
+    """A zeroed data frame of ``size`` bytes for ``cmd``, to be refilled in place every cycle by a ``pack``."""
     return can.Message(arbitration_id=arbitration_id(node, cmd), data=bytearray(size), is_extended_id=False)
 
 
@@ -170,10 +169,141 @@ def request(node: int, cmd: int) -> can.Message:
     return can.Message(arbitration_id=arbitration_id(node, cmd), is_remote_frame=True, is_extended_id=False, dlc=8)
 
 
-def _payload(data: bytes | bytearray, length: int, what: str) -> bytes | bytearray:
-    if len(data) != length:
-        raise FrameError(f"odrive {what} needs {length} data bytes, got {len(data)}")
-    return data
+# ---- field conversions -------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class FixedPoint:
+    """A float sent as an integer count of `scale`, rounded and saturated at `lo`..`hi`."""
+
+    scale: float
+    lo: int
+    hi: int
+
+    def to_wire(self, value: float) -> int:
+        count = round(value / self.scale)
+        return self.lo if count < self.lo else self.hi if count > self.hi else count
+
+    def from_wire(self, raw: int) -> float:
+        return raw * self.scale
+
+
+class LowBit:
+    """A flag in bit 0 of a byte whose other bits are reserved."""
+
+    to_wire = staticmethod(lambda value: 1 if value else 0)
+    from_wire = staticmethod(lambda raw: bool(raw & 1))
+
+
+FEED_FORWARD_SCALE = 0.001
+FEED_FORWARD = FixedPoint(FEED_FORWARD_SCALE, -32768, 32767)
+"""Set_Input_Pos carries its velocity and torque feed-forward as int16 in units of 0.001: ±32.767, saturated."""
+WireConversion = FixedPoint | LowBit
+
+
+# ---- the message table ---------------------------------------------------------------------------------------------
+
+Packer = Callable[..., None]
+
+
+class Message:
+    """One CAN Simple message, everything derived from its row: command id, payload layout and fields.
+
+    `fields` is a NamedTuple class (decode returns one; its defaults are encode's) or a tuple of names (decode
+    returns the bare value of a one-field message, else a plain tuple; `defaults` are the trailing fields' defaults).
+    A message whose every field has a default may arrive empty (older hosts send Clear_Errors and Reboot that way).
+    """
+
+    def __init__(
+        self,
+        name: str,
+        cmd: Cmd,
+        layout: str,
+        fields: type[tuple[Any, ...]] | tuple[str, ...],
+        *,
+        wire: dict[str, WireConversion] | None = None,
+        defaults: tuple[Any, ...] = (),
+    ) -> None:
+        self.name = name
+        self.cmd = cmd
+        self.layout = struct.Struct(layout)
+        self.size = self.layout.size
+        if isinstance(fields, tuple):
+            self.fields, self.defaults, self._result = fields, defaults, None
+        else:
+            self.fields, self.defaults, self._result = fields._fields, tuple(fields._field_defaults.values()), fields
+        self.optional = 0 < len(self.fields) == len(self.defaults)
+        self.wire = wire or {}
+        self._from_wire = [(i, self.wire[f].from_wire) for i, f in enumerate(self.fields) if f in self.wire]
+        self.pack: Packer = _packer(self.layout.pack_into, [self.wire.get(f) for f in self.fields])
+        """pack(buffer, *values): the payload written into `buffer` in place (the same bytes `encode` sends)."""
+
+    def encode(self, node: int, *values: Any) -> can.Message:
+        """A new frame for `node`; trailing fields with defaults may be left out."""
+        missing = len(self.fields) - len(values)
+        if missing:
+            if not 0 < missing <= len(self.defaults):
+                raise TypeError(f"{self.name} takes {len(self.fields)} values {self.fields}, got {len(values)}")
+            values += self.defaults[len(self.defaults) - missing :]
+        frame = empty_frame(node, self.cmd, self.size)
+        self.pack(frame.data, *values)
+        return frame
+
+    def decode(self, data: bytes | bytearray) -> Any:
+        """The fields of a payload; `FrameError` when its length does not fit."""
+        if len(data) != self.size:
+            if self.optional and not data:
+                return self._shaped(self.defaults)
+            if self.optional:
+                raise FrameError(f"odrive {self.name} carries at most {self.size} byte, got {len(data)}")
+            raise FrameError(f"odrive {self.name} needs {self.size} data bytes, got {len(data)}")
+        values: Sequence[Any] = self.layout.unpack(data)
+        if self._from_wire:
+            values = list(values)
+            for i, from_wire in self._from_wire:
+                values[i] = from_wire(values[i])
+        return self._shaped(values)
+
+    def frame(self, node: int) -> can.Message:
+        """A zeroed frame of this message for `node`, for the cycle to refill with `pack`."""
+        return empty_frame(node, self.cmd, self.size)
+
+    def _shaped(self, values: Sequence[Any]) -> Any:
+        if self._result is not None:
+            return tuple.__new__(self._result, values)  # the NamedTuple without a Python-level __new__ call
+        return values[0] if len(values) == 1 else tuple(values)
+
+
+def _packer(pack_into: Callable[..., None], conversions: list[WireConversion | None]) -> Packer:
+    """`pack(buffer, *values)` at offset 0, each value through its field's conversion.
+
+    Spelled out for the shapes of the messages the cycle packs, where `*values` would cost an argument tuple per
+    frame and a conversion a call: one or two fields sent as they are (Set_Input_Torque, Set_Input_Vel), and a value
+    followed by two fixed-point fields (Set_Input_Pos), rounded and saturated inline exactly as `FixedPoint.to_wire`
+    does. Every other message takes the general form.
+    """
+    plain = not any(conversions)
+    if plain and len(conversions) == 1:
+        return lambda buffer, a: pack_into(buffer, 0, a)
+    if plain and len(conversions) == 2:
+        return lambda buffer, a, b: pack_into(buffer, 0, a, b)
+    first, second, third = (*conversions, None, None, None)[:3]
+    if len(conversions) == 3 and first is None and isinstance(second, FixedPoint) and isinstance(third, FixedPoint):
+        s1, lo1, hi1, s2, lo2, hi2 = second.scale, second.lo, second.hi, third.scale, third.lo, third.hi
+
+        def pack_fixed(buffer: bytearray, a: Any, b: float, c: float) -> None:
+            count_b, count_c = round(b / s1), round(c / s2)
+            count_b = lo1 if count_b < lo1 else hi1 if count_b > hi1 else count_b
+            count_c = lo2 if count_c < lo2 else hi2 if count_c > hi2 else count_c
+            pack_into(buffer, 0, a, count_b, count_c)
+
+        return pack_fixed
+    to_wire = [c.to_wire if c else None for c in conversions]
+
+    def pack(buffer: bytearray, *values: Any) -> None:
+        pack_into(buffer, 0, *[v if w is None else w(v) for w, v in zip(to_wire, values, strict=True)])
+
+    return pack
 
 
 class Heartbeat(NamedTuple):
@@ -183,16 +313,6 @@ class Heartbeat(NamedTuple):
     trajectory_done: bool
 
 
-def encode_heartbeat(node: int, hb: Heartbeat) -> can.Message:
-    data = struct.pack("<IBBBx", hb.axis_error, hb.axis_state, hb.procedure_result, 1 if hb.trajectory_done else 0)
-    return _frame(node, Cmd.HEARTBEAT, data)
-
-
-def decode_heartbeat(data: bytes | bytearray) -> Heartbeat:
-    error, state, result, flags = struct.unpack_from("<IBBB", _payload(data, 8, "heartbeat"))
-    return Heartbeat(error, state, result, bool(flags & 1))
-
-
 class EncoderEstimates(NamedTuple):
     position: float
     """rev"""
@@ -200,178 +320,52 @@ class EncoderEstimates(NamedTuple):
     """rev/s"""
 
 
-ENCODER_ESTIMATES = struct.Struct("<ff")
-"""Payload of Get_Encoder_Estimates: position (rev), velocity (rev/s); ``.unpack`` needs exactly 8 bytes."""
-
-
-def encode_encoder_estimates(node: int, position: float, velocity: float) -> can.Message:
-    return _frame(node, Cmd.GET_ENCODER_ESTIMATES, struct.pack("<ff", position, velocity))
-
-
-def decode_encoder_estimates(data: bytes | bytearray) -> EncoderEstimates:
-    return EncoderEstimates(*ENCODER_ESTIMATES.unpack(_payload(data, 8, "encoder estimates")))
-
-
-def encode_set_axis_state(node: int, state: int) -> can.Message:
-    return _frame(node, Cmd.SET_AXIS_STATE, struct.pack("<I", state))
-
-
-def decode_set_axis_state(data: bytes | bytearray) -> int:
-    return struct.unpack("<I", _payload(data, 4, "Set_Axis_State"))[0]
-
-
-def encode_set_controller_mode(node: int, control_mode: int, input_mode: int) -> can.Message:
-    return _frame(node, Cmd.SET_CONTROLLER_MODE, struct.pack("<II", control_mode, input_mode))
-
-
-def decode_set_controller_mode(data: bytes | bytearray) -> tuple[int, int]:
-    return struct.unpack("<II", _payload(data, 8, "Set_Controller_Mode"))
-
-
-FEED_FORWARD_SCALE = 0.001
-"""Set_Input_Pos carries its velocity and torque feed-forward as int16 in units of 0.001."""
-
-
-def _int16_scaled(value: float) -> int:
-    return max(-32768, min(32767, round(value / FEED_FORWARD_SCALE)))
-
-
 class InputPos(NamedTuple):
     position: float
     """rev"""
-    vel_ff: float
+    vel_ff: float = 0.0
     """rev/s"""
-    torque_ff: float
+    torque_ff: float = 0.0
     """Nm"""
 
 
-def encode_set_input_pos(node: int, position: float, vel_ff: float = 0.0, torque_ff: float = 0.0) -> can.Message:
-    """Feed-forwards are rounded to 0.001 and saturate at ±32.767."""
-    data = struct.pack("<fhh", position, _int16_scaled(vel_ff), _int16_scaled(torque_ff))
-    return _frame(node, Cmd.SET_INPUT_POS, data)
+HEARTBEAT = Message("heartbeat", Cmd.HEARTBEAT, "<IBBBx", Heartbeat, wire={"trajectory_done": LowBit()})
+ENCODER_ESTIMATES = Message("encoder estimates", Cmd.GET_ENCODER_ESTIMATES, "<ff", EncoderEstimates)
+SET_AXIS_STATE = Message("Set_Axis_State", Cmd.SET_AXIS_STATE, "<I", ("state",))
+SET_CONTROLLER_MODE = Message("Set_Controller_Mode", Cmd.SET_CONTROLLER_MODE, "<II", ("control_mode", "input_mode"))
+SET_INPUT_POS = Message(
+    "Set_Input_Pos", Cmd.SET_INPUT_POS, "<fhh", InputPos, wire={"vel_ff": FEED_FORWARD, "torque_ff": FEED_FORWARD}
+)
+SET_INPUT_VEL = Message("Set_Input_Vel", Cmd.SET_INPUT_VEL, "<ff", ("velocity", "torque_ff"), defaults=(0.0,))
+SET_INPUT_TORQUE = Message("Set_Input_Torque", Cmd.SET_INPUT_TORQUE, "<f", ("torque",))
+SET_ABSOLUTE_POSITION = Message("Set_Absolute_Position", Cmd.SET_ABSOLUTE_POSITION, "<f", ("position",))
+CLEAR_ERRORS = Message("Clear_Errors", Cmd.CLEAR_ERRORS, "<?", ("identify",), defaults=(False,))
+REBOOT = Message("Reboot", Cmd.REBOOT, "<B", ("action",), defaults=(RebootAction.REBOOT,))
+ESTOP = Message("Estop", Cmd.ESTOP, "<", ())
+GET_ERROR = Message("Get_Error", Cmd.GET_ERROR, "<II", ("active_errors", "disarm_reason"))
+GET_TEMPERATURE = Message("Get_Temperature", Cmd.GET_TEMPERATURE, "<ff", ("fet", "motor"))
+GET_BUS_VOLTAGE_CURRENT = Message("Get_Bus_Voltage_Current", Cmd.GET_BUS_VOLTAGE_CURRENT, "<ff", ("voltage", "current"))
+GET_TORQUES = Message("Get_Torques", Cmd.GET_TORQUES, "<ff", ("torque_target", "torque_estimate"))
 
 
-_PACK_INPUT_POS = struct.Struct("<fhh").pack_into
+def encode_heartbeat(node: int, hb: Heartbeat) -> can.Message:
+    return HEARTBEAT.encode(node, *hb)
 
 
-def pack_set_input_pos(buffer: bytearray, position: float, vel_ff: float, torque_ff: float) -> None:
-    """The data of `encode_set_input_pos`, written into an 8-byte buffer (same rounding, saturation and errors)."""
-    vel = round(vel_ff / FEED_FORWARD_SCALE)
-    torque = round(torque_ff / FEED_FORWARD_SCALE)
-    _PACK_INPUT_POS(
-        buffer,
-        0,
-        position,
-        -32768 if vel < -32768 else 32767 if vel > 32767 else vel,
-        -32768 if torque < -32768 else 32767 if torque > 32767 else torque,
-    )
-
-
-def decode_set_input_pos(data: bytes | bytearray) -> InputPos:
-    position, vel, torque = struct.unpack("<fhh", _payload(data, 8, "Set_Input_Pos"))
-    return InputPos(position, vel * FEED_FORWARD_SCALE, torque * FEED_FORWARD_SCALE)
-
-
-def encode_set_input_vel(node: int, velocity: float, torque_ff: float = 0.0) -> can.Message:
-    return _frame(node, Cmd.SET_INPUT_VEL, struct.pack("<ff", velocity, torque_ff))
-
-
-_PACK_INPUT_VEL = struct.Struct("<ff").pack_into
-
-
-def pack_set_input_vel(buffer: bytearray, velocity: float, torque_ff: float) -> None:
-    """The data of `encode_set_input_vel`, written into an 8-byte buffer."""
-    _PACK_INPUT_VEL(buffer, 0, velocity, torque_ff)
-
-
-def decode_set_input_vel(data: bytes | bytearray) -> tuple[float, float]:
-    return struct.unpack("<ff", _payload(data, 8, "Set_Input_Vel"))
-
-
-def encode_set_input_torque(node: int, torque: float) -> can.Message:
-    return _frame(node, Cmd.SET_INPUT_TORQUE, struct.pack("<f", torque))
-
-
-_PACK_INPUT_TORQUE = struct.Struct("<f").pack_into
-
-
-def pack_set_input_torque(buffer: bytearray, torque: float) -> None:
-    """The data of `encode_set_input_torque`, written into a 4-byte buffer."""
-    _PACK_INPUT_TORQUE(buffer, 0, torque)
-
-
-def decode_set_input_torque(data: bytes | bytearray) -> float:
-    return struct.unpack("<f", _payload(data, 4, "Set_Input_Torque"))[0]
-
-
-def encode_set_absolute_position(node: int, position: float) -> can.Message:
-    """Make the current position read `position` rev."""
-    return _frame(node, Cmd.SET_ABSOLUTE_POSITION, struct.pack("<f", position))
-
-
-def decode_set_absolute_position(data: bytes | bytearray) -> float:
-    return struct.unpack("<f", _payload(data, 4, "Set_Absolute_Position"))[0]
-
-
-def encode_clear_errors(node: int, identify: bool = False) -> can.Message:
-    return _frame(node, Cmd.CLEAR_ERRORS, bytes([1 if identify else 0]))
-
-
-def decode_clear_errors(data: bytes | bytearray) -> bool:
-    """The identify flag; an empty payload (older hosts) means no identify."""
-    if len(data) > 1:
-        raise FrameError(f"odrive Clear_Errors carries at most 1 byte, got {len(data)}")
-    return bool(data[0]) if data else False
-
-
-def encode_reboot(node: int, action: int = RebootAction.REBOOT) -> can.Message:
-    return _frame(node, Cmd.REBOOT, bytes([action]))
-
-
-def decode_reboot(data: bytes | bytearray) -> int:
-    if len(data) > 1:
-        raise FrameError(f"odrive Reboot carries at most 1 byte, got {len(data)}")
-    return data[0] if data else RebootAction.REBOOT
-
-
-def encode_estop(node: int) -> can.Message:
-    return _frame(node, Cmd.ESTOP, b"")
-
-
-class Temperature(NamedTuple):
-    fet: float
-    motor: float
-
-
-def encode_temperature(node: int, fet: float, motor: float) -> can.Message:
-    return _frame(node, Cmd.GET_TEMPERATURE, struct.pack("<ff", fet, motor))
-
-
-def decode_temperature(data: bytes | bytearray) -> Temperature:
-    return Temperature(*struct.unpack("<ff", _payload(data, 8, "Get_Temperature")))
-
-
-class ErrorReport(NamedTuple):
-    active_errors: int
-    disarm_reason: int
-
-
-def encode_error(node: int, active_errors: int, disarm_reason: int) -> can.Message:
-    return _frame(node, Cmd.GET_ERROR, struct.pack("<II", active_errors, disarm_reason))
-
-
-def decode_error(data: bytes | bytearray) -> ErrorReport:
-    return ErrorReport(*struct.unpack("<II", _payload(data, 8, "Get_Error")))
-
-
-class BusVoltageCurrent(NamedTuple):
-    voltage: float
-    current: float
-
-
-def encode_bus_voltage_current(node: int, voltage: float, current: float) -> can.Message:
-    return _frame(node, Cmd.GET_BUS_VOLTAGE_CURRENT, struct.pack("<ff", voltage, current))
-
-
-def decode_bus_voltage_current(data: bytes | bytearray) -> BusVoltageCurrent:
-    return BusVoltageCurrent(*struct.unpack("<ff", _payload(data, 8, "Get_Bus_Voltage_Current")))
+# The functions callers know, each one a row's method.
+decode_heartbeat = HEARTBEAT.decode
+encode_encoder_estimates, decode_encoder_estimates = ENCODER_ESTIMATES.encode, ENCODER_ESTIMATES.decode
+encode_set_axis_state, decode_set_axis_state = SET_AXIS_STATE.encode, SET_AXIS_STATE.decode
+encode_set_controller_mode, decode_set_controller_mode = SET_CONTROLLER_MODE.encode, SET_CONTROLLER_MODE.decode
+encode_set_input_pos, decode_set_input_pos = SET_INPUT_POS.encode, SET_INPUT_POS.decode
+encode_set_input_vel, decode_set_input_vel = SET_INPUT_VEL.encode, SET_INPUT_VEL.decode
+encode_set_input_torque, decode_set_input_torque = SET_INPUT_TORQUE.encode, SET_INPUT_TORQUE.decode
+pack_set_input_pos, pack_set_input_vel = SET_INPUT_POS.pack, SET_INPUT_VEL.pack
+pack_set_input_torque = SET_INPUT_TORQUE.pack
+encode_set_absolute_position, decode_set_absolute_position = SET_ABSOLUTE_POSITION.encode, SET_ABSOLUTE_POSITION.decode
+encode_clear_errors, decode_clear_errors = CLEAR_ERRORS.encode, CLEAR_ERRORS.decode
+encode_reboot, decode_reboot = REBOOT.encode, REBOOT.decode
+encode_estop = ESTOP.encode
+encode_error, decode_error = GET_ERROR.encode, GET_ERROR.decode
+encode_temperature, decode_temperature = GET_TEMPERATURE.encode, GET_TEMPERATURE.decode
+encode_bus_voltage_current, decode_bus_voltage_current = GET_BUS_VOLTAGE_CURRENT.encode, GET_BUS_VOLTAGE_CURRENT.decode
