@@ -198,13 +198,16 @@ def _condition(interference: dict[str, Any], name: str) -> dict[str, Any] | None
     return next((c for c in interference.get("conditions", []) if c.get("name") == name), None)
 
 
+def _target_floor(report: dict[str, Any]) -> tuple[float, str, dict[str, Any] | None, float | None]:
+    """The targets' rate, its scenario suffix, the floor's row at that rate and its period error p99."""
+    floor = _floor_row(report, TARGET_RATE)
+    return TARGET_RATE, f"@{TARGET_RATE:g}", floor, floor["period_error_us"]["p99"] if floor else None
+
+
 def rt_targets(report: dict[str, Any]) -> list[dict[str, Any]]:
     """The [rt-split] targets, each PASS/MISS/n-a with the numbers it was decided on."""
-    rate = TARGET_RATE
-    tag = f"@{rate:g}"
+    rate, tag, floor, floor_perr = _target_floor(report)
     out = []
-    floor = _floor_row(report, rate)
-    floor_perr = floor["period_error_us"]["p99"] if floor else None
     floor_ovr = floor["overruns_per_10k"] if floor else None
     for base in RT_SCENARIOS:
         row = _scenario(report, base + tag)
@@ -297,11 +300,8 @@ def evaluate_targets(report: dict[str, Any]) -> list[dict[str, Any]]:
 
 def earlier_targets(report: dict[str, Any]) -> list[dict[str, Any]]:
     """The targets before [rt-split] (docs/performance.md, "Targets"), from a report's floor and hild sections."""
-    rate = TARGET_RATE
-    tag = f"@{rate:g}"
+    rate, tag, _, floor_perr = _target_floor(report)
     targets = []
-    floor = _floor_row(report, rate)
-    floor_perr = floor["period_error_us"]["p99"] if floor else None
     for base in CYCLE_TARGET_SCENARIOS:
         row = _scenario(report, base + tag)
         d = row["duration_us"]["p99"] if row else None

@@ -7,7 +7,6 @@ robot does not have is said to be that — with the key that was asked, not only
 
 from __future__ import annotations
 
-import argparse
 import json
 from collections.abc import Iterator
 from pathlib import Path
@@ -15,20 +14,11 @@ from pathlib import Path
 import pytest
 import yaml
 
-from hild.api.ctl import EXIT_OK, EXIT_SERVICE, add_ctl_parser, run_ctl
+from hild.api.ctl import EXIT_OK, EXIT_SERVICE
 from hild.config import load_config
 from hild.engine import Engine
 from tests.api.conftest import ROBOT, Daemon, free_endpoint, robot_config
-
-
-def parse(*argv: str) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="hild")
-    add_ctl_parser(parser.add_subparsers(dest="command", required=True))
-    return parser.parse_args(["ctl", *argv])
-
-
-def ctl(daemon: Daemon, *argv: str) -> int:
-    return run_ctl(parse("--connect", daemon.endpoint, *argv))
+from tests.api.test_ctl import ctl
 
 
 def daemon_with(tmp_path: Path, trajectory_controllers: list[str]) -> Iterator[Daemon]:
