@@ -24,11 +24,12 @@ import signal
 import threading
 from typing import Any
 
+from hild.api.status import STATS_MAX_AGE
 from hild.config.loader import LoadedConfig
 from hild.cycle import CycleThread
 from hild.domains.link import CycleLink
 from hild.domains.remote import CycleProcessError, RemoteCycle
-from hild.engine import STATUS_STATS_MAX_AGE, Engine
+from hild.engine import Engine
 from hild.events import Event, log_event
 from hild.hardware import HardwareError
 from hild.notify import SystemdNotifier, WatchdogGate, status_line
@@ -277,10 +278,10 @@ class Daemon:
             self.notifier.status(self._status_text(mode))
 
     def _mode(self) -> str:
-        return self.link.snapshot().mode
+        return self.link.overall_mode()
 
     def _status_text(self, mode: str) -> str:
-        return status_line(mode, self.link.update_rate, self.link.stats.summary(STATUS_STATS_MAX_AGE))
+        return status_line(mode, self.link.update_rate, self.link.stats.summary(STATS_MAX_AGE))
 
     def _open_telemetry(self) -> None:
         if not self.loaded.config.telemetry.enabled:

@@ -6,8 +6,15 @@ from collections.abc import Sequence
 from typing import Any
 
 from hild.snapshot import Snapshot
+from hild.stats import LoopStats
 
 HARDWARE_STATUS_FIELDS = ("name", "driver", "state", "fault")
+STATS_MAX_AGE = 0.1  # s: status polled at 200 Hz recomputes loop percentiles at most 10 times a second
+
+
+def loop_status(update_rate: float, clock: str, stats: LoopStats) -> dict[str, Any]:
+    """The status reply's ``loop``: the rate, the clock and the loop statistics."""
+    return {"update_rate": update_rate, "clock": clock, **stats.summary(STATS_MAX_AGE)}
 
 
 def render_status(

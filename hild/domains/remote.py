@@ -20,7 +20,7 @@ import sys
 import threading
 from typing import Any
 
-from hild.api.status import render_status
+from hild.api.status import loop_status, render_status
 from hild.config.loader import LoadedConfig
 from hild.crossing.mailboxes import Shared
 from hild.crossing.region import Region
@@ -182,8 +182,7 @@ class RemoteCycle:
         return self.snapshot().mode
 
     def status(self) -> dict[str, Any]:
-        loop = {"update_rate": self.update_rate, "clock": self.loaded.config.clock.source}
-        loop.update(self.stats.summary(0.1))
+        loop = loop_status(self.update_rate, self.loaded.config.clock.source, self.stats)
         status = render_status(self.robot, self.snapshot(), self.t, self.cells.clock[1:].tolist(), loop)
         status["realtime"].update(self.realtime_report)
         if self.process is not None:
