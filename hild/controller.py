@@ -143,6 +143,11 @@ class Controller:
     def on_cleanup(self) -> None:
         """Release what on_configure took."""
 
+    def on_client_domain_lost(self, t: float, reason: str) -> None:
+        """The client domain ended while the cycle ran (cycle thread, before the next ``update``): nobody can
+        follow, cancel or receive the results of what this controller runs for clients. End it with ``reason``
+        (goals aborted, queued goals never started); streamed inputs time out by themselves."""
+
     def update(self, t: float, dt: float, state: JointState, command: ServoCommand) -> None:
         """Write claimed fields for the joints commanded now and set ``command.written`` for them."""
 

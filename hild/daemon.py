@@ -22,26 +22,26 @@ import logging
 import os
 import signal
 import threading
+import time
 from typing import Any
 
-from hild.api.status import STATS_MAX_AGE
 from hild.config.loader import LoadedConfig
 from hild.cycle import CycleThread
+from hild.domains.layout import Ask, ClientPhase, ClientVital, Phase, Vital
 from hild.domains.link import CycleLink
-from hild.domains.remote import CycleProcessError, RemoteCycle
+from hild.domains.remote import Attachment, CycleProcessError, RemoteCycle
 from hild.engine import Engine
 from hild.events import Event, log_event
 from hild.hardware import HardwareError
-from hild.notify import SystemdNotifier, WatchdogGate, status_line
+from hild.notify import ServiceReport, SystemdNotifier
 from hild.realtime import CpuLatencyRequest, apply_client_settings, apply_process_settings, freeze_heap
 
 log = logging.getLogger("hild.daemon")
 
 CYCLE_JOIN_TIMEOUT = 5.0
-READY_AFTER_CYCLES = 5  # cycles the live loop must complete (read → supervise → write) before READY=1
 READY_POLL = 0.005  # s: how often the asyncio side looks for those first cycles
 SERVICE_TICK = 0.2  # s: the asyncio side's housekeeping tick once running (watchdog, status, cycle alive)
-STATUS_PERIOD = 2.0  # s: STATUS= refresh; a change of overall mode is sent at the next tick
+LOSS_ACK_TIMEOUT = 5.0  # s: a restarted client domain waits this long for the cycle to end its predecessor's goals
 
 
 class StartupError(RuntimeError):
@@ -49,16 +49,25 @@ class StartupError(RuntimeError):
 
 
 class Daemon:
-    def __init__(self, loaded: LoadedConfig, listen: list[str] | None = None) -> None:
+    """The client domain around the cycle: Zenoh, the API, telemetry, and the cycle's lifecycle.
+
+    Three layouts: the cycle as a thread of this process (``realtime.cycle_process: false``); the cycle process
+    started by this very object (embedded use: tests, the bench); or, under ``hild run``, this object in the client
+    process the main process started (``attachment``), which started the cycle process and speaks to systemd."""
+
+    def __init__(
+        self, loaded: LoadedConfig, listen: list[str] | None = None, attachment: Attachment | None = None
+    ) -> None:
         self.loaded = loaded
         self.listen = listen
+        self.attachment = attachment
         self._loop: asyncio.AbstractEventLoop | None = None
         self._wake_pending = False
         # One of the two: the engine in this process (a cycle thread), or the cycle process behind RemoteCycle.
         self.engine: Engine | None = None
         self.remote: RemoteCycle | None = None
-        if loaded.config.realtime.cycle_process:
-            self.remote = RemoteCycle(loaded)
+        if loaded.config.realtime.cycle_process or attachment is not None:
+            self.remote = RemoteCycle.attach(loaded, attachment) if attachment else RemoteCycle(loaded)
             self.link: CycleLink = self.remote
         else:
             self.engine = Engine(loaded, doorbell=self._doorbell)
@@ -71,12 +80,17 @@ class Daemon:
         self._telemetry_task: asyncio.Task[None] | None = None
         self.notifier = SystemdNotifier()
         self.cpu_latency = CpuLatencyRequest()
-        self.watchdog = WatchdogGate(loaded.config.safety.max_consecutive_overruns)
-        self.ready = False
+        self.service = ServiceReport(self.notifier, loaded.config.safety.max_consecutive_overruns)
         self.client_report: dict[str, str] = {}  # the client domain's realtime settings, as applied
-        self._next_ping = 0.0
-        self._next_status = 0.0
-        self._last_mode = ""
+
+    @property
+    def ready(self) -> bool:
+        """The drives are live and the cycle has run its first cycles (READY=1 under systemd)."""
+        return self.service.ready
+
+    @property
+    def watchdog(self) -> Any:
+        return self.service.watchdog
 
     # ---- cycle → asyncio doorbell --------------------------------------------------------------------------
     def _doorbell(self) -> None:
@@ -106,7 +120,10 @@ class Daemon:
         if self._signals > 1:
             log.error("second %s: forcing exit", signal.Signals(signum).name)
             os._exit(1)
-        log.info("%s: holding every joint, then stopping", signal.Signals(signum).name)
+        if self.attachment is None:
+            log.info("%s: holding every joint, then stopping", signal.Signals(signum).name)
+        else:
+            log.info("%s: the client domain stops", signal.Signals(signum).name)
         self._stopping.set()
 
     # ---- run -----------------------------------------------------------------------------------------------
@@ -141,6 +158,8 @@ class Daemon:
             raise StartupError(f"cannot start the Zenoh API ({self.listen or cfg.zenoh.listen}): {exc}") from exc
         for sig in (signal.SIGINT, signal.SIGTERM):
             self._loop.add_signal_handler(sig, self._on_signal, sig)
+        if self.attachment is not None:  # a terminal's Ctrl-C reaches every process: the main process stops us
+            self._loop.add_signal_handler(signal.SIGINT, lambda: None)
         try:
             await self._go_live()
         except (HardwareError, CycleProcessError) as exc:
@@ -151,12 +170,14 @@ class Daemon:
             raise
         if self.telemetry is not None:
             self._telemetry_task = self._loop.create_task(self.telemetry.run(), name="hild-telemetry")
+        if self.attachment is not None:
+            self.remote.cells.client[ClientVital.PHASE] = ClientPhase.SERVING  # type: ignore[union-attr]
         log.info(
             "%s running at %g Hz on the %s clock%s; Zenoh %s",
             cfg.robot.name,
             cfg.update_rate,
             cfg.clock.source,
-            f", the cycle in process {self.remote.process.pid}" if self.remote and self.remote.process else "",
+            f", the cycle in process {self.remote.cycle_pid}" if self.remote else "",
             self.listen or cfg.zenoh.listen,
         )
         self._on_wake()
@@ -169,22 +190,7 @@ class Daemon:
         here."""
         cfg = self.loaded.config
         if self.remote is not None:
-            assert self._loop is not None
-            telemetry = None
-            if self.telemetry is not None:
-                from hild.domains.cycle_process import TelemetryRing
-
-                telemetry = TelemetryRing(*self.telemetry.ring_layout)
-            self.remote.spawn(telemetry)
-            self._loop.add_reader(self.remote.doorbell_fd, self._on_wake)
-            try:
-                await self.remote.brought_up()
-            except CycleProcessError as exc:
-                await asyncio.to_thread(self.remote.join, CYCLE_JOIN_TIMEOUT)
-                self._on_wake()
-                raise StartupError(f"the cycle process: {exc}") from None
-            self.remote.realtime_report.update(self.client_report)
-            self.remote.realtime_report["cpu_dma_latency"] = self.cpu_latency.hold(cfg.realtime.cpu_dma_latency_us)
+            await self._bring_up_remote(self.remote)
             return
         assert self.engine is not None
         self.engine.realtime_report.update(apply_process_settings(cfg.realtime))
@@ -192,11 +198,52 @@ class Daemon:
         self.engine.realtime_report["cpu_dma_latency"] = self.cpu_latency.hold(cfg.realtime.cpu_dma_latency_us)
         self.engine.bring_up()
 
+    async def _bring_up_remote(self, remote: RemoteCycle) -> None:
+        """Start the cycle process (or, under the main process, say that it may be started), and wait until it
+        has brought the hardware up. A restarted client domain finds it live, and first waits until the cycle has
+        ended what its predecessor ran (so no goal of the dead domain starts after this one answers)."""
+        assert self._loop is not None
+        cfg = self.loaded.config
+        telemetry = None
+        if self.telemetry is not None:
+            from hild.domains.cycle_process import TelemetryRing
+
+            telemetry = TelemetryRing(*self.telemetry.ring_layout)
+        if self.attachment is None:
+            remote.spawn(telemetry)
+        else:
+            remote.cells.telemetry.put(telemetry)
+            remote.cells.client[ClientVital.PID] = os.getpid()
+            remote.cells.client[ClientVital.PHASE] = ClientPhase.OPEN  # the main process starts the cycle process
+        self._loop.add_reader(remote.doorbell_fd, self._on_wake)
+        if self.attachment is not None and self.attachment.restarted_after is not None:
+            await self._after_restart(remote, self.attachment.restarted_after)
+        else:
+            try:
+                await remote.brought_up()
+            except CycleProcessError as exc:
+                await asyncio.to_thread(remote.join, CYCLE_JOIN_TIMEOUT)
+                self._on_wake()
+                raise StartupError(f"the cycle process: {exc}") from None
+        remote.realtime_report.update(self.client_report)
+        remote.realtime_report["cpu_dma_latency"] = self.cpu_latency.hold(cfg.realtime.cpu_dma_latency_us)
+
+    async def _after_restart(self, remote: RemoteCycle, reason: str) -> None:
+        deadline = time.monotonic() + LOSS_ACK_TIMEOUT
+        while remote.cells.vitals[Vital.CLIENT_LOST_SEEN] != remote.cells.asks[Ask.CLIENT_LOST]:
+            if not remote.alive() or time.monotonic() > deadline:
+                raise StartupError("the cycle process did not take over from the lost client domain")
+            await asyncio.sleep(READY_POLL)
+        remote.events.emit(
+            "warning", "daemon", f"the client domain was restarted ({reason}); clients may reconnect and resend"
+        )
+
     async def _go_live(self) -> None:
         """Enable the drives and start cycling at once: an enabled drive waits limp for its first command."""
         cfg = self.loaded.config
         if self.remote is not None:
-            await self.remote.live()
+            if self.remote.phase is not Phase.LIVE:  # a restarted client domain finds it running
+                await self.remote.live()
             return
         assert self.engine is not None
         self.engine.realtime_report["gc"] = freeze_heap(cfg.realtime)
@@ -212,8 +259,9 @@ class Daemon:
         """The API did not come up: release whatever hardware was configured (none if it failed to open)."""
         self.api = None
         if self.remote is not None:
-            self.remote.stop()  # brought up or not: it releases the hardware and exits
-            self.remote.join(CYCLE_JOIN_TIMEOUT)
+            if self.attachment is None:  # under the main process, it stops the cycle process when we end
+                self.remote.stop()  # brought up or not: it releases the hardware and exits
+                self.remote.join(CYCLE_JOIN_TIMEOUT)
         elif self.engine is not None:
             self.engine.release()
 
@@ -237,51 +285,19 @@ class Daemon:
         while not self._stopping.is_set():
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(self._stopping.wait(), timeout=tick if self.ready else READY_POLL)
+            if self.attachment is not None and os.getppid() != self.attachment.parent_pid:
+                log.error("the daemon's main process is gone: stopping")
+                return 1
             if not self._cycle_alive():
                 self._on_wake()  # what it said last
+                if self.attachment is not None and self.remote.cells.asks[Ask.STOP]:  # type: ignore[union-attr]
+                    return 0  # the main process stopped it: ours is next
                 log.error("%s", self._cycle_end())
                 self.notifier.status(self._cycle_end())
                 return 1
-            self._service_tick(asyncio.get_running_loop().time())
+            if self.attachment is None:  # else the main process speaks to systemd
+                self.service.tick(asyncio.get_running_loop().time(), self.link, self._cycle_alive())
         return 0
-
-    # ---- systemd: READY, WATCHDOG, STATUS ------------------------------------------------------------------
-    def _service_tick(self, now: float) -> None:
-        """READY=1 once the live cycle has run; then earned watchdog pings and a current STATUS=."""
-        engine = self.link
-        if not self.ready:
-            if engine.cycle <= READY_AFTER_CYCLES:  # the counter counts cycles begun: this many have ended
-                return
-            self.ready = True
-            self.watchdog.reset(engine.cycle)
-            self._last_mode = self._mode()
-            self._next_ping = self._next_status = now
-            self.notifier.ready(self._status_text(self._last_mode))
-            log.info("ready: the drives are live and %d cycles have run", engine.cycle)
-            return
-        ping = self.notifier.ping_period
-        if ping is not None and now >= self._next_ping:
-            self._next_ping = now + ping
-            was_withheld = bool(self.watchdog.reason)
-            if self.watchdog.earned(engine.cycle, engine.stats.consecutive_overruns, self._cycle_alive()):
-                self.notifier.watchdog()
-                if was_withheld:
-                    log.info("systemd watchdog pings resumed: the cycle advances again")
-            elif not was_withheld:  # one line per episode, not one per missed ping
-                log.error("withholding the systemd watchdog ping: %s", self.watchdog.reason)
-        if not self.notifier.enabled:  # not under systemd: no status line to build
-            return
-        mode = self._mode()
-        if mode != self._last_mode or now >= self._next_status:
-            self._last_mode = mode
-            self._next_status = now + STATUS_PERIOD
-            self.notifier.status(self._status_text(mode))
-
-    def _mode(self) -> str:
-        return self.link.overall_mode()
-
-    def _status_text(self, mode: str) -> str:
-        return status_line(mode, self.link.update_rate, self.link.stats.summary(STATS_MAX_AGE))
 
     def _open_telemetry(self) -> None:
         if not self.loaded.config.telemetry.enabled:
@@ -312,13 +328,17 @@ class Daemon:
         words = f"a {descent:g} s damped descent" if descent else "holding every joint"
         self.notifier.stopping(f"stopping: {words}, then releasing the hardware")
         timeout = CYCLE_JOIN_TIMEOUT + descent  # the cycle keeps its pace through the descent
-        if self.remote is not None:
+        stuck = False
+        if self.attachment is not None:
+            pass  # the main process stops the cycle process (it did already, unless this domain alone is stopped)
+        elif self.remote is not None:
             self.remote.stop()
             await asyncio.to_thread(self.remote.join, timeout)
         elif self.cycle is not None:
             self.cycle.stop()
             await asyncio.to_thread(self.cycle.join, timeout)
-        stuck = self._cycle_alive()
+        if self.attachment is None:
+            stuck = self._cycle_alive()
         if stuck:
             log.error("the cycle did not stop within %g s", timeout)
             if self.remote is not None:
@@ -328,6 +348,8 @@ class Daemon:
             assert self._loop is not None
             self._loop.remove_reader(self.remote.doorbell_fd)
             self.remote.abandon("the daemon stopped")
+            if self.attachment is not None:
+                self.remote.cells.client[ClientVital.PHASE] = ClientPhase.STOPPED
         await self.close_telemetry()
         if self.api is not None:
             await self.api.close()
@@ -340,6 +362,10 @@ def run_daemon(loaded: LoadedConfig, listen: list[str] | None = None) -> int:
     """Run until a signal; returns the process exit code. Start-up failures are reported, not raised."""
     if threading.current_thread() is not threading.main_thread():
         raise RuntimeError("the daemon must run on the main thread (it owns the signal handlers)")
+    if loaded.config.realtime.cycle_process:
+        from hild.domains.main_process import run_main_process
+
+        return run_main_process(loaded, listen)
     try:
         daemon = Daemon(loaded, listen)
     except (HardwareError, ValueError) as exc:  # a driver or model that cannot be built from this config

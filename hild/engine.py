@@ -544,6 +544,16 @@ class Engine:
             self.intake = None
             self.events.emit("error", "api", f"the input intake failed and is off: {type(exc).__name__}: {exc}")
 
+    def client_domain_lost(self, reason: str) -> None:
+        """The client domain ended while the cycle runs (cycle thread): what controllers run for its clients ends
+        with ``reason``; streams time out on the cycle clock; the arm holds until a new client domain commands."""
+        self.events.emit("error", "cycle", f"{reason}: its goals are aborted and the joints hold until it is back")
+        for name, record in list(self.manager.records.items()):
+            try:
+                record.instance.on_client_domain_lost(self.control_t, reason)
+            except Exception as exc:  # a controller's bug must not end the cycle
+                self.events.emit("error", name, f"on_client_domain_lost failed: {type(exc).__name__}: {exc}")
+
     def request_estop(self) -> concurrent.futures.Future[Any]:
         """E-stop from any thread. Never refused (it bypasses the request queue); applied at the next cycle."""
         future: concurrent.futures.Future[Any] = concurrent.futures.Future()

@@ -20,6 +20,10 @@ import logging
 import os
 import socket
 from collections.abc import Mapping
+from typing import Protocol
+
+from hild.api.status import STATS_MAX_AGE
+from hild.stats import LoopStats
 
 log = logging.getLogger("hild.notify")
 
@@ -173,3 +177,67 @@ def status_line(mode: str, update_rate: float, loop: Mapping[str, object]) -> st
         f"{mode} at {update_rate:g} Hz; cycle p99 {d99} µs, period error p99 {p99} µs; "
         f"{loop.get('overruns', 0)} overruns in {loop.get('cycles', 0)} cycles"
     )
+
+
+class CycleFigures(Protocol):
+    """What the service report reads of the cycle (met by ``hild.domains.link.CycleLink``)."""
+
+    update_rate: float
+    stats: LoopStats
+
+    @property
+    def cycle(self) -> int: ...
+
+    def overall_mode(self) -> str: ...
+
+
+READY_AFTER_CYCLES = 5  # cycles the live loop must complete (read → supervise → write) before READY=1
+STATUS_PERIOD = 2.0  # s: STATUS= refresh; a change of overall mode is sent at the next tick
+
+
+class ServiceReport:
+    """What the unit tells systemd while the cycle runs: READY=1 once the live cycle has run a few cycles, a
+    watchdog ping only when the cycle earned it (:class:`WatchdogGate`), and a ``STATUS=`` kept current.
+
+    Called on the asyncio side's housekeeping tick with the cycle's figures, wherever the cycle runs."""
+
+    def __init__(self, notifier: SystemdNotifier, max_consecutive_overruns: int) -> None:
+        self.notifier = notifier
+        self.watchdog = WatchdogGate(max_consecutive_overruns)
+        self.ready = False
+        self._next_ping = 0.0
+        self._next_status = 0.0
+        self._last_mode = ""
+
+    def tick(self, now: float, cycle: CycleFigures, cycle_alive: bool) -> None:
+        if not self.ready:
+            if cycle.cycle <= READY_AFTER_CYCLES:  # the counter counts cycles begun: this many have ended
+                return
+            self.ready = True
+            self.watchdog.reset(cycle.cycle)
+            self._last_mode = cycle.overall_mode()
+            self._next_ping = self._next_status = now
+            self.notifier.ready(self._status_text(cycle, self._last_mode))
+            log.info("ready: the drives are live and %d cycles have run", cycle.cycle)
+            return
+        ping = self.notifier.ping_period
+        if ping is not None and now >= self._next_ping:
+            self._next_ping = now + ping
+            was_withheld = bool(self.watchdog.reason)
+            if self.watchdog.earned(cycle.cycle, cycle.stats.consecutive_overruns, cycle_alive):
+                self.notifier.watchdog()
+                if was_withheld:
+                    log.info("systemd watchdog pings resumed: the cycle advances again")
+            elif not was_withheld:  # one line per episode, not one per missed ping
+                log.error("withholding the systemd watchdog ping: %s", self.watchdog.reason)
+        if not self.notifier.enabled:  # not under systemd: no status line to build
+            return
+        mode = cycle.overall_mode()
+        if mode != self._last_mode or now >= self._next_status:
+            self._last_mode = mode
+            self._next_status = now + STATUS_PERIOD
+            self.notifier.status(self._status_text(cycle, mode))
+
+    @staticmethod
+    def _status_text(cycle: CycleFigures, mode: str) -> str:
+        return status_line(mode, cycle.update_rate, cycle.stats.summary(STATS_MAX_AGE))

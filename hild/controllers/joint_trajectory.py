@@ -283,6 +283,12 @@ class JointTrajectoryController(Controller):
             else:
                 self._adopt(request, t)
 
+    def on_client_domain_lost(self, t: float, reason: str) -> None:
+        """Whatever ``on_client_lost`` says: with the client domain gone, no one could cancel the goal."""
+        self._refuse_requests(reason)
+        if self.goal is not None and not self.canceling:
+            self._abort(t, ErrorCode.INVALID_GOAL, reason)
+
     def _client_lost(self, request: ClientLost, t: float) -> None:
         """The running goal's sender is gone: stop and abort it, or let it run (``on_client_lost``)."""
         if self.goal is None or request.goal_id != self.goal.goal_id or self.canceling:

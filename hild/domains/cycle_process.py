@@ -132,6 +132,7 @@ class CrossingCycle(CycleThread):
         self.parent_pid = parent_pid
         self.terminated = False  # SIGTERM
         self._estop_seen = int(cells.asks[Ask.ESTOP])
+        self._client_lost_seen = int(cells.asks[Ask.CLIENT_LOST])
         self._next_ident = 0
         self._last_change = -1
         self._parent_every = max(1, round(PARENT_CHECK * engine.update_rate))
@@ -164,6 +165,11 @@ class CrossingCycle(CycleThread):
             self.outbox.orphaned = True
             engine.events.emit("error", "cycle", "the daemon that started the cycle process is gone: stopping")
             self.stop()
+        lost = int(asks[Ask.CLIENT_LOST])
+        if lost != self._client_lost_seen:  # before this cycle's requests: none of the old domain's goals starts
+            self._client_lost_seen = lost
+            engine.client_domain_lost("the client domain ended")
+            self.cells.vitals[Vital.CLIENT_LOST_SEEN] = lost
         estop = int(asks[Ask.ESTOP])
         if estop != self._estop_seen:  # applied in this very cycle, whatever the request queue holds
             self._estop_seen = estop
@@ -207,6 +213,7 @@ def run(spec: CycleSpec) -> int:
     region = Region.attach(spec.region_fd, spec.region_size)
     cells = EngineCells(region, len(cfg.joints), create=False)
     outbox = Outbox(cells, Doorbell(spec.doorbell_fd))
+    cells.vitals[Vital.PID] = os.getpid()
     terminated = [False]
     cycle: CrossingCycle | None = None
 

@@ -2,7 +2,9 @@
 
 Who writes what (one writer per cell, so nobody waits on anybody):
 
-- client domain → cycle: ``asks`` (go, stop, the e-stop counter) and the ``requests`` queue;
+- client domain → cycle: ``asks`` (go, the e-stop counter) and the ``requests`` queue; the daemon's main process
+  → cycle: ``asks`` (stop, the client-domain-lost counter);
+- client domain → main process: ``client`` (its phase and pid) and the telemetry ring it recorded into;
 - cycle → client domain: ``replies`` and ``events`` queues, the ``snapshot`` (written when ``change_seq`` moves),
   the e-stop reply, the start-up ``failure``, ``vitals`` (phase, cycle count, change_seq …), ``clock`` (the cycle
   clock and each joint's longest silence) and the loop statistics.
@@ -35,10 +37,23 @@ class Phase(IntEnum):
     STOPPED = 3
 
 
-class Ask(IntEnum):  # the client domain's cells
+class Ask(IntEnum):  # written by the client domain (GO, ESTOP) or the main process (STOP, CLIENT_LOST)
     GO = 0
     STOP = 1
     ESTOP = 2  # a counter: each e-stop request adds one
+    CLIENT_LOST = 3  # a counter: each client domain that ended while the cycle ran adds one
+
+
+class ClientPhase(IntEnum):
+    STARTING = 0
+    OPEN = 1  # Zenoh is open and this robot's name is ours: the cycle process may touch the hardware
+    SERVING = 2  # the API answers and the cycle is live
+    STOPPED = 3
+
+
+class ClientVital(IntEnum):  # the client domain's cells, read by the main process
+    PHASE = 0
+    PID = 1
 
 
 class Vital(IntEnum):  # the cycle's cells
@@ -49,6 +64,8 @@ class Vital(IntEnum):  # the cycle's cells
     EVENTS_LOST = 4
     PYTHON_THREADS = 5  # threads of the cycle process (steady state: the cycle alone)
     STARTED = 6
+    PID = 7  # the cycle process's pid
+    CLIENT_LOST_SEEN = 8  # the CLIENT_LOST counter the cycle has acted on (goals aborted, joints held)
 
 
 class EngineCells:
@@ -61,6 +78,8 @@ class EngineCells:
         self.estop_reply: Latest[object] = shared.latest("estop_reply", RECORD_BYTES)
         self.failure: Latest[object] = shared.latest("failure", RECORD_BYTES)
         self.asks = shared.numbers("asks", len(Ask))
+        self.client = shared.numbers("client", len(ClientVital))
+        self.telemetry: Latest[object] = shared.latest("telemetry", 4096)  # the client's TelemetryRing, or None
         self.vitals = shared.numbers("vitals", len(Vital))
         self.clock = shared.numbers("clock", 1 + joints, np.float64)  # t, then each joint's longest silence (s)
         self.stats = LoopStats(STATS_WINDOW, buffer=shared.cell("stats", stats_bytes(STATS_WINDOW)))

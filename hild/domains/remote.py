@@ -18,6 +18,7 @@ import pickle
 import subprocess
 import sys
 import threading
+from dataclasses import dataclass
 from typing import Any
 
 from hild.api.status import loop_status, render_status
@@ -39,12 +40,64 @@ class CycleProcessError(RuntimeError):
     """The cycle process failed to start, or ended."""
 
 
+@dataclass(frozen=True)
+class Attachment:
+    """How a client domain started by the daemon's main process finds the crossing it carved."""
+
+    region_fd: int
+    region_size: int
+    doorbell_fd: int
+    parent_pid: int  # the main process: when it is gone, so is the unit
+    restarted_after: str | None = None  # why the previous client domain ended; None for the first
+
+
+class Crossing:
+    """The shared region with the engine's cells and the controllers' API halves, and the doorbell: all a client
+    domain needs to reach a cycle process. Carved once (:meth:`carve`: building the halves lays the region out);
+    a client domain started later finds the same cells (:meth:`attach`)."""
+
+    def __init__(self, loaded: LoadedConfig, region: Region, doorbell_fd: int, *, create: bool) -> None:
+        from hild.api.halves import api_halves  # builds every controller plugin: only when the cycle is elsewhere
+
+        self.region = region
+        self.doorbell_fd = doorbell_fd
+        self.events = EventLog()  # the API halves' events (refused goals …): the client domain's own
+        self.halves = api_halves(loaded, Shared(region, create=create), self.events.emit)
+        self.cells = EngineCells(region, len(loaded.config.joints), create=create)
+
+    @classmethod
+    def carve(cls, loaded: LoadedConfig) -> Crossing:
+        doorbell = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
+        return cls(loaded, Region(REGION_BYTES), doorbell, create=True)
+
+    @classmethod
+    def attach(cls, loaded: LoadedConfig, at: Attachment) -> Crossing:
+        return cls(loaded, Region.attach(at.region_fd, at.region_size), at.doorbell_fd, create=False)
+
+    def attachment(self, parent_pid: int, restarted_after: str | None = None) -> Attachment:
+        return Attachment(self.region.fd, self.region.size, self.doorbell_fd, parent_pid, restarted_after)
+
+    def spawn_cycle(self, loaded: LoadedConfig, telemetry: TelemetryRing | None = None) -> subprocess.Popen[bytes]:
+        """Start the cycle process as a child of this process (which it watches: it stops when this one is
+        gone)."""
+        spec = CycleSpec(loaded, self.region.fd, self.region.size, self.doorbell_fd, os.getpid(), GO_TIMEOUT, telemetry)
+        process = subprocess.Popen(
+            [sys.executable, "-m", "hild.domains.cycle_process"],
+            stdin=subprocess.PIPE,
+            pass_fds=(self.region.fd, self.doorbell_fd),
+        )
+        assert process.stdin is not None
+        with process.stdin as stdin:
+            stdin.write(pickle.dumps(spec, pickle.HIGHEST_PROTOCOL))
+        return process
+
+
 class RemoteCycle:
     inputs_on_arrival = True  # no intake to share: inputs are validated and handed over as they arrive
 
-    def __init__(self, loaded: LoadedConfig) -> None:
-        from hild.api.halves import api_halves  # builds every controller plugin: only when the cycle is elsewhere
-
+    def __init__(self, loaded: LoadedConfig, crossing: Crossing | None = None) -> None:
+        """With ``crossing`` None, this process carves the region and starts the cycle process itself
+        (:meth:`spawn`); else the cycle process another process started is reached through it."""
         cfg = loaded.config
         self.loaded = loaded
         self.robot = cfg.robot.name
@@ -53,36 +106,38 @@ class RemoteCycle:
         self.stop_descent = cfg.safety.stop_descent
         self.max_consecutive_overruns = cfg.safety.max_consecutive_overruns
         self.intake = None
-        self.events = EventLog()  # the client domain's own events, stamped with the cycle clock
+        self.crossing = crossing or Crossing.carve(loaded)
+        self.events = self.crossing.events  # the client domain's own events, stamped with the cycle clock
         self.events.now = lambda: self.t
-        self.region = Region(REGION_BYTES)
-        self._halves = api_halves(loaded, Shared(self.region, create=True), self.events.emit)
-        self.cells = EngineCells(self.region, len(self.joints), create=True)
+        self.owns_cycle = crossing is None
+        self.region = self.crossing.region
+        self._halves = self.crossing.halves
+        self.cells = self.crossing.cells
         self.stats = self.cells.stats
-        self.doorbell_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
+        self.doorbell_fd = self.crossing.doorbell_fd
         self.process: subprocess.Popen[bytes] | None = None
         self._lock = threading.Lock()  # request ids, futures, the snapshot cache: several client threads
-        self._ids = itertools.count(1)
+        # Ids unique across client domains: replies to a dead one's requests may still be in the queue.
+        self._ids = itertools.count((os.getpid() << 32) + 1)
         self._pending: dict[int, concurrent.futures.Future[Any]] = {}
         self._estops: list[tuple[int, concurrent.futures.Future[Any]]] = []
         self._snapshot: Snapshot | None = None
         self._estop_reply: dict[str, Any] = {"deactivated": []}
         self.realtime_report: dict[str, str] = {}  # what the client domain set up (its CPUs, the DMA latency hold)
-        self._events_lost = 0  # as last reported
+        self._events_lost = int(self.cells.vitals[Vital.EVENTS_LOST])  # as last reported (by a predecessor too)
+
+    @classmethod
+    def attach(cls, loaded: LoadedConfig, at: Attachment) -> RemoteCycle:
+        """Reach the cycle process the daemon's main process started, through the crossing it carved."""
+        return cls(loaded, Crossing.attach(loaded, at))
+
+    @property
+    def cycle_pid(self) -> int:
+        return int(self.cells.vitals[Vital.PID])
 
     # ---- the process --------------------------------------------------------------------------------------
     def spawn(self, telemetry: TelemetryRing | None = None) -> None:
-        spec = CycleSpec(
-            self.loaded, self.region.fd, self.region.size, self.doorbell_fd, os.getpid(), GO_TIMEOUT, telemetry
-        )
-        self.process = subprocess.Popen(
-            [sys.executable, "-m", "hild.domains.cycle_process"],
-            stdin=subprocess.PIPE,
-            pass_fds=(self.region.fd, self.doorbell_fd),
-        )
-        assert self.process.stdin is not None
-        with self.process.stdin as stdin:
-            stdin.write(pickle.dumps(spec, pickle.HIGHEST_PROTOCOL))
+        self.process = self.crossing.spawn_cycle(self.loaded, telemetry)
 
     @property
     def phase(self) -> Phase:
@@ -133,7 +188,11 @@ class RemoteCycle:
             self.process.wait()
 
     def alive(self) -> bool:
-        return self.process is not None and self.process.poll() is None
+        """Started by this process: whether it runs. Started by the main process (which ends this one when the
+        cycle process dies): whether it has not failed or stopped."""
+        if self.process is not None:
+            return self.process.poll() is None
+        return not self.owns_cycle and self.phase not in (Phase.FAILED, Phase.STOPPED)
 
     @property
     def exit_code(self) -> int | None:
@@ -185,9 +244,9 @@ class RemoteCycle:
         loop = loop_status(self.update_rate, self.loaded.config.clock.source, self.stats)
         status = render_status(self.robot, self.snapshot(), self.t, self.cells.clock[1:].tolist(), loop)
         status["realtime"].update(self.realtime_report)
-        if self.process is not None:
-            threads = self.python_threads
-            status["realtime"]["cycle_process"] = f"pid {self.process.pid}, {threads} Python thread(s)"
+        pid = self.cycle_pid
+        if pid:
+            status["realtime"]["cycle_process"] = f"pid {pid}, {self.python_threads} Python thread(s)"
         return status
 
     def controllers(self) -> dict[str, Any]:
@@ -233,9 +292,10 @@ class RemoteCycle:
                 error = Refused(text, **details) if kind == "Refused" else RuntimeError(f"{kind}: {text}")
                 future.set_exception(error)
         self._answer_estops()
-        events = [*self.events.drain()]
+        events = []
         while (item := self.cells.events.poll()) is not None:
             events.append(Event(*item))  # type: ignore[misc]
+        events.extend(self.events.drain())
         lost = int(self.cells.vitals[Vital.EVENTS_LOST])
         if lost != self._events_lost:
             text = f"{lost - self._events_lost} events of the cycle were lost: this process did not drain them in time"
