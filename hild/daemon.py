@@ -305,7 +305,9 @@ class Daemon:
         from hild.telemetry import Telemetry, TelemetryError  # rerun lives in the telemetry room
 
         try:
-            self.telemetry = Telemetry.from_config(self.loaded, self.engine.stats if self.engine else None)
+            restarted = self.attachment is not None and self.attachment.restarted_after is not None
+            stats = self.engine.stats if self.engine else None
+            self.telemetry = Telemetry.from_config(self.loaded, stats, keep_existing=restarted)
         except TelemetryError as exc:
             raise StartupError(f"telemetry: {exc}") from exc
 

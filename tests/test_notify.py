@@ -23,9 +23,16 @@ from pathlib import Path
 import pytest
 
 from hild.config import load_config
-from hild.daemon import READY_AFTER_CYCLES, Daemon
+from hild.daemon import Daemon
 from hild.engine import Engine
-from hild.notify import SystemdNotifier, WatchdogGate, socket_address, status_line, watchdog_interval
+from hild.notify import (
+    READY_AFTER_CYCLES,
+    SystemdNotifier,
+    WatchdogGate,
+    socket_address,
+    status_line,
+    watchdog_interval,
+)
 from tests.conftest import CONFIGS, Systemd, merge, mock_robot, receive
 from tests.test_e2e import free_port
 

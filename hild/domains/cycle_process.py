@@ -161,10 +161,14 @@ class CrossingCycle(CycleThread):
         asks, engine = self.cells.asks, self.engine
         if asks[Ask.STOP] or self.terminated:
             self.stop()
-        if engine.cycle % self._parent_every == 0 and os.getppid() != self.parent_pid:
-            self.outbox.orphaned = True
-            engine.events.emit("error", "cycle", "the daemon that started the cycle process is gone: stopping")
-            self.stop()
+        if engine.cycle % self._parent_every == 0:
+            if os.getppid() != self.parent_pid:
+                self.outbox.orphaned = True
+                engine.events.emit("error", "cycle", "the daemon that started the cycle process is gone: stopping")
+                self.stop()
+            ring = self.cells.telemetry.take()
+            if ring is not None:  # a restarted client domain records from a ring of its own: once per restart
+                engine.tap = _attach_telemetry(ring, engine)  # type: ignore[arg-type]
         lost = int(asks[Ask.CLIENT_LOST])
         if lost != self._client_lost_seen:  # before this cycle's requests: none of the old domain's goals starts
             self._client_lost_seen = lost
@@ -236,6 +240,7 @@ def run(spec: CycleSpec) -> int:
     except Exception as exc:
         outbox.failure(str(exc), engine.events)
         return 1
+    cells.telemetry.clear()  # the ring in the spec: a newer one is a restarted client domain's
     if spec.telemetry is not None:
         engine.tap = _attach_telemetry(spec.telemetry, engine)
     cycle = CrossingCycle(engine, cells, outbox, spec.parent_pid)

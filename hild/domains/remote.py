@@ -247,6 +247,9 @@ class RemoteCycle:
         pid = self.cycle_pid
         if pid:
             status["realtime"]["cycle_process"] = f"pid {pid}, {self.python_threads} Python thread(s)"
+        if not self.owns_cycle:  # this client domain was started by the main process, maybe after another
+            restarts = int(self.cells.asks[Ask.CLIENT_LOST])
+            status["realtime"]["client_process"] = f"pid {os.getpid()}, {restarts} restart(s)"
         return status
 
     def controllers(self) -> dict[str, Any]:

@@ -57,10 +57,20 @@ class Outlet:
 
 
 class FileOutlet(Outlet):
-    """An ``.rrd`` file, rotated by size and/or age into ``<stem>-<UTC timestamp>.rrd`` files."""
+    """An ``.rrd`` file, rotated by size and/or age into ``<stem>-<UTC timestamp>.rrd`` files. ``keep_existing``:
+    a file already at ``path`` is not overwritten either (the recording of a client domain that crashed)."""
 
-    def __init__(self, spec: FileSinkSpec, directory: Path, recording_id: str, name: str, on_open: OnOpen) -> None:
+    def __init__(
+        self,
+        spec: FileSinkSpec,
+        directory: Path,
+        recording_id: str,
+        name: str,
+        on_open: OnOpen,
+        keep_existing: bool = False,
+    ) -> None:
         self.base = (directory / spec.path).resolve()
+        self.keep_existing = keep_existing
         self.rotate_bytes = spec.rotate_mb * 1e6 if spec.rotate_mb else None
         self.rotate_seconds = spec.rotate_minutes * 60 if spec.rotate_minutes else None
         self.rotating = bool(self.rotate_bytes or self.rotate_seconds)
@@ -73,7 +83,7 @@ class FileOutlet(Outlet):
         super().__init__(self._open(), f"file {self.base}")
 
     def _next_path(self) -> Path:
-        if not self.rotating:
+        if not self.rotating and not (self.keep_existing and self.base.exists()):
             return self.base
         stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%SZ")
         path = self.base.with_name(f"{self.base.stem}-{stamp}.rrd")

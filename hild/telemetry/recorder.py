@@ -53,6 +53,7 @@ class TelemetrySetup:
     directory: Path  # relative sink paths start here (the config file's directory)
     model: Path | None = None  # MJCF/URDF for the 3D view
     avoid_cpus: tuple[int, ...] = ()  # the cycle thread's CPUs: the recorder runs elsewhere when it can
+    keep_existing: bool = False  # a restarted client domain's: the file its crashed predecessor wrote is kept
 
 
 def _child_main(*args: Any) -> None:
@@ -133,7 +134,9 @@ class Telemetry:
         log.info("telemetry to %s (recorder process %d)", self.info["description"], self._process.pid)
 
     @classmethod
-    def from_config(cls, loaded: Any, stats: LoopStats | None = None) -> Telemetry | None:
+    def from_config(
+        cls, loaded: Any, stats: LoopStats | None = None, *, keep_existing: bool = False
+    ) -> Telemetry | None:
         """Telemetry for a loaded config, or None when disabled. Starts the recorder process and waits until every
         sink is open; raises ``TelemetryError`` if one cannot open."""
         cfg = loaded.config
@@ -149,6 +152,7 @@ class Telemetry:
             loaded.directory,
             model,
             tuple(cfg.realtime.cpu_affinity),
+            keep_existing,
         )
         return cls(setup, stats)
 

@@ -82,7 +82,9 @@ class Recorder:
             for spec in sec.sinks:
                 if isinstance(spec, FileSinkSpec):
                     self.outlets.append(
-                        FileOutlet(spec, setup.directory, self.recording_id, setup.robot, self._on_open)
+                        FileOutlet(
+                            spec, setup.directory, self.recording_id, setup.robot, self._on_open, setup.keep_existing
+                        )
                     )
             if live:
                 self.outlets.append(LiveOutlet(live, self.recording_id, setup.robot, self._on_open))

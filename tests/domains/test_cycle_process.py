@@ -1,7 +1,9 @@
 """The daemon with its cycle in a process of its own (``realtime.cycle_process``), driven from outside over Zenoh.
 
-Each test runs the real ``hild.daemon.Daemon`` on this thread's event loop (it owns the signal handlers), with a
-client on a free loopback port. The cycle process paces the mock robot on the sim clock at real time.
+Most tests run the real ``hild.daemon.Daemon`` on this thread's event loop (it owns the signal handlers) with the
+cycle process it starts itself (as the bench and embedding code do); the watchdog test runs ``hild run``'s main
+process the same way, and the stall test ``hild run`` itself. Clients use a free loopback port; the cycle process
+paces the mock robot on the sim clock at real time.
 """
 
 from __future__ import annotations
@@ -17,13 +19,14 @@ from typing import Any
 
 import pytest
 
-from hild.api.client import HildClient, HildError
+from hild.api.client import HildClient
 from hild.config import load_config
 from hild.daemon import Daemon, StartupError
-from hild.domains.layout import Phase
+from hild.domains.layout import ClientPhase, Phase
+from hild.domains.main_process import MainProcess
 from tests.api.conftest import free_endpoint
 from tests.conftest import Systemd, merge, mock_robot
-from tests.faults.processes import child_pids, running
+from tests.daemon_process import HildRun
 
 WAIT = 20.0
 SPLIT = {"realtime": {"cycle_process": True}, "clock": {"source": "sim", "real_time_factor": 1.0}}
@@ -152,66 +155,27 @@ def test_a_killed_cycle_process_ends_the_daemon_with_the_reason(
     assert "the cycle process ended unexpectedly (exit code -9)" in caplog.text
 
 
-def test_the_cycle_process_stops_and_releases_the_arm_when_its_daemon_is_gone(
-    write_config: Callable[..., Path],
-) -> None:
-    """A daemon killed outright: the cycle process sees its parent gone, holds, releases the hardware, exits."""
-    import subprocess
-    import sys
-
-    path = write_config(split_robot())
-    endpoint = free_endpoint()
-    daemon = subprocess.Popen(
-        [sys.executable, "-m", "hild.cli", "run", str(path), "--listen", endpoint],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-    )
-    try:
-        deadline = time.monotonic() + WAIT
-        while not _answers(endpoint):
-            assert daemon.poll() is None and time.monotonic() < deadline, "the daemon never answered"
-            time.sleep(0.05)
-        children = child_pids(daemon.pid)
-        assert len(children) == 1
-        daemon.kill()
-        daemon.wait(WAIT)
-        deadline = time.monotonic() + WAIT
-        while running(children[0]):
-            assert time.monotonic() < deadline, "the cycle process outlived its daemon"
-            time.sleep(0.05)
-        output = daemon.stdout.read().decode() if daemon.stdout else ""  # the cycle process shared it
-        assert "the daemon that started the cycle process is gone: stopping" in output
-        assert "stopped: hardware released" in output
-    finally:
-        if daemon.poll() is None:
-            daemon.kill()
-
-
-def _answers(endpoint: str) -> bool:
-    try:
-        with HildClient("mock3", [endpoint], timeout=1.0) as client:
-            return client.status()["loop"]["cycles"] > 0
-    except HildError:
-        return False
-
-
-def test_the_watchdog_follows_the_cycle_process_not_the_daemon(
+def test_the_watchdog_follows_the_cycle_process_not_the_client_domain(
     systemd: tuple[Systemd, str],
     write_config: Callable[..., Path],
     monkeypatch: pytest.MonkeyPatch,
     caplog: pytest.LogCaptureFixture,
 ) -> None:
-    """The cycle process stopped (SIGSTOP) while the daemon's loop runs on: systemd's pings stop; they resume when
-    it runs again. The pings are earned by the cycle's own counter in shared memory."""
+    """``hild run``'s main process speaks for the unit. The cycle process stopped (SIGSTOP): systemd's pings stop;
+    they resume when it runs again (they are earned by the cycle's own counter in shared memory). The client domain
+    killed: the pings go on while another one starts, and READY=1 is not sent again."""
     fake, path = systemd
     monkeypatch.setenv("NOTIFY_SOCKET", path)
     monkeypatch.setenv("WATCHDOG_USEC", "200000")  # ping period 50 ms
     monkeypatch.delenv("WATCHDOG_PID", raising=False)
     marks: dict[str, float] = {}
+    main = MainProcess(load_config(write_config(split_robot({"clock": {"source": "wall"}}))), [free_endpoint()])
 
-    async def scenario(daemon: Daemon, client: HildClient) -> None:
-        assert daemon.remote is not None and daemon.remote.process is not None
-        pid = daemon.remote.process.pid
+    async def scenario() -> int:
+        task = asyncio.create_task(main.run())
+        await until(lambda: main.ready or task.done(), "the daemon to be ready")
+        assert main.cycle_process is not None and main.client is not None
+        pid, client = main.cycle_process.pid, main.client.pid
         marks["ready"] = time.monotonic()
         await asyncio.sleep(0.5)
         os.kill(pid, signal.SIGSTOP)
@@ -221,61 +185,53 @@ def test_the_watchdog_follows_the_cycle_process_not_the_daemon(
         os.kill(pid, signal.SIGCONT)
         await asyncio.sleep(0.5)
         marks["end"] = time.monotonic()
+        os.kill(client, signal.SIGKILL)
+        await until(lambda: main.client is not None and main.client.pid != client, "another client domain")
+        await until(lambda: main.client_phase is ClientPhase.SERVING, "the new client domain to serve")
+        marks["restarted"] = time.monotonic()
+        main.request_stop()
+        return await task
 
     with caplog.at_level(logging.INFO):
-        _, code = run_split(write_config, scenario, {"clock": {"source": "wall"}})
+        code = asyncio.run(scenario())
     assert code == 0
     running = fake.between(marks["ready"], marks["stalled"]).count("WATCHDOG=1")
     stalled = fake.between(marks["stalled"] + 0.1, marks["released"]).count("WATCHDOG=1")
     resumed = fake.between(marks["released"], marks["end"]).count("WATCHDOG=1")
+    restarting = fake.between(marks["end"], marks["restarted"]).count("WATCHDOG=1")
     assert running >= 5, running
     assert stalled == 0
     assert resumed >= 4, resumed
+    assert restarting >= 1, restarting  # the client domain's restart is not the unit's failure
+    assert fake.between(marks["ready"], time.monotonic()).count("READY=1") == 0
     assert "withholding the systemd watchdog ping: the cycle is stalled at cycle" in caplog.text
     _, last = fake.wait_for("STATUS=stopped", WAIT)  # the reader may not have taken the last datagram yet
     assert last == "STATUS=stopped: hardware released"
 
 
 def test_a_stalled_client_domain_leaves_the_cycle_holding(write_config: Callable[..., Path]) -> None:
-    """The daemon stopped (SIGSTOP) while a client streams commands: the cycle process runs on, the stream times
-    out on the cycle clock and the joints return to hold; resumed, the daemon reports what happened meanwhile."""
-    import subprocess
-    import sys
-
-    path = write_config(split_robot())
-    endpoint = free_endpoint()
-    log = path.parent / "daemon.log"
-    with log.open("wb") as out:
-        daemon = subprocess.Popen(
-            [sys.executable, "-m", "hild.cli", "run", str(path), "--listen", endpoint], stdout=out, stderr=out
-        )
-    try:
-        deadline = time.monotonic() + WAIT
-        while not _answers(endpoint):
-            assert daemon.poll() is None and time.monotonic() < deadline, log.read_text()
-            time.sleep(0.05)
-        with HildClient("mock3", [endpoint], timeout=5.0) as client:
-            client.switch(["fwd"], [])
-            for _ in range(50):  # 0.5 s of a stream: fwd owns the joints
-                client.send("fwd", [0.3, -0.4, 0.5])
-                time.sleep(0.01)
-            before = client.status()
-            assert [j["owner"] for j in before["joints"]] == ["fwd"] * 3, before
-            daemon.send_signal(signal.SIGSTOP)
+    """The client domain stopped (SIGSTOP) while a client streams commands: the cycle process runs on, the stream
+    times out on the cycle clock and the joints return to hold; resumed, the client domain reports what happened
+    meanwhile. A stalled client domain is not restarted: it is alive."""
+    with HildRun(write_config(split_robot()), free_endpoint(), "mock3") as run, run.client() as client:
+        client.switch(["fwd"], [])
+        for _ in range(50):  # 0.5 s of a stream: fwd owns the joints
+            client.send("fwd", [0.3, -0.4, 0.5])
+            time.sleep(0.01)
+        before = client.status()
+        assert [j["owner"] for j in before["joints"]] == ["fwd"] * 3, before
+        stalled = run.client_process()
+        os.kill(stalled, signal.SIGSTOP)
+        try:
             time.sleep(1.0)  # the client domain stalled for 1 s (≥ 5 × fwd's command_timeout of 0.2 s)
-            daemon.send_signal(signal.SIGCONT)
-            after = client.status()
+        finally:
+            os.kill(stalled, signal.SIGCONT)
+        after = client.status()
         # The cycle ran on through the stall (in one process it would have stopped with the daemon): at 500 Hz on
         # the sim clock paced at real time, a second is 500 cycles; half of them is proof enough on a busy machine.
         assert after["loop"]["cycles"] - before["loop"]["cycles"] >= 250
         assert [j["mode"] for j in after["joints"]] == ["hold"] * 3, after["joints"]
-        deadline = time.monotonic() + WAIT
-        while "no command for 0.2 s: joints return to hold" not in log.read_text():
-            assert time.monotonic() < deadline, log.read_text()
-            time.sleep(0.05)
-    finally:
-        daemon.send_signal(signal.SIGCONT)
-        daemon.terminate()
-        daemon.wait(WAIT)
-    assert daemon.returncode == 0, log.read_text()
-    assert "stopped: hardware released" in log.read_text()
+        run.wait_log("no command for 0.2 s: joints return to hold")
+        assert run.client_process() == stalled
+        assert run.stop() == 0
+    assert "stopped: hardware released" in run.log

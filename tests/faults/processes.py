@@ -110,16 +110,19 @@ class CanProcesses:
         return client
 
     def kill_daemon(self) -> None:
-        """SIGKILL the daemon (the client domain): its cycle process finds itself orphaned and stops on its own."""
+        """SIGKILL the daemon's main process: its cycle process and client domain find themselves orphaned and
+        stop on their own."""
         assert self.daemon is not None
         self.daemon.kill()
         self.daemon.wait(10)
 
     def cycle_process(self) -> int:
         assert self.daemon is not None
-        children = child_pids(self.daemon.pid)
-        assert len(children) == 1, f"the daemon has {len(children)} children: {children}"
-        return children[0]
+        return domain_pid(self.daemon.pid, "cycle_process")
+
+    def client_process(self) -> int:
+        assert self.daemon is not None
+        return domain_pid(self.daemon.pid, "client_process")
 
     def kill_cycle_process(self) -> None:
         """SIGKILL the cycle process: no hold cycle, no disable frames, nothing; the daemon sees it and exits 1."""
@@ -173,6 +176,20 @@ def child_pids(pid: int) -> list[int]:
             if int(fields[1]) == pid:
                 found.append(int(entry.name))
     return found
+
+
+def domain_pid(main_pid: int, module: str) -> int:
+    """The one child of the daemon's main process running ``hild.domains.<module>``."""
+    found = [pid for pid in child_pids(main_pid) if f"hild.domains.{module}".encode() in _cmdline(pid)]
+    assert len(found) == 1, f"the daemon {main_pid} has {len(found)} {module} children: {child_pids(main_pid)}"
+    return found[0]
+
+
+def _cmdline(pid: int) -> bytes:
+    try:
+        return (Path("/proc") / str(pid) / "cmdline").read_bytes()
+    except OSError:
+        return b""
 
 
 def running(pid: int) -> bool:

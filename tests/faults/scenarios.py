@@ -16,7 +16,9 @@ processes on the wall clock, so its row states checked bounds, never measured ti
 from __future__ import annotations
 
 import math
+import os
 import re
+import signal
 import tempfile
 import time
 import traceback
@@ -31,6 +33,7 @@ from drivers.can.emulator.mit_firmware import MitFirmware
 from drivers.can.protocol.flavours import DAMIAO, TMOTOR
 from drivers.can.protocol.models import MODELS
 from drivers.can.protocol.odrive import ODriveError
+from hild.api.client import HildError
 from hild.arrays import JointState, ServoCommand
 from hild.config import load_config
 from hild.controllers.joint_trajectory import JointTrajectoryController
@@ -803,10 +806,19 @@ def _sigkill() -> tuple[str, str, str, str]:
 @scenario(
     "daemon_sigkill",
     "daemon SIGKILL and restart",
-    "`kill -9` of `hild run` (the client domain) mid-trajectory, then the same config started again",
+    "`kill -9` of `hild run` (the daemon's main process) mid-trajectory, then the same config started again",
 )
 def _daemon_sigkill() -> tuple[str, str, str, str]:
     return _with_processes(_kill_daemon_and_restart)
+
+
+@scenario(
+    "client_sigkill",
+    "client domain SIGKILL",
+    "`kill -9` of the client domain (Zenoh, the API) mid-trajectory; `hild run` starts another",
+)
+def _client_sigkill() -> tuple[str, str, str, str]:
+    return _with_processes(_kill_client_domain)
 
 
 def _with_processes(run: Callable[[CanProcesses], tuple[str, str, str, str]]) -> tuple[str, str, str, str]:
@@ -853,6 +865,67 @@ def _kill_daemon_and_restart(rigs: CanProcesses) -> tuple[str, str, str, str]:
     event = "error `cycle`: the daemon that started the cycle process is gone: stopping (logged by the cycle process)"
     recovery = "start again: every joint holds where the arm stopped; next goal succeeds"
     return detected, held, event, recovery
+
+
+def _kill_client_domain(rigs: CanProcesses) -> tuple[str, str, str, str]:
+    with rigs.start_daemon() as arm:
+        arm.switch(activate=[JTC])
+        home = rigs.positions()
+        handle = arm.send_goal(JTC, {"positions": (home + RESTART_OFFSETS).tolist()}, watched=False)
+        goal_id = handle.goal_id
+        handle.close()
+        rigs.wait(lambda: np.abs(rigs.positions() - home).max() > 0.1, "the arm to move")
+        cycle, client = rigs.cycle_process(), rigs.client_process()
+        os.kill(client, signal.SIGKILL)
+        killed = time.monotonic()
+        rigs.wait(lambda: "the client domain was restarted" in rigs.daemon_log(), "another client domain")
+        result = _until_answered(rigs, lambda: arm.goal_result(JTC, goal_id))
+        answered = time.monotonic() - killed
+        assert result["status"] == "aborted" and "the client domain ended" in result["error_string"], result
+        assert rigs.cycle_process() == cycle and rigs.client_process() != client
+        there = rigs.positions()
+        for _ in range(25):  # half a second: jtc stopped the arm and holds it
+            time.sleep(0.02)
+        moved = np.abs(rigs.positions() - there).max()
+        assert moved < HOLD_SETTLE, f"the arm moved by {moved} after the stop"
+        drives = rigs.drives()
+        assert all(d["enabled"] and d["fault"] == 0 for d in drives), drives  # never released, never lost
+        goal = {"positions": home.tolist(), "duration": 2.0, "goal_time_tolerance": 2.0}
+        with arm.send_goal(JTC, goal) as follow:
+            assert follow.wait(30.0)["status"] == "succeeded"
+    detected = "the main process: the client domain's exit (looked at every 50 ms); it tells the cycle process"
+    held = (
+        "the cycle process ran on: `joint_trajectory` aborted the goal and decelerated to a stop (jerk-limited), "
+        "then held; the drives stayed enabled, no fault"
+    )
+    event = (
+        "error `cycle`: the client domain ended: its goals are aborted and the joints hold until it is back; "
+        "warning `daemon`: the client domain was restarted (…); clients may reconnect and resend"
+    )
+    assert answered < RECONNECT_WITHIN, f"the goal's result was answered {answered:.1f} s after the kill"
+    recovery = (
+        f"automatic: the same client reconnects and reads the goal's result (`aborted`) within {RECONNECT_WITHIN:g} s; "
+        "next goal succeeds"
+    )
+    return detected, held, event, recovery
+
+
+RECONNECT_WITHIN = 10.0  # s: a new client domain (≈0.5 s) and Zenoh's reconnection (≈1 s), on a loaded machine
+
+
+def _until_answered(rigs: CanProcesses, ask: Callable[[], dict[str, Any]]) -> dict[str, Any]:
+    """``ask()`` once the client has reconnected to the new client domain."""
+    answer: list[dict[str, Any]] = []
+
+    def answered() -> bool:
+        try:
+            answer.append(ask())
+        except HildError:
+            return False
+        return True
+
+    rigs.wait(answered, "the client to reconnect")
+    return answer[-1]
 
 
 def _kill_and_restart(rigs: CanProcesses) -> tuple[str, str, str, str]:
