@@ -16,7 +16,7 @@ import numpy as np
 from hild.arrays import JointState, ServoCommand
 from hild.config.params import Field, Params
 from hild.controller import Controller, ControllerContext
-from hild.crossing.mailboxes import Latest
+from hild.crossing.mailboxes import LatestNumbers
 from hild.interfaces import interface_name
 
 
@@ -37,7 +37,7 @@ class ForwardCommandController(Controller):
             raise ValueError(f"{context.name}: joints listed twice in {params.joints}")
         self._index = context.index_of(params.joints)
         self._values = np.zeros(len(params.joints))
-        self._slot: Latest[np.ndarray] = context.mailboxes.latest("commands")
+        self._slot: LatestNumbers = context.mailboxes.latest_numbers("commands", len(params.joints))
         self._last_rx = -math.inf
         self._streaming = False
         lim = context.limits

@@ -9,8 +9,10 @@ within the joints' velocity, acceleration and jerk limits whatever the stream do
 Phases: ``HOLD`` (at rest: before the first target and after a stop) → ``TRACK`` (ruckig position control
 toward the latest target) → ``CRUISE`` (a target with velocities was reached: keep its velocity until the next
 target, braking per joint in time for the soft limits) → ``STOP`` (ruckig velocity control to rest on timeout or
-planning error) → ``HOLD``. The API side validates and clamps targets; the cycle only copies them into
-ruckig and steps it. The ruckig bindings return fresh lists, so a cycle costs a few small lists; nothing else.
+planning error) → ``HOLD``. The API side validates and clamps targets and hands each over as one fixed-size
+record of numbers (:class:`TargetRecord`); the cycle only copies it into ruckig and steps it, and spells out
+what was clamped only when it reports it. The ruckig bindings return fresh lists, so a cycle costs a few small
+lists; nothing else.
 """
 
 from __future__ import annotations
@@ -18,9 +20,9 @@ from __future__ import annotations
 import enum
 import math
 import sys
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 from ruckig import ControlInterface, InputParameter, OutputParameter, Result, Ruckig, RuckigError, Synchronization
@@ -31,7 +33,7 @@ from hild.config.model import JointLimits
 from hild.config.params import Field, Params, model_validator
 from hild.controller import Controller, ControllerContext
 from hild.controllers.planning import first_taken_over, interface_claims, missing_planning_limits
-from hild.crossing.mailboxes import Latest
+from hild.crossing.mailboxes import LatestNumbers
 
 # Plan a hair inside the limits, so rounding in ruckig's profiles never trips the supervisor's velocity, slew
 # or soft position limits (which compare with no tolerance and would report a limit that is not really hit).
@@ -76,14 +78,96 @@ class Phase(enum.IntEnum):
     STOP = 3
 
 
+class ClampReason(enum.IntEnum):
+    SOFT_LIMIT = 1  # a position beyond a soft limit
+    VELOCITY_LIMIT = 2  # a velocity beyond the (scaled) velocity limit
+    STOP_BEFORE_SOFT_LIMIT = 3  # a velocity the joint could not brake from before a soft limit
+
+
+_CLAMP_TEXT = {
+    ClampReason.SOFT_LIMIT: ("position", "soft limit"),
+    ClampReason.VELOCITY_LIMIT: ("velocity", "velocity limit"),
+    ClampReason.STOP_BEFORE_SOFT_LIMIT: ("velocity", "to stop before the soft limit"),
+}
+
+
+class Clamp(NamedTuple):
+    """One value the API side changed: numbers, so it crosses in the target's record; the cycle words it."""
+
+    joint: int  # index into params.joints
+    reason: ClampReason
+    requested: float
+    result: float
+
+
+def clamp_note(joints: Sequence[str], clamps: Sequence[Sequence[float]]) -> str:
+    """The event text for ``clamps`` (rows of joint, reason, requested, result)."""
+    notes = []
+    for joint, reason, requested, result in clamps:
+        what, why = _CLAMP_TEXT[ClampReason(int(reason))]
+        notes.append(f"{joints[int(joint)]} {what} {requested:.4g} → {result:.4g} ({why})")
+    return "target clamped: " + "; ".join(notes)
+
+
 @dataclass(frozen=True, slots=True)
 class ServoTarget:
-    """A validated target, ready for ruckig (plain lists: the bindings copy them without numpy overhead)."""
+    """A validated target, as the API side hands it over."""
 
     positions: list[float]
     velocities: list[float]  # zeros when the client gave none
     moving: bool  # some velocity is non-zero: keep going once reached
-    clamped: str  # what was clamped, "" if nothing: the cycle reports it once per clamping episode
+    clamped: Sequence[Clamp] = ()  # what was clamped, empty if nothing: reported once per clamping episode
+
+
+class TargetRecord:
+    """The door for targets: a :class:`ServoTarget` crosses as one record of float64s, so the cycle takes it with
+    a copy instead of unpickling an object every cycle of a stream.
+
+    Layout for n joints: positions (n), velocities (n), moving (0/1), the number of clamps k, then 3n rows of
+    (joint, reason, requested, result) of which the first k are used (each joint clamps at most its position,
+    its velocity to the limit and its velocity to stop in time). The cycle reads it through views made here.
+    """
+
+    def __init__(self, door: LatestNumbers, n: int) -> None:
+        self.n = n
+        self._door = door
+        record = door.values
+        self.positions, self.velocities = record[:n], record[n : 2 * n]
+        self._moving_at, self._count_at = 2 * n, 2 * n + 1
+        self._clamps = record[2 * n + 2 :].reshape(3 * n, 4)
+
+    @staticmethod
+    def width(n: int) -> int:
+        return 2 * n + 2 + 3 * n * 4
+
+    # ---- API side -----------------------------------------------------------------------------------------
+    def put(self, target: ServoTarget) -> None:
+        n = self.n
+        record = np.zeros(self.width(n))
+        record[:n] = target.positions
+        record[n : 2 * n] = target.velocities
+        record[self._moving_at] = 1.0 if target.moving else 0.0
+        record[self._count_at] = len(target.clamped)
+        if target.clamped:
+            record[2 * n + 2 : 2 * n + 2 + 4 * len(target.clamped)] = np.ravel(target.clamped)
+        self._door.put(record)
+
+    # ---- cycle side ---------------------------------------------------------------------------------------
+    def take(self) -> bool:
+        """Whether a new target arrived; if so, the views and the methods below read it until the next take."""
+        return self._door.take() is not None
+
+    def clear(self) -> None:
+        self._door.clear()
+
+    def moving(self) -> bool:
+        return self._door.values.item(self._moving_at) != 0.0
+
+    def clamped(self) -> bool:
+        return self._door.values.item(self._count_at) != 0.0
+
+    def clamp_note(self, joints: Sequence[str]) -> str:
+        return clamp_note(joints, self._clamps[: int(self._door.values.item(self._count_at))].tolist())
 
 
 def stopping_distance(speed: float, acceleration: float, jerk: float) -> float:
@@ -138,7 +222,7 @@ class ServoController(Controller):
         self._hi = [p - POSITION_MARGIN for p in self._soft_upper]
         self._lookahead = BRAKE_LOOKAHEAD_CYCLES * self._period
 
-        self._slot: Latest[ServoTarget] = context.mailboxes.latest("target")
+        self._slot = TargetRecord(context.mailboxes.latest_numbers("target", TargetRecord.width(n)), n)
         self._zeros = [0.0] * n
         self._otg: Ruckig | None = None
         self._inp = InputParameter(n)
@@ -192,8 +276,7 @@ class ServoController(Controller):
         velocities = self._numbers(given, "velocities") if given is not None else list(self._zeros)
         clamped = self._clamp(positions, velocities)
         moving = any(v != 0.0 for v in velocities)
-        note = "target clamped: " + "; ".join(clamped) if clamped else ""
-        self._slot.put(ServoTarget(positions, velocities, moving, note))
+        self._slot.put(ServoTarget(positions, velocities, moving, clamped))
 
     def _numbers(self, values: Any, what: str) -> list[float]:
         joints = self.params.joints
@@ -211,32 +294,32 @@ class ServoController(Controller):
                 raise ValueError(f"{what}[{i}] ({joints[i]}) must be finite, not {shown}")
         return [float(v) for v in values]
 
-    def _clamp(self, positions: list[float], velocities: list[float]) -> list[str]:
+    def _clamp(self, positions: list[float], velocities: list[float]) -> list[Clamp]:
         """Clamp in place to the soft limits and the (scaled) velocity limits; say what was changed.
 
         Values within the limits but inside the planning margins are pulled in silently: nothing to report.
         A velocity pointing at a nearby soft limit is also reduced to one the joint can still brake from before
         the limit once the target is reached: the dead reckoning that follows must never cross it.
         """
-        notes = []
-        for i, joint in enumerate(self.params.joints):
+        clamps = []
+        for i in range(len(positions)):
             p, v, lo, hi, vmax = positions[i], velocities[i], self._lo[i], self._hi[i], self._vmax[i]
             if not lo <= p <= hi:
                 positions[i] = min(max(p, lo), hi)
                 if not self._soft_lower[i] <= p <= self._soft_upper[i]:
-                    notes.append(f"{joint} position {p:.4g} → {positions[i]:.4g} (soft limit)")
+                    clamps.append(Clamp(i, ClampReason.SOFT_LIMIT, p, positions[i]))
             if abs(v) > vmax:
                 velocities[i] = math.copysign(vmax, v)
                 if abs(v) > self._vlimit[i]:
-                    notes.append(f"{joint} velocity {v:.4g} → {velocities[i]:.4g} (velocity limit)")
+                    clamps.append(Clamp(i, ClampReason.VELOCITY_LIMIT, v, velocities[i]))
             v = velocities[i]
             if v != 0.0:
                 room = (hi - positions[i] if v > 0.0 else positions[i] - lo) - vmax * self._lookahead
                 safe = speed_to_stop_within(room, self._amax[i], self._jmax[i])
                 if abs(v) > safe:
                     velocities[i] = math.copysign(safe, v)
-                    notes.append(f"{joint} velocity {v:.4g} → {velocities[i]:.4g} (to stop before the soft limit)")
-        return notes
+                    clamps.append(Clamp(i, ClampReason.STOP_BEFORE_SOFT_LIMIT, v, velocities[i]))
+        return clamps
 
     # ---- cycle side ---------------------------------------------------------------------------------------
     def on_activate(self, state: JointState, last_command: ServoCommand) -> None:
@@ -259,9 +342,8 @@ class ServoController(Controller):
         if first_taken_over(self.context.joint_modes, self._index, self._modes) >= 0:
             self._follow_measured(state)
             return
-        target = self._slot.take()
-        if target is not None:
-            self._track(t, target)
+        if self._slot.take():
+            self._track(t)
         elif self.phase in (Phase.TRACK, Phase.CRUISE) and t - self._last_target > self.params.command_timeout:
             self.context.emit_event(
                 "warning", f"no target for {self.params.command_timeout:g} s: stopping, then holding"
@@ -276,19 +358,21 @@ class ServoController(Controller):
             command.velocity[self._where] = self._v
         command.written[self._where] = True
 
-    def _track(self, t: float, target: ServoTarget) -> None:
-        inp = self._inp
+    def _track(self, t: float) -> None:
+        """Plan toward the target just taken (plain lists: ruckig's bindings copy them fastest)."""
+        inp, target = self._inp, self._slot
+        velocities = target.velocities.tolist()
         inp.control_interface = ControlInterface.Position
         inp.synchronization = Synchronization.Time
-        inp.target_position = target.positions
-        inp.target_velocity = target.velocities
-        self._cruise_velocity[:] = target.velocities
-        self._moving = target.moving
+        inp.target_position = target.positions.tolist()
+        inp.target_velocity = velocities
+        self._cruise_velocity[:] = velocities
+        self._moving = target.moving()
         self._last_target = t
         self.phase = Phase.TRACK
-        if target.clamped:
+        if target.clamped():
             if t - self._last_clamp >= CLAMP_EVENT_QUIET:
-                self.context.emit_event("warning", target.clamped)
+                self.context.emit_event("warning", target.clamp_note(self.params.joints))
             self._last_clamp = t
 
     def _cruise(self) -> None:

@@ -4,8 +4,10 @@ A controller has an API half (``inputs()``, its action server's ``submit``: vali
 half (``update``). In one process both halves share an instance and the doors are plain objects
 (:class:`InProcess`). With the cycle in a process of its own, each process builds the controller and the doors
 are cells of the shared region (:class:`Shared`): what one half puts in, the other half's instance takes out.
-Values cross as pickles of what the API half prepared (numpy arrays, dataclasses of them, segment tables), never
-as client bytes: the client's JSON is decoded and validated before anything crosses.
+Nothing crosses as client bytes: the client's JSON is decoded and validated before anything crosses. Streamed
+inputs the cycle takes every cycle cross as fixed-size float64 records (``latest_numbers``: a copy into an array
+the door owns: no allocation, no unpickling). Requests, goals, replies and the status snapshot cross as pickles of
+what their writer prepared (numpy arrays, dataclasses of them, segment tables), unpickled only when one arrives.
 
 The interfaces are those of :mod:`hild.mailbox` and :mod:`hild.ring`, so controller code is the same either way.
 """
@@ -19,7 +21,7 @@ from typing import Any, Generic, Protocol, TypeVar
 
 import numpy as np
 
-from hild.crossing.latest import LatestCell, latest_bytes
+from hild.crossing.latest import LatestCell, NumbersCell, as_record, latest_bytes, numbers_bytes
 from hild.crossing.queue import ByteQueue, queue_bytes
 from hild.crossing.region import Region
 from hild.mailbox import BoundedQueue, LatestSlot
@@ -35,6 +37,18 @@ _PROTOCOL = pickle.HIGHEST_PROTOCOL
 class Latest(Protocol[T]):
     def put(self, value: T) -> None: ...
     def take(self) -> T | None: ...
+    def clear(self) -> None: ...
+
+
+class LatestNumbers(Protocol):
+    """A latest-value door for a fixed number of float64s. ``take`` returns :attr:`values`, the door's own array,
+    overwritten by the next take (even one that returns None): the cycle reads it without allocating."""
+
+    width: int
+    values: np.ndarray
+
+    def put(self, values: Sequence[float] | np.ndarray) -> None: ...
+    def take(self) -> np.ndarray | None: ...
     def clear(self) -> None: ...
 
 
@@ -61,6 +75,7 @@ class Flag:
 
 class Mailboxes(Protocol):
     def latest(self, name: str, max_bytes: int = LATEST_BYTES) -> Latest[Any]: ...
+    def latest_numbers(self, name: str, width: int) -> LatestNumbers: ...
     def queue(self, name: str, capacity: int, max_bytes: int = RECORD_BYTES) -> Queue[Any]: ...
     def ring(self, name: str, width: int, fields: Sequence[str], capacity: int = 256) -> SampleRing: ...
     def flag(self, name: str) -> Flag: ...
@@ -73,6 +88,9 @@ class InProcess:
     def latest(self, name: str, max_bytes: int = LATEST_BYTES) -> Latest[Any]:
         return LatestSlot()
 
+    def latest_numbers(self, name: str, width: int) -> LatestNumbers:
+        return NumbersSlot(width)
+
     def queue(self, name: str, capacity: int, max_bytes: int = RECORD_BYTES) -> Queue[Any]:
         return BoundedQueue(capacity)
 
@@ -84,6 +102,31 @@ class InProcess:
 
     def scoped(self, prefix: str) -> InProcess:
         return self
+
+
+class NumbersSlot:
+    """The in-process :class:`LatestNumbers`: a :class:`LatestSlot` of copies, taken into the door's own array so
+    the cycle half sees what it sees across processes (an array it may not keep)."""
+
+    __slots__ = ("_slot", "values", "width")
+
+    def __init__(self, width: int) -> None:
+        self.width = width
+        self.values = np.zeros(width)
+        self._slot: LatestSlot[np.ndarray] = LatestSlot()
+
+    def put(self, values: Sequence[float] | np.ndarray) -> None:
+        self._slot.put(as_record(values, self.width))
+
+    def take(self) -> np.ndarray | None:
+        fresh = self._slot.take()
+        if fresh is None:
+            return None
+        self.values[...] = fresh
+        return self.values
+
+    def clear(self) -> None:
+        self._slot.clear()
 
 
 class SharedLatest(Generic[T]):
@@ -145,6 +188,9 @@ class Shared:
 
     def latest(self, name: str, max_bytes: int = LATEST_BYTES) -> Latest[Any]:
         return SharedLatest(LatestCell(self._cell(name, latest_bytes(max_bytes)), writer_lock=threading.Lock()))
+
+    def latest_numbers(self, name: str, width: int) -> LatestNumbers:
+        return NumbersCell(self._cell(name, numbers_bytes(width)), width, writer_lock=threading.Lock())
 
     def queue(self, name: str, capacity: int, max_bytes: int = RECORD_BYTES) -> Queue[Any]:
         cell = self._cell(name, queue_bytes(2 * (max_bytes + 16)))

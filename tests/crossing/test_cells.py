@@ -6,12 +6,15 @@ from __future__ import annotations
 import subprocess
 import sys
 import textwrap
+import time
+import tracemalloc
+from collections.abc import Callable
 
 import numpy as np
 import pytest
 
-from hild.crossing.latest import LatestCell, latest_bytes
-from hild.crossing.mailboxes import Shared
+from hild.crossing.latest import LatestCell, NumbersCell, latest_bytes, numbers_bytes
+from hild.crossing.mailboxes import InProcess, LatestNumbers, Shared
 from hild.crossing.queue import ByteQueue, queue_bytes
 from hild.crossing.region import Region, RegionError
 from hild.ring import RingReader
@@ -85,6 +88,105 @@ def test_a_writer_that_died_mid_write_does_not_cost_its_successor_a_value(region
         assert reader.take() == value
 
 
+# ---- numeric latest-value cells -------------------------------------------------------------------------------
+def in_process(region: Region, width: int) -> tuple[LatestNumbers, LatestNumbers]:
+    door = InProcess().latest_numbers("n", width)
+    return door, door
+
+
+def shared(region: Region, width: int) -> tuple[LatestNumbers, LatestNumbers]:
+    writer = Shared(region, create=True).latest_numbers("n", width)
+    return writer, Shared(Region.attach(region.fd, SIZE), create=False).latest_numbers("n", width)
+
+
+Layout = Callable[[Region, int], tuple[LatestNumbers, LatestNumbers]]
+LAYOUTS = pytest.mark.parametrize("layout", [in_process, shared], ids=["in_process", "shared"])
+
+
+@LAYOUTS
+def test_a_numbers_door_gives_the_newest_record_once_into_its_own_array(region: Region, layout: Layout) -> None:
+    writer, reader = layout(region, 3)
+    assert reader.take() is None
+    mine = np.array([1.0, 2.0, 3.0])
+    writer.put(mine)
+    mine[:] = -1.0  # the door copied: the caller may reuse its array
+    writer.put([4, 5, 6])  # any number sequence
+    got = reader.take()
+    assert got is reader.values and got.dtype == np.float64 and got.tolist() == [4.0, 5.0, 6.0]
+    assert reader.take() is None
+    writer.put([7.0, 8.0, 9.0])
+    reader.clear()
+    assert reader.take() is None
+    writer.put(np.array([0.5, -0.5, 1e300]))
+    assert reader.take() is reader.values and reader.values.tolist() == [0.5, -0.5, 1e300]
+
+
+@LAYOUTS
+@pytest.mark.parametrize("values", [[1.0, 2.0], [1.0, 2.0, 3.0, 4.0], np.zeros((1, 3)), 5.0])
+def test_a_numbers_door_refuses_a_record_of_the_wrong_width(region: Region, layout: Layout, values: object) -> None:
+    writer, reader = layout(region, 3)
+    with pytest.raises(ValueError, match="expected 3 numbers"):
+        writer.put(values)  # type: ignore[arg-type]
+    assert reader.take() is None
+
+
+def test_a_numbers_cell_drops_a_copy_torn_by_a_writer_and_takes_the_newest_next_time(region: Region) -> None:
+    cell = region.carve("c", numbers_bytes(4))
+    writer, reader = NumbersCell(cell, 4), NumbersCell(cell, 4)
+    writer.put([1.0] * 4)
+    copy = reader._copy
+
+    def overtaken(k: int) -> np.ndarray:
+        writer.put([2.0] * 4)  # the writer publishes twice while the reader copies: it rewrites buffer k
+        writer.put([3.0] * 4)
+        return copy(k)
+
+    reader._copy = overtaken  # type: ignore[method-assign]
+    assert reader.take() is None
+    reader._copy = copy  # type: ignore[method-assign]
+    assert reader.take() is reader.values and reader.values.tolist() == [3.0] * 4
+    assert reader.take() is None
+
+
+def test_a_numbers_cell_writer_that_died_mid_write_costs_its_successor_nothing(region: Region) -> None:
+    cell = region.carve("c", numbers_bytes(2))
+    reader = NumbersCell(cell, 2)
+    NumbersCell(cell, 2).put([1.0, -1.0])
+    assert reader.take() is not None
+    published = int(np.frombuffer(cell, dtype=np.int64, count=1)[0])
+    NumbersCell(cell, 2)._seqs[(published + 1) % 2][0] += 1  # the dead writer's first step, and nothing after it
+    successor = NumbersCell(cell, 2)
+    for k in range(2, 6):
+        successor.put([float(k), -float(k)])
+        got = reader.take()
+        assert got is not None and got.tolist() == [k, -k]
+
+
+@LAYOUTS
+def test_a_numbers_door_takes_without_allocating(region: Region, layout: Layout) -> None:
+    """Wide records, so a copy into any new object (bytes, an array) would show as kilobytes."""
+    width = 1024
+    writer, reader = layout(region, width)
+    records = [np.full(width, float(k)) for k in range(200)]
+    peaks = []
+    tracemalloc.start()
+    try:
+        for record in records:
+            writer.put(record)
+            tracemalloc.reset_peak()
+            before = tracemalloc.get_traced_memory()[0]
+            got = reader.take()
+            peaks.append(tracemalloc.get_traced_memory()[1] - before)
+            assert got is reader.values and got[0] == record[0]
+    finally:
+        tracemalloc.stop()
+    assert max(peaks) < 512, peaks
+    blocks = sys.getallocatedblocks()
+    for _ in range(10_000):
+        reader.take()  # nothing new: the quick way out
+    assert sys.getallocatedblocks() - blocks < 10
+
+
 def test_region_directory_is_found_by_name_and_size_mismatches_are_refused(region: Region) -> None:
     view = region.carve("a/b", 100)
     view[:3] = b"abc"
@@ -134,6 +236,52 @@ CHILD = textwrap.dedent(
     print("child done", last)
     """
 )
+
+
+NUMBERS_CHILD = textwrap.dedent(
+    """
+    import sys
+    import numpy as np
+    from hild.crossing.region import Region
+    from hild.crossing.mailboxes import Shared
+    fd, size, width, n = (int(a) for a in sys.argv[1:5])
+    door = Shared(Region.attach(fd, size), create=False).latest_numbers("stream", width)
+    ramp = np.arange(width, dtype=np.float64)
+    taken, k = 0, -1.0
+    while taken < n:
+        got = door.take()
+        if got is None:
+            continue
+        assert (got == got[0] + ramp).all(), got  # never torn
+        assert got[0] > k, (got[0], k)  # never older than one taken before, never the same twice
+        k = got[0]
+        taken += 1
+    print("child took", taken, "up to", int(k))
+    """
+)
+
+
+def test_two_processes_stream_numeric_records_without_tearing(region: Region) -> None:
+    """The parent publishes ever newer wide records for as long as the child reads: the child takes each one
+    whole, newer than the last, while the writes go on."""
+    width, n = 256, 2000
+    door = Shared(region, create=True).latest_numbers("stream", width)
+    child = subprocess.Popen(
+        [sys.executable, "-c", NUMBERS_CHILD, str(region.fd), str(SIZE), str(width), str(n)],
+        pass_fds=(region.fd,),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    ramp = np.arange(width, dtype=np.float64)
+    k = 0
+    deadline = time.monotonic() + 60.0
+    while child.poll() is None and time.monotonic() < deadline:
+        door.put(k + ramp)
+        k += 1
+    out, err = child.communicate(timeout=10)
+    assert child.returncode == 0, err
+    assert f"child took {n} up to" in out and int(out.split()[-1]) < k
 
 
 def test_two_processes_exchange_requests_and_stream_values_without_tearing(region: Region) -> None:

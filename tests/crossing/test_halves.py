@@ -13,23 +13,29 @@ import pytest
 
 from hild.action import GoalStatus
 from hild.api.halves import api_halves
-from hild.config import load_config
+from hild.config import LoadedConfig, load_config
 from hild.controller import Controller
 from hild.crossing.mailboxes import Shared
 from hild.crossing.region import Region
 from hild.engine import Engine
 from hild.motion.tables import SegmentTable
+from tests.test_engine import events
 from tests.test_twin_engine import CONFIGS
 
 SIZE = 64 << 20
 
 
+def lockstep() -> LoadedConfig:
+    loaded = load_config(CONFIGS / "arm6_twin.yaml")
+    cfg = loaded.config
+    clock = cfg.clock.model_copy(update={"source": "sim", "real_time_factor": 0.0})
+    loaded.config = cfg.model_copy(update={"clock": clock})
+    return loaded
+
+
 class Split:
     def __init__(self) -> None:
-        loaded = load_config(CONFIGS / "arm6_twin.yaml")
-        cfg = loaded.config
-        clock = cfg.clock.model_copy(update={"source": "sim", "real_time_factor": 0.0})
-        loaded.config = cfg.model_copy(update={"clock": clock})
+        loaded = lockstep()
         self.region = Region(SIZE)
         self.api_events: list[tuple[str, str, str]] = []
         self.api = api_halves(loaded, Shared(self.region, create=True), lambda *e: self.api_events.append(e))
@@ -113,6 +119,39 @@ def test_a_servo_target_crosses_and_is_reached(split: Split) -> None:
         half.accept({"positions": target.tolist()})
         split.engine.run_cycles(5)
     np.testing.assert_allclose(split.engine.state.position, target, atol=5e-3)
+
+
+def test_a_clamped_servo_stream_drives_the_joints_as_it_does_in_one_process(split: Split) -> None:
+    """Targets with velocities, clamped on the API side, cross as numeric records; the cycle half words the
+    clamping event from them. Every command and event equals those of the same stream in one process."""
+    alone = Engine(lockstep())
+    alone.start()
+    engines = (split.engine, alone)
+    for engine in engines:
+        assert engine.switch(["servo"], []).ok
+        engine.events.drain()
+    start = alone.state.position.copy()
+    np.testing.assert_array_equal(split.engine.state.position, start)
+    target = start + np.array([0.0, 0.0, 0.2, 0.0, 0.0, 0.0])
+    target[1] = 5.0  # beyond shoulder_lift's soft limit
+    velocities = [10.0, 0.0, 0.1, 0.0, 0.0, 0.0]  # shoulder_pan beyond its velocity limit
+    inputs = (split.half("servo").accept, alone.manager.records["servo"].instance.accept)
+    for k in range(600):  # 1.2 s of targets at 250 Hz, then silence until the servo stops
+        if k < 300 and k % 2 == 0:
+            for accept in inputs:
+                accept({"positions": target.tolist(), "velocities": velocities})
+        for engine in engines:
+            engine.run_cycles(1)
+        np.testing.assert_array_equal(split.engine.command.position, alone.command.position)
+        np.testing.assert_array_equal(split.engine.command.velocity, alone.command.velocity)
+    crossed, reference = (events(engine) for engine in engines)
+    assert crossed == reference and split.api_events == []
+    clamped = [e for e in crossed if "target clamped" in e]
+    assert len(clamped) == 1, crossed
+    assert clamped[0].startswith("warning:servo:target clamped: shoulder_pan velocity 10 → 3.14 (velocity limit)")
+    assert "; shoulder_lift position 5 → 3.092 (soft limit)" in clamped[0]
+    assert any("no target for 0.25 s" in e for e in crossed)
+    assert not np.array_equal(alone.command.position, start)
 
 
 def test_a_long_timed_goal_crosses_as_a_segment_table_and_is_executed(split: Split) -> None:
