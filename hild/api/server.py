@@ -79,6 +79,7 @@ class ApiServer:
         self._priority_gate = Gate()
         self._last_change: int | None = None
         self._closing = False
+        self._ros: Any = None  # hild.api.ros2.face.RosFace when the config has a ros2 section
 
     # ---- lifecycle ----------------------------------------------------------------------------------------------
     async def open(self) -> None:
@@ -135,6 +136,7 @@ class ApiServer:
                 self._queryables.append(session.declare_queryable(key, self._query_handler(service), complete=True))
         self._publish_status()
         self._watch_clients(session, loop)
+        self._start_ros(session, loop)
         self._token = session.liveliness().declare_token(self.keys.alive)
 
     async def close(self) -> None:
@@ -147,6 +149,9 @@ class ApiServer:
             with contextlib.suppress(zenoh.ZError):
                 self._token.undeclare()
             self._token = None
+        if self._ros is not None:
+            self._ros.close()
+            self._ros = None
         if self._identity is not None:
             self._identity.close()
             self._identity = None
@@ -192,6 +197,18 @@ class ApiServer:
         self._check_changes()
         assert self._ports is not None
         self._ports.flush()
+        if self._ros is not None:
+            self._ros.flush()
+
+    def _start_ros(self, session: zenoh.Session, loop: asyncio.AbstractEventLoop) -> None:
+        """The ROS 2 face (docs/ros2.md), only when the config asks for it: rosbags is imported only then."""
+        settings = getattr(getattr(getattr(self.engine, "loaded", None), "config", None), "ros2", None)
+        if settings is None:
+            return
+        from hild.api.ros2.face import RosFace
+
+        self._ros = RosFace(session, self.engine, self.services, settings, loop)
+        self._ros.start()
 
     def _check_changes(self) -> bool:
         seq = self.engine.change_seq

@@ -194,6 +194,25 @@ class ZenohSection(Params):
     )
 
 
+class Ros2Section(Params):
+    """Opt-in: the daemon is also a ROS 2 node on rmw_zenoh's wire protocol (docs/ros2.md)."""
+
+    distro: Literal["jazzy"] = Field(
+        default="jazzy", description="ROS 2 distribution whose type hashes and messages are used (jazzy only)."
+    )
+    domain_id: int = Field(default=0, ge=0, le=232, description="ROS_DOMAIN_ID: the first chunk of every key.")
+    namespace: str = Field(
+        default="/",
+        pattern=r"^/([A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*)?$",
+        description="ROS namespace of the node and its topics and services: '/' or '/a/b'.",
+    )
+    node: str = Field(
+        default="controller_manager",
+        pattern=r"^[A-Za-z_][A-Za-z0-9_]*$",
+        description="ROS node name; services live under <namespace>/controller_manager as in ros2_control.",
+    )
+
+
 class FileSinkSpec(Params):
     """Write a ``.rrd`` recording; with rotation, every file is named ``<stem>-<UTC timestamp>.rrd``."""
 
@@ -308,5 +327,6 @@ class RobotConfig(Params):
     controllers: dict[str, ControllerSection] = Field(default_factory=dict)
     safety: SafetySection = Field(default_factory=SafetySection)
     zenoh: ZenohSection = Field(default_factory=ZenohSection)
+    ros2: Ros2Section | None = Field(default=None, description="Present: speak ROS 2 over Zenoh (docs/ros2.md).")
     telemetry: TelemetrySection = Field(default_factory=TelemetrySection)
     realtime: RealtimeSection = Field(default_factory=RealtimeSection)

@@ -1,0 +1,353 @@
+"""The daemon's ROS 2 face: what a ros2_control node offers, under the same names, on rmw_zenoh's wire protocol.
+
+It shares the API's Zenoh session and reaches the robot only through what the JSON API uses: the broadcaster's
+output ring (``/joint_states``), a forward_command controller's ``inputs()`` callable (``<controller>/commands``:
+the same validation, the same refusals) and the services layer (``list_controllers``, ``switch_controller``:
+``Services.handle``, the same checks and the same cycle hop). Anything a ROS peer sends that is wrong is dropped
+or answered ``ok = false`` with a warning event; nothing it sends reaches the cycle unvalidated.
+
+Threads: samples and queries arrive on Zenoh threads. A command is validated there and handed over (as the JSON
+API does when the cycle runs in its own process); a query hops to the asyncio loop, which answers it. ``flush``
+runs on the loop when the doorbell rings.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import threading
+import time
+import weakref
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import zenoh
+import zenoh.ext
+
+from hild.api.codec import MAX_PAYLOAD
+from hild.api.ports import DropReporter
+from hild.api.queries import clip, drop
+from hild.api.ros2 import types
+from hild.api.ros2.definitions import STRICT
+from hild.api.ros2.wire import (
+    DEFAULT_QOS,
+    LATCHED_QOS,
+    PUBLISHER,
+    SERVICE,
+    SUBSCRIPTION,
+    NodeInfo,
+    Qos,
+    attachment,
+    data_key,
+    gid_of,
+    parse_attachment,
+    qualify,
+)
+from hild.api.services import Services
+from hild.config.model import Ros2Section
+from hild.domains.link import CycleLink
+from hild.ring import RingReader
+
+log = logging.getLogger("hild.api.ros2")
+
+JOINT_STATE = "sensor_msgs/msg/JointState"
+STRING = "std_msgs/msg/String"
+FLOAT64_ARRAY = "std_msgs/msg/Float64MultiArray"
+LIST_CONTROLLERS = "controller_manager_msgs/srv/ListControllers"
+SWITCH_CONTROLLER = "controller_manager_msgs/srv/SwitchController"
+SOURCE = "ros2"  # the source of hild events this face emits
+# hild controller type → the ros2_control plugin a ROS tool expects to see
+PLUGIN_NAMES = {
+    "joint_state_broadcaster": "joint_state_broadcaster/JointStateBroadcaster",
+    "forward_command": "forward_command_controller/ForwardCommandController",
+    "joint_trajectory": "joint_trajectory_controller/JointTrajectoryController",
+}
+
+
+@dataclass
+class Writer:
+    """One ROS publisher: its key, GID and sequence number."""
+
+    publisher: Any
+    gid: bytes
+    sequence: int = 0
+
+    def put(self, payload: bytes) -> None:
+        self.sequence += 1
+        self.publisher.put(payload, attachment=attachment(self.sequence, self.gid))
+
+
+@dataclass
+class JointStatesOut:
+    writer: Writer
+    reader: RingReader
+    names: list[str]
+
+
+@dataclass
+class RosFace:
+    """Declared by :meth:`start` on the API's session; :meth:`flush` publishes, :meth:`close` withdraws."""
+
+    session: zenoh.Session
+    engine: CycleLink
+    services: Services
+    settings: Ros2Section
+    loop: asyncio.AbstractEventLoop
+    _node: NodeInfo | None = None
+    _next_id: int = 0
+    _tokens: list[Any] = field(default_factory=list)
+    _entities: list[Any] = field(default_factory=list)
+    _joint_states: list[JointStatesOut] = field(default_factory=list)
+    _tasks: set[asyncio.Task[None]] = field(default_factory=set)
+    _drops: DropReporter | None = None
+    closing: bool = False
+
+    # ---- declaration --------------------------------------------------------------------------------------------
+    def start(self) -> None:
+        self._drops = DropReporter(self.engine.events.emit)
+        zid = str(self.session.info.zid())
+        self._node = NodeInfo(self.settings.domain_id, zid, self.settings.namespace, self.settings.node)
+        self._tokens.append(self.session.liveliness().declare_token(self._node.node_token()))
+        controllers = self.engine.controllers()
+        for name, instance in controllers.items():
+            self._declare_controller(name, instance)
+        self._declare_description()
+        manager = f"{self.settings.node}"
+        self._declare_service(f"{manager}/list_controllers", LIST_CONTROLLERS, self._list_controllers)
+        self._declare_service(f"{manager}/switch_controller", SWITCH_CONTROLLER, self._switch_controller)
+
+    def _name(self, relative: str) -> str:
+        return qualify(self.settings.namespace, relative)
+
+    def _key(self, name: str, type_name: str) -> str:
+        return data_key(self.settings.domain_id, name, type_name, self.settings.distro)
+
+    def _token(self, kind: str, name: str, type_name: str, qos: Qos = DEFAULT_QOS) -> bytes:
+        """Declare the entity's liveliness token; its GID (rmw_zenoh's: a hash of the token key)."""
+        assert self._node is not None
+        self._next_id += 1
+        token = self._node.entity_token(self._next_id, kind, name, type_name, qos, self.settings.distro)
+        self._tokens.append(self.session.liveliness().declare_token(token))
+        return gid_of(token)
+
+    def _writer(self, name: str, type_name: str) -> Writer:
+        publisher = self.session.declare_publisher(
+            self._key(name, type_name), congestion_control=zenoh.CongestionControl.DROP
+        )
+        self._entities.append(publisher)
+        return Writer(publisher, self._token(PUBLISHER, name, type_name))
+
+    def _declare_controller(self, controller: str, instance: Any) -> None:
+        try:
+            outputs = dict(instance.outputs())
+            inputs = dict(instance.inputs())
+        except Exception as exc:
+            self.engine.events.emit("error", SOURCE, f"controller {controller}: not exposed on ROS 2: {exc}")
+            return
+        ring = outputs.get("joint_states")
+        if ring is not None:
+            names = list(getattr(ring, "names", None) or self.engine.joints)
+            self._joint_states.append(
+                JointStatesOut(self._writer(self._name("joint_states"), JOINT_STATE), RingReader(ring), names)
+            )
+        accept = inputs.get("commands")
+        if accept is not None and self.engine.loaded.config.controllers[controller].type == "forward_command":
+            name = self._name(f"{controller}/commands")
+            handler = self._commands_handler(controller, name, accept)
+            self._entities.append(self.session.declare_subscriber(self._key(name, FLOAT64_ARRAY), handler))
+            self._token(SUBSCRIPTION, name, FLOAT64_ARRAY)
+
+    def _declare_description(self) -> None:
+        """``/robot_description`` for late joiners: an AdvancedPublisher whose cache keeps the one sample, which
+        rmw_zenoh's transient-local subscriptions (AdvancedSubscriber with history) ask for when they appear."""
+        model = self.engine.loaded.config.robot.model
+        if model is None or not model.lower().endswith(".urdf"):
+            return
+        path = Path(model)
+        if not path.is_absolute():
+            path = self.engine.loaded.path.parent / path
+        text = path.read_text()
+        name = self._name("robot_description")
+        publisher = zenoh.ext.declare_advanced_publisher(
+            self.session,
+            self._key(name, STRING),
+            cache=zenoh.ext.CacheConfig(max_samples=1),
+            publisher_detection=True,
+        )
+        self._entities.append(publisher)
+        writer = Writer(publisher, self._token(PUBLISHER, name, STRING, LATCHED_QOS))
+        writer.put(types.encode(types.message(STRING, data=text), STRING))
+
+    def _declare_service(self, relative: str, type_name: str, serve: Callable[[Any], Any]) -> None:
+        name = self._name(relative)
+        self._token(SERVICE, name, type_name)
+        handler = self._query_handler(name, type_name, serve)
+        self._entities.append(self.session.declare_queryable(self._key(name, type_name), handler, complete=True))
+
+    def close(self) -> None:
+        """Tokens first (ROS graph tools see the node go), then the entities."""
+        self.closing = True
+        for task in list(self._tasks):
+            task.cancel()
+        for entity in [*self._tokens, *self._entities]:
+            with contextlib.suppress(zenoh.ZError):
+                entity.undeclare()
+        self._tokens.clear()
+        self._entities.clear()
+        self._joint_states.clear()
+
+    # ---- out (asyncio thread) -----------------------------------------------------------------------------------
+    def flush(self) -> None:
+        """Publish every joint-state sample the broadcaster wrote since the last flush, stamped with wall time
+        (ROS peers stamp with their clock; the cycle's own stamp is on hild's JSON topic)."""
+        for out in self._joint_states:
+            for _seq, _stamp, fields in out.reader.read():
+                now = time.time_ns()
+                msg = types.message(
+                    JOINT_STATE,
+                    header=types.message(
+                        "std_msgs/msg/Header",
+                        stamp=types.message("builtin_interfaces/msg/Time", sec=now // 10**9, nanosec=now % 10**9),
+                        frame_id="",
+                    ),
+                    name=out.names,
+                    position=np.asarray(fields["position"], dtype=np.float64),
+                    velocity=np.asarray(fields["velocity"], dtype=np.float64),
+                    effort=np.asarray(fields["effort"], dtype=np.float64),
+                )
+                with contextlib.suppress(zenoh.ZError):
+                    out.writer.put(types.encode(msg, JOINT_STATE))
+
+    # ---- commands (a Zenoh thread) ------------------------------------------------------------------------------
+    def _commands_handler(self, controller: str, name: str, accept: Callable[[Any], None]) -> Callable[[Any], None]:
+        owner = weakref.ref(self)
+        lock = threading.Lock()  # one input's samples one at a time, so a later one is never overtaken
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            me = owner()
+            if me is None or me.closing:
+                return
+            with lock:
+                try:
+                    size = len(sample.payload)
+                    if size > MAX_PAYLOAD:
+                        raise ValueError(f"payload of {size} bytes exceeds the {MAX_PAYLOAD}-byte limit")
+                    msg = types.decode(sample.payload.to_bytes(), FLOAT64_ARRAY)
+                    accept({"values": [float(v) for v in msg.data]})  # the JSON input's validation
+                except Exception as exc:
+                    reason = str(exc) if isinstance(exc, ValueError) else f"{type(exc).__name__}: {exc}"
+                    assert me._drops is not None
+                    me._drops.report(controller, name, reason)
+
+        return on_sample
+
+    # ---- services (a Zenoh thread, then the loop) ---------------------------------------------------------------
+    def _query_handler(self, name: str, type_name: str, serve: Callable[[Any], Any]) -> Callable[[zenoh.Query], None]:
+        owner = weakref.ref(self)
+
+        def on_query(query: zenoh.Query) -> None:
+            me = owner()
+            if me is None or me.closing:
+                drop(query)
+                return
+            payload = query.payload
+            raw = b"" if payload is None else payload.to_bytes() if len(payload) <= MAX_PAYLOAD else None
+            raw_attachment = None if query.attachment is None else query.attachment.to_bytes()
+            try:
+                me.loop.call_soon_threadsafe(me._start, name, type_name, serve, query, raw, raw_attachment)
+            except RuntimeError:  # the loop is closed
+                drop(query)
+
+        return on_query
+
+    def _start(
+        self,
+        name: str,
+        type_name: str,
+        serve: Callable[[Any], Any],
+        query: zenoh.Query,
+        raw: bytes | None,
+        raw_attachment: bytes | None,
+    ) -> None:
+        task = self.loop.create_task(self._answer(name, type_name, serve, query, raw, raw_attachment))
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
+
+    async def _answer(
+        self,
+        name: str,
+        type_name: str,
+        serve: Callable[[Any], Any],
+        query: zenoh.Query,
+        raw: bytes | None,
+        raw_attachment: bytes | None,
+    ) -> None:
+        """Decode, serve, reply with the response's CDR and an attachment echoing the request's sequence number
+        and the client's GID (rmw_zenoh matches replies to requests by them). A request that cannot be decoded
+        gets an error reply and a warning event; the service is never called with it."""
+        try:
+            try:
+                if raw is None:
+                    raise ValueError(f"request larger than {MAX_PAYLOAD} bytes")
+                request = types.decode(raw, f"{type_name}_Request")
+                meta = parse_attachment(raw_attachment)
+            except ValueError as exc:
+                self._refused(name, str(exc))
+                with contextlib.suppress(zenoh.ZError):
+                    query.reply_err(clip(str(exc)).encode())
+                return
+            response = await serve(request)
+            payload = types.encode(response, f"{type_name}_Response")
+            with contextlib.suppress(zenoh.ZError):
+                query.reply(query.key_expr, payload, attachment=attachment(meta.sequence, meta.gid))
+        except asyncio.CancelledError:
+            raise
+        except Exception:  # a bug costs one reply, not the daemon
+            log.exception("ROS service %s failed", name)
+        finally:
+            drop(query)
+
+    def _refused(self, name: str, reason: str) -> None:
+        self.engine.events.emit("warning", SOURCE, f"refused ROS request on {name}: {clip(reason)}")
+
+    async def _list_controllers(self, request: Any) -> Any:
+        body = self.services.read("list_controllers", b"")
+        reply = json.loads(body)
+        states = []
+        for c in reply.get("controllers", []):
+            claimed = list(c.get("claimed", []))
+            states.append(
+                types.message(
+                    "controller_manager_msgs/msg/ControllerState",
+                    name=c["name"],
+                    state="active" if c["state"] == "active" else "inactive",
+                    type=PLUGIN_NAMES.get(c["type"], f"hild/{c['type']}"),
+                    claimed_interfaces=claimed,
+                    required_command_interfaces=claimed,
+                    required_state_interfaces=[],
+                    is_chainable=False,
+                    is_chained=False,
+                    exported_state_interfaces=[],
+                    reference_interfaces=[],
+                    chain_connections=[],
+                )
+            )
+        return types.message(f"{LIST_CONTROLLERS}_Response", controller=states)
+
+    async def _switch_controller(self, request: Any) -> Any:
+        """ros2_control's request as hild's JSON request, through ``Services.handle``: the same validation."""
+        body = {
+            "activate": list(request.activate_controllers),
+            "deactivate": list(request.deactivate_controllers),
+            "strict": request.strictness == STRICT,
+        }
+        reply = await self.services.handle("switch_controllers", json.dumps(body).encode())
+        ok = bool(reply.get("ok"))
+        if not ok:
+            self._refused(self._name(f"{self.settings.node}/switch_controller"), str(reply.get("error")))
+        return types.message(f"{SWITCH_CONTROLLER}_Response", ok=ok)

@@ -1,0 +1,48 @@
+"""DESIGN.md §5: each third-party library lives in one room. ROS 2's libraries (rosbags: CDR and type hashes;
+xxhash: rmw_zenoh's GIDs) are imported only in hild/api/ros2, and a daemon without a ``ros2:`` section never
+loads them."""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+from tests.conftest import REPO
+
+ROOM = REPO / "hild" / "api" / "ros2"
+ROOM_LIBRARIES = ("rosbags", "xxhash")
+CODE = [REPO / "hild", REPO / "drivers", REPO / "tools"]
+
+
+def imported_roots(path: Path) -> set[str]:
+    roots: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            roots |= {alias.name.split(".")[0] for alias in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            roots.add(node.module.split(".")[0])
+    return roots
+
+
+def test_ros2_libraries_are_imported_only_in_their_room() -> None:
+    outside = [
+        f"{path.relative_to(REPO)} imports {library}"
+        for folder in CODE
+        if folder.exists()
+        for path in folder.rglob("*.py")
+        if ROOM not in path.parents
+        for library in ROOM_LIBRARIES
+        if library in imported_roots(path)
+    ]
+    assert outside == []
+
+
+def test_the_room_is_where_rosbags_is_used() -> None:
+    assert any("rosbags" in imported_roots(path) for path in ROOM.rglob("*.py"))  # the rule checks something
+
+
+def test_the_api_without_ros2_never_loads_rosbags() -> None:
+    code = "import sys, hild.api.server, hild.daemon; assert 'rosbags' not in sys.modules, 'rosbags loaded'"
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=60)
