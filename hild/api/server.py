@@ -88,7 +88,7 @@ class ApiServer:
         must not even open it); ``start`` then declares the rest."""
         self._loop = asyncio.get_running_loop()
         directory = getattr(getattr(self.engine, "loaded", None), "directory", None)
-        config = server_config(self.settings, self.listen, directory)
+        config = server_config(self.settings, self.listen, directory, timestamping=self._ros_settings() is not None)
         endpoints = endpoints_of(self.settings, self.listen)
         try:
             self.session = open_session(config)
@@ -200,9 +200,12 @@ class ApiServer:
         if self._ros is not None:
             self._ros.flush()
 
+    def _ros_settings(self) -> Any:
+        return getattr(getattr(getattr(self.engine, "loaded", None), "config", None), "ros2", None)
+
     def _start_ros(self, session: zenoh.Session, loop: asyncio.AbstractEventLoop) -> None:
         """The ROS 2 face (docs/ros2.md), only when the config asks for it: rosbags is imported only then."""
-        settings = getattr(getattr(getattr(self.engine, "loaded", None), "config", None), "ros2", None)
+        settings = self._ros_settings()
         if settings is None:
             return
         from hild.api.ros2.face import RosFace

@@ -40,9 +40,14 @@ def _insert(config: zenoh.Config, path: str, value: Any) -> None:
 
 
 def server_config(
-    settings: ZenohSection, listen: Sequence[str] | None = None, base_dir: Path | None = None
+    settings: ZenohSection,
+    listen: Sequence[str] | None = None,
+    base_dir: Path | None = None,
+    timestamping: bool = False,
 ) -> zenoh.Config:
-    """The daemon's session config; ``listen`` (e.g. from the command line) replaces ``settings.listen``."""
+    """The daemon's session config; ``listen`` (e.g. from the command line) replaces ``settings.listen``.
+    ``timestamping``: samples carry a timestamp, which a publisher that keeps samples for late joiners (the ROS 2
+    face's transient-local topics) needs."""
     config = _base_config(settings.config_file, base_dir)
     _insert(config, "mode", settings.mode)
     if settings.mode != "client":  # a client never listens
@@ -50,6 +55,8 @@ def server_config(
     _insert(config, "connect/endpoints", list(settings.connect))
     _insert(config, "scouting/multicast/enabled", settings.multicast_scouting)
     _insert(config, "scouting/gossip/enabled", False)
+    if timestamping:
+        _insert(config, "timestamping/enabled", True)
     _apply_overrides(config, settings.config)
     return config
 

@@ -99,9 +99,9 @@ def dds_name(name: str) -> str:
     return f"{package}::{kind}::dds_::{short}_"
 
 
-def message(name: str, distro: str = "jazzy", **fields: Any) -> Any:
-    """A message object of type ``name``."""
-    return typestore(distro).types[name](**fields)
+def message(type_name: str, /, *, _distro: str = "jazzy", **fields: Any) -> Any:
+    """A message object of type ``type_name`` (positional: a message may have a field called ``name``)."""
+    return typestore(_distro).types[type_name](**fields)
 
 
 def encode(msg: Any, name: str, distro: str = "jazzy") -> bytes:

@@ -1,0 +1,86 @@
+"""A daemon with a ``ros2:`` section on a free loopback port, and a bare Zenoh peer speaking rmw_zenoh's bytes
+by hand (hild.api.ros2.wire/types build them; test_against_* check those against independent implementations)."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+import zenoh
+
+from hild.api.ros2 import types, wire
+from hild.config import load_config
+from hild.engine import Engine
+from tests.api.conftest import WAIT, Daemon, free_endpoint, robot_config
+
+CLIENT_GID = bytes(range(16))
+URDF = """<robot name="mock3"><link name="base"/></robot>"""
+
+
+def ros_robot_config(tmp_path: Path) -> dict[str, Any]:
+    config = robot_config()
+    config["ros2"] = {"domain_id": 0, "namespace": "/"}
+    (tmp_path / "mock3.urdf").write_text(URDF)
+    config["robot"]["model"] = "mock3.urdf"
+    config["safety"] = {"gravity_compensation": False}
+    return config
+
+
+@pytest.fixture
+def ros_engine(tmp_path: Path) -> Engine:
+    path = tmp_path / "robot.yaml"
+    path.write_text(yaml.safe_dump(ros_robot_config(tmp_path), sort_keys=False))
+    return Engine(load_config(path))
+
+
+@pytest.fixture
+def ros_daemon(ros_engine: Engine) -> Iterator[Daemon]:
+    d = Daemon(ros_engine, free_endpoint())
+    d.start()
+    try:
+        yield d
+    finally:
+        d.stop()
+
+
+def peer_config(endpoint: str) -> zenoh.Config:
+    config = zenoh.Config()
+    for path, value in (
+        ("mode", "client"),
+        ("connect/endpoints", [endpoint]),
+        ("scouting/multicast/enabled", False),
+        ("scouting/gossip/enabled", False),
+    ):
+        config.insert_json5(path, json.dumps(value))
+    return config
+
+
+@pytest.fixture
+def peer(ros_daemon: Daemon) -> Iterator[zenoh.Session]:
+    session = zenoh.open(peer_config(ros_daemon.endpoint))
+    try:
+        yield session
+    finally:
+        session.close()
+
+
+def call(session: zenoh.Session, service: str, type_name: str, payload: bytes, sequence: int = 1) -> zenoh.Reply:
+    """One rmw_zenoh-style service call: a get with the CDR request and the attachment; the one reply."""
+    replies = session.get(
+        wire.data_key(0, service, type_name),
+        payload=payload,
+        attachment=wire.attachment(sequence, CLIENT_GID),
+        target=zenoh.QueryTarget.ALL_COMPLETE,
+        timeout=WAIT,
+    )
+    got = list(replies)
+    assert len(got) == 1, f"{len(got)} replies"
+    return got[0]
+
+
+def request(type_name: str, **fields: Any) -> bytes:
+    return types.encode(types.message(f"{type_name}_Request", **fields), f"{type_name}_Request")
