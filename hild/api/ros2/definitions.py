@@ -17,6 +17,16 @@ class ServiceDefinition(NamedTuple):
     source: str
 
 
+class ActionDefinition(NamedTuple):
+    """An action's goal, result and feedback; ``types`` derives the SendGoal/GetResult services and the
+    FeedbackMessage the way rosidl does."""
+
+    goal: str
+    result: str
+    feedback: str
+    source: str
+
+
 # controller_manager_msgs, ros2_control 4.20.0 (jazzy branch; ControllerState as of 4.13.0, #1021).
 CONTROLLER_MANAGER = "ros2_control 4.20.0 (jazzy), controller_manager_msgs"
 MESSAGES: dict[str, tuple[str, str]] = {
@@ -45,7 +55,69 @@ controller_manager_msgs/ChainConnection[] chain_connections
     ),
 }
 
+# control_msgs for Jazzy (5.x; these files unchanged since the 4.x of Humble).
+CONTROL_MSGS = "control_msgs 5.x (jazzy), control_msgs"
+MESSAGES.update(
+    {
+        "control_msgs/msg/JointTolerance": (
+            """
+string name
+float64 position
+float64 velocity
+float64 acceleration
+""",
+            CONTROL_MSGS,
+        ),
+        "control_msgs/msg/JointComponentTolerance": (
+            """
+string joint_name
+uint16 component
+float64 position
+float64 velocity
+float64 acceleration
+""",
+            CONTROL_MSGS,
+        ),
+    }
+)
+
+ACTIONS: dict[str, ActionDefinition] = {
+    "control_msgs/action/FollowJointTrajectory": ActionDefinition(
+        goal="""
+trajectory_msgs/JointTrajectory trajectory
+trajectory_msgs/MultiDOFJointTrajectory multi_dof_trajectory
+control_msgs/JointTolerance[] path_tolerance
+control_msgs/JointComponentTolerance[] component_path_tolerance
+control_msgs/JointTolerance[] goal_tolerance
+control_msgs/JointComponentTolerance[] component_goal_tolerance
+builtin_interfaces/Duration goal_time_tolerance
+""",
+        result="""
+int32 error_code
+string error_string
+""",
+        feedback="""
+std_msgs/Header header
+string[] joint_names
+trajectory_msgs/JointTrajectoryPoint desired
+trajectory_msgs/JointTrajectoryPoint actual
+trajectory_msgs/JointTrajectoryPoint error
+string[] multi_dof_joint_names
+trajectory_msgs/MultiDOFJointTrajectoryPoint multi_dof_desired
+trajectory_msgs/MultiDOFJointTrajectoryPoint multi_dof_actual
+trajectory_msgs/MultiDOFJointTrajectoryPoint multi_dof_error
+""",
+        source=CONTROL_MSGS,
+    ),
+}
+
 SERVICES: dict[str, ServiceDefinition] = {
+    # action_msgs, rcl_interfaces 2.0.x (jazzy): every action's cancel service
+    "action_msgs/srv/CancelGoal": ServiceDefinition(
+        "action_msgs/GoalInfo goal_info",
+        "int8 return_code\naction_msgs/GoalInfo[] goals_canceling",
+        "rcl_interfaces 2.0.3 (jazzy)",
+    ),
     "controller_manager_msgs/srv/ListControllers": ServiceDefinition(
         "", "controller_manager_msgs/ControllerState[] controller", CONTROLLER_MANAGER
     ),

@@ -14,7 +14,7 @@ from typing import Any
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
-from hild.api.ros2.definitions import MESSAGES, SERVICES
+from hild.api.ros2.definitions import ACTIONS, MESSAGES, SERVICES
 
 EVENT_INFO = "service_msgs/msg/ServiceEventInfo"
 
@@ -68,6 +68,23 @@ def _service_types(name: str, request: str, response: str) -> dict[str, tuple[An
     }
 
 
+def _action_types(name: str, goal: str, result: str, feedback: str) -> dict[str, tuple[Any, Any]]:
+    """What rosidl generates for an action: Goal/Result/Feedback, the SendGoal and GetResult services and the
+    FeedbackMessage (the keys of rmw_zenoh carry the hashes of these three)."""
+    uuid = "unique_identifier_msgs/UUID goal_id"
+    out = {
+        f"{name}_Goal": _parse(goal),
+        f"{name}_Result": _parse(result),
+        f"{name}_Feedback": _parse(feedback),
+        f"{name}_FeedbackMessage": _parse(f"{uuid}\n{name}_Feedback feedback\n"),
+    }
+    out.update(
+        _service_types(f"{name}_SendGoal", f"{uuid}\n{name}_Goal goal", "bool accepted\nbuiltin_interfaces/Time stamp")
+    )
+    out.update(_service_types(f"{name}_GetResult", uuid, f"int8 status\n{name}_Result result"))
+    return out
+
+
 @cache
 def typestore(distro: str = "jazzy") -> Typestore:
     """rosbags' store for ``distro`` with hild's extra definitions registered (built once)."""
@@ -77,6 +94,8 @@ def typestore(distro: str = "jazzy") -> Typestore:
     extra: dict[str, tuple[Any, Any]] = {name: _parse(text) for name, (text, _) in MESSAGES.items()}
     for name, srv in SERVICES.items():
         extra.update(_service_types(name, srv.request, srv.response))
+    for name, action in ACTIONS.items():
+        extra.update(_action_types(name, action.goal, action.result, action.feedback))
     store.register(extra)
     return store
 
@@ -85,6 +104,13 @@ def service_store(distro: str, name: str, request: str, response: str) -> Typest
     """A fresh store with one more service registered (tests check the algorithm on published vectors)."""
     store = _base_store()
     store.register(_service_types(name, request, response))
+    return store
+
+
+def action_store(distro: str, name: str, goal: str, result: str, feedback: str) -> Typestore:
+    """A fresh store with one more action registered (tests check the algorithm on published vectors)."""
+    store = _base_store()
+    store.register(_action_types(name, goal, result, feedback))
     return store
 
 

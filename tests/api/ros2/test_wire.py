@@ -87,3 +87,35 @@ def test_gid_is_xxh3_128_of_the_token() -> None:
     token = "@ros2_lv/0/ab/0/1/MP/%/%/n/%t/std_msgs::msg::dds_::String_/" + STRING_HASH + "/::,10:,:,:,,"
     gid = wire.gid_of(token)
     assert len(gid) == 16 and gid != wire.gid_of(token + "x")
+
+
+FIBONACCI = (
+    "action_tutorials_interfaces/action/Fibonacci",
+    "int32 order",
+    "int32[] sequence",
+    "int32[] partial_sequence",
+)
+
+
+def test_action_hash_algorithm_matches_published_fibonacci_vectors() -> None:
+    """ros-z's locked Jazzy hashes (checked there against rmw_zenoh_cpp) for an action's three keyed types."""
+    store = types.action_store("jazzy", *FIBONACCI)
+    name = FIBONACCI[0]
+    assert store.hash_rihs01(f"{name}_SendGoal") == (
+        "RIHS01_a0603060ed69fe2dfbd1a6f3b982a1749957ef346e4a4d2b311a05e305ec37bb"
+    )
+    assert store.hash_rihs01(f"{name}_GetResult") == (
+        "RIHS01_8b47e383f1e31f6d8df6417ab54957e7d5ea24dad315646ad711ac3fdea81d58"
+    )
+    assert store.hash_rihs01(f"{name}_FeedbackMessage") == (
+        "RIHS01_50fc26b9cac313652ecbeab3adf9b5414d59fd4d4d5f9058ddcc7525169927f1"
+    )
+
+
+def test_action_msgs_hashes_match_published_vectors() -> None:
+    assert types.type_hash("action_msgs/srv/CancelGoal") == (
+        "RIHS01_573d8b0a534451d7bc2ac8c5ffde8ac14b8593b7001175d0cd6516dcbeb8689a"
+    )
+    assert types.type_hash("action_msgs/msg/GoalStatusArray") == (
+        "RIHS01_6c1684b00f177d37438febe6e709fc4e2b0d4248dca4854946f9ed8b30cda83e"
+    )
