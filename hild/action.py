@@ -217,9 +217,14 @@ class ActionServer(Generic[G]):
                 return
             self._lost.popleft()
 
-    def feedback_messages(self) -> list[dict[str, Any]]:
+    def feedback_reader(self) -> RingReader:
+        """A reader of its own for another consumer of feedback (the ROS 2 face); the API's is untouched."""
+        return RingReader(self.feedback)
+
+    def feedback_messages(self, reader: RingReader | None = None) -> list[dict[str, Any]]:
+        """New feedback as messages, from the API's reader or ``reader``."""
         out = []
-        for _, stamp, fields in self._feedback_reader.read():
+        for _, stamp, fields in (reader or self._feedback_reader).read():
             goal_id = self._ids_by_serial.get(int(fields["serial"][0]))
             if goal_id is None:  # the goal finished since; its result says the rest
                 continue

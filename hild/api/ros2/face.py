@@ -29,10 +29,11 @@ import numpy as np
 import zenoh
 import zenoh.ext
 
-from hild.api.codec import MAX_PAYLOAD
+from hild.api.codec import FAST_DECODE, MAX_PAYLOAD
 from hild.api.ports import DropReporter
 from hild.api.queries import clip, drop
 from hild.api.ros2 import types
+from hild.api.ros2.action import TrajectoryAction
 from hild.api.ros2.definitions import STRICT
 from hild.api.ros2.wire import (
     DEFAULT_QOS,
@@ -103,6 +104,7 @@ class RosFace:
     _tokens: list[Any] = field(default_factory=list)
     _entities: list[Any] = field(default_factory=list)
     _joint_states: list[JointStatesOut] = field(default_factory=list)
+    _actions: list[TrajectoryAction] = field(default_factory=list)
     _tasks: set[asyncio.Task[None]] = field(default_factory=set)
     _drops: DropReporter | None = None
     closing: bool = False
@@ -118,10 +120,10 @@ class RosFace:
             self._declare_controller(name, instance)
         self._declare_description()
         manager = f"{self.settings.node}"
-        self._declare_service(f"{manager}/list_controllers", LIST_CONTROLLERS, self._list_controllers)
-        self._declare_service(f"{manager}/switch_controller", SWITCH_CONTROLLER, self._switch_controller)
+        self.declare_service(f"{manager}/list_controllers", LIST_CONTROLLERS, self._list_controllers)
+        self.declare_service(f"{manager}/switch_controller", SWITCH_CONTROLLER, self._switch_controller)
 
-    def _name(self, relative: str) -> str:
+    def name(self, relative: str) -> str:
         return qualify(self.settings.namespace, relative)
 
     def _key(self, name: str, type_name: str) -> str:
@@ -135,12 +137,19 @@ class RosFace:
         self._tokens.append(self.session.liveliness().declare_token(token))
         return gid_of(token)
 
-    def _writer(self, name: str, type_name: str) -> Writer:
-        publisher = self.session.declare_publisher(
-            self._key(name, type_name), congestion_control=zenoh.CongestionControl.DROP
-        )
+    def writer(self, name: str, type_name: str, *, latched: bool = False) -> Writer:
+        """A ROS publisher. ``latched``: transient local, depth 1 — an AdvancedPublisher whose cache keeps the last
+        sample, which rmw_zenoh's transient-local subscriptions (AdvancedSubscriber with history and late-publisher
+        detection) ask for when they appear."""
+        key = self._key(name, type_name)
+        if latched:
+            publisher = zenoh.ext.declare_advanced_publisher(
+                self.session, key, cache=zenoh.ext.CacheConfig(max_samples=1), publisher_detection=True
+            )
+        else:
+            publisher = self.session.declare_publisher(key, congestion_control=zenoh.CongestionControl.DROP)
         self._entities.append(publisher)
-        return Writer(publisher, self._token(PUBLISHER, name, type_name))
+        return Writer(publisher, self._token(PUBLISHER, name, type_name, LATCHED_QOS if latched else DEFAULT_QOS))
 
     def _declare_controller(self, controller: str, instance: Any) -> None:
         try:
@@ -153,18 +162,21 @@ class RosFace:
         if ring is not None:
             names = list(getattr(ring, "names", None) or self.engine.joints)
             self._joint_states.append(
-                JointStatesOut(self._writer(self._name("joint_states"), JOINT_STATE), RingReader(ring), names)
+                JointStatesOut(self.writer(self.name("joint_states"), JOINT_STATE), RingReader(ring), names)
             )
+        kind = self.engine.loaded.config.controllers[controller].type
+        server = instance.action_server() if kind == "joint_trajectory" else None
+        if server is not None:
+            self._actions.append(TrajectoryAction(self, controller, server))
         accept = inputs.get("commands")
-        if accept is not None and self.engine.loaded.config.controllers[controller].type == "forward_command":
-            name = self._name(f"{controller}/commands")
+        if accept is not None and kind == "forward_command":
+            name = self.name(f"{controller}/commands")
             handler = self._commands_handler(controller, name, accept)
             self._entities.append(self.session.declare_subscriber(self._key(name, FLOAT64_ARRAY), handler))
             self._token(SUBSCRIPTION, name, FLOAT64_ARRAY)
 
     def _declare_description(self) -> None:
-        """``/robot_description`` for late joiners: an AdvancedPublisher whose cache keeps the one sample, which
-        rmw_zenoh's transient-local subscriptions (AdvancedSubscriber with history) ask for when they appear."""
+        """``/robot_description``, kept for late joiners (a latched writer)."""
         model = self.engine.loaded.config.robot.model
         if model is None or not model.lower().endswith(".urdf"):
             return
@@ -172,19 +184,11 @@ class RosFace:
         if not path.is_absolute():
             path = self.engine.loaded.path.parent / path
         text = path.read_text()
-        name = self._name("robot_description")
-        publisher = zenoh.ext.declare_advanced_publisher(
-            self.session,
-            self._key(name, STRING),
-            cache=zenoh.ext.CacheConfig(max_samples=1),
-            publisher_detection=True,
-        )
-        self._entities.append(publisher)
-        writer = Writer(publisher, self._token(PUBLISHER, name, STRING, LATCHED_QOS))
+        writer = self.writer(self.name("robot_description"), STRING, latched=True)
         writer.put(types.encode(types.message(STRING, data=text), STRING))
 
-    def _declare_service(self, relative: str, type_name: str, serve: Callable[[Any], Any]) -> None:
-        name = self._name(relative)
+    def declare_service(self, relative: str, type_name: str, serve: Callable[[Any], Any]) -> None:
+        name = self.name(relative)
         self._token(SERVICE, name, type_name)
         handler = self._query_handler(name, type_name, serve)
         self._entities.append(self.session.declare_queryable(self._key(name, type_name), handler, complete=True))
@@ -200,6 +204,7 @@ class RosFace:
         self._tokens.clear()
         self._entities.clear()
         self._joint_states.clear()
+        self._actions.clear()
 
     # ---- out (asyncio thread) -----------------------------------------------------------------------------------
     def flush(self) -> None:
@@ -222,6 +227,11 @@ class RosFace:
                 )
                 with contextlib.suppress(zenoh.ZError):
                     out.writer.put(types.encode(msg, JOINT_STATE))
+        for action in self._actions:
+            try:
+                action.flush()
+            except Exception:  # a bug costs this flush of one action, not the daemon's publishing
+                log.exception("ROS action %s: flush failed", action.name)
 
     # ---- commands (a Zenoh thread) ------------------------------------------------------------------------------
     def _commands_handler(self, controller: str, name: str, accept: Callable[[Any], None]) -> Callable[[Any], None]:
@@ -294,10 +304,15 @@ class RosFace:
             try:
                 if raw is None:
                     raise ValueError(f"request larger than {MAX_PAYLOAD} bytes")
-                request = types.decode(raw, f"{type_name}_Request")
+                request_type = f"{type_name}_Request"
+                # a large request is decoded off the loop (a long trajectory is thousands of objects)
+                if len(raw) > FAST_DECODE:
+                    request = await asyncio.to_thread(types.decode, raw, request_type)
+                else:
+                    request = types.decode(raw, request_type)
                 meta = parse_attachment(raw_attachment)
             except ValueError as exc:
-                self._refused(name, str(exc))
+                self.refused(name, str(exc))
                 with contextlib.suppress(zenoh.ZError):
                     query.reply_err(clip(str(exc)).encode())
                 return
@@ -312,7 +327,7 @@ class RosFace:
         finally:
             drop(query)
 
-    def _refused(self, name: str, reason: str) -> None:
+    def refused(self, name: str, reason: str) -> None:
         self.engine.events.emit("warning", SOURCE, f"refused ROS request on {name}: {clip(reason)}")
 
     async def _list_controllers(self, request: Any) -> Any:
@@ -349,5 +364,5 @@ class RosFace:
         reply = await self.services.handle("switch_controllers", json.dumps(body).encode())
         ok = bool(reply.get("ok"))
         if not ok:
-            self._refused(self._name(f"{self.settings.node}/switch_controller"), str(reply.get("error")))
+            self.refused(self.name(f"{self.settings.node}/switch_controller"), str(reply.get("error")))
         return types.message(f"{SWITCH_CONTROLLER}_Response", ok=ok)

@@ -27,6 +27,9 @@ def ros_robot_config(tmp_path: Path) -> dict[str, Any]:
     (tmp_path / "mock3.urdf").write_text(URDF)
     config["robot"]["model"] = "mock3.urdf"
     config["safety"] = {"gravity_compensation": False}
+    for joint in config["joints"].values():
+        joint["limits"].update(acceleration=10.0, jerk=100.0)
+    config["controllers"]["traj"] = {"type": "joint_trajectory", "params": {"joints": ["a", "b", "c"]}}
     return config
 
 

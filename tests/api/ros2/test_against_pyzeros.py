@@ -127,7 +127,7 @@ def test_pyzeros_subscribes_lists_and_switches(ros_daemon: Daemon, peer: zenoh.S
         got = asyncio.run(main())
     assert list(got["state"].name) == ["a", "b", "c"]
     before = {c.name: c.state for c in got["before"].controller}
-    assert before == {"jsb": "active", "fwd": "inactive", "fwd_a": "inactive"}
+    assert before == {"jsb": "active", "fwd": "inactive", "fwd_a": "inactive", "traj": "inactive"}
     assert got["switched"].ok is True and got["refused"].ok is False
     after = {c.name: (c.state, list(c.claimed_interfaces)) for c in got["after"].controller}
     assert after["fwd"] == ("active", ["a/position", "b/position", "c/position"])
