@@ -1,4 +1,5 @@
-"""A joint_trajectory controller's ``follow_joint_trajectory`` action (control_msgs/action/FollowJointTrajectory).
+"""A joint_trajectory controller's ``follow_joint_trajectory`` action (control_msgs/action/FollowJointTrajectory)
+and its ``joint_trajectory`` topic, as JTC has them.
 
 An action is not an RMW concept: it is three services (``_action/send_goal``, ``get_result``, ``cancel_goal``) and
 two topics (``_action/feedback``; ``_action/status``, kept for late joiners). Each maps onto the controller's own
@@ -27,6 +28,7 @@ if TYPE_CHECKING:
 ACTION = "control_msgs/action/FollowJointTrajectory"
 CANCEL_GOAL = "action_msgs/srv/CancelGoal"
 STATUS_ARRAY = "action_msgs/msg/GoalStatusArray"
+TRAJECTORY = "trajectory_msgs/msg/JointTrajectory"
 # action_msgs/msg/GoalStatus
 UNKNOWN, ACCEPTED, EXECUTING, CANCELING, SUCCEEDED, CANCELED, ABORTED = range(7)
 ROS_STATUS = {"succeeded": SUCCEEDED, "canceled": CANCELED, "aborted": ABORTED, "preempted": CANCELED}
@@ -53,15 +55,11 @@ def _seconds(duration: Any) -> float:
     return float(duration.sec) + float(duration.nanosec) * 1e-9
 
 
-def goal_body(goal: Any) -> dict[str, Any]:
-    """A FollowJointTrajectory goal as hild's JSON goal body; ValueError for what hild does not do."""
-    multi = goal.multi_dof_trajectory
-    if len(multi.joint_names) or len(multi.points):
-        raise ValueError("multi-DOF trajectories are not supported")
-    if len(goal.component_path_tolerance) or len(goal.component_goal_tolerance):
-        raise ValueError("component tolerances (multi-DOF joints) are not supported")
+def trajectory_body(trajectory: Any) -> dict[str, Any]:
+    """A trajectory_msgs/JointTrajectory as the ``trajectory`` of hild's JSON goal body (the header's stamp is not
+    used: a trajectory starts when the cycle adopts it)."""
     points = []
-    for p in goal.trajectory.points:
+    for p in trajectory.points:
         point: dict[str, Any] = {
             "positions": np.asarray(p.positions, dtype=float).tolist(),
             "time_from_start": {"sec": int(p.time_from_start.sec), "nanosec": int(p.time_from_start.nanosec)},
@@ -70,7 +68,17 @@ def goal_body(goal: Any) -> dict[str, Any]:
             if len(values):
                 point[key] = np.asarray(values, dtype=float).tolist()
         points.append(point)
-    body: dict[str, Any] = {"trajectory": {"joint_names": list(goal.trajectory.joint_names), "points": points}}
+    return {"joint_names": list(trajectory.joint_names), "points": points}
+
+
+def goal_body(goal: Any) -> dict[str, Any]:
+    """A FollowJointTrajectory goal as hild's JSON goal body; ValueError for what hild does not do."""
+    multi = goal.multi_dof_trajectory
+    if len(multi.joint_names) or len(multi.points):
+        raise ValueError("multi-DOF trajectories are not supported")
+    if len(goal.component_path_tolerance) or len(goal.component_goal_tolerance):
+        raise ValueError("component tolerances (multi-DOF joints) are not supported")
+    body: dict[str, Any] = {"trajectory": trajectory_body(goal.trajectory)}
     for key in ("path_tolerance", "goal_tolerance"):
         entries = getattr(goal, key)
         if len(entries):
@@ -127,7 +135,15 @@ class TrajectoryAction:
         face.declare_service(f"{base}/send_goal", f"{ACTION}_SendGoal", self._send_goal)
         face.declare_service(f"{base}/get_result", f"{ACTION}_GetResult", self._get_result)
         face.declare_service(f"{base}/cancel_goal", CANCEL_GOAL, self._cancel_goal)
+        face.subscribe(controller, face.name(f"{controller}/joint_trajectory"), TRAJECTORY, self._on_trajectory)
         self._publish_status()
+
+    # ---- the joint_trajectory topic (asyncio thread) -------------------------------------------------------
+    async def _on_trajectory(self, trajectory: Any) -> None:
+        """JTC's topic: a goal without an action (no result, no feedback); refused ones are dropped commands."""
+        reply = await asyncio.to_thread(self.server.submit, {"trajectory": trajectory_body(trajectory)})
+        if not reply.get("ok"):
+            raise ValueError(str(reply.get("error")))
 
     # ---- services (asyncio thread) -------------------------------------------------------------------------
     async def _send_goal(self, request: Any) -> Any:

@@ -20,7 +20,7 @@ import logging
 import threading
 import time
 import weakref
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -88,6 +88,19 @@ class JointStatesOut:
     writer: Writer
     reader: RingReader
     names: list[str]
+
+
+@dataclass
+class Inlet:
+    """One subscription whose messages are handled on the loop: one at a time, the newest waiting (a flood
+    costs a replaced payload, never a pile of tasks)."""
+
+    controller: str
+    name: str
+    type_name: str
+    handle: Callable[[Any], Awaitable[None]]
+    busy: bool = False
+    waiting: bytes | None = None
 
 
 @dataclass
@@ -255,6 +268,52 @@ class RosFace:
                     me._drops.report(controller, name, reason)
 
         return on_sample
+
+    # ---- subscriptions handled on the loop (trajectories) -------------------------------------------------------
+    def subscribe(self, controller: str, name: str, type_name: str, handle: Callable[[Any], Awaitable[None]]) -> None:
+        """Messages on ``name`` decoded and given to ``handle`` on the loop; what it raises is a dropped-command
+        event, as for the JSON API's inputs."""
+        inlet = Inlet(controller, name, type_name, handle)
+        owner = weakref.ref(self)
+
+        def on_sample(sample: zenoh.Sample) -> None:  # a Zenoh thread: copy out (bounded) and hop to the loop
+            me = owner()
+            if me is None or me.closing:
+                return
+            raw = sample.payload.to_bytes() if len(sample.payload) <= MAX_PAYLOAD else b""
+            with contextlib.suppress(RuntimeError):  # the loop is closed
+                me.loop.call_soon_threadsafe(me._arrived, inlet, raw)
+
+        self._entities.append(self.session.declare_subscriber(self._key(name, type_name), on_sample))
+        self._token(SUBSCRIPTION, name, type_name)
+
+    def _arrived(self, inlet: Inlet, raw: bytes) -> None:
+        if inlet.busy:
+            inlet.waiting = raw  # replaces the one waiting, undecoded
+            return
+        inlet.busy = True
+        task = self.loop.create_task(self._deliver(inlet, raw))
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
+
+    async def _deliver(self, inlet: Inlet, raw: bytes | None) -> None:
+        while raw is not None and not self.closing:
+            try:
+                if not raw:
+                    raise ValueError(f"payload empty or larger than {MAX_PAYLOAD} bytes")
+                if len(raw) > FAST_DECODE:
+                    msg = await asyncio.to_thread(types.decode, raw, inlet.type_name)
+                else:
+                    msg = types.decode(raw, inlet.type_name)
+                await inlet.handle(msg)
+            except asyncio.CancelledError:
+                raise
+            except Exception as exc:
+                reason = str(exc) if isinstance(exc, ValueError) else f"{type(exc).__name__}: {exc}"
+                assert self._drops is not None
+                self._drops.report(inlet.controller, inlet.name, reason)
+            raw, inlet.waiting = inlet.waiting, None
+        inlet.busy = False
 
     # ---- services (a Zenoh thread, then the loop) ---------------------------------------------------------------
     def _query_handler(self, name: str, type_name: str, serve: Callable[[Any], Any]) -> Callable[[zenoh.Query], None]:

@@ -162,3 +162,26 @@ def test_the_action_is_in_the_ros_graph(ros_daemon: Daemon, peer: zenoh.Session)
         ("MP", base + "feedback"),
         ("MP", base + "status"),
     } <= entities
+
+
+def test_the_joint_trajectory_topic_moves_the_arm(ros_daemon: Daemon, peer: zenoh.Session) -> None:
+    assert switch(peer, ["traj"])
+    pub = peer.declare_publisher(wire.data_key(0, "/traj/joint_trajectory", "trajectory_msgs/msg/JointTrajectory"))
+    wait_for(lambda: pub.matching_status.matching, what="the daemon's subscriber")
+    target = [-0.2, 0.15, 0.1]
+    trajectory = goal([point(target, 0.4)]).trajectory
+    pub.put(types.encode(trajectory, "trajectory_msgs/msg/JointTrajectory"), attachment=wire.attachment(1, bytes(16)))
+    wait_for(lambda: np.allclose(position(ros_daemon), target, atol=0.02), what="the arm at the target")
+
+
+def test_malformed_trajectories_on_the_topic_are_dropped(ros_daemon: Daemon, peer: zenoh.Session) -> None:
+    assert switch(peer, ["traj"])
+    start = position(ros_daemon)
+    pub = peer.declare_publisher(wire.data_key(0, "/traj/joint_trajectory", "trajectory_msgs/msg/JointTrajectory"))
+    wait_for(lambda: pub.matching_status.matching, what="the daemon's subscriber")
+    pub.put(b"\x00\x01\x00\x00\x07\x00\x00\x00abc")
+    wait_for(lambda: ros_daemon.events_with("dropped command on /traj/joint_trajectory: malformed CDR"))
+    outside = goal([point([5.0, 0.0, 0.0], 1.0)]).trajectory  # beyond the position limits: hild's own refusal
+    pub.put(types.encode(outside, "trajectory_msgs/msg/JointTrajectory"))
+    wait_for(lambda: len(ros_daemon.events_with("dropped command on /traj/joint_trajectory")) >= 2)
+    np.testing.assert_allclose(position(ros_daemon), start, atol=1e-3)

@@ -186,3 +186,17 @@ def test_robot_description_reaches_a_late_transient_local_subscriber(ros_daemon:
     wait_for(lambda: len(received) >= 1, what="the cached robot_description")
     assert types.decode(received.last().payload.to_bytes(), "std_msgs/msg/String").data == URDF
     sub.undeclare()
+
+
+def test_a_request_without_rmw_zenohs_attachment_is_refused(ros_daemon: Daemon, peer: zenoh.Session) -> None:
+    """The reply must echo the request's sequence number and GID; without them there is nothing to echo."""
+    replies = list(
+        peer.get(
+            wire.data_key(0, "/controller_manager/list_controllers", LIST),
+            payload=request(LIST),
+            target=zenoh.QueryTarget.ALL_COMPLETE,
+            timeout=WAIT,
+        )
+    )
+    assert len(replies) == 1 and replies[0].err is not None
+    wait_for(lambda: ros_daemon.events_with("attachment of 0 bytes"), what="the warning event")
