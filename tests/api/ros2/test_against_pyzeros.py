@@ -8,10 +8,14 @@ Skipped only when the ros2-verify extra is not installed.
 """
 
 import asyncio
+import shutil
+from collections.abc import Iterator
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import pytest
+import yaml
 import zenoh
 
 pyzeros = pytest.importorskip("pyzeros", reason="the ros2-verify extra (pyzeros) is not installed")
@@ -31,7 +35,11 @@ from ros2_pyterfaces.cyclone.trajectory_msgs.msg import (  # noqa: E402
 from ros2_pyterfaces.cyclone.unique_identifier_msgs.msg import UUID  # noqa: E402
 
 from hild.api.ros2 import types  # noqa: E402
-from tests.api.conftest import WAIT, Daemon  # noqa: E402
+from hild.config import load_config  # noqa: E402
+from hild.engine import Engine  # noqa: E402
+from tests.api.conftest import WAIT, Daemon, free_endpoint  # noqa: E402
+from tests.api.ros2.conftest import peer_config  # noqa: E402
+from tests.conftest import CONFIGS  # noqa: E402
 
 T = idl.types
 
@@ -273,8 +281,10 @@ def test_pyzeros_subscribes_lists_and_switches(ros_daemon: Daemon, peer: zenoh.S
     assert after["fwd"] == ("active", ["a/position", "b/position", "c/position"])
 
 
-async def _goal_session(target: list[float]) -> dict[str, Any]:
-    base = "/traj/follow_joint_trajectory/_action"
+async def _goal_session(
+    target: list[float], controller: str = "traj", joints: tuple[str, ...] = ("a", "b", "c")
+) -> dict[str, Any]:
+    base = f"/{controller}/follow_joint_trajectory/_action"
     switching = pyzeros.Client(SwitchController, "/controller_manager/switch_controller")
     send_goal = pyzeros.Client(SendGoal, f"{base}/send_goal")
     get_result = pyzeros.Client(GetResult, f"{base}/get_result")
@@ -283,16 +293,25 @@ async def _goal_session(target: list[float]) -> dict[str, Any]:
     for client in (switching, send_goal, get_result, cancel_goal):
         await asyncio.wait_for(client.wait_for_service(), WAIT)
     switched = await asyncio.wait_for(
-        switching.call_async(SwitchController_Request(activate_controllers=["traj"], strictness=2)), WAIT
+        switching.call_async(SwitchController_Request(activate_controllers=[controller], strictness=2)), WAIT
     )
     goal_id = UUID(uuid=bytes(range(1, 17)))
     points = [JointTrajectoryPoint(positions=target, time_from_start=Duration(sec=0, nanosec=600_000_000))]
-    goal = Goal(trajectory=JointTrajectory(joint_names=["a", "b", "c"], points=points))
+    goal = Goal(trajectory=JointTrajectory(joint_names=list(joints), points=points))
     accepted = await asyncio.wait_for(send_goal.call_async(SendGoal_Request(goal_id=goal_id, goal=goal)), WAIT)
     first_feedback = await asyncio.wait_for(feedback.wait_for_value(), WAIT)
     result = await asyncio.wait_for(get_result.call_async(GetResult_Request(goal_id=goal_id)), WAIT)
+    joint_states = pyzeros.Sub(JointState, "/joint_states")
+    state = await asyncio.wait_for(joint_states.wait_for_value(), WAIT)
     late = await asyncio.wait_for(cancel_goal.call_async(CancelGoal_Request(goal_info=GoalInfo(goal_id=goal_id))), WAIT)
-    return {"switched": switched, "accepted": accepted, "feedback": first_feedback, "result": result, "late": late}
+    return {
+        "switched": switched,
+        "accepted": accepted,
+        "feedback": first_feedback,
+        "result": result,
+        "late": late,
+        "state": state,
+    }
 
 
 def test_pyzeros_sends_a_follow_joint_trajectory_goal(ros_daemon: Daemon, peer: zenoh.Session) -> None:
@@ -311,3 +330,40 @@ def test_pyzeros_sends_a_follow_joint_trajectory_goal(ros_daemon: Daemon, peer: 
     assert got["late"].return_code == 3  # GOAL_TERMINATED: nothing left to cancel
     position = ros_daemon.engine.state.position
     assert max(abs(p - t) for p, t in zip(position, target, strict=True)) < 0.02
+
+
+@pytest.fixture
+def twin_daemon(tmp_path: Path) -> Iterator[Daemon]:
+    """configs/rrbot_twin.yaml (the MuJoCo twin, from its URDF) with a ros2 section, on the lockstep sim clock."""
+    data = yaml.safe_load((CONFIGS / "rrbot_twin.yaml").read_text())
+    data["ros2"] = {}
+    data["clock"] = {"source": "sim", "real_time_factor": 0}
+    shutil.copy(CONFIGS / "rrbot.urdf", tmp_path / "rrbot.urdf")
+    path = tmp_path / "rrbot_twin.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    daemon = Daemon(Engine(load_config(path)), free_endpoint())
+    daemon.start()
+    try:
+        yield daemon
+    finally:
+        daemon.stop()
+
+
+def test_pyzeros_drives_the_twin(twin_daemon: Daemon) -> None:
+    """The rrbot twin (MuJoCo physics) in lockstep: a goal from pyzeros succeeds, and pyzeros' own /joint_states
+    subscription then reads the arm at the target."""
+    target = [0.4, -0.3]
+    session = zenoh.open(peer_config(twin_daemon.endpoint))
+
+    @afor.scoped
+    async def main() -> dict[str, Any]:
+        return await _goal_session(target, "joint_trajectory", ("joint1", "joint2"))
+
+    try:
+        with pyzeros.auto_context(node="pyzeros_twin_probe", zenoh_session=session, domain_id=0):
+            got = asyncio.run(main())
+    finally:
+        session.close()
+    assert got["accepted"].accepted and (got["result"].status, got["result"].result.error_code) == (4, 0)
+    assert list(got["state"].name) == ["joint1", "joint2"]
+    assert max(abs(p - t) for p, t in zip(got["state"].position, target, strict=True)) < 0.03
