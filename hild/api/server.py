@@ -21,7 +21,7 @@ import contextlib
 import logging
 import weakref
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import zenoh
 
@@ -33,9 +33,12 @@ from hild.api.queries import SHUTTING_DOWN, Admitted, Gate, HeavyLane, drop, rep
 from hild.api.services import DEFAULT_TIMEOUT, Reply, Services
 from hild.api.session import declare_json_publisher, open_session, server_config
 from hild.api.unique import DaemonIdentity, check_unique, describe_other
-from hild.config.model import ZenohSection
+from hild.config.model import Ros2Section, ZenohSection
 from hild.domains.link import CycleLink
 from hild.events import Event
+
+if TYPE_CHECKING:
+    from hild.api.ros2.face import RosFace
 
 log = logging.getLogger("hild.api")
 
@@ -79,7 +82,7 @@ class ApiServer:
         self._priority_gate = Gate()
         self._last_change: int | None = None
         self._closing = False
-        self._ros: Any = None  # hild.api.ros2.face.RosFace when the config has a ros2 section
+        self._ros: RosFace | None = None  # when the config has a ros2 section (docs/ros2.md)
 
     # ---- lifecycle ----------------------------------------------------------------------------------------------
     async def open(self) -> None:
@@ -200,7 +203,7 @@ class ApiServer:
         if self._ros is not None:
             self._ros.flush()
 
-    def _ros_settings(self) -> Any:
+    def _ros_settings(self) -> Ros2Section | None:
         return getattr(getattr(getattr(self.engine, "loaded", None), "config", None), "ros2", None)
 
     def _start_ros(self, session: zenoh.Session, loop: asyncio.AbstractEventLoop) -> None:
