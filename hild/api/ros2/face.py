@@ -124,6 +124,7 @@ class RosFace:
 
     # ---- declaration --------------------------------------------------------------------------------------------
     def start(self) -> None:
+        """The node's token, then each controller's topics, services and action, the description, the manager."""
         self._drops = DropReporter(self.engine.events.emit)
         zid = str(self.session.info.zid())
         self._node = NodeInfo(self.settings.domain_id, zid, self.settings.namespace, self.settings.node)
@@ -132,7 +133,7 @@ class RosFace:
         for name, instance in controllers.items():
             self._declare_controller(name, instance)
         self._declare_description()
-        manager = f"{self.settings.node}"
+        manager = self.settings.node  # ros2_control's services live under its node: /controller_manager/...
         self.declare_service(f"{manager}/list_controllers", LIST_CONTROLLERS, self._list_controllers)
         self.declare_service(f"{manager}/switch_controller", SWITCH_CONTROLLER, self._switch_controller)
 
@@ -196,7 +197,11 @@ class RosFace:
         path = Path(model)
         if not path.is_absolute():
             path = self.engine.loaded.path.parent / path
-        text = path.read_text()
+        try:
+            text = path.read_text()
+        except OSError as exc:
+            self.engine.events.emit("error", SOURCE, f"/robot_description not offered: {exc}")
+            return
         writer = self.writer(self.name("robot_description"), STRING, latched=True)
         writer.put(types.encode(types.message(STRING, data=text), STRING))
 
