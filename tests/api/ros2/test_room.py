@@ -46,3 +46,16 @@ def test_the_room_is_where_rosbags_is_used() -> None:
 def test_the_api_without_ros2_never_loads_rosbags() -> None:
     code = "import sys, hild.api.server, hild.daemon; assert 'rosbags' not in sys.modules, 'rosbags loaded'"
     subprocess.run([sys.executable, "-c", code], check=True, timeout=60)
+
+
+def test_the_independent_implementations_are_used_by_tests_only() -> None:
+    """rclpy and pyzeros check hild's bytes (the ros2-verify extra); no shipped code may lean on them."""
+    used = [
+        f"{path.relative_to(REPO)} imports {library}"
+        for folder in CODE
+        if folder.exists()
+        for path in folder.rglob("*.py")
+        for library in ("rclpy", "pyzeros", "ros2_pyterfaces")
+        if library in imported_roots(path)
+    ]
+    assert used == []
