@@ -156,10 +156,9 @@ class Daemon:
         except Exception as exc:  # release the hardware we just configured
             self._refused()
             raise StartupError(f"cannot start the Zenoh API ({self.listen or cfg.zenoh.listen}): {exc}") from exc
-        for sig in (signal.SIGINT, signal.SIGTERM):
+        # Under the main process a terminal's Ctrl-C reaches every process: the main process stops this one.
+        for sig in (signal.SIGTERM,) if self.attachment else (signal.SIGINT, signal.SIGTERM):
             self._loop.add_signal_handler(sig, self._on_signal, sig)
-        if self.attachment is not None:  # a terminal's Ctrl-C reaches every process: the main process stops us
-            self._loop.add_signal_handler(signal.SIGINT, lambda: None)
         try:
             await self._go_live()
         except (HardwareError, CycleProcessError) as exc:
@@ -373,6 +372,11 @@ def run_daemon(loaded: LoadedConfig, listen: list[str] | None = None) -> int:
     except (HardwareError, ValueError) as exc:  # a driver or model that cannot be built from this config
         log.error("cannot build %s: %s", loaded.path, exc)
         return 1
+    return serve(daemon)
+
+
+def serve(daemon: Daemon) -> int:
+    """Run ``daemon`` until it stops; returns the exit code. Start-up failures are reported, not raised."""
     try:
         return asyncio.run(daemon.run())
     except (HardwareError, StartupError) as exc:
