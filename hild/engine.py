@@ -132,7 +132,7 @@ class Engine:
 
         gravity = None
         if cfg.robot.model and cfg.safety.gravity_compensation:
-            from hild.dynamics import GravityModel  # mujoco stays behind this seam
+            from hild.dynamics.gravity import GravityModel  # mujoco stays behind this seam
 
             gravity = GravityModel(loaded.directory / cfg.robot.model, self.joints).compute
         s = cfg.safety

@@ -21,7 +21,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from hild.dynamics import SCALAR_JOINT_TYPES, joint_names, load_model, scalar_joint_addresses
+from hild.dynamics.model import SCALAR_JOINT_TYPES, joint_names, load_model, scalar_joint_addresses
 from hild.transmission import Transmissions
 
 __all__ = ["TwinPlant"]

@@ -27,9 +27,9 @@ import mujoco
 import numpy as np
 
 from drivers.glitch import ReadingGlitch
-from hild.arrays import JointState, ServoCommand
+from hild.arrays import JointState, ServoCommand, contiguous_slice
 from hild.config.params import Field, Params
-from hild.dynamics import SCALAR_JOINT_TYPES, contiguous_slice, joint_names, load_model, scalar_joint_addresses
+from hild.dynamics.model import SCALAR_JOINT_TYPES, joint_names, load_model, scalar_joint_addresses
 from hild.hardware import ALL_COMMAND_FIELDS, HardwareComponent, HardwareContext, HardwareError
 
 __all__ = ["MujocoTwin", "MujocoTwinParams"]

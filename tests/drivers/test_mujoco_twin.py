@@ -10,7 +10,7 @@ import pytest
 
 from drivers.mujoco import MujocoTwin
 from hild.arrays import JointState, ServoCommand
-from hild.dynamics import GravityModel
+from hild.dynamics.gravity import GravityModel
 from hild.hardware import ALL_COMMAND_FIELDS, HardwareContext, HardwareError
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
