@@ -7,10 +7,9 @@ Tests wait on conditions (``wait_for``) with generous timeouts; no assertion dep
 from __future__ import annotations
 
 import asyncio
-import socket
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +21,7 @@ from hild.api.server import ApiServer
 from hild.config import load_config
 from hild.config.model import ZenohSection
 from hild.engine import Engine
+from tests.helpers import free_endpoint
 
 ROBOT = "mock3"
 WAIT = 10.0  # s: generous; conditions are normally met in milliseconds
@@ -53,23 +53,6 @@ def robot_config() -> dict[str, Any]:
             "fwd_a": {"type": "forward_command", "params": {"joints": ["a"], "interface": "position"}},
         },
     }
-
-
-def free_endpoint() -> str:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
-
-
-def wait_for(condition: Callable[[], Any], timeout: float = WAIT, what: str = "condition") -> Any:
-    deadline = time.monotonic() + timeout
-    while True:
-        value = condition()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
-        time.sleep(0.005)
 
 
 class Stepper(threading.Thread):

@@ -17,7 +17,6 @@ land between two cycles.
 from __future__ import annotations
 
 import asyncio
-import socket
 import tempfile
 import threading
 import time
@@ -45,6 +44,7 @@ from hild.engine import MAX_STEP_PERIODS, Engine
 from hild.events import Event
 from hild.modes import MODE_NAMES
 from tests.conftest import CONFIGS
+from tests.helpers import free_endpoint
 from tests.test_engine import JumpGuard
 
 JTC = "joint_trajectory"
@@ -435,9 +435,3 @@ class ApiRig(TwinRig):
             self._thread.join(10.0)
             self.loop.close()
             super().close()
-
-
-def free_endpoint() -> str:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return f"tcp/127.0.0.1:{sock.getsockname()[1]}"

@@ -39,8 +39,9 @@ from hild.config import load_config
 from hild.controllers.joint_trajectory import JointTrajectoryController
 from hild.controllers.servo import Phase
 from hild.domains.cycle_process import PARENT_CHECK
-from tests.faults.processes import CanProcesses, running
+from tests.faults.processes import CanProcesses
 from tests.faults.rigs import JTC, ApiRig, CanRig, Lockstep, MockRig, TwinRig
+from tests.helpers import running
 
 MOVE = 0.6  # rad: CAN scenarios inject mid-way through a move_to of this size on every joint…
 TWIN_MOVE = 0.3  # rad: …twin ones through this one (arm6's twin gains settle a 0.6 rad move of every joint too late)
