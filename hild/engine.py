@@ -278,7 +278,7 @@ class Engine:
         try:
             for slot in self.hardware:
                 slot.lifecycle = Lifecycle.INACTIVE
-                self._hook(slot, "configure", slot.component.configure)
+                self._hook(slot, "configure", slot.component.on_configure)
             self._read(0.0, self.period)
             self.supervisor.start(self.state)
             np.copyto(self.final.position, self.supervisor.latched)  # the "last command" before any cycle: hold
@@ -291,7 +291,7 @@ class Engine:
         waits limp for its first command, and its watchdog (e.g. Damiao's CAN timeout) is already running."""
         try:
             for slot in self.hardware:
-                self._hook(slot, "activate", slot.component.activate)
+                self._hook(slot, "activate", slot.component.on_activate)
                 slot.lifecycle = Lifecycle.ACTIVE
         except HardwareError:
             self._release_hardware()
@@ -356,7 +356,7 @@ class Engine:
         for slot in self.hardware:
             if slot.lifecycle is Lifecycle.UNCONFIGURED:
                 continue
-            for hook in (slot.component.deactivate, slot.component.cleanup):
+            for hook in (slot.component.on_deactivate, slot.component.on_cleanup):
                 try:
                     hook()
                 except Exception as exc:
