@@ -70,7 +70,7 @@ class Daemon:
             self.remote = RemoteCycle.attach(loaded, attachment) if attachment else RemoteCycle(loaded)
             self.link: CycleLink = self.remote
         else:
-            self.engine = Engine(loaded, doorbell=self._doorbell)
+            self.engine = Engine(loaded, wake_client=self._wake_from_cycle)
             self.link = self.engine
         self._stopping = asyncio.Event()
         self._signals = 0
@@ -92,8 +92,8 @@ class Daemon:
     def watchdog(self) -> Any:
         return self.service.watchdog
 
-    # ---- cycle → asyncio doorbell --------------------------------------------------------------------------
-    def _doorbell(self) -> None:
+    # ---- the cycle wakes the asyncio side --------------------------------------------------------------------------
+    def _wake_from_cycle(self) -> None:
         """Called from the cycle thread; schedules at most one pending wake-up on the loop."""
         if not self._wake_pending and self._loop is not None:
             self._wake_pending = True
@@ -214,7 +214,7 @@ class Daemon:
             remote.cells.telemetry.put(telemetry)
             remote.cells.client[ClientVital.PID] = os.getpid()
             remote.cells.client[ClientVital.PHASE] = ClientPhase.OPEN  # the main process starts the cycle process
-        self._loop.add_reader(remote.doorbell_fd, self._on_wake)
+        self._loop.add_reader(remote.wakeup_fd, self._on_wake)
         if self.attachment is not None and self.attachment.restarted_after is not None:
             await self._after_restart(remote, self.attachment.restarted_after)
         else:
@@ -347,7 +347,7 @@ class Daemon:
         self._on_wake()
         if self.remote is not None:
             assert self._loop is not None
-            self._loop.remove_reader(self.remote.doorbell_fd)
+            self._loop.remove_reader(self.remote.wakeup_fd)
             self.remote.abandon("the daemon stopped")
             if self.attachment is not None:
                 self.remote.cells.client[ClientVital.PHASE] = ClientPhase.STOPPED

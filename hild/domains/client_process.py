@@ -1,7 +1,7 @@
 """The client domain as a process of its own: ``python -m hild.domains.client_process``.
 
 Started (and restarted) by the daemon's main process (:mod:`hild.domains.main_process`) with a pickled
-:class:`hild.domains.main_process.ClientSpec` on its standard input and the shared region and doorbell as
+:class:`hild.domains.main_process.ClientSpec` on its standard input and the shared region and wake-up eventfd as
 inherited file descriptors. It runs :class:`hild.daemon.Daemon` attached to the cycle process the main process
 started: Zenoh, the API, telemetry. It exits when told (SIGTERM), when the cycle has stopped, or when the main
 process is gone.

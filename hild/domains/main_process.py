@@ -87,7 +87,7 @@ class MainProcess:
         self.client = subprocess.Popen(
             [sys.executable, "-m", "hild.domains.client_process"],
             stdin=subprocess.PIPE,
-            pass_fds=(self.crossing.region.fd, self.crossing.doorbell_fd),
+            pass_fds=(self.crossing.region.fd, self.crossing.wakeup_fd),
             env=env,
         )
         assert self.client.stdin is not None

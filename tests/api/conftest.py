@@ -73,7 +73,7 @@ class Stepper(threading.Thread):
 
 
 class Daemon:
-    """Engine + stepper + ApiServer on a background asyncio loop, wired like hild.daemon (coalesced doorbell)."""
+    """Engine + stepper + ApiServer on a background asyncio loop, wired like hild.daemon (coalesced wake-ups)."""
 
     def __init__(self, engine: Engine, endpoint: str, settings: ZenohSection | None = None) -> None:
         self.engine = engine
@@ -85,7 +85,7 @@ class Daemon:
         self.published_events: list[dict[str, Any]] = []
         self._pending = False
 
-    def _doorbell(self) -> None:
+    def _wake_from_cycle(self) -> None:
         if not self._pending:
             self._pending = True
             self.loop.call_soon_threadsafe(self._wake)
@@ -101,7 +101,7 @@ class Daemon:
 
     def start(self) -> None:
         self.thread.start()
-        self.engine.doorbell = self._doorbell
+        self.engine.wake_client = self._wake_from_cycle
         self.engine.start()
         self.run(self.server.start())
         self.loop.call_soon_threadsafe(self._wake)
@@ -110,7 +110,7 @@ class Daemon:
     def stop(self) -> None:
         self.stepper.stopped.set()
         self.stepper.join(WAIT)
-        self.engine.doorbell = lambda: None
+        self.engine.wake_client = lambda: None
         self.run(self.server.close())
         self.loop.call_soon_threadsafe(self.loop.stop)
         self.thread.join(WAIT)

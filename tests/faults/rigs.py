@@ -391,7 +391,7 @@ class ApiRig(TwinRig):
     """A twin rig behind the daemon's Zenoh API (``ApiServer``) on a private loopback port.
 
     The API runs on an asyncio loop in a thread, as in the daemon; cycles are stepped by the test. After each cycle
-    the events it produced and the doorbell (feedback, results) are handed to the API, as the daemon's doorbell
+    the events it produced and the wake-ups (feedback, results) are handed to the API, as the daemon's wake-up
     does, so clients see what they would see from a daemon.
     """
 
@@ -403,7 +403,7 @@ class ApiRig(TwinRig):
         self._thread.start()
         self.server = ApiServer(self.engine, ZenohSection(), [self.endpoint], request_timeout=2.0)
         self._rang = False
-        self.engine.doorbell = self._ring
+        self.engine.wake_client = self._ring
         asyncio.run_coroutine_threadsafe(self.server.start(), self.loop).result(10.0)
 
     def _ring(self) -> None:
