@@ -9,9 +9,10 @@ supervisor, so a controller that has nothing to say simply says nothing.
 Inputs (commands from Zenoh) arrive on the API side through ``inputs()``: each callable validates a decoded
 JSON payload, raises ``ValueError`` with a reason on bad input, and hands the result to the cycle through a
 latest-value mailbox from ``context.mailboxes`` (``latest_numbers``: a fixed-size record of float64s, which the
-cycle takes with a copy into an array it owns, without allocating or unpickling). It runs on the cycle thread at
-the start of a cycle (the API's intake; the asyncio loop for payloads over 4 KiB), so it must be quick,
-thread-safe and never wait on anything.
+cycle takes with a copy into an array it owns, without allocating or unpickling). It runs in the client domain:
+on the Zenoh thread a sample arrives on when the cycle has a process of its own; in one process, on the cycle
+thread at the start of a cycle (the asyncio loop for payloads over 4 KiB). So it must be quick, thread-safe and
+never wait on anything.
 Outputs (e.g. joint states) leave through :class:`~hild.ring.SampleRing`\\ s.
 """
 

@@ -70,7 +70,7 @@ class Daemon:
             self.remote = RemoteCycle.attach(loaded, attachment) if attachment else RemoteCycle(loaded)
             self.link: CycleLink = self.remote
         else:
-            self.engine = Engine(loaded, doorbell=self._doorbell)
+            self.engine = Engine(loaded, wake_client=self._wake_from_cycle)
             self.link = self.engine
         self._stopping = asyncio.Event()
         self._signals = 0
@@ -92,8 +92,8 @@ class Daemon:
     def watchdog(self) -> Any:
         return self.service.watchdog
 
-    # ---- cycle → asyncio doorbell --------------------------------------------------------------------------
-    def _doorbell(self) -> None:
+    # ---- the cycle wakes the asyncio side --------------------------------------------------------------------------
+    def _wake_from_cycle(self) -> None:
         """Called from the cycle thread; schedules at most one pending wake-up on the loop."""
         if not self._wake_pending and self._loop is not None:
             self._wake_pending = True
@@ -156,10 +156,9 @@ class Daemon:
         except Exception as exc:  # release the hardware we just configured
             self._refused()
             raise StartupError(f"cannot start the Zenoh API ({self.listen or cfg.zenoh.listen}): {exc}") from exc
-        for sig in (signal.SIGINT, signal.SIGTERM):
+        # Under the main process a terminal's Ctrl-C reaches every process: the main process stops this one.
+        for sig in (signal.SIGTERM,) if self.attachment else (signal.SIGINT, signal.SIGTERM):
             self._loop.add_signal_handler(sig, self._on_signal, sig)
-        if self.attachment is not None:  # a terminal's Ctrl-C reaches every process: the main process stops us
-            self._loop.add_signal_handler(signal.SIGINT, lambda: None)
         try:
             await self._go_live()
         except (HardwareError, CycleProcessError) as exc:
@@ -215,7 +214,7 @@ class Daemon:
             remote.cells.telemetry.put(telemetry)
             remote.cells.client[ClientVital.PID] = os.getpid()
             remote.cells.client[ClientVital.PHASE] = ClientPhase.OPEN  # the main process starts the cycle process
-        self._loop.add_reader(remote.doorbell_fd, self._on_wake)
+        self._loop.add_reader(remote.wakeup_fd, self._on_wake)
         if self.attachment is not None and self.attachment.restarted_after is not None:
             await self._after_restart(remote, self.attachment.restarted_after)
         else:
@@ -348,7 +347,7 @@ class Daemon:
         self._on_wake()
         if self.remote is not None:
             assert self._loop is not None
-            self._loop.remove_reader(self.remote.doorbell_fd)
+            self._loop.remove_reader(self.remote.wakeup_fd)
             self.remote.abandon("the daemon stopped")
             if self.attachment is not None:
                 self.remote.cells.client[ClientVital.PHASE] = ClientPhase.STOPPED
@@ -373,6 +372,11 @@ def run_daemon(loaded: LoadedConfig, listen: list[str] | None = None) -> int:
     except (HardwareError, ValueError) as exc:  # a driver or model that cannot be built from this config
         log.error("cannot build %s: %s", loaded.path, exc)
         return 1
+    return serve(daemon)
+
+
+def serve(daemon: Daemon) -> int:
+    """Run ``daemon`` until it stops; returns the exit code. Start-up failures are reported, not raised."""
     try:
         return asyncio.run(daemon.run())
     except (HardwareError, StartupError) as exc:

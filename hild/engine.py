@@ -78,11 +78,11 @@ class Engine:
         mailboxes: Mailboxes | None = None,
         *,
         stats: LoopStats | None = None,
-        doorbell: Callable[[], None] | None = None,
+        wake_client: Callable[[], None] | None = None,
     ) -> None:
         """``mailboxes``: where controllers' doors to their API halves live (in this process by default; cells of
         the shared region when the API half runs in the client domain). ``stats``: where the cycle's loop
-        statistics go (a shared cell when another process reads them). ``doorbell``: called, from the cycle, when
+        statistics go (a shared cell when another process reads them). ``wake_client``: called, from the cycle, when
         there is something to publish (events, outputs, replies)."""
         cfg = loaded.config
         self.mailboxes = mailboxes or InProcess()
@@ -97,13 +97,13 @@ class Engine:
 
         self.events = EventLog()
         self.events.now = lambda: self.t
-        self.doorbell: Callable[[], None] = doorbell or (lambda: None)
+        self.wake_client: Callable[[], None] = wake_client or (lambda: None)
         # Set by the API: takes streamed commands at the start of each cycle, so no other thread takes the GIL
         # per sample (docs/performance.md, "A busy neighbour").
         self.intake: Callable[[], None] | None = None
         self.inputs_on_arrival = False  # the intake above takes them: one GIL handover per cycle, not per sample
         self.write_done_ns = 0  # perf_counter_ns when the last cycle's hardware writes were done
-        self.events.doorbell = self._ring
+        self.events.on_emit = self._ring
         self.stats = stats or LoopStats()
         self.t = 0.0  # the cycle clock as given: wall time since start, or the sim clock
         # The control clock: what controllers and the slew limit see. It advances by the cycle's dt, but by at
@@ -132,7 +132,7 @@ class Engine:
 
         gravity = None
         if cfg.robot.model and cfg.safety.gravity_compensation:
-            from hild.dynamics import GravityModel  # mujoco stays behind this seam
+            from hild.dynamics.gravity import GravityModel  # mujoco stays behind this seam
 
             gravity = GravityModel(loaded.directory / cfg.robot.model, self.joints).compute
         s = cfg.safety
@@ -278,7 +278,7 @@ class Engine:
         try:
             for slot in self.hardware:
                 slot.lifecycle = Lifecycle.INACTIVE
-                self._hook(slot, "configure", slot.component.configure)
+                self._hook(slot, "configure", slot.component.on_configure)
             self._read(0.0, self.period)
             self.supervisor.start(self.state)
             np.copyto(self.final.position, self.supervisor.latched)  # the "last command" before any cycle: hold
@@ -291,7 +291,7 @@ class Engine:
         waits limp for its first command, and its watchdog (e.g. Damiao's CAN timeout) is already running."""
         try:
             for slot in self.hardware:
-                self._hook(slot, "activate", slot.component.activate)
+                self._hook(slot, "activate", slot.component.on_activate)
                 slot.lifecycle = Lifecycle.ACTIVE
         except HardwareError:
             self._release_hardware()
@@ -356,7 +356,7 @@ class Engine:
         for slot in self.hardware:
             if slot.lifecycle is Lifecycle.UNCONFIGURED:
                 continue
-            for hook in (slot.component.deactivate, slot.component.cleanup):
+            for hook in (slot.component.on_deactivate, slot.component.on_cleanup):
                 try:
                     hook()
                 except Exception as exc:
@@ -691,7 +691,7 @@ class Engine:
         return {"joint": joint}
 
     def _ring(self) -> None:
-        self.doorbell()
+        self.wake_client()
 
     # ---- reading back (any thread) ----------------------------------------------------------------------------
     @property

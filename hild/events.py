@@ -1,7 +1,8 @@
 """Events: mode changes, faults, switches — one record each, never one per cycle.
 
-The cycle thread appends to a bounded deque (atomic under the GIL) and rings a doorbell; the asyncio side drains
-it, logs each event once and publishes it. If nobody drains, the oldest events are dropped, never the cycle.
+The cycle thread appends to a bounded deque (atomic under the GIL) and wakes the client domain (``on_emit``); the
+asyncio side drains it, logs each event once and publishes it. If nobody drains, the oldest events are dropped,
+never the cycle.
 """
 
 from __future__ import annotations
@@ -31,11 +32,11 @@ class EventLog:
     def __init__(self, capacity: int = 4096) -> None:
         self._events: deque[Event] = deque(maxlen=capacity)
         self.now: Callable[[], float] = lambda: 0.0  # cycle clock, set by the engine
-        self.doorbell: Callable[[], None] = lambda: None
+        self.on_emit: Callable[[], None] = lambda: None  # the engine's: wake the client domain
 
     def emit(self, level: str, source: str, message: str) -> None:
         self._events.append(Event(self.now(), level, source, message))
-        self.doorbell()
+        self.on_emit()
 
     def drain(self) -> list[Event]:
         out: list[Event] = []

@@ -1,8 +1,9 @@
 """The hardware contract: what every backend (CAN servos, MuJoCo twin, mock) implements.
 
 A component drives a fixed list of joints in *actuator space* (transmissions are applied by the engine, outside
-drivers). The engine owns the lifecycle and calls the hooks in order:
-``configure → read (once, so hold starts where the arm is) → activate → {read, write}* → deactivate → cleanup``.
+drivers). The engine owns the lifecycle and calls the hooks in order, named as a controller's are (and as
+ros2_control's): ``on_configure → read (once, so hold starts where the arm is) → on_activate → {read, write}* →
+on_deactivate → on_cleanup``.
 ``read`` and ``write`` run on the cycle thread: they must not block, log, or allocate needlessly.
 """
 
@@ -10,6 +11,7 @@ from __future__ import annotations
 
 import abc
 import enum
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,6 +21,12 @@ from hild.arrays import JointState, ServoCommand
 from hild.config.params import Params
 
 ALL_COMMAND_FIELDS: frozenset[str] = frozenset({"position", "velocity", "effort", "kp", "kd"})
+_RENAMED_HOOKS = {
+    "configure": "on_configure",
+    "activate": "on_activate",
+    "deactivate": "on_deactivate",
+    "cleanup": "on_cleanup",
+}
 
 
 class Lifecycle(enum.StrEnum):
@@ -95,6 +103,20 @@ class HardwareComponent(abc.ABC):
         self.context = context
         self.params = params
 
+    def __init_subclass__(cls, **kwargs: object) -> None:
+        """A driver written for the hooks' earlier names (``configure`` …) keeps working, with a warning."""
+        super().__init_subclass__(**kwargs)
+        renamed = {old: new for old, new in _RENAMED_HOOKS.items() if old in cls.__dict__ and new not in cls.__dict__}
+        for old, new in renamed.items():
+            setattr(cls, new, cls.__dict__[old])
+        if renamed:
+            names = ", ".join(f"{old} → {new}" for old, new in renamed.items())
+            warnings.warn(
+                f"{cls.__qualname__}: hardware lifecycle hooks are named as controllers' are now ({names})",
+                DeprecationWarning,
+                stacklevel=2,
+            )
+
     @property
     def joints(self) -> tuple[str, ...]:
         return self.context.joints
@@ -124,21 +146,21 @@ class HardwareComponent(abc.ABC):
 
     @classmethod
     def holds_at_stop(cls, params: Params) -> bool:
-        """True when ``deactivate`` leaves the drives holding (e.g. ``on_deactivate: hold``); False when they go
+        """True when ``on_deactivate`` leaves the drives holding (e.g. ``on_deactivate: hold``); False when they go
         limp, which drops an unbraked, gravity-loaded joint unless ``safety.stop_descent`` lowers it first."""
         return False
 
     # Lifecycle hooks (non real-time; may block briefly, may raise HardwareError).
-    def configure(self) -> None:
+    def on_configure(self) -> None:
         """Open buses or load models and check the hardware matches the config. Drives stay disabled."""
 
-    def activate(self) -> None:
+    def on_activate(self) -> None:
         """Enable the drives. Called after one ``read`` so the first command is a hold where the arm is."""
 
-    def deactivate(self) -> None:
+    def on_deactivate(self) -> None:
         """Leave the drives in their safe state (disabled, or holding when the drive can do it alone)."""
 
-    def cleanup(self) -> None:
+    def on_cleanup(self) -> None:
         """Release buses, files and threads."""
 
     # Cycle hooks (real time).

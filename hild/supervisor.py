@@ -26,10 +26,11 @@ Every cycle, whatever the controllers do:
   accepted and the joint is not faulted — so no spring seen through a stand-in reading is ever "compensated".
   A limit that engages is reported once, when it engages and when it releases.
 
-The per-cycle work is a plain loop over joints reading and writing preallocated arrays in place. For the 2–14
-joints of an arm that is several times faster than vectorised numpy (each numpy call on a six-element array is
-almost pure overhead), and it reads as what it is: for each joint, decide its mode, build its command, apply its
-limits. Events are the only allocations, and they happen on changes, not per cycle.
+The per-cycle work is a plain loop over joints: each input array is read once into a Python list (one
+``tolist()`` per array costs less than an ``item()`` per element), and results are written back into preallocated
+arrays in place. For the 2–14 joints of an arm that is several times faster than vectorised numpy (each numpy call
+on a six-element array is almost pure overhead), and it reads as what it is: for each joint, decide its mode, build
+its command, apply its limits. Besides those short-lived lists, only events allocate, and only on changes.
 """
 
 from __future__ import annotations

@@ -25,19 +25,35 @@ class Transmissions:
         )
 
     def to_joint(self, actuator: JointState, joint: JointState) -> None:
-        np.multiply(actuator.position, self._pos_scale, out=joint.position)
-        np.add(joint.position, self.offset, out=joint.position)
-        np.multiply(actuator.velocity, self._pos_scale, out=joint.velocity)
-        np.multiply(actuator.effort, self._eff_scale, out=joint.effort)
+        self.joint_positions(actuator.position, joint.position)
+        self.joint_velocities(actuator.velocity, joint.velocity)
+        self.joint_efforts(actuator.effort, joint.effort)
         np.copyto(joint.temperature, actuator.temperature)
         np.copyto(joint.fault, actuator.fault)
         np.copyto(joint.fresh, actuator.fresh)
 
     def to_actuator(self, joint: ServoCommand, actuator: ServoCommand) -> None:
-        np.subtract(joint.position, self.offset, out=actuator.position)
-        np.divide(actuator.position, self._pos_scale, out=actuator.position)
-        np.divide(joint.velocity, self._pos_scale, out=actuator.velocity)
+        self.actuator_positions(joint.position, actuator.position)
+        self.actuator_velocities(joint.velocity, actuator.velocity)
         np.divide(joint.effort, self._eff_scale, out=actuator.effort)
         np.multiply(joint.kp, self._gain_scale, out=actuator.kp)
         np.multiply(joint.kd, self._gain_scale, out=actuator.kd)
         np.copyto(actuator.written, joint.written)
+
+    # ---- plain arrays (the emulator's MuJoCo plant maps its state with the same maths) --------------------------
+    def joint_positions(self, actuator: np.ndarray, out: np.ndarray) -> None:
+        np.multiply(actuator, self._pos_scale, out=out)
+        np.add(out, self.offset, out=out)
+
+    def actuator_positions(self, joint: np.ndarray, out: np.ndarray) -> None:
+        np.subtract(joint, self.offset, out=out)
+        np.divide(out, self._pos_scale, out=out)
+
+    def joint_velocities(self, actuator: np.ndarray, out: np.ndarray) -> None:
+        np.multiply(actuator, self._pos_scale, out=out)
+
+    def actuator_velocities(self, joint: np.ndarray, out: np.ndarray) -> None:
+        np.divide(joint, self._pos_scale, out=out)
+
+    def joint_efforts(self, actuator: np.ndarray, out: np.ndarray) -> None:
+        np.multiply(actuator, self._eff_scale, out=out)

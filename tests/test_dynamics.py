@@ -9,7 +9,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from hild.dynamics import GravityModel, body_contacts, load_model
+from hild.dynamics.gravity import GravityModel
+from hild.dynamics.inspection import body_contacts
+from hild.dynamics.model import load_model
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 ARM6 = CONFIGS / "arm6.xml"

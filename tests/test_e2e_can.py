@@ -24,7 +24,8 @@ from drivers.can.emulator.runtime import request
 from hild.client import HildError
 from hild.motion.reference import OFFSETS, standard_trajectory
 from tests.conftest import CONFIGS
-from tests.test_e2e import Recorder, connect_when_up, free_port, wait_for
+from tests.helpers import distinct_free_ports, wait_for
+from tests.test_e2e import Recorder, connect_when_up
 
 HOST = "127.0.0.1"
 
@@ -55,13 +56,6 @@ class CanRig:
             f"--- emulator loop: {loop}\n--- emulator:\n{self.emulator_log.read_text()}\n"
             f"--- daemon:\n{self.daemon_log.read_text()}"
         )
-
-
-def distinct_free_ports(count: int) -> list[int]:
-    ports: set[int] = set()
-    while len(ports) < count:
-        ports.add(free_port())
-    return sorted(ports)
 
 
 def stop(proc: subprocess.Popen[bytes]) -> None:

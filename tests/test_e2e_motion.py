@@ -17,7 +17,8 @@ import yaml
 
 from hild.client import AsyncHildClient, HildError
 from hild.motion.reference import standard_trajectory
-from tests.test_e2e import Recorder, connect_when_up, daemon, wait_for
+from tests.helpers import wait_for
+from tests.test_e2e import Recorder, connect_when_up, daemon
 
 __all__ = ["daemon"]  # the fixture, re-used
 

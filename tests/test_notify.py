@@ -34,7 +34,7 @@ from hild.notify import (
     watchdog_interval,
 )
 from tests.conftest import CONFIGS, Systemd, merge, mock_robot, receive
-from tests.test_e2e import free_port
+from tests.helpers import free_port
 
 
 # ---- the client -------------------------------------------------------------------------------------------------

@@ -82,7 +82,7 @@ class CanComponent(HardwareComponent):
         names its limp choice its own way: ``disable``, ``idle``)."""
         return getattr(params, "on_deactivate", None) == "hold"
 
-    def cleanup(self) -> None:
+    def on_cleanup(self) -> None:
         self.link.close()
 
     def _stopping_limp(self, held: str) -> bool:

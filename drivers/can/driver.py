@@ -193,7 +193,7 @@ class MitCanDriver(CanComponent):
         return self.params.reply_timeout_ms / 1000.0
 
     # ---- lifecycle -------------------------------------------------------------------------------------------
-    def configure(self) -> None:
+    def on_configure(self) -> None:
         self.link.open()
         try:
             self.link.drain()
@@ -287,7 +287,7 @@ class MitCanDriver(CanComponent):
             if code:
                 self.context.emit_event("error", f"{m.joint}: motor reports {self.describe_fault(code)} at start-up")
 
-    def activate(self) -> None:
+    def on_activate(self) -> None:
         """Enable every motor and wait for its reply; a motor already reporting a fault is left disabled."""
         self.expect_enabled[:] = [True] * len(self.motors)
         failed = []
@@ -326,7 +326,7 @@ class MitCanDriver(CanComponent):
                 return self.fault[k] == 0
         return False
 
-    def deactivate(self) -> None:
+    def on_deactivate(self) -> None:
         if not self._stopping_limp("motors left enabled at their last command"):
             return
         self.expect_enabled[:] = [False] * len(self.motors)

@@ -178,7 +178,7 @@ class ODriveCanDriver(CanComponent):
         return max(self.params.reply_timeout_ms / 1000.0, self._heartbeat_timeout)
 
     # ---- lifecycle -------------------------------------------------------------------------------------------
-    def configure(self) -> None:
+    def on_configure(self) -> None:
         """Open the bus, see a heartbeat from every axis and read where each one is. Nothing is armed."""
         self.link.open()
         try:
@@ -213,7 +213,7 @@ class ODriveCanDriver(CanComponent):
             self.link.close()
             raise
 
-    def activate(self) -> None:
+    def on_activate(self) -> None:
         """Request closed-loop control on every axis, holding where it is; wait for the heartbeats to confirm."""
         self.expect_closed_loop[:] = [True] * len(self.nodes)
         targets = []
@@ -257,7 +257,7 @@ class ODriveCanDriver(CanComponent):
         self._mode[k] = ControlMode.POSITION_CONTROL
         self.expect_closed_loop[k] = True
 
-    def deactivate(self) -> None:
+    def on_deactivate(self) -> None:
         if not self._stopping_limp("axes left in closed loop at their last input"):
             return
         self.expect_closed_loop[:] = [False] * len(self.nodes)

@@ -49,14 +49,14 @@ class MockHardware(HardwareComponent):
         self.health_problem: str | None = None
         self.glitch = ReadingGlitch(n)  # corrupts reported positions only (drivers/glitch.py)
 
-    def activate(self) -> None:
+    def on_activate(self) -> None:
         self.enabled = True
 
     def set_zero(self, joint: str) -> None:
         """Like a drive's set-zero: the current position reads 0 from now on (the arm itself does not move)."""
         self.position[self.joints.index(joint)] = 0.0
 
-    def deactivate(self) -> None:
+    def on_deactivate(self) -> None:
         self.enabled = False
 
     def read(self, t: float, dt: float, state: JointState) -> None:

@@ -3,12 +3,11 @@
 `hild emulate --plant twin` puts firmware-faithful drives (drivers/can/emulator) in front of this plant, so a daemon
 talking CAN sees the same arm the twin driver simulates. The emulator works in *actuator space* — the shaft angle a
 drive senses and the torque it produces — while the model is built in joint space, so every joint carries the
-config's transmission (``q_joint = direction · q_actuator / reduction + offset``):
+config's transmission, mapped by the daemon's own :class:`hild.transmission.Transmissions`:
 
-* positions and velocities are published in actuator space: ``q_act = direction · (q_joint − offset) · reduction``,
-  ``q̇_act = direction · q̇_joint · reduction``;
-* a drive torque acts on the joint as ``τ_joint = direction · reduction · τ_act`` (applied as ``qfrc_applied``);
-  the drives saturate their own torque, so the model's actuatorfrcrange is not applied on top.
+* positions and velocities are published in actuator space;
+* a drive torque acts on the joint through the transmission (applied as ``qfrc_applied``); the drives saturate
+  their own torque, so the model's actuatorfrcrange is not applied on top.
 
 Like `MotorPlant`, `positions` and `velocities` are the plant's state: a caller may overwrite them (a brake, a test
 placing the arm), and the next `step` starts from the written values. Model joints without a drive move freely.
@@ -22,7 +21,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from hild.dynamics import SCALAR_JOINT_TYPES, joint_names, load_model, scalar_joint_addresses
+from hild.dynamics.model import SCALAR_JOINT_TYPES, joint_names, load_model, scalar_joint_addresses
+from hild.transmission import Transmissions
 
 __all__ = ["TwinPlant"]
 
@@ -63,9 +63,7 @@ class TwinPlant:
         self.offset = _per_joint(offset, n, "offset")
         if np.any(self.reduction <= 0.0) or not np.all(np.abs(self.direction) == 1.0):
             raise ValueError("reduction must be positive and direction ±1")
-        # direction = 1/direction, so one factor maps joint → actuator positions and velocities (after removing the
-        # offset) and actuator → joint torques: the power q̇·τ is the same on both sides.
-        self._scale = self.direction * self.reduction
+        self.transmissions = Transmissions(self.reduction, self.direction, self.offset)  # the daemon's maths
         own = set(self._qposadr.tolist())
         self.free_joints = [
             name
@@ -116,13 +114,12 @@ class TwinPlant:
     def joint_positions(self, out: np.ndarray | None = None) -> np.ndarray:
         """The emulated joints' positions in joint space, from the actuator-space state (written values included)."""
         out = np.empty(len(self.joints)) if out is None else out
-        np.divide(self.positions, self._scale, out=out)
-        np.add(out, self.offset, out=out)
+        self.transmissions.joint_positions(self.positions, out)
         return out
 
     def joint_velocities(self, out: np.ndarray | None = None) -> np.ndarray:
         out = np.empty(len(self.joints)) if out is None else out
-        np.divide(self.velocities, self._scale, out=out)
+        self.transmissions.joint_velocities(self.velocities, out)
         return out
 
     def step(self, torques: np.ndarray, dt: float) -> None:
@@ -132,7 +129,7 @@ class TwinPlant:
             and np.array_equal(self.velocities, self._published_velocities)
         ):
             self._adopt()
-        np.multiply(torques, self._scale, out=self._joint_torque)
+        self.transmissions.joint_efforts(torques, self._joint_torque)
         np.put(self._qfrc, self._dofadr, self._joint_torque)
         if self.model.opt.timestep != dt:
             self.model.opt.timestep = dt
@@ -143,18 +140,16 @@ class TwinPlant:
         """Joint-space state → actuator-space arrays (and remember them, to notice outside writes)."""
         q = self._joint_scratch
         np.take(self._qpos, self._qposadr, out=q)
-        np.subtract(q, self.offset, out=q)
-        np.multiply(q, self._scale, out=self.positions)
+        self.transmissions.actuator_positions(q, self.positions)
         np.take(self._qvel, self._dofadr, out=q)
-        np.multiply(q, self._scale, out=self.velocities)
+        self.transmissions.actuator_velocities(q, self.velocities)
         np.copyto(self._published_positions, self.positions)
         np.copyto(self._published_velocities, self.velocities)
 
     def _adopt(self) -> None:
         """Someone wrote the actuator-space arrays: make them the model's state."""
         q = self._joint_scratch
-        np.divide(self.positions, self._scale, out=q)
-        np.add(q, self.offset, out=q)
+        self.transmissions.joint_positions(self.positions, q)
         np.put(self._qpos, self._qposadr, q)
-        np.divide(self.velocities, self._scale, out=q)
+        self.transmissions.joint_velocities(self.velocities, q)
         np.put(self._qvel, self._dofadr, q)

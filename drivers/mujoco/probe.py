@@ -18,7 +18,7 @@ import numpy as np
 
 from drivers.mujoco.twin import MujocoTwinParams
 from hild.config import load_config
-from hild.dynamics import load_model
+from hild.dynamics.model import load_model
 
 WARMUP_STEPS = 200
 

@@ -10,11 +10,11 @@ Timing: ``write`` advances the physics by exactly one cycle period (``substeps``
 the simulation time is locked to the cycle clock whatever paces the cycle (wall clock for a real-time twin, the sim
 clock for lockstep tests; DESIGN.md §4). ``read`` returns the state at the end of the last ``write``.
 
-Lifecycle: like a real drive, the twin applies zero torque until ``activate`` and again after ``deactivate``; the
+Lifecycle: like a real drive, the twin applies zero torque until ``on_activate`` and again after ``on_deactivate``; the
 physics keeps running (the arm falls under gravity while disabled, as a real unbraked arm would).
 
 Latency: with ``command_latency_cycles = N`` the command written in cycle k is applied during the physics of cycle
-k + N (a preallocated ring of N + 1 commands). The ring starts empty (zero torque) at every ``activate``, so an
+k + N (a preallocated ring of N + 1 commands). The ring starts empty (zero torque) at every ``on_activate``, so an
 enabled drive applies zero torque for its first N cycles, as a drive that has not yet received a command.
 """
 
@@ -27,9 +27,9 @@ import mujoco
 import numpy as np
 
 from drivers.glitch import ReadingGlitch
-from hild.arrays import JointState, ServoCommand
+from hild.arrays import JointState, ServoCommand, contiguous_slice
 from hild.config.params import Field, Params
-from hild.dynamics import SCALAR_JOINT_TYPES, contiguous_slice, joint_names, load_model, scalar_joint_addresses
+from hild.dynamics.model import SCALAR_JOINT_TYPES, joint_names, load_model, scalar_joint_addresses
 from hild.hardware import ALL_COMMAND_FIELDS, HardwareComponent, HardwareContext, HardwareError
 
 __all__ = ["MujocoTwin", "MujocoTwinParams"]
@@ -103,7 +103,7 @@ class MujocoTwin(HardwareComponent):
 
     # ------------------------------------------------------------------ lifecycle (non real-time)
 
-    def configure(self) -> None:
+    def on_configure(self) -> None:
         p = self.params
         path = self.context.config_dir / p.model
         try:
@@ -166,11 +166,11 @@ class MujocoTwin(HardwareComponent):
         self._allocate()
         self.reset()
 
-    def activate(self) -> None:
+    def on_activate(self) -> None:
         self._clear_commands()
         self._active = True
 
-    def deactivate(self) -> None:
+    def on_deactivate(self) -> None:
         self._active = False
         if self.data is None or not self._ring:  # configure failed or cleanup ran: nothing is driven
             return
@@ -178,7 +178,7 @@ class MujocoTwin(HardwareComponent):
         self._tau.fill(0.0)
         self._frc_all.fill(0.0)
 
-    def cleanup(self) -> None:
+    def on_cleanup(self) -> None:
         self._active = False
         self.model = self.data = None
         self._q = self._qd = self._frc = self._qpos_all = self._qvel_all = self._frc_all = None  # views on the data

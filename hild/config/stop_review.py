@@ -40,7 +40,7 @@ def review_model(loaded: LoadedConfig) -> list[SafetyFinding]:
     cfg = loaded.config
     if cfg.robot.model is None:
         return []
-    from hild.dynamics import GravityModel  # mujoco stays behind this seam
+    from hild.dynamics.gravity import GravityModel  # mujoco stays behind this seam
 
     joints = list(cfg.joints)
     try:

@@ -28,7 +28,7 @@ from hild.arrays import JointState, ServoCommand
 from hild.config.model import JointLimits
 from hild.config.params import Field, Params, model_validator
 from hild.controller import Controller, ControllerContext
-from hild.controllers.planning import first_taken_over, interface_claims, missing_planning_limits
+from hild.controllers.motion_common import first_taken_over, interface_claims, missing_planning_limits
 from hild.controllers.trajectory_goals import GoalContext, PreparedGoal, parse_goal
 from hild.motion.limits import KinematicLimits
 from hild.motion.planning import PlanningError, plan_stop

@@ -32,7 +32,7 @@ from hild.arrays import JointState, ServoCommand
 from hild.config.model import JointLimits
 from hild.config.params import Field, Params, model_validator
 from hild.controller import Controller, ControllerContext
-from hild.controllers.planning import first_taken_over, interface_claims, missing_planning_limits
+from hild.controllers.motion_common import first_taken_over, interface_claims, missing_planning_limits
 from hild.crossing.mailboxes import LatestNumbers
 
 # Plan a hair inside the limits, so rounding in ruckig's profiles never trips the supervisor's velocity, slew

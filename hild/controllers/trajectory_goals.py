@@ -34,7 +34,7 @@ from hild.motion.tables import SegmentTable
 from hild.motion.trajectory import Trajectory, point_velocities, splice, timed_table
 
 MAX_POINTS = 10_000  # a timed goal this long takes ~0.1 s to prepare (off the event loop, but on the GIL)
-MAX_WAYPOINTS = 250  # untimed: planning takes ~1–2 ms per waypoint
+MAX_WAYPOINTS = 250  # untimed: each waypoint is a ruckig plan, the costliest part of parsing a goal
 AT_REST = 1e-9  # |v|, |a| below this count as zero when deciding whether a final stop segment is needed
 
 

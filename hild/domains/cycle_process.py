@@ -2,12 +2,12 @@
 
 Started by the client domain (:class:`hild.domains.remote.RemoteCycle`) as ``python -m hild.domains.cycle_process``
 with a pickled :class:`CycleSpec` on its standard input and two inherited file descriptors: the shared region and
-the doorbell (an eventfd the client domain's loop waits on). It runs no Zenoh, no asyncio and, once live, no Python
+the wake-up eventfd (the client domain's loop waits on it). It runs no Zenoh, no asyncio and, once live, no Python
 thread but the cycle: nothing a client does can take its interpreter's lock.
 
 Around each ``engine.step`` (:class:`CrossingCycle`): before, it takes what the client domain asked (stop, e-stop,
 queued requests); after, it hands out what changed (vitals, the snapshot when ``change_seq`` moved, events,
-replies) and rings the doorbell at most once. It stops when asked, on SIGTERM, or when its parent is gone (the
+replies) and wakes the client domain at most once. It stops when asked, on SIGTERM, or when its parent is gone (the
 arm is then held and released as on any stop); SIGINT is left to the daemon, which asks for the stop itself.
 """
 
@@ -57,26 +57,26 @@ class CycleSpec:
     loaded: LoadedConfig
     region_fd: int
     region_size: int
-    doorbell_fd: int
+    wakeup_fd: int
     parent_pid: int
     go_timeout: float
     telemetry: TelemetryRing | None = None
 
 
-class Doorbell:
-    """Wakes the client domain's loop: one eventfd write, at most once per cycle, never blocking (a full counter
-    would need 2⁶⁴ rings)."""
+class ClientWakeup:
+    """Wakes the client domain's loop: ``mark`` when there is something for it, ``send`` once per cycle (one
+    eventfd write when marked, never blocking: a full counter would need 2⁶⁴ wake-ups)."""
 
     def __init__(self, fd: int) -> None:
         self.fd = fd
-        self.rung = False
+        self.marked = False
 
-    def ring(self) -> None:
-        self.rung = True
+    def mark(self) -> None:
+        self.marked = True
 
     def send(self) -> None:
-        if self.rung:
-            self.rung = False
+        if self.marked:
+            self.marked = False
             try:  # noqa: SIM105 — no context manager object per cycle on the cycle thread
                 os.eventfd_write(self.fd, 1)
             except BlockingIOError:  # the counter is full: the loop has plenty to read already
@@ -86,9 +86,9 @@ class Doorbell:
 class Outbox:
     """What the cycle hands to the client domain: events, replies, the snapshot and vitals."""
 
-    def __init__(self, cells: EngineCells, bell: Doorbell) -> None:
+    def __init__(self, cells: EngineCells, wakeup: ClientWakeup) -> None:
         self.cells = cells
-        self.bell = bell
+        self.wakeup = wakeup
         self.orphaned = False  # the daemon is gone: nobody drains the queue, so events go to this process's log
         self._lost = 0
 
@@ -102,7 +102,7 @@ class Outbox:
                 continue
             self._lost += 1  # the client domain is not draining: count, never wait
             self.cells.vitals[Vital.EVENTS_LOST] = self._lost
-        self.bell.ring()
+        self.wakeup.mark()
 
     def reply(self, ident: int, future: concurrent.futures.Future[Any]) -> None:
         error = future.exception()
@@ -112,13 +112,13 @@ class Outbox:
             record = (ident, False, (type(error).__name__, str(error), getattr(error, "details", {})))
         if not self.cells.replies.offer(record):  # cannot happen while the client keeps REQUESTS in flight
             log.error("reply %d lost: the replies queue is full", ident)
-        self.bell.ring()
+        self.wakeup.mark()
 
     def failure(self, text: str, log_: EventLog) -> None:
         self.cells.failure.put(text)
         self.events(log_)
         self.cells.vitals[Vital.PHASE] = Phase.FAILED
-        self.bell.send()
+        self.wakeup.send()
 
 
 class CrossingCycle(CycleThread):
@@ -149,13 +149,13 @@ class CrossingCycle(CycleThread):
             self._last_change = engine.change_seq
             cells.snapshot.put(engine.snapshot())
             vitals[Vital.CHANGE_SEQ] = self._last_change  # after the snapshot: whoever sees it finds the snapshot
-            self.outbox.bell.ring()
+            self.outbox.wakeup.mark()
         if engine.cycle % self._vitals_every == 0:
             cells.clock[1:] = engine.supervisor.longest_silence
             vitals[Vital.PYTHON_THREADS] = threading.active_count()
-        if self.outbox.bell.rung:
+        if self.outbox.wakeup.marked:
             self.outbox.events(engine.events)
-            self.outbox.bell.send()
+            self.outbox.wakeup.send()
 
     def _take_asks(self) -> None:
         asks, engine = self.cells.asks, self.engine
@@ -185,7 +185,7 @@ class CrossingCycle(CycleThread):
     def _estop_done(self, counter: int, future: concurrent.futures.Future[Any]) -> None:
         self.cells.estop_reply.put((counter, future.result()))
         self.cells.vitals[Vital.ESTOP_DONE] = counter
-        self.outbox.bell.ring()
+        self.outbox.wakeup.mark()
 
 
 def _attach_telemetry(ring: TelemetryRing, engine: Engine) -> Any:
@@ -216,7 +216,7 @@ def run(spec: CycleSpec) -> int:
     cfg = spec.loaded.config
     region = Region.attach(spec.region_fd, spec.region_size)
     cells = EngineCells(region, len(cfg.joints), create=False)
-    outbox = Outbox(cells, Doorbell(spec.doorbell_fd))
+    outbox = Outbox(cells, ClientWakeup(spec.wakeup_fd))
     cells.vitals[Vital.PID] = os.getpid()
     terminated = [False]
     cycle: CrossingCycle | None = None
@@ -230,7 +230,7 @@ def run(spec: CycleSpec) -> int:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # a terminal's Ctrl-C reaches both: the daemon asks the stop
     scratch = EventLog()
     try:
-        engine = Engine(spec.loaded, Shared(region, create=False), stats=cells.stats, doorbell=outbox.bell.ring)
+        engine = Engine(spec.loaded, Shared(region, create=False), stats=cells.stats, wake_client=outbox.wakeup.mark)
     except Exception as exc:
         outbox.failure(f"cannot build {spec.loaded.path}: {exc}", scratch)
         return 1
@@ -249,12 +249,12 @@ def run(spec: CycleSpec) -> int:
     cells.vitals[Vital.CHANGE_SEQ] = engine.change_seq
     cells.vitals[Vital.PHASE] = Phase.BROUGHT_UP
     outbox.events(engine.events)
-    outbox.bell.send()
+    outbox.wakeup.send()
     if not _wait_for_go(cells, spec, terminated):
         engine.release()
         outbox.events(engine.events)
         cells.vitals[Vital.PHASE] = Phase.STOPPED
-        outbox.bell.send()
+        outbox.wakeup.send()
         return 0
     try:
         engine.go_live()
@@ -268,7 +268,7 @@ def run(spec: CycleSpec) -> int:
     cells.vitals[Vital.CHANGE_SEQ] = engine.change_seq
     outbox.events(engine.events)
     cells.vitals[Vital.PHASE] = Phase.STOPPED
-    outbox.bell.send()
+    outbox.wakeup.send()
     return 1 if cycle.error is not None else 0
 
 

@@ -87,7 +87,7 @@ class MainProcess:
         self.client = subprocess.Popen(
             [sys.executable, "-m", "hild.domains.client_process"],
             stdin=subprocess.PIPE,
-            pass_fds=(self.crossing.region.fd, self.crossing.doorbell_fd),
+            pass_fds=(self.crossing.region.fd, self.crossing.wakeup_fd),
             env=env,
         )
         assert self.client.stdin is not None
@@ -221,7 +221,11 @@ class MainProcess:
 
 
 def run_main_process(loaded: LoadedConfig, listen: list[str] | None = None) -> int:
-    main = MainProcess(loaded, listen)
+    try:
+        main = MainProcess(loaded, listen)
+    except ValueError as exc:  # a controller that cannot be built from this config
+        log.error("cannot build %s: %s", loaded.path, exc)
+        return 1
     try:
         return asyncio.run(main.run())
     finally:

@@ -2,7 +2,7 @@
 
 :class:`RemoteCycle` meets :class:`hild.domains.link.CycleLink` for the API and the daemon: requests go into the
 shared region's queue (a full queue refuses at once, as the engine's own does), e-stops through their own counter
-(never queued behind anything), and replies, events and snapshots come back when the cycle rings the doorbell and
+(never queued behind anything), and replies, events and snapshots come back when the cycle wakes this process and
 the loop calls :meth:`RemoteCycle.take`. The controllers' API halves are built here first: building them carves
 the region the cycle process then finds.
 """
@@ -46,45 +46,45 @@ class Attachment:
 
     region_fd: int
     region_size: int
-    doorbell_fd: int
+    wakeup_fd: int
     parent_pid: int  # the main process: when it is gone, so is the unit
     restarted_after: str | None = None  # why the previous client domain ended; None for the first
 
 
 class Crossing:
-    """The shared region with the engine's cells and the controllers' API halves, and the doorbell: all a client
+    """The shared region with the engine's cells and the controllers' API halves, and the wake-up eventfd: all a client
     domain needs to reach a cycle process. Carved once (:meth:`carve`: building the halves lays the region out);
     a client domain started later finds the same cells (:meth:`attach`)."""
 
-    def __init__(self, loaded: LoadedConfig, region: Region, doorbell_fd: int, *, create: bool) -> None:
+    def __init__(self, loaded: LoadedConfig, region: Region, wakeup_fd: int, *, create: bool) -> None:
         from hild.api.halves import api_halves  # builds every controller plugin: only when the cycle is elsewhere
 
         self.region = region
-        self.doorbell_fd = doorbell_fd
+        self.wakeup_fd = wakeup_fd
         self.events = EventLog()  # the API halves' events (refused goals …): the client domain's own
         self.halves = api_halves(loaded, Shared(region, create=create), self.events.emit)
         self.cells = EngineCells(region, len(loaded.config.joints), create=create)
 
     @classmethod
     def carve(cls, loaded: LoadedConfig) -> Crossing:
-        doorbell = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
-        return cls(loaded, Region(REGION_BYTES), doorbell, create=True)
+        wakeup = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
+        return cls(loaded, Region(REGION_BYTES), wakeup, create=True)
 
     @classmethod
     def attach(cls, loaded: LoadedConfig, at: Attachment) -> Crossing:
-        return cls(loaded, Region.attach(at.region_fd, at.region_size), at.doorbell_fd, create=False)
+        return cls(loaded, Region.attach(at.region_fd, at.region_size), at.wakeup_fd, create=False)
 
     def attachment(self, parent_pid: int, restarted_after: str | None = None) -> Attachment:
-        return Attachment(self.region.fd, self.region.size, self.doorbell_fd, parent_pid, restarted_after)
+        return Attachment(self.region.fd, self.region.size, self.wakeup_fd, parent_pid, restarted_after)
 
     def spawn_cycle(self, loaded: LoadedConfig, telemetry: TelemetryRing | None = None) -> subprocess.Popen[bytes]:
         """Start the cycle process as a child of this process (which it watches: it stops when this one is
         gone)."""
-        spec = CycleSpec(loaded, self.region.fd, self.region.size, self.doorbell_fd, os.getpid(), GO_TIMEOUT, telemetry)
+        spec = CycleSpec(loaded, self.region.fd, self.region.size, self.wakeup_fd, os.getpid(), GO_TIMEOUT, telemetry)
         process = subprocess.Popen(
             [sys.executable, "-m", "hild.domains.cycle_process"],
             stdin=subprocess.PIPE,
-            pass_fds=(self.region.fd, self.doorbell_fd),
+            pass_fds=(self.region.fd, self.wakeup_fd),
         )
         assert process.stdin is not None
         with process.stdin as stdin:
@@ -114,7 +114,7 @@ class RemoteCycle:
         self._halves = self.crossing.halves
         self.cells = self.crossing.cells
         self.stats = self.cells.stats
-        self.doorbell_fd = self.crossing.doorbell_fd
+        self.wakeup_fd = self.crossing.wakeup_fd
         self.process: subprocess.Popen[bytes] | None = None
         self._lock = threading.Lock()  # request ids, futures, the snapshot cache: several client threads
         # Ids unique across client domains: replies to a dead one's requests may still be in the queue.
@@ -199,7 +199,7 @@ class RemoteCycle:
         return None if self.process is None else self.process.poll()
 
     def close(self) -> None:
-        os.close(self.doorbell_fd)
+        os.close(self.wakeup_fd)
 
     # ---- reading back -------------------------------------------------------------------------------------------
     @property
@@ -281,7 +281,7 @@ class RemoteCycle:
     def take(self) -> list[Event]:
         """What the cycle rang for: answer replies and e-stops, and return its events (the loop's thread)."""
         with contextlib.suppress(BlockingIOError):
-            os.eventfd_read(self.doorbell_fd)
+            os.eventfd_read(self.wakeup_fd)
         while (record := self.cells.replies.poll()) is not None:
             ident, ok, value = record  # type: ignore[misc]
             with self._lock:

@@ -1,8 +1,8 @@
 """The arm in 3D: model shapes logged once (static), body poses sent as columns at the decimated pose rate.
 
-Shapes come from :class:`hild.dynamics.Kinematics` as plain arrays (mujoco stays in its room). Each body is an
-entity ``arm/<body>`` whose ``Transform3D`` is its world pose; its geoms are static children with their local pose,
-so the viewer composes them. Planes (floors) are left out: they would dwarf the arm.
+Shapes come from :class:`hild.dynamics.kinematics.Kinematics` as plain arrays (mujoco stays in its room). Each body
+is an entity ``arm/<body>`` whose ``Transform3D`` is its world pose; its geoms are static children with their local
+pose, so the viewer composes them. Planes (floors) are left out: they would dwarf the arm.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 import rerun as rr
 
-from hild.dynamics import GeomShape, Kinematics
+from hild.dynamics.kinematics import GeomShape, Kinematics
 from hild.telemetry.layout import ARM, body_path
 
 

@@ -70,7 +70,7 @@ class Recorder:
         self.flushes, self.flush_seconds, self.flush_max = 0, 0.0, 0.0
         self.scene = None
         if setup.model is not None:
-            from hild.dynamics import Kinematics  # mujoco stays behind hild.dynamics
+            from hild.dynamics.kinematics import Kinematics  # mujoco stays behind hild.dynamics
             from hild.telemetry.arm3d import ArmScene
 
             self.scene = ArmScene(Kinematics(setup.model, self.joints))

@@ -7,10 +7,9 @@ Tests wait on conditions (``wait_for``) with generous timeouts; no assertion dep
 from __future__ import annotations
 
 import asyncio
-import socket
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +21,7 @@ from hild.api.server import ApiServer
 from hild.config import load_config
 from hild.config.model import ZenohSection
 from hild.engine import Engine
+from tests.helpers import free_endpoint
 
 ROBOT = "mock3"
 WAIT = 10.0  # s: generous; conditions are normally met in milliseconds
@@ -55,23 +55,6 @@ def robot_config() -> dict[str, Any]:
     }
 
 
-def free_endpoint() -> str:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
-
-
-def wait_for(condition: Callable[[], Any], timeout: float = WAIT, what: str = "condition") -> Any:
-    deadline = time.monotonic() + timeout
-    while True:
-        value = condition()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
-        time.sleep(0.005)
-
-
 class Stepper(threading.Thread):
     """Plays the cycle thread: one lockstep cycle about every millisecond while ``running`` is set."""
 
@@ -90,7 +73,7 @@ class Stepper(threading.Thread):
 
 
 class Daemon:
-    """Engine + stepper + ApiServer on a background asyncio loop, wired like hild.daemon (coalesced doorbell)."""
+    """Engine + stepper + ApiServer on a background asyncio loop, wired like hild.daemon (coalesced wake-ups)."""
 
     def __init__(self, engine: Engine, endpoint: str, settings: ZenohSection | None = None) -> None:
         self.engine = engine
@@ -102,7 +85,7 @@ class Daemon:
         self.published_events: list[dict[str, Any]] = []
         self._pending = False
 
-    def _doorbell(self) -> None:
+    def _wake_from_cycle(self) -> None:
         if not self._pending:
             self._pending = True
             self.loop.call_soon_threadsafe(self._wake)
@@ -118,7 +101,7 @@ class Daemon:
 
     def start(self) -> None:
         self.thread.start()
-        self.engine.doorbell = self._doorbell
+        self.engine.wake_client = self._wake_from_cycle
         self.engine.start()
         self.run(self.server.start())
         self.loop.call_soon_threadsafe(self._wake)
@@ -127,7 +110,7 @@ class Daemon:
     def stop(self) -> None:
         self.stepper.stopped.set()
         self.stepper.join(WAIT)
-        self.engine.doorbell = lambda: None
+        self.engine.wake_client = lambda: None
         self.run(self.server.close())
         self.loop.call_soon_threadsafe(self.loop.stop)
         self.thread.join(WAIT)

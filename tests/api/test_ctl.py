@@ -8,7 +8,8 @@ import json
 import pytest
 
 from hild.api.ctl import EXIT_OK, EXIT_SERVICE, EXIT_UNREACHABLE, add_ctl_parser, run_ctl
-from tests.api.conftest import ROBOT, Daemon, free_endpoint
+from tests.api.conftest import ROBOT, Daemon
+from tests.helpers import free_endpoint
 
 
 def parse(*argv: str) -> argparse.Namespace:

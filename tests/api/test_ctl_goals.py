@@ -17,8 +17,9 @@ import yaml
 from hild.api.ctl import EXIT_OK, EXIT_SERVICE
 from hild.config import load_config
 from hild.engine import Engine
-from tests.api.conftest import ROBOT, Daemon, free_endpoint, robot_config
+from tests.api.conftest import ROBOT, Daemon, robot_config
 from tests.api.test_ctl import ctl
+from tests.helpers import free_endpoint
 
 
 def daemon_with(tmp_path: Path, trajectory_controllers: list[str]) -> Iterator[Daemon]:

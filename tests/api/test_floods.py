@@ -42,8 +42,9 @@ from hild.controllers.servo import ServoController
 from hild.controllers.trajectory_goals import MAX_POINTS, parse_goal
 from hild.crossing.mailboxes import Flag
 from hild.engine import Engine
-from tests.api.conftest import ROBOT, WAIT, Daemon, engine_with_trajectory, wait_for
+from tests.api.conftest import ROBOT, WAIT, Daemon, engine_with_trajectory
 from tests.fuzz.test_regressions import goal_context
+from tests.helpers import wait_for
 
 WIDE = 90_000  # keys: the object of the finding (1 MiB of them when sent)
 

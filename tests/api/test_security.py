@@ -28,8 +28,9 @@ from hild.cli import main as hild_main
 from hild.config import load_config
 from hild.config.model import TelemetrySection, ZenohSection
 from hild.engine import Engine
-from tests.api.conftest import ROBOT, Daemon, engine_with_trajectory, free_endpoint, wait_for
+from tests.api.conftest import ROBOT, Daemon, engine_with_trajectory
 from tests.conftest import CONFIGS
+from tests.helpers import free_endpoint, wait_for
 
 SECURE = CONFIGS / "secure"
 SERVER_FILE = SECURE / "zenoh-server.json5"

@@ -10,7 +10,8 @@ import pytest
 from hild.api.client import HildClient, HildError, HildUnreachable
 from hild.api.codec import MAX_PAYLOAD
 from hild.api.keys import SERVICES
-from tests.api.conftest import ROBOT, Daemon, wait_for
+from tests.api.conftest import ROBOT, Daemon
+from tests.helpers import wait_for
 
 
 def raw_call(client: HildClient, service: str, raw: bytes) -> dict[str, Any]:

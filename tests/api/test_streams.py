@@ -13,7 +13,8 @@ import zenoh
 from hild.api.client import HildClient, HildUnreachable
 from hild.api.codec import MAX_PAYLOAD
 from hild.engine import Engine
-from tests.api.conftest import ROBOT, Daemon, free_endpoint, wait_for
+from tests.api.conftest import ROBOT, Daemon
+from tests.helpers import free_endpoint, wait_for
 
 FWD_KEY = f"hild/{ROBOT}/ctrl/fwd/commands"
 

@@ -20,7 +20,8 @@ from hild.daemon import Daemon as DaemonProcess
 from hild.daemon import run_daemon
 from hild.engine import Engine
 from hild.hardware import HardwareError
-from tests.api.conftest import Daemon, free_endpoint, robot_config, wait_for
+from tests.api.conftest import Daemon, robot_config
+from tests.helpers import free_endpoint, wait_for
 
 
 def another_engine(tmp_path: Path, name: str = "second.yaml") -> Engine:

@@ -21,9 +21,8 @@ from hild.config import load_config
 from hild.domains.layout import Ask
 from hild.domains.main_process import RESTARTS_ALLOWED, MainProcess
 from hild.telemetry import replay
-from tests.api.conftest import free_endpoint
 from tests.conftest import merge, mock_robot
-from tests.daemon_process import HildRun
+from tests.helpers import HildRun, free_endpoint
 
 REAL_TIME = {"clock": {"source": "sim", "real_time_factor": 1.0}}
 JTC = {"jtc": {"type": "joint_trajectory", "params": {"joints": ["a", "b", "c"]}}}

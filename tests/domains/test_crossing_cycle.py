@@ -13,7 +13,7 @@ import pytest
 from hild.config import load_config
 from hild.crossing.mailboxes import Shared
 from hild.crossing.region import Region
-from hild.domains.cycle_process import CrossingCycle, Doorbell, Outbox
+from hild.domains.cycle_process import ClientWakeup, CrossingCycle, Outbox
 from hild.domains.layout import REQUESTS, EngineCells
 from hild.domains.remote import RemoteCycle
 from hild.engine import Engine
@@ -38,8 +38,8 @@ def lockstep(write_config: Callable[..., Path]) -> Iterator[Lockstep]:
     remote = RemoteCycle(loaded)
     region = Region.attach(remote.region.fd, remote.region.size)
     cells = EngineCells(region, len(remote.joints), create=False)
-    outbox = Outbox(cells, Doorbell(remote.doorbell_fd))
-    engine = Engine(loaded, Shared(region, create=False), stats=cells.stats, doorbell=outbox.bell.ring)
+    outbox = Outbox(cells, ClientWakeup(remote.wakeup_fd))
+    engine = Engine(loaded, Shared(region, create=False), stats=cells.stats, wake_client=outbox.wakeup.mark)
     engine.start()
     yield Lockstep(remote, engine, CrossingCycle(engine, cells, outbox, os.getppid()))
     remote.close()

@@ -24,9 +24,8 @@ from hild.config import load_config
 from hild.daemon import Daemon, StartupError
 from hild.domains.layout import ClientPhase, Phase
 from hild.domains.main_process import MainProcess
-from tests.api.conftest import free_endpoint
 from tests.conftest import Systemd, merge, mock_robot
-from tests.daemon_process import HildRun
+from tests.helpers import HildRun, free_endpoint
 
 WAIT = 20.0
 SPLIT = {"realtime": {"cycle_process": True}, "clock": {"source": "sim", "real_time_factor": 1.0}}

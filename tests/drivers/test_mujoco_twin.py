@@ -10,7 +10,7 @@ import pytest
 
 from drivers.mujoco import MujocoTwin
 from hild.arrays import JointState, ServoCommand
-from hild.dynamics import GravityModel
+from hild.dynamics.gravity import GravityModel
 from hild.hardware import ALL_COMMAND_FIELDS, HardwareContext, HardwareError
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
@@ -49,9 +49,9 @@ def start(twin: MujocoTwin) -> tuple[JointState, ServoCommand]:
     """The engine's order: configure → read → activate."""
     n = len(twin.joints)
     state, command = JointState.zeros(n), ServoCommand.zeros(n)
-    twin.configure()
+    twin.on_configure()
     twin.read(0.0, 1.0 / RATE, state)
-    twin.activate()
+    twin.on_activate()
     return state, command
 
 
@@ -231,9 +231,9 @@ def test_latency_ring_is_cleared_on_reactivation() -> None:
     state, command = start(twin)
     command.effort[:] = 1.0
     cycle(twin, state, command)  # queued, not applied yet
-    twin.deactivate()
+    twin.on_deactivate()
     twin.reset()
-    twin.activate()
+    twin.on_activate()
     command.effort[:] = 0.0
     for _ in range(4):
         cycle(twin, state, command)
@@ -245,7 +245,7 @@ def test_zero_torque_before_activate_and_after_deactivate() -> None:
     ref_state, idle = start(reference)  # active, zero command
     disabled = make_twin()
     state = JointState.zeros(6)
-    disabled.configure()
+    disabled.on_configure()
     disabled.read(0.0, 0.0, state)
     push = ServoCommand.zeros(6)
     push.effort[:] = 20.0
@@ -255,10 +255,10 @@ def test_zero_torque_before_activate_and_after_deactivate() -> None:
     np.testing.assert_array_equal(state.effort, 0.0)
     np.testing.assert_array_equal(state.position, ref_state.position)  # falls exactly as with zero torque
 
-    disabled.activate()
+    disabled.on_activate()
     cycle(disabled, state, push)
     assert np.all(state.effort == 20.0)
-    disabled.deactivate()
+    disabled.on_deactivate()
     disabled.read(0.0, 0.0, state)
     np.testing.assert_array_equal(state.effort, 0.0)
     cycle(disabled, state, push)
@@ -402,7 +402,7 @@ def test_model_actuators_are_reported_as_unused(tmp_path: Path) -> None:
 def test_joint_name_mismatch_lists_both_sets() -> None:
     joints = ("shoulder_pan", "shoulder_lift", "elbo", "wrist_1", "wrist_2", "wrist_3")
     with pytest.raises(HardwareError) as info:
-        make_twin(joints=joints).configure()
+        make_twin(joints=joints).on_configure()
     message = str(info.value)
     assert "elbo" in message
     assert "elbow" in message  # the model's names
@@ -415,7 +415,7 @@ def test_missing_torque_limit_names_the_joint(tmp_path: Path) -> None:
         <geom type="capsule" fromto="0 0 0 0.5 0 0" size="0.05"/></body></worldbody></mujoco>"""
     )
     with pytest.raises(HardwareError, match=r"no torque limit for joint hinge_a"):
-        make_twin(joints=("hinge_a",), config_dir=tmp_path, model="bare.xml").configure()
+        make_twin(joints=("hinge_a",), config_dir=tmp_path, model="bare.xml").on_configure()
     twin = make_twin(joints=("hinge_a",), config_dir=tmp_path, model="bare.xml", torque_limits={"hinge_a": 5.0})
     state, command = start(twin)
     command.effort[:] = 100.0
@@ -426,16 +426,16 @@ def test_missing_torque_limit_names_the_joint(tmp_path: Path) -> None:
 @pytest.mark.parametrize("table", ["friction", "armature", "damping", "torque_limits", "initial_positions"])
 def test_unknown_joint_in_a_param_table_is_an_error(table: str) -> None:
     with pytest.raises(HardwareError, match=rf"params\.{table} names unknown joints \['elbw'\]"):
-        make_twin(**{table: {"elbw": 1.0}}).configure()
+        make_twin(**{table: {"elbw": 1.0}}).on_configure()
 
 
 def test_bad_model_keyframe_and_start_position_are_clear_errors() -> None:
     with pytest.raises(HardwareError, match=r"missing\.xml"):
-        make_twin(model="missing.xml").configure()
+        make_twin(model="missing.xml").on_configure()
     with pytest.raises(HardwareError, match=r"no keyframe 'park'.*home"):
-        make_twin(keyframe="park").configure()
+        make_twin(keyframe="park").on_configure()
     with pytest.raises(HardwareError, match=r"initial position 4\.0 of elbow is outside"):
-        make_twin(initial_positions={"elbow": 4.0}).configure()
+        make_twin(initial_positions={"elbow": 4.0}).on_configure()
 
 
 def test_params_are_strict() -> None:
@@ -473,9 +473,9 @@ def test_rrbot_urdf_keeps_joint_names_and_effort_limits() -> None:
 def test_a_twin_whose_configure_failed_can_still_be_deactivated_and_cleaned_up() -> None:
     twin = make_twin(model="missing.xml")
     with pytest.raises(HardwareError):
-        twin.configure()
-    twin.deactivate()  # the engine's release path after a failed start
-    twin.cleanup()
+        twin.on_configure()
+    twin.on_deactivate()  # the engine's release path after a failed start
+    twin.on_cleanup()
     assert twin.data is None
 
 
@@ -496,4 +496,4 @@ def test_excluded_contacts_are_ignored_and_unknown_bodies_refused(tmp_path: Path
     with pytest.raises(HardwareError, match=r"exclude_contacts names bodies it does not have: nope"):
         make_twin(
             joints=("lift",), config_dir=tmp_path, model="overlap.xml", exclude_contacts=[("arm", "nope")]
-        ).configure()
+        ).on_configure()

@@ -21,7 +21,8 @@ import numpy as np
 from drivers.can.emulator.runtime import request
 from hild.api.client import HildClient, HildUnreachable
 from tests.conftest import CONFIGS
-from tests.test_e2e_can import distinct_free_ports, stop
+from tests.helpers import distinct_free_ports, domain_pid
+from tests.test_e2e_can import stop
 
 HOST = "127.0.0.1"
 CONFIG = "arm6_can_loopback.yaml"
@@ -162,43 +163,6 @@ class CanProcesses:
             except (OSError, subprocess.TimeoutExpired):
                 pass
         stop(self.emulator)
-
-
-def child_pids(pid: int) -> list[int]:
-    """The processes whose parent is ``pid`` (from /proc)."""
-    found = []
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-            except OSError:
-                continue
-            if int(fields[1]) == pid:
-                found.append(int(entry.name))
-    return found
-
-
-def domain_pid(main_pid: int, module: str) -> int:
-    """The one child of the daemon's main process running ``hild.domains.<module>``."""
-    found = [pid for pid in child_pids(main_pid) if f"hild.domains.{module}".encode() in _cmdline(pid)]
-    assert len(found) == 1, f"the daemon {main_pid} has {len(found)} {module} children: {child_pids(main_pid)}"
-    return found[0]
-
-
-def _cmdline(pid: int) -> bytes:
-    try:
-        return (Path("/proc") / str(pid) / "cmdline").read_bytes()
-    except OSError:
-        return b""
-
-
-def running(pid: int) -> bool:
-    """Whether ``pid`` exists and is not a zombie (an orphan's exit is reaped by whoever adopted it, or not)."""
-    try:
-        state = (Path("/proc") / str(pid) / "stat").read_text().rsplit(")", 1)[1].split()[0]
-    except OSError:
-        return False
-    return state != "Z"
 
 
 def _hild() -> list[str]:

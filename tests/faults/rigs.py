@@ -17,7 +17,6 @@ land between two cycles.
 from __future__ import annotations
 
 import asyncio
-import socket
 import tempfile
 import threading
 import time
@@ -45,6 +44,7 @@ from hild.engine import MAX_STEP_PERIODS, Engine
 from hild.events import Event
 from hild.modes import MODE_NAMES
 from tests.conftest import CONFIGS
+from tests.helpers import free_endpoint
 from tests.test_engine import JumpGuard
 
 JTC = "joint_trajectory"
@@ -391,7 +391,7 @@ class ApiRig(TwinRig):
     """A twin rig behind the daemon's Zenoh API (``ApiServer``) on a private loopback port.
 
     The API runs on an asyncio loop in a thread, as in the daemon; cycles are stepped by the test. After each cycle
-    the events it produced and the doorbell (feedback, results) are handed to the API, as the daemon's doorbell
+    the events it produced and the wake-ups (feedback, results) are handed to the API, as the daemon's wake-up
     does, so clients see what they would see from a daemon.
     """
 
@@ -403,7 +403,7 @@ class ApiRig(TwinRig):
         self._thread.start()
         self.server = ApiServer(self.engine, ZenohSection(), [self.endpoint], request_timeout=2.0)
         self._rang = False
-        self.engine.doorbell = self._ring
+        self.engine.wake_client = self._ring
         asyncio.run_coroutine_threadsafe(self.server.start(), self.loop).result(10.0)
 
     def _ring(self) -> None:
@@ -435,9 +435,3 @@ class ApiRig(TwinRig):
             self._thread.join(10.0)
             self.loop.close()
             super().close()
-
-
-def free_endpoint() -> str:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return f"tcp/127.0.0.1:{sock.getsockname()[1]}"

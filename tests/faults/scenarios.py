@@ -39,8 +39,9 @@ from hild.config import load_config
 from hild.controllers.joint_trajectory import JointTrajectoryController
 from hild.controllers.servo import Phase
 from hild.domains.cycle_process import PARENT_CHECK
-from tests.faults.processes import CanProcesses, running
+from tests.faults.processes import CanProcesses
 from tests.faults.rigs import JTC, ApiRig, CanRig, Lockstep, MockRig, TwinRig
+from tests.helpers import running
 
 MOVE = 0.6  # rad: CAN scenarios inject mid-way through a move_to of this size on every joint…
 TWIN_MOVE = 0.3  # rad: …twin ones through this one (arm6's twin gains settle a 0.6 rad move of every joint too late)
@@ -911,6 +912,58 @@ def _kill_client_domain(rigs: CanProcesses) -> tuple[str, str, str, str]:
 
 
 RECONNECT_WITHIN = 10.0  # s: a new client domain (≈0.5 s) and Zenoh's reconnection (≈1 s), on a loaded machine
+
+
+@scenario(
+    "client_sigstop",
+    "client domain stalled",
+    "`kill -STOP` of the client domain for 1 s mid-trajectory (a debugger, a page storm, a long GC), then `-CONT`",
+)
+def _client_sigstop() -> tuple[str, str, str, str]:
+    return _with_processes(_stall_client_domain)
+
+
+def _stall_client_domain(rigs: CanProcesses) -> tuple[str, str, str, str]:
+    with rigs.start_daemon() as arm:
+        arm.switch(activate=[JTC])
+        home = rigs.positions()
+        goal = {"positions": (home + 0.3).tolist(), "duration": 3.0}
+        handle = arm.send_goal(JTC, goal, watched=False)
+        goal_id = handle.goal_id
+        handle.close()
+        rigs.wait(lambda: np.abs(rigs.positions() - home).max() > 0.05, "the arm to move")
+        client, before = rigs.client_process(), rigs.positions()
+        os.kill(client, signal.SIGSTOP)
+        try:
+            time.sleep(STALL_CLIENT)
+            during = rigs.positions()  # the emulator's drives: the arm moved on while nobody answered clients
+        finally:
+            os.kill(client, signal.SIGCONT)
+        assert np.abs(during - before).max() > 0.05, f"the arm stood still during the stall: {during - before}"
+        result = _until_answered(rigs, lambda: _finished(arm.goal_result(JTC, goal_id)))
+        assert result["status"] == "succeeded", result
+        assert rigs.client_process() == client, "a stalled client domain is not restarted"
+        assert all(d["enabled"] and d["fault"] == 0 for d in rigs.drives())
+        with arm.send_goal(JTC, {"positions": home.tolist(), "duration": 2.0}) as follow:
+            assert follow.wait(30.0)["status"] == "succeeded"
+    detected = "— (nothing to detect: the cycle does not wait for the client domain)"
+    held = (
+        "the cycle process ran on: the goal kept executing on the cycle clock and succeeded; drives enabled, no fault"
+    )
+    event = "none (the client domain's replies and publications resume where they stopped)"
+    recovery = (
+        "nothing: the client domain answers again when resumed, the goal's result reads `succeeded`; next goal succeeds"
+    )
+    return detected, held, event, recovery
+
+
+STALL_CLIENT = 1.0  # s
+
+
+def _finished(result: dict[str, Any]) -> dict[str, Any]:
+    if result.get("status") == "executing":
+        raise HildError("still executing")
+    return result
 
 
 def _until_answered(rigs: CanProcesses, ask: Callable[[], dict[str, Any]]) -> dict[str, Any]:

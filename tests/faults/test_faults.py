@@ -88,7 +88,7 @@ def test_scenario(key: str) -> None:
     elif key in ("delayed_short", "corrupt_burst") or key.endswith("glitch_short"):
         assert (first == "—" and result.event != "none") or key == "delayed_short", result
     else:
-        assert key in ("sigkill", "daemon_sigkill", "client_sigkill"), f"no expectation for {key}"
+        assert key in ("sigkill", "daemon_sigkill", "client_sigkill", "client_sigstop"), f"no expectation for {key}"
     tolerated = key.startswith(("timeout_", "client_lost_")) or key.endswith("glitch_short")
     assert "next goal succeeds" in result.recovery or tolerated, result
 

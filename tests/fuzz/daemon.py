@@ -22,8 +22,8 @@ import yaml
 import zenoh
 
 from hild.api.client import HildClient, HildUnreachable
-from tests.api.conftest import free_endpoint
-from tests.api.conftest import wait_for as api_wait_for
+from tests.helpers import free_endpoint
+from tests.helpers import wait_for as api_wait_for
 
 ROBOT = "fuzz6"
 JOINTS = ("a", "b", "c", "d", "e", "f")

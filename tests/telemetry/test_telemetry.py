@@ -12,7 +12,6 @@ import logging
 import os
 import re
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -36,6 +35,7 @@ from hild.telemetry.replay import entity_row_counts, load_scalars, tracking
 from hild.telemetry.tap import SHM_PREFIX
 from hild.telemetry.worker import NICE
 from tests.conftest import CONFIGS, merge
+from tests.helpers import free_port
 
 ARM6_BODIES = ("shoulder_link", "upper_arm_link", "forearm_link", "wrist_1_link", "wrist_2_link", "wrist_3_link")
 
@@ -49,12 +49,6 @@ def arm6(telemetry: dict[str, Any]) -> dict[str, Any]:
 
 def file_telemetry(path: Path, **extra: Any) -> dict[str, Any]:
     return {"enabled": True, "sinks": [{"kind": "file", "path": str(path)}], **extra}
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 class Rig:

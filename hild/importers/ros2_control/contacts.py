@@ -20,7 +20,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from pathlib import Path
 
-from hild.dynamics import body_contacts
+from hild.dynamics.inspection import body_contacts
 from hild.importers.ros2_control.report import Report
 from hild.importers.ros2_control.urdf import Robot
 

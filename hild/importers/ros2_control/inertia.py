@@ -4,7 +4,7 @@ A joint's inertia (the diagonal of the joint-space mass matrix) changes with the
 almost nothing with the arm folded up and several times more with it stretched out. Gains tuned for the
 heaviest pose track everywhere; the drive law must also stay stable in the lightest pose at the twin's physics
 step. So the range matters, not one value. It is MuJoCo's own mass matrix of the twin's model
-(:func:`hild.dynamics.joint_dofs`) at the zero pose and a fixed set of pseudo-random poses within the limits.
+(:func:`hild.dynamics.inspection.joint_dofs`) at the zero pose and a fixed set of pseudo-random poses within the limits.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hild.dynamics import joint_dofs
+from hild.dynamics.inspection import joint_dofs
 
 SAMPLED_POSES = 64  # plus the zero pose; deterministic (fixed seed)
 

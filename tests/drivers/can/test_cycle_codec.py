@@ -149,7 +149,7 @@ def test_mit_cycle_sends_reference_frames_and_reads_reference_values(
             assert state.temperature.tolist() == pytest.approx(temperature, nan_ok=True)
         assert driver.bad_frames.total == 0
     finally:
-        driver.cleanup()
+        driver.on_cleanup()
 
 
 def test_odrive_cycle_sends_reference_frames_and_reads_reference_values(channel: tuple[str, can.BusABC]) -> None:
@@ -205,4 +205,4 @@ def test_odrive_cycle_sends_reference_frames_and_reads_reference_values(channel:
                 assert (state.position[k], state.velocity[k]) == (est.position * TAU, est.velocity * TAU)
         assert driver.bad_frames.total == 0
     finally:
-        driver.cleanup()
+        driver.on_cleanup()

@@ -86,9 +86,9 @@ class Rig:
         self.emulator.service(self.now)
 
     def start(self) -> None:
-        self.driver.configure()
+        self.driver.on_configure()
         self.driver.read(0.0, DT, self.state)
-        self.driver.activate()
+        self.driver.on_activate()
 
     def hold(self, kp: float = 20.0, kd: float = 1.0) -> None:
         """Command every motor to hold its measured position."""
@@ -111,8 +111,8 @@ class Rig:
         self.emulator_bus.send(msg)
 
     def close(self) -> None:
-        self.driver.deactivate()
-        self.driver.cleanup()
+        self.driver.on_deactivate()
+        self.driver.on_cleanup()
         self.emulator_bus.shutdown()
 
 
@@ -127,7 +127,7 @@ def rigs() -> Any:
 
     yield make
     for rig in made:
-        rig.driver.cleanup()
+        rig.driver.on_cleanup()
         rig.emulator_bus.shutdown()
 
 
@@ -142,13 +142,13 @@ def damiao_rig(rigs: Any, n: int = 2, **params: Any) -> Rig:
 
 def test_damiao_startup_reads_positions_before_enabling(rigs: Any) -> None:
     rig = damiao_rig(rigs, n=3, timeout_ms=50)
-    rig.driver.configure()
+    rig.driver.on_configure()
     assert not any(fw.enabled for fw in rig.firmwares)  # nothing enabled by configure
     rig.driver.read(0.0, DT, rig.state)
     np.testing.assert_allclose(rig.state.position, [0.3, 0.6, 0.9], atol=p_lsb(DM4310))
     assert rig.state.fresh.all() and not rig.state.fault.any()
     assert all(fw.registers[reg.TIMEOUT] == 1000 for fw in rig.firmwares)  # 50 ms in 50 µs counts
-    rig.driver.activate()
+    rig.driver.on_activate()
     assert all(fw.enabled for fw in rig.firmwares)
     rig.hold()
     rig.cycle(200)
@@ -166,7 +166,7 @@ def test_damiao_range_mismatch_refuses_to_start_naming_motor_and_values(rigs: An
     }
     rig = rigs("damiao", firmwares, motors)
     with pytest.raises(HardwareError, match=r"j1 \(id 0x2\): VMAX is 45 on the motor but 30 in the config"):
-        rig.driver.configure()
+        rig.driver.on_configure()
     assert rig.driver.link.bus is None  # the bus is released again
     assert not any(fw.enabled for fw in rig.firmwares)
 
@@ -183,7 +183,7 @@ def test_damiao_not_in_mit_mode_is_refused(rigs: Any) -> None:
     rig = damiao_rig(rigs, n=1)
     rig.firmwares[0].registers[reg.CTRL_MODE] = reg.CTRL_MODE_POS_VEL
     with pytest.raises(HardwareError, match=r"CTRL_MODE is 2, not MIT"):
-        rig.driver.configure()
+        rig.driver.on_configure()
 
 
 def test_motors_that_do_not_answer_are_listed(rigs: Any) -> None:
@@ -191,7 +191,7 @@ def test_motors_that_do_not_answer_are_listed(rigs: Any) -> None:
     rig.firmwares[0].silent = True
     rig.firmwares[2].silent = True
     with pytest.raises(HardwareError, match=r"did not answer register reads: j0 \(id 0x1, reply 0x11\), j2 \(id 0x3"):
-        rig.driver.configure()
+        rig.driver.on_configure()
 
 
 def test_tmotor_silent_motor_is_listed_at_startup(rigs: Any) -> None:
@@ -199,7 +199,7 @@ def test_tmotor_silent_motor_is_listed_at_startup(rigs: Any) -> None:
     rig = rigs("tmotor", firmwares, {"a": {"id": 1, "model": "AK80-9"}, "b": {"id": 2, "model": "AK80-9"}})
     firmwares["b"].silent = True
     with pytest.raises(HardwareError, match=r"motors did not answer on virtual:mit-\w+: b \(id 0x2, reply 0x0\)"):
-        rig.driver.configure()
+        rig.driver.on_configure()
 
 
 # ---- the cycle -------------------------------------------------------------------------------------------------
@@ -470,11 +470,11 @@ def test_set_zero_whose_enable_is_not_sent_leaves_a_disabled_fault(rigs: Any, mo
 def test_deactivate_disables_or_holds(rigs: Any) -> None:
     rig = damiao_rig(rigs, n=2)
     rig.start()
-    rig.driver.deactivate()
+    rig.driver.on_deactivate()
     assert not any(fw.enabled for fw in rig.firmwares)
     held = damiao_rig(rigs, n=1, on_deactivate="hold")
     held.start()
-    held.driver.deactivate()
+    held.driver.on_deactivate()
     assert held.firmwares[0].enabled
 
 
@@ -485,11 +485,11 @@ def test_deactivate_disables_or_holds(rigs: Any) -> None:
 def test_tmotor_replies_six_and_eight_bytes(rigs: Any, short: bool) -> None:
     fw = TMotorFirmware(3, AK80_9, short_replies=short)
     rig = rigs("tmotor", {"a": fw}, {"a": {"id": 3, "model": "AK80-9"}}, positions=[-0.4])
-    rig.driver.configure()
+    rig.driver.on_configure()
     assert not fw.enabled  # the zero-gain status request does not switch it on
     rig.driver.read(0.0, DT, rig.state)
     assert rig.state.position[0] == pytest.approx(-0.4, abs=p_lsb(AK80_9))
-    rig.driver.activate()
+    rig.driver.on_activate()
     assert fw.enabled
     rig.hold()
     rig.cycle(3)
@@ -533,7 +533,7 @@ def test_myactuator_motion_mode_ids_status_poll_and_no_zero(rigs: Any) -> None:
     assert rig.driver.describe_fault(0x0010) == "myactuator error flags 0x0010: over-current"
     with pytest.raises(HardwareError, match="no set-zero frame"):
         rig.driver.set_zero("a")
-    rig.driver.deactivate()
+    rig.driver.on_deactivate()
     rig.emulator.service(rig.now + DT)  # nothing to wait for: motion replies do not say "disabled"
     assert not any(fw.enabled for fw in firmwares.values())  # native motor-off
     assert rig.driver.bad_frames.total == 0  # the motor-off acknowledgements are not garbage

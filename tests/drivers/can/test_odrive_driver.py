@@ -56,9 +56,9 @@ class Rig:
         self.emulator.service(self.now)
 
     def start(self) -> None:
-        self.driver.configure()
+        self.driver.on_configure()
         self.driver.read(0.0, DT, self.state)
-        self.driver.activate()
+        self.driver.on_activate()
 
     def hold(self) -> None:
         self.command.position[:] = self.state.position
@@ -86,13 +86,13 @@ def rigs() -> Any:
 
     yield make
     for rig in made:
-        rig.driver.cleanup()
+        rig.driver.on_cleanup()
         rig.bus.shutdown()
 
 
 def test_configure_reads_where_each_axis_is_without_arming(rigs: Any) -> None:
     rig = rigs({"hip": 3, "knee": 4}, positions=[1.0, -2.0])
-    rig.driver.configure()
+    rig.driver.on_configure()
     assert all(fw.axis_state == AxisState.IDLE for fw in rig.firmwares)
     rig.driver.read(0.0, DT, rig.state)
     np.testing.assert_allclose(rig.state.position, [1.0, -2.0], rtol=1e-6)  # rev → rad, float32 on the wire
@@ -115,7 +115,7 @@ def test_silent_axis_at_configure_is_listed(rigs: Any) -> None:
     with pytest.raises(
         HardwareError, match=r"did not answer on virtual:odrive-\w+: knee \(node 4: no heartbeat and no"
     ):
-        rig.driver.configure()
+        rig.driver.on_configure()
     assert rig.driver.link.bus is None
 
 
@@ -278,7 +278,7 @@ def test_temperature_torque_and_garbage_frames(rigs: Any) -> None:
 def test_deactivate_idles_the_axes(rigs: Any) -> None:
     rig = rigs({"hip": 3})
     rig.start()
-    rig.driver.deactivate()
+    rig.driver.on_deactivate()
     rig.emulator.service(rig.now + DT)
     assert rig.firmwares[0].axis_state == AxisState.IDLE
 

@@ -34,5 +34,5 @@ def test_estimates_of_a_wrong_length_or_not_finite_are_counted_not_used() -> Non
         assert driver.bad_frames.totals == {"wrong length": 1, "corrupted": 1}
         assert (state.position[0], state.velocity[0], driver.estimates[0]) == (math.pi, -2.0 * math.pi, 1)
     finally:
-        driver.cleanup()
+        driver.on_cleanup()
         peer.shutdown()

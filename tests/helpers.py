@@ -1,5 +1,5 @@
-"""``hild run`` as the operator starts it, in a child process, for tests that need its process structure: the main
-process, its client domain and its cycle process (found by their ``python -m`` module in /proc).
+"""What many tests need, in one place: free loopback ports, waiting for a condition, and ``hild run`` as the
+operator starts it (a child process whose main process, client domain and cycle process a test can find).
 
 Everything waits for a condition with a timeout, never a fixed sleep.
 """
@@ -7,6 +7,7 @@ Everything waits for a condition with a timeout, never a fixed sleep.
 from __future__ import annotations
 
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -16,9 +17,82 @@ from types import TracebackType
 from typing import Any
 
 from hild.api.client import HildClient, HildError
-from tests.faults.processes import domain_pid, running
 
 WAIT = 30.0
+
+
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 nobody listens on now (the OS's choice: a second checkout's tests get another)."""
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def free_endpoint() -> str:
+    return f"tcp/127.0.0.1:{free_port()}"
+
+
+def distinct_free_ports(count: int) -> list[int]:
+    ports: set[int] = set()
+    while len(ports) < count:
+        ports.add(free_port())
+    return sorted(ports)
+
+
+def child_pids(pid: int) -> list[int]:
+    """The processes whose parent is ``pid`` (from /proc)."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[1]) == pid:
+                found.append(int(entry.name))
+    return found
+
+
+def domain_pid(main_pid: int, module: str) -> int:
+    """The one child of the daemon's main process running ``hild.domains.<module>``."""
+    found = [pid for pid in child_pids(main_pid) if f"hild.domains.{module}".encode() in _cmdline(pid)]
+    assert len(found) == 1, f"the daemon {main_pid} has {len(found)} {module} children: {child_pids(main_pid)}"
+    return found[0]
+
+
+def _cmdline(pid: int) -> bytes:
+    try:
+        return (Path("/proc") / str(pid) / "cmdline").read_bytes()
+    except OSError:
+        return b""
+
+
+def running(pid: int) -> bool:
+    """Whether ``pid`` exists and is not a zombie (an orphan's exit is reaped by whoever adopted it, or not)."""
+    try:
+        state = (Path("/proc") / str(pid) / "stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+def wait_for(
+    condition: Callable[[], Any],
+    timeout: float = WAIT,
+    what: str = "condition",
+    tick: Callable[[], None] | None = None,
+) -> Any:
+    """``condition()``'s first truthy value; AssertionError after ``timeout`` s. ``tick`` runs between tries."""
+    deadline = time.monotonic() + timeout
+    while True:
+        value = condition()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
+        if tick is not None:
+            tick()
+        time.sleep(0.005)
 
 
 class HildRun:
@@ -87,10 +161,10 @@ class HildRun:
     def wait_gone(self, pid: int, what: str) -> None:
         self.wait(lambda: not running(pid), what)
 
-    def stop(self, timeout: float = WAIT) -> int:
-        """SIGTERM, as systemd stops it; the exit code."""
+    def stop(self, timeout: float = WAIT, sig: signal.Signals = signal.SIGTERM) -> int:
+        """SIGTERM, as systemd stops it (or ``sig``: SIGINT is a terminal's Ctrl-C); the exit code."""
         if self.process.poll() is None:
-            self.process.send_signal(signal.SIGTERM)
+            self.process.send_signal(sig)
         return self.process.wait(timeout)
 
     def close(self) -> None:
