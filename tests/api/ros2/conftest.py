@@ -15,7 +15,8 @@ import zenoh
 from hild.api.ros2 import types, wire
 from hild.config import load_config
 from hild.engine import Engine
-from tests.api.conftest import WAIT, Daemon, free_endpoint, robot_config
+from tests.api.conftest import WAIT, Daemon, robot_config
+from tests.helpers import free_endpoint
 
 CLIENT_GID = bytes(range(16))
 URDF = """<robot name="mock3"><link name="base"/></robot>"""

@@ -12,9 +12,10 @@ import zenoh
 import zenoh.ext
 
 from hild.api.ros2 import types, wire
-from tests.api.conftest import WAIT, Daemon, wait_for
+from tests.api.conftest import WAIT, Daemon
 from tests.api.ros2.conftest import call, request
 from tests.api.ros2.test_face import Inbox, position, switch
+from tests.helpers import wait_for
 
 ACTION = "control_msgs/action/FollowJointTrajectory"
 SEND, RESULT, CANCEL = f"{ACTION}_SendGoal", f"{ACTION}_GetResult", "action_msgs/srv/CancelGoal"

@@ -10,8 +10,9 @@ import zenoh
 import zenoh.ext
 
 from hild.api.ros2 import types, wire
-from tests.api.conftest import WAIT, Daemon, wait_for
+from tests.api.conftest import WAIT, Daemon
 from tests.api.ros2.conftest import CLIENT_GID, URDF, call, request
+from tests.helpers import wait_for
 
 JOINT_STATE = "sensor_msgs/msg/JointState"
 FLOAT64_ARRAY = "std_msgs/msg/Float64MultiArray"

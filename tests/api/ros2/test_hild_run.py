@@ -14,14 +14,14 @@ pyzeros = pytest.importorskip("pyzeros", reason="the ros2-verify extra (pyzeros)
 
 import asyncio_for_robotics as afor  # noqa: E402
 
-from tests.api.conftest import WAIT, free_endpoint  # noqa: E402
+from tests.api.conftest import WAIT  # noqa: E402
 from tests.api.ros2.conftest import peer_config, ros_robot_config  # noqa: E402
 from tests.api.ros2.test_against_pyzeros import (  # noqa: E402
     ListControllers,
     ListControllers_Request,
     _goal_session,
 )
-from tests.daemon_process import HildRun  # noqa: E402
+from tests.helpers import HildRun, free_endpoint  # noqa: E402
 
 
 async def _listing() -> Any:
