@@ -2,9 +2,10 @@
 
 It shares the API's Zenoh session and reaches the robot only through what the JSON API uses: the broadcaster's
 output ring (``/joint_states``), a forward_command controller's ``inputs()`` callable (``<controller>/commands``:
-the same validation, the same refusals) and the services layer (``list_controllers``, ``switch_controller``:
-``Services.handle``, the same checks and the same cycle hop). Anything a ROS peer sends that is wrong is dropped
-or answered ``ok = false`` with a warning event; nothing it sends reaches the cycle unvalidated.
+the same validation, the same refusals), the services layer (``manager``) and a joint_trajectory controller's
+action server (``action``). This module is the plumbing they share: the node's tokens, publishers, subscriptions
+and service queryables. Anything a ROS peer sends that is wrong is dropped or refused with a warning event;
+nothing it sends reaches the cycle unvalidated.
 
 Threads: samples and queries arrive on Zenoh threads. A command is validated there and handed over (as the JSON
 API does when the cycle runs in its own process); a query hops to the asyncio loop, which answers it. ``flush``
@@ -15,7 +16,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import json
 import logging
 import threading
 import time
@@ -34,7 +34,7 @@ from hild.api.ports import DropReporter
 from hild.api.queries import clip, drop
 from hild.api.ros2 import types
 from hild.api.ros2.action import TrajectoryAction
-from hild.api.ros2.definitions import STRICT
+from hild.api.ros2.manager import ControllerManager
 from hild.api.ros2.wire import (
     DEFAULT_QOS,
     LATCHED_QOS,
@@ -59,15 +59,7 @@ log = logging.getLogger("hild.api.ros2")
 JOINT_STATE = "sensor_msgs/msg/JointState"
 STRING = "std_msgs/msg/String"
 FLOAT64_ARRAY = "std_msgs/msg/Float64MultiArray"
-LIST_CONTROLLERS = "controller_manager_msgs/srv/ListControllers"
-SWITCH_CONTROLLER = "controller_manager_msgs/srv/SwitchController"
 SOURCE = "ros2"  # the source of hild events this face emits
-# hild controller type → the ros2_control plugin a ROS tool expects to see
-PLUGIN_NAMES = {
-    "joint_state_broadcaster": "joint_state_broadcaster/JointStateBroadcaster",
-    "forward_command": "forward_command_controller/ForwardCommandController",
-    "joint_trajectory": "joint_trajectory_controller/JointTrajectoryController",
-}
 
 
 @dataclass
@@ -133,9 +125,7 @@ class RosFace:
         for name, instance in controllers.items():
             self._declare_controller(name, instance)
         self._declare_description()
-        manager = self.settings.node  # ros2_control's services live under its node: /controller_manager/...
-        self.declare_service(f"{manager}/list_controllers", LIST_CONTROLLERS, self._list_controllers)
-        self.declare_service(f"{manager}/switch_controller", SWITCH_CONTROLLER, self._switch_controller)
+        ControllerManager(self, self.services, self.settings.node)  # ros2_control's services live under its node
 
     def name(self, relative: str) -> str:
         return qualify(self.settings.namespace, relative)
@@ -393,40 +383,3 @@ class RosFace:
 
     def refused(self, name: str, reason: str) -> None:
         self.engine.events.emit("warning", SOURCE, f"refused ROS request on {name}: {clip(reason)}")
-
-    async def _list_controllers(self, request: Any) -> Any:
-        body = self.services.read("list_controllers", b"")
-        reply = json.loads(body)
-        states = []
-        for c in reply.get("controllers", []):
-            claimed = list(c.get("claimed", []))
-            states.append(
-                types.message(
-                    "controller_manager_msgs/msg/ControllerState",
-                    name=c["name"],
-                    state="active" if c["state"] == "active" else "inactive",
-                    type=PLUGIN_NAMES.get(c["type"], f"hild/{c['type']}"),
-                    claimed_interfaces=claimed,
-                    required_command_interfaces=claimed,
-                    required_state_interfaces=[],
-                    is_chainable=False,
-                    is_chained=False,
-                    exported_state_interfaces=[],
-                    reference_interfaces=[],
-                    chain_connections=[],
-                )
-            )
-        return types.message(f"{LIST_CONTROLLERS}_Response", controller=states)
-
-    async def _switch_controller(self, request: Any) -> Any:
-        """ros2_control's request as hild's JSON request, through ``Services.handle``: the same validation."""
-        body = {
-            "activate": list(request.activate_controllers),
-            "deactivate": list(request.deactivate_controllers),
-            "strict": request.strictness == STRICT,
-        }
-        reply = await self.services.handle("switch_controllers", json.dumps(body).encode())
-        ok = bool(reply.get("ok"))
-        if not ok:
-            self.refused(self.name(f"{self.settings.node}/switch_controller"), str(reply.get("error")))
-        return types.message(f"{SWITCH_CONTROLLER}_Response", ok=ok)
