@@ -121,11 +121,19 @@ class RosFace:
         zid = str(self.session.info.zid())
         self._node = NodeInfo(self.settings.domain_id, zid, self.settings.namespace, self.settings.node)
         self._tokens.append(self.session.liveliness().declare_token(self._node.node_token()))
-        controllers = self.engine.controllers()
-        for name, instance in controllers.items():
+        for name, instance in self._controllers().items():
             self._declare_controller(name, instance)
         self._declare_description()
         ControllerManager(self, self.services, self.settings.node)  # ros2_control's services live under its node
+
+    def _controllers(self) -> dict[str, Any]:
+        """The loaded controllers; the copy is retried when the records change while it is taken (start-up)."""
+        for _ in range(99):
+            try:
+                return self.engine.controllers()
+            except RuntimeError:
+                time.sleep(0.001)
+        return self.engine.controllers()
 
     def name(self, relative: str) -> str:
         return qualify(self.settings.namespace, relative)
