@@ -1,9 +1,9 @@
 """The typestore: rosbags' Jazzy messages plus ``definitions``; CDR both ways and RIHS01 hashes of msgs and srvs.
 
 Why rosbags: a pure-Python, well-kept CDR and REP-2016 implementation whose hashes match published vectors; what
-it lacks (services, controller_manager_msgs, control_msgs) is registered here from plain definitions, and a
-service hash is rosbags' own algorithm applied to the struct rosidl generates for a service (request, response
-and event message), so there is one hashing code path.
+it lacks (services, actions, controller_manager_msgs, control_msgs) is registered here from plain definitions, and
+a service's hash is rosbags' own algorithm applied to the struct rosidl generates for it (request, response and
+event message; an action's SendGoal and GetResult are services too), so there is one hashing code path.
 """
 
 from __future__ import annotations
@@ -44,16 +44,16 @@ def _base_store() -> Typestore:
     no service hash matches Jazzy, e.g. AddTwoInts). CDR is the same either way: one byte per element."""
     store = get_typestore(Stores.ROS2_JAZZY)  # a fresh store per call
     consts, fields = store.fielddefs[EVENT_INFO]
-    store.fielddefs[EVENT_INFO] = (consts, [_unmangle_char(field) for field in fields])
+    store.fielddefs[EVENT_INFO] = (consts, [_char_as_uint8(field) for field in fields])
     return store
 
 
-def _unmangle_char(node: Any) -> Any:
+def _char_as_uint8(node: Any) -> Any:
     """Every ``char`` in a field definition as ``uint8``."""
     if node == "char":
         return "uint8"
     if isinstance(node, tuple):
-        return tuple(_unmangle_char(item) for item in node)
+        return tuple(_char_as_uint8(item) for item in node)
     return node
 
 
@@ -100,14 +100,14 @@ def typestore(distro: str = "jazzy") -> Typestore:
     return store
 
 
-def service_store(distro: str, name: str, request: str, response: str) -> Typestore:
+def service_store(name: str, request: str, response: str) -> Typestore:
     """A fresh store with one more service registered (tests check the algorithm on published vectors)."""
     store = _base_store()
     store.register(_service_types(name, request, response))
     return store
 
 
-def action_store(distro: str, name: str, goal: str, result: str, feedback: str) -> Typestore:
+def action_store(name: str, goal: str, result: str, feedback: str) -> Typestore:
     """A fresh store with one more action registered (tests check the algorithm on published vectors)."""
     store = _base_store()
     store.register(_action_types(name, goal, result, feedback))
