@@ -368,3 +368,14 @@ def test_pyzeros_drives_the_twin(twin_daemon: Daemon) -> None:
     assert got["accepted"].accepted and (got["result"].status, got["result"].result.error_code) == (4, 0)
     assert list(got["state"].name) == ["joint1", "joint2"]
     assert max(abs(p - t) for p, t in zip(got["state"].position, target, strict=True)) < 0.03
+
+
+def test_pyzeros_computes_the_same_gid_from_a_token() -> None:
+    from pyzeros.utils import rmw_zenoh_gid
+
+    from hild.api.ros2 import wire
+
+    token = wire.NodeInfo(0, "ab12", "/", "controller_manager").entity_token(
+        3, wire.PUBLISHER, "/joint_states", "sensor_msgs/msg/JointState"
+    )
+    assert rmw_zenoh_gid(token) == wire.gid_of(token)
