@@ -32,19 +32,20 @@ def _unmangle(node: Any) -> Any:
     return node
 
 
-def _parse(text: str) -> tuple[Any, Any]:
-    """Constants and fields of one definition, its referenced names as written."""
-    ((_, definition),) = get_types_from_msg(text, "hild_tmp/msg/T").items()
+def _parse(text: str, package: str) -> tuple[Any, Any]:
+    """Constants and fields of one definition of ``package`` (where its unqualified type names live)."""
+    ((_, definition),) = get_types_from_msg(text, f"{package}/msg/T").items()
     return _unmangle(definition)
 
 
 def _base_store() -> Typestore:
-    """rosbags' Jazzy store, with one correction: rosidl maps a .msg ``char`` to IDL ``uint8``, so
-    ServiceEventInfo's ``char[16] client_gid`` is hashed as ``uint8[16]`` (rosbags 0.11.9 hashes ``char``; with it
-    no service hash matches Jazzy, e.g. AddTwoInts). CDR is the same either way: one byte per element."""
+    """rosbags' Jazzy store, with one correction: rosidl maps a .msg ``char`` to IDL ``uint8``, so every ``char``
+    field is hashed as ``uint8`` (rosbags 0.11.9 hashes ``char``: then no service hash matches Jazzy, through
+    ServiceEventInfo's ``char[16] client_gid``, nor does e.g. rmw_dds_common/msg/Gid). CDR is the same either way:
+    one byte per element."""
     store = get_typestore(Stores.ROS2_JAZZY)  # a fresh store per call
-    consts, fields = store.fielddefs[EVENT_INFO]
-    store.fielddefs[EVENT_INFO] = (consts, [_char_as_uint8(field) for field in fields])
+    for name, (consts, fields) in list(store.fielddefs.items()):
+        store.fielddefs[name] = (consts, [_char_as_uint8(field) for field in fields])
     return store
 
 
@@ -60,11 +61,12 @@ def _char_as_uint8(node: Any) -> Any:
 def _service_types(name: str, request: str, response: str) -> dict[str, tuple[Any, Any]]:
     """The four structs rosidl generates for a service (REP-2016: the service hash covers all of them)."""
     req, res, evt = f"{name}_Request", f"{name}_Response", f"{name}_Event"
+    package = name.split("/")[0]
     return {
-        req: _parse(request),
-        res: _parse(response),
-        evt: _parse(f"{EVENT_INFO} info\n{req}[<=1] request\n{res}[<=1] response\n"),
-        name: _parse(f"{req} request_message\n{res} response_message\n{evt} event_message\n"),
+        req: _parse(request, package),
+        res: _parse(response, package),
+        evt: _parse(f"{EVENT_INFO} info\n{req}[<=1] request\n{res}[<=1] response\n", package),
+        name: _parse(f"{req} request_message\n{res} response_message\n{evt} event_message\n", package),
     }
 
 
@@ -72,11 +74,12 @@ def _action_types(name: str, goal: str, result: str, feedback: str) -> dict[str,
     """What rosidl generates for an action: Goal/Result/Feedback, the SendGoal and GetResult services and the
     FeedbackMessage (the keys of rmw_zenoh carry the hashes of these three)."""
     uuid = "unique_identifier_msgs/UUID goal_id"
+    package = name.split("/")[0]
     out = {
-        f"{name}_Goal": _parse(goal),
-        f"{name}_Result": _parse(result),
-        f"{name}_Feedback": _parse(feedback),
-        f"{name}_FeedbackMessage": _parse(f"{uuid}\n{name}_Feedback feedback\n"),
+        f"{name}_Goal": _parse(goal, package),
+        f"{name}_Result": _parse(result, package),
+        f"{name}_Feedback": _parse(feedback, package),
+        f"{name}_FeedbackMessage": _parse(f"{uuid}\n{name}_Feedback feedback\n", package),
     }
     out.update(
         _service_types(f"{name}_SendGoal", f"{uuid}\n{name}_Goal goal", "bool accepted\nbuiltin_interfaces/Time stamp")
@@ -91,7 +94,7 @@ def typestore(distro: str = "jazzy") -> Typestore:
     if distro != "jazzy":
         raise ValueError(f"ROS 2 distro {distro!r} is not supported (jazzy only)")
     store = _base_store()
-    extra: dict[str, tuple[Any, Any]] = {name: _parse(text) for name, (text, _) in MESSAGES.items()}
+    extra: dict[str, tuple[Any, Any]] = {name: _parse(text, name.split("/")[0]) for name, (text, _) in MESSAGES.items()}
     for name, srv in SERVICES.items():
         extra.update(_service_types(name, srv.request, srv.response))
     for name, action in ACTIONS.items():

@@ -1,0 +1,140 @@
+"""Type hashes against ROS 2 Jazzy itself (the ``ros2-verify`` extra): the type-description JSON files its PyPI
+packages ship (written by rosidl when they were built) and rosidl's own hash generator.
+
+- Every message and service those packages ship and hild's typestore can hold: hild's hash equals the shipped one.
+- controller_manager_msgs and control_msgs are not on PyPI: their definitions (hild/api/ros2/definitions.py) are
+  run through rosidl_adapter (.msg/.srv/.action → .idl) and rosidl_generator_type_description, exactly as a ROS
+  build does; hild's hashes equal the generated ones. (This checks hild's derivation of services and actions and
+  its hashing; that the definitions equal the released files rests on their source versions.)
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import re
+import sys
+from pathlib import Path
+
+import pytest
+
+generator = pytest.importorskip(
+    "rosidl_generator_type_description", reason="the ros2-verify extra (ROS 2 Jazzy from PyPI) is not installed"
+)
+
+from rosidl_adapter.action import convert_action_to_idl  # noqa: E402
+from rosidl_adapter.msg import convert_msg_to_idl  # noqa: E402
+from rosidl_adapter.srv import convert_srv_to_idl  # noqa: E402
+
+from hild.api.ros2 import types  # noqa: E402
+from hild.api.ros2.definitions import ACTIONS, MESSAGES, SERVICES  # noqa: E402
+
+SHARE = Path(sys.prefix) / "share"
+
+
+def shipped(kind: str) -> dict[str, str]:
+    """type name → RIHS01 hash from the JSON files Jazzy's packages ship (the first entry is the type itself)."""
+    out = {}
+    for path in sorted(SHARE.glob(f"*/{kind}/*.json")):
+        first = json.loads(path.read_text())["type_hashes"][0]
+        out[first["type_name"]] = first["hash_string"]
+    return out
+
+
+def test_every_shipped_message_hild_holds_has_jazzys_hash() -> None:
+    store = types.typestore()
+    known = {name: value for name, value in shipped("msg").items() if name in store.fielddefs}
+    assert len(known) >= 100, sorted(known)  # std_msgs, sensor_msgs, geometry_msgs, trajectory_msgs, action_msgs …
+    wrong = {name: (types.type_hash(name), value) for name, value in known.items() if types.type_hash(name) != value}
+    assert wrong == {}
+
+
+def test_every_shipped_service_has_jazzys_hash() -> None:
+    """hild's service hash (rosbags on the struct rosidl derives) for every .srv the packages ship."""
+    hashes = shipped("srv")
+    assert len(hashes) >= 15, sorted(hashes)
+    wrong = {}
+    for name, value in hashes.items():
+        package, _, short = name.split("/")
+        text = (SHARE / package / "srv" / f"{short}.srv").read_text()
+        request, response = re.split(r"^---[ \t]*$", text, maxsplit=1, flags=re.MULTILINE)
+        ours = types.service_store(name, request, response).hash_rihs01(name)
+        if ours != value:
+            wrong[name] = (ours, value)
+    assert wrong == {}
+
+
+def write_package(root: Path, package: str) -> list[tuple[Path, Path]]:
+    """hild's definitions of ``package`` as ROS source files: (package dir, relative path) each."""
+    files: list[tuple[Path, str]] = []
+    for name, (text, _) in MESSAGES.items():
+        files.append((name, text))
+    for name, srv in SERVICES.items():
+        files.append((name, f"{srv.request}\n---\n{srv.response}\n"))
+    for name, action in ACTIONS.items():
+        files.append((name, f"{action.goal}\n---\n{action.result}\n---\n{action.feedback}\n"))
+    out = []
+    for name, text in files:
+        pkg, kind, short = name.split("/")
+        if pkg != package:
+            continue
+        relative = Path(kind) / f"{short}.{kind}"
+        (root / package / kind).mkdir(parents=True, exist_ok=True)
+        (root / package / relative).write_text(text.replace(f"{package}/", ""))  # a package's own types unqualified
+        out.append((root / package, relative))
+    return out
+
+
+def generated_hashes(tmp_path: Path, package: str) -> dict[str, str]:
+    """rosidl_adapter then rosidl_generator_type_description, as a ROS build runs them for ``package``."""
+    idl_dir = tmp_path / "idl" / package
+    tuples = []
+    converters = {"msg": convert_msg_to_idl, "srv": convert_srv_to_idl, "action": convert_action_to_idl}
+    for package_dir, relative in write_package(tmp_path / "src", package):
+        out_dir = idl_dir / relative.parent
+        out_dir.mkdir(parents=True, exist_ok=True)
+        with contextlib.redirect_stdout(io.StringIO()):
+            idl = converters[relative.parent.name](package_dir, package, relative, out_dir)
+        tuples.append(f"{idl_dir}:{idl.relative_to(idl_dir)}")
+    output = tmp_path / "out" / package
+    deps = ["builtin_interfaces", "std_msgs", "geometry_msgs", "trajectory_msgs", "unique_identifier_msgs",
+            "action_msgs", "service_msgs"]  # fmt: skip
+    arguments = {
+        "package_name": package,
+        "output_dir": str(output),
+        "idl_tuples": tuples,
+        "include_paths": [f"{dep}:{SHARE / dep}" for dep in deps],
+    }
+    arguments_file = tmp_path / f"{package}.json"
+    arguments_file.write_text(json.dumps(arguments))
+    hashes = {}
+    for path in generator.generate_type_hash(str(arguments_file)):
+        entry = json.loads(Path(path).read_text())["type_hashes"]
+        hashes.update({item["type_name"]: item["hash_string"] for item in entry})
+    return hashes
+
+
+@pytest.mark.parametrize(
+    ("package", "names"),
+    [
+        (
+            "controller_manager_msgs",
+            ["msg/ControllerState", "msg/ChainConnection", "srv/ListControllers", "srv/SwitchController"],
+        ),
+        (
+            "control_msgs",
+            [
+                "msg/JointTolerance",
+                "action/FollowJointTrajectory_SendGoal",
+                "action/FollowJointTrajectory_GetResult",
+                "action/FollowJointTrajectory_FeedbackMessage",
+            ],
+        ),
+    ],
+)
+def test_definitions_hash_as_rosidl_generates_them(tmp_path: Path, package: str, names: list[str]) -> None:
+    generated = generated_hashes(tmp_path, package)
+    for short in names:
+        name = f"{package}/{short}"
+        assert types.type_hash(name) == generated[name], name
