@@ -4,6 +4,8 @@ by hand (hild.api.ros2.wire/types build them; test_against_* check those against
 from __future__ import annotations
 
 import json
+import os
+import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -17,6 +19,10 @@ from hild.config import load_config
 from hild.engine import Engine
 from tests.api.conftest import WAIT, Daemon, robot_config
 from tests.helpers import free_endpoint
+
+# pyzeros' CDR library (cydr) compiles and caches its codecs in the working directory unless told otherwise: keep
+# them out of the repository. Read when cydr is imported, which is after this conftest.
+os.environ.setdefault("CYDR_CACHE_DIR", os.path.join(tempfile.gettempdir(), "hild-tests-cydr-cache"))
 
 CLIENT_GID = bytes(range(16))
 URDF = """<robot name="mock3"><link name="base"/></robot>"""
