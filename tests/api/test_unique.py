@@ -87,7 +87,7 @@ def test_a_refused_daemon_never_touches_its_hardware(
     path.write_text(yaml.safe_dump(data, sort_keys=False))
     loaded = load_config(path)
     touched: list[str] = []
-    for hook in ("configure", "activate", "deactivate", "cleanup"):
+    for hook in ("on_configure", "on_activate", "on_deactivate", "on_cleanup"):
         monkeypatch.setattr(loaded.driver_classes["bus"], hook, lambda self, hook=hook: touched.append(hook))
     with caplog.at_level(logging.ERROR, logger="hild.daemon"):
         code = run_daemon(loaded, [free_endpoint()])
@@ -114,7 +114,7 @@ def test_the_session_opened_for_the_check_closes_when_the_hardware_fails(
     def fail(self: object) -> None:
         raise HardwareError("bus down")
 
-    monkeypatch.setattr(loaded.driver_classes["bus"], "configure", fail)
+    monkeypatch.setattr(loaded.driver_classes["bus"], "on_configure", fail)
     opened: list[server.ApiServer] = []  # held here, so a session left open is not closed by the collector
     original_open = server.ApiServer.open
 
