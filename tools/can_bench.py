@@ -7,7 +7,7 @@
 
 The engine alone, in this process, with the driver's own read/write times and reply bookkeeping; ``hild bench``
 measures the whole daemon (Zenoh, telemetry, latencies) with the same rig. For each scenario the rig's robot
-config (``drivers.can.bench_rig.robot_config``) puts ``mit_can`` on a private python-can ``virtual`` channel (Damiao
+config (``hild.bench.rigs.mit_can.robot_config``) puts ``mit_can`` on a private python-can ``virtual`` channel (Damiao
 DM4340/DM4310, ids 1..n, reply ids 0x11..), with a ``joint_state_broadcaster`` at 100 Hz and ``joint_trajectory``
 running the standard trajectory (``hild.motion.reference``, scaled down) over and over, so the cycle does real
 work. The firmware emulator (``drivers.can.emulator``) services the same channel from a background thread every
@@ -49,14 +49,14 @@ from typing import Any
 
 import numpy as np
 
-from drivers.can.bench_rig import START_POSITIONS, CanBenchRig, motor_kinds, robot_config
 from drivers.can.bus import open_bus
 from drivers.can.driver import MitCanDriver
 from drivers.can.emulator import Emulator, MotorPlant
 from drivers.can.emulator.runtime import build_firmware
 from drivers.can.params import MitCanParams
-from drivers.can.probe import percentiles_us, virtual_round_trip
 from hild.arrays import JointState, ServoCommand
+from hild.bench.probes.can_virtual import percentiles_us, virtual_round_trip
+from hild.bench.rigs.mit_can import START_POSITIONS, CanBenchRig, motor_kinds, robot_config
 from hild.config import load_config
 from hild.cycle import CycleThread
 from hild.engine import Engine

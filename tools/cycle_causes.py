@@ -85,7 +85,7 @@ def wake_costs(engine: Engine, cycles: int) -> list[tuple[str, float, float]]:
 
 
 def gil_release(engine: Engine) -> dict[str, int]:
-    from drivers.mujoco.probe import gil_release as measure  # MuJoCo stays in its room
+    from hild.bench.probes.mj_step import gil_release as measure
 
     twin = engine.hardware[0].component
     return measure(twin.model, twin.data)

@@ -6,19 +6,19 @@ joint, the joint_state_broadcaster at 100 Hz, and telemetry recording to a file 
 * ``mock6`` — configs/arm6_twin.yaml with its hardware swapped for the mock driver (same joints, controllers and
   gravity model): hild's own cost without physics.
 * ``twin6`` — configs/arm6_twin.yaml, ``substeps`` set so the physics step stays 1 ms at either rate.
-* ``can3``, ``can6`` — Damiao motors emulated in the daemon's process by the ``mit_can`` bench rig (a
-  ``hild.bench_rigs`` entry point from drivers/can), on a python-can virtual channel (served to the cycle process
-  over loopback when the cycle runs there: ``hild.bench.bridge``); these also measure the command → frame and
+* ``can3``, ``can6`` — Damiao motors emulated in the daemon's process by the ``mit_can`` bench rig
+  (``hild.bench.rigs``), on a python-can virtual channel (served to the cycle process over loopback when the cycle
+  runs there: ``hild.bench.rigs.can_bridge``); these also measure the command → frame and
   reply → sample latencies.
 * ``twin6@500-nospin``, ``can6@500-nospin`` — the same at 500 Hz with ``spin_us: 0`` (the cycle sleeps to its
   deadline): the whole daemon's CPU when the cycle does not spin.
 * ``interference`` — twin6 at 1 kHz with ``joint_trajectory_arm`` (the first three joints, trajectory) and
-  ``servo_wrist`` (the last three, streamed targets) active together, windows interleaved between no extra
-  clients, two pollers (``srv/status`` and ``srv/list_controllers`` at 200 Hz each), and the pollers plus a
-  1 kHz servo stream; then the same two loads aimed at a decoy daemon in another process
-  (``hild.api.probe.Decoy``), which load the machine alike while nothing reaches the daemon, so a rise can be
-  split into the machine's part and hild's; and an observer flooding ``srv/status`` with 1 MiB queries as fast
-  as they are answered (``flood``), while the trajectory's goals keep coming (their acceptance time is the
+  ``servo_wrist`` (the last three, streamed targets) active together, windows interleaved between no extra clients,
+  two pollers (``srv/status`` and ``srv/list_controllers`` at 200 Hz each), and the pollers plus a 1 kHz servo
+  stream; then the same two loads aimed at a decoy daemon in another process
+  (``hild.bench.probes.zenoh_loopback.Decoy``), which load the machine alike while nothing reaches the daemon, so a
+  rise can be split into the machine's part and hild's; and an observer flooding ``srv/status`` with 1 MiB queries
+  as fast as they are answered (``flood``), while the trajectory's goals keep coming (their acceptance time is the
   operator's view). The servo gets joints of its own so the trajectory keeps running in every window.
 
 Every scenario runs with ``realtime.cycle_process: true`` unless ``Settings.cycle_process`` is off
@@ -48,8 +48,6 @@ from typing import IO, Any
 import numpy as np
 
 from hild.api.client import HildClient, HildError, HildUnreachable
-from hild.api.probe import Decoy
-from hild.bench.host import rig_class
 from hild.bench.latency import SampleLog, match_commands, match_replies, send_probes
 from hild.bench.load import (
     FLOOD_BYTES,
@@ -61,7 +59,9 @@ from hild.bench.load import (
     ServoStreamer,
     TrajectoryKeeper,
 )
+from hild.bench.probes.zenoh_loopback import Decoy
 from hild.bench.report import loop_figures, rise_pct, summarize_ns
+from hild.bench.rigs import rig_class
 from hild.config.documents import load_document
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
@@ -227,7 +227,7 @@ def scenario_config(
     scale = 1.0
     if scenario.kind == "can":
         rig = CAN_RIG
-        cls: Any = rig_class(rig)
+        cls = rig_class(rig)
         data = cls.robot_config(scenario.joints, scenario.rate)
         scale = float(cls.trajectory_scale)
     else:

@@ -1,7 +1,6 @@
 """The physics floor for ``hild bench``: raw ``mj_step`` of a config's model, with nothing of hild around it.
 
-Registered as the ``mj_step`` probe (entry-point group ``hild.probes``), so hild can measure it without importing
-MuJoCo. The model is the config's ``mujoco`` hardware component's, at the twin's physics step
+The model is the config's ``mujoco`` hardware component's, at the twin's physics step
 (``period / substeps``) and start keyframe, so the figure is the part of the twin's cycle time that is MuJoCo's.
 """
 

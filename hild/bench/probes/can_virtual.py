@@ -1,7 +1,6 @@
 """The CAN floor for ``hild bench``: python-can's ``virtual`` bus alone, with no driver, codec or emulator.
 
-Registered as the ``can_virtual`` probe (entry-point group ``hild.probes``), so hild can measure it without
-importing python-can. Both directions run on one thread: send on bus A, ``recv(timeout=0)`` on bus B (the
+Both directions run on one thread: send on bus A, ``recv(timeout=0)`` on bus B (the
 virtual bus delivers synchronously, into B's queue, inside A's ``send``), then a reply back. What remains is the
 cost python-can itself adds per frame, the part of the driver's read/write time no driver change can remove.
 """

@@ -1,8 +1,9 @@
 """The Zenoh floor for ``hild bench``: raw Zenoh on loopback between two processes, with no hild code in the path.
 
-The echo side runs in a child process (``python -m hild.api.probe ENDPOINT``) as the daemon does: a peer session
-listening on a loopback port, multicast scouting off. This process connects as a client, like ``HildClient``,
-and publishes as a client command does (express, INTERACTIVE_HIGH, congestion control DROP). Measured:
+The echo side runs in a child process (``python -m hild.bench.probes.zenoh_loopback ENDPOINT``) as the daemon does:
+a peer session listening on a loopback port, multicast scouting off. This process connects as a client, like
+``HildClient``, and publishes as a client command does (express, INTERACTIVE_HIGH, congestion control DROP).
+Measured:
 
 * **ping-pong**: publish on ``ping``; the echo's subscriber republishes the bytes on ``pong`` from its callback;
   round trip = pong arrival − ping publish, and one-way = RTT / 2.
@@ -11,11 +12,11 @@ and publishes as a client command does (express, INTERACTIVE_HIGH, congestion co
 
 Everything is µs, p50/p99/p99.9/max.
 
-The **decoy** (``python -m hild.api.probe decoy ENDPOINT ROBOT REPLIES.json``) stands in for a daemon in the
-interference windows: a peer that answers the same service keys with replies captured from the real daemon and
-decodes the same input samples, in its own process. Clients aimed at it load the machine as they would load the
-daemon, but nothing reaches the daemon: the cycle's p99 rise against the decoy is what the machine (two cores
-shared with the clients and Zenoh) costs, the rest is what serving the requests costs inside hild.
+The **decoy** (``python -m hild.bench.probes.zenoh_loopback decoy ENDPOINT ROBOT REPLIES.json``) stands in for a
+daemon in the interference windows: a peer that answers the same service keys with replies captured from the real
+daemon and decodes the same input samples, in its own process. Clients aimed at it load the machine as they would
+load the daemon, but nothing reaches the daemon: the cycle's p99 rise against the decoy is what the machine (two
+cores shared with the clients and Zenoh) costs, the rest is what serving the requests costs inside hild.
 """
 
 from __future__ import annotations
@@ -129,7 +130,7 @@ class Decoy:
         Path(spec_path).write_text(json.dumps({"replies": replies, "inputs": inputs}), encoding="utf-8")
         self.endpoint = f"tcp/127.0.0.1:{_free_port()}"
         self._process = subprocess.Popen(
-            [sys.executable, "-m", "hild.api.probe", "decoy", self.endpoint, robot, spec_path],
+            [sys.executable, "-m", "hild.bench.probes.zenoh_loopback", "decoy", self.endpoint, robot, spec_path],
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             text=True,
@@ -173,7 +174,7 @@ def zenoh_round_trip(
 ) -> dict[str, Any]:
     """Ping-pong ``count`` times (``gap`` s apart) and ``puts`` stamped samples at ``put_rate`` Hz; see the module."""
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
-    echo = subprocess.Popen([sys.executable, "-m", "hild.api.probe", endpoint], stdin=subprocess.PIPE)
+    echo = subprocess.Popen([sys.executable, "-m", "hild.bench.probes.zenoh_loopback", endpoint], stdin=subprocess.PIPE)
     session = None
     try:
         deadline = time.monotonic() + START_TIMEOUT
