@@ -55,14 +55,14 @@ from drivers.can.emulator import Emulator, MotorPlant
 from drivers.can.emulator.runtime import build_firmware
 from drivers.can.params import MitCanParams
 from hild.arrays import JointState, ServoCommand
-from hild.bench.probes.can_virtual import percentiles_us, virtual_round_trip
+from hild.bench.probes.can_virtual import virtual_round_trip
 from hild.bench.rigs.mit_can import START_POSITIONS, CanBenchRig, motor_kinds, robot_config
 from hild.config import load_config
 from hild.cycle import CycleThread
 from hild.engine import Engine
 from hild.motion.reference import standard_trajectory
 from hild.realtime import apply_process_settings, freeze_heap
-from hild.stats import LoopStats, format_loop_table
+from hild.stats import LoopStats, format_loop_table, percentiles
 
 JTC = "joint_trajectory"
 WARMUP_S = 1.0
@@ -119,9 +119,9 @@ class DriverProbe:
         self.cycles = self.writes = self.missed = self.cycles_with_miss = 0
 
     def times_us(self) -> dict[str, dict[str, float]]:
-        reads = self.read_ns[: min(self.cycles, len(self.read_ns))] / 1e9
-        writes = self.write_ns[: min(self.writes, len(self.write_ns))] / 1e9
-        return {"read": percentiles_us(reads), "write": percentiles_us(writes)}
+        reads = self.read_ns[: min(self.cycles, len(self.read_ns))]
+        writes = self.write_ns[: min(self.writes, len(self.write_ns))]
+        return {"read": percentiles(reads, "ns"), "write": percentiles(writes, "ns")}
 
 
 class ServiceClock:
@@ -293,7 +293,7 @@ def measure(scenario: Scenario, seconds: float, emulator_period: float, priority
         "driver": driver_delta,
         "emulator": delta(after.emulator, before.emulator),
         "emulator_services_per_s": round(len(in_window) / window_s, 1) if window_s > 0 else 0.0,
-        "emulator_service_gap_us": percentiles_us(gaps),
+        "emulator_service_gap_us": percentiles(gaps, "s"),
         "faults": [f"{j['name']}: {j['fault']}" for j in status["joints"] if j["fault"]],
         "hardware": status["hardware"],
         "goals": goals,

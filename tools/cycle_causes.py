@@ -36,6 +36,7 @@ from hild.config import load_config
 from hild.cycle import wait_until
 from hild.engine import Engine
 from hild.motion.reference import standard_trajectory
+from hild.stats import percentiles
 
 CONDITIONS = (  # label, sleep (s), spin (ns)
     ("hot (back to back)", 0.0, 0),
@@ -80,7 +81,8 @@ def wake_costs(engine: Engine, cycles: int) -> list[tuple[str, float, float]]:
             start = time.perf_counter_ns()
             engine.run_cycles(1)
             took[k] = (time.perf_counter_ns() - start) / 1e3
-        rows.append((label, float(np.percentile(took, 50)), float(np.percentile(took, 99))))
+        figures = percentiles(took, "us")
+        rows.append((label, figures["p50"], figures["p99"]))
     return rows
 
 
@@ -154,9 +156,8 @@ def neighbour_costs(engine: Engine, rate: float, rounds: int, block: int) -> lis
         process.wait()
     rows = []
     for label, blocks in took.items():
-        d = np.concatenate(blocks)
-        p50, p99, p999 = (float(v) for v in np.percentile(d, [50, 99, 99.9]))
-        rows.append((label, p50, p99, p999))
+        figures = percentiles(np.concatenate(blocks), "us")
+        rows.append((label, figures["p50"], figures["p99"], figures["p999"]))
     return rows
 
 

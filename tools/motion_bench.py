@@ -46,6 +46,7 @@ from hild.config import LoadedConfig, load_config
 from hild.config.documents import load_document
 from hild.engine import Engine
 from hild.motion.reference import standard_trajectory
+from hild.stats import percentiles
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 JTC = "joint_trajectory"
@@ -227,16 +228,13 @@ def running_daemon(config: Path, robot: str, workdir: Path) -> Iterator[HildClie
 
 
 def percentiles_ms(samples_s: Sequence[float]) -> dict[str, float | int]:
+    """``percentiles`` in ms (to the µs), with the count and the fastest sample."""
     if not samples_s:
         return {"n": 0}
-    values = np.asarray(samples_s) * 1e3
-    p50, p99 = np.percentile(values, [50, 99])
     return {
-        "n": len(values),
-        "p50": round(float(p50), 3),
-        "p99": round(float(p99), 3),
-        "max": round(float(values.max()), 3),
-        "min": round(float(values.min()), 3),
+        "n": len(samples_s),
+        **percentiles(samples_s, "s", to="ms", digits=3),
+        "min": round(min(samples_s) * 1e3, 3),
     }
 
 

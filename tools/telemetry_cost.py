@@ -32,6 +32,7 @@ from hild.config.model import TelemetrySection
 from hild.cycle import CycleThread
 from hild.engine import Engine
 from hild.realtime import apply_process_settings, freeze_heap, thaw_heap
+from hild.stats import percentiles
 from hild.telemetry import Telemetry
 
 
@@ -101,9 +102,8 @@ async def _measure(
         "max_us": d["max"],
     }
     if telemetry is not None:
-        window = np.sort(tap_ns[:taps]) / 1e3 if taps else np.zeros(1)
-        result["tap_p50_us"] = round(float(np.percentile(window, 50)), 2)
-        result["tap_p99_us"] = round(float(np.percentile(window, 99)), 2)
+        tap = percentiles(tap_ns[:taps], "ns", digits=2)
+        result["tap_p50_us"], result["tap_p99_us"] = tap["p50"], tap["p99"]
         result["flush_mean_ms"] = round(float(telemetry.info["flush_mean_ms"]), 2)
         result["flush_max_ms"] = round(float(telemetry.info["flush_max_ms"]), 2)
         result["rrd_kB_per_s"] = round(size / 1e3 / (seconds + 1.0), 1)

@@ -15,6 +15,8 @@ from typing import Any
 
 import numpy as np
 
+from hild.stats import percentiles
+
 CYCLE_P99_LIMIT_US = 250.0
 PERIOD_ERROR_FLOOR_FACTOR = 2.0
 OVERRUNS_PER_10K_LIMIT = 1.0
@@ -29,19 +31,10 @@ LATENCY_TARGET_SCENARIO = "can6"
 
 
 def summarize_ns(values_ns: Sequence[int] | np.ndarray) -> dict[str, float]:
-    """p50/p99/p99.9/max/mean of nanosecond samples, in µs rounded to 0.1 (zeros for no samples)."""
+    """``percentiles`` of nanosecond samples in µs, with their mean and count (zeros for no samples)."""
     values = np.asarray(values_ns, dtype=float)
-    if values.size == 0:
-        return {"p50": 0.0, "p99": 0.0, "p999": 0.0, "max": 0.0, "mean": 0.0, "n": 0}
-    p50, p99, p999 = (float(v) / 1e3 for v in np.percentile(values, [50, 99, 99.9]))
-    return {
-        "p50": round(p50, 1),
-        "p99": round(p99, 1),
-        "p999": round(p999, 1),
-        "max": round(float(values.max()) / 1e3, 1),
-        "mean": round(float(values.mean()) / 1e3, 1),
-        "n": int(values.size),
-    }
+    mean = round(float(values.mean()) / 1e3, 1) if values.size else 0.0
+    return {**percentiles(values, "ns"), "mean": mean, "n": int(values.size)}
 
 
 def per_10k(events: int, cycles: int) -> float:

@@ -37,6 +37,7 @@ import zenoh
 from hild.api.keys import Keys
 from hild.api.session import client_config, declare_json_publisher, open_session, server_config
 from hild.config.model import ZenohSection
+from hild.stats import percentiles
 
 PING, PONG, ONE_WAY, RESULTS = "hild_probe/ping", "hild_probe/pong", "hild_probe/oneway", "hild_probe/results"
 PAYLOAD_PAD = bytes(56)  # a stamp plus padding: the size of a small JSON command
@@ -52,14 +53,6 @@ def _free_port() -> int:
 
 def _publisher(session: zenoh.Session, key: str) -> zenoh.Publisher:
     return declare_json_publisher(session, key, priority=zenoh.Priority.INTERACTIVE_HIGH, express=True)
-
-
-def percentiles_us(values_ns: np.ndarray) -> dict[str, float]:
-    if len(values_ns) == 0:
-        return {"p50": 0.0, "p99": 0.0, "p999": 0.0, "max": 0.0}
-    us = np.asarray(values_ns, dtype=float) / 1e3
-    p50, p99, p999 = (float(v) for v in np.percentile(us, [50, 99, 99.9]))
-    return {"p50": round(p50, 1), "p99": round(p99, 1), "p999": round(p999, 1), "max": round(float(us.max()), 1)}
 
 
 # ---- the echo process -------------------------------------------------------------------------------------------
@@ -229,12 +222,12 @@ def zenoh_round_trip(
             "endpoint": "tcp loopback, client → peer (as HildClient → daemon)",
             "pings": count,
             "lost": lost,
-            "round_trip_us": percentiles_us(rtt),
-            "one_way_us": percentiles_us(rtt / 2),
+            "round_trip_us": percentiles(rtt, "ns"),
+            "one_way_us": percentiles(rtt / 2, "ns"),
             "puts": puts,
             "put_rate_hz": put_rate,
             "received": len(arrivals),
-            "put_to_subscriber_us": percentiles_us(np.array(arrivals, dtype=np.int64)),
+            "put_to_subscriber_us": percentiles(arrivals, "ns"),
         }
     finally:
         if session is not None:
