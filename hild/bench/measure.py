@@ -1,0 +1,123 @@
+"""One measurement of an in-process cycle: warm up, restart the loop statistics, count a window, return it.
+
+Every in-process measurement (the bench's empty-thread floor, the tools) follows this recipe, so it lives here
+once. The statistics are restarted *on the cycle thread* (``submit``), between two cycles, so no record races the
+reset; the window is then read without the cycle's help (:class:`hild.bench.window.StatsWindow`), copied every
+``take_every`` seconds so a window may be longer than the rolling arrays. :func:`cycle_running` starts the cycle
+thread the way the daemon does and always stops it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import time
+from collections.abc import Callable, Iterator
+from concurrent.futures import Future
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+
+from hild.bench.report import loop_figures
+from hild.bench.window import DRAIN_S, StatsWindow, recorded
+from hild.config.model import RealtimeSection
+from hild.cycle import CycleThread
+from hild.realtime import freeze_heap, thaw_heap
+from hild.stats import LoopStats
+
+RESTART_TIMEOUT = 5.0  # s for the cycle thread to take the restart
+POLL_S = 0.002  # s between two looks at the count while waiting for a number of cycles
+
+
+class Measured(Protocol):
+    """What a measured engine offers: its loop statistics and a way to run an action on its cycle thread."""
+
+    stats: LoopStats
+
+    def submit(self, action: Callable[[], Any]) -> Future[Any]: ...
+
+
+@dataclass(frozen=True)
+class Window:
+    """The cycles of one window: counts from the cycle, every duration and period error it was possible to copy."""
+
+    cycles: int
+    overruns: int  # counted up to the moment the window was closed (a few cycles past ``cycles`` at most)
+    duration_ns: np.ndarray
+    period_error_ns: np.ndarray
+    lost: int  # cycles overwritten in the rolling arrays before they were copied (not in the arrays)
+    warmup_cycles: int  # cycles run before the window opened
+    seconds: float
+
+    def figures(self) -> dict[str, Any]:
+        """The bench's loop figures of this window (``hild.bench.report.loop_figures``)."""
+        return loop_figures(self.cycles, self.overruns, self.duration_ns, self.period_error_ns)
+
+
+def restart(stats: LoopStats) -> Callable[[], int]:
+    """An action for the cycle thread: reset ``stats`` and return how many cycles they had counted."""
+
+    def action() -> int:
+        before = stats.cycles
+        stats.reset()
+        return before
+
+    return action
+
+
+def measure_window(
+    engine: Measured,
+    *,
+    warmup: float,
+    seconds: float | None = None,
+    cycles: int | None = None,
+    take_every: float = DRAIN_S,
+) -> Window:
+    """Let a running cycle warm up for ``warmup`` s, restart its statistics, then count ``seconds`` of cycles or
+    exactly ``cycles`` cycles (give one of the two)."""
+    if (seconds is None) == (cycles is None):
+        raise ValueError("measure a window of seconds or of cycles, one of the two")
+    time.sleep(warmup)
+    warmup_cycles = int(engine.submit(restart(engine.stats)).result(RESTART_TIMEOUT))
+    window = StatsWindow(engine.stats)
+    window.open(from_start=True)
+    started = time.monotonic()
+    end = started + seconds if seconds is not None else math.inf
+    next_take = started + take_every
+    while time.monotonic() < end and (cycles is None or recorded(engine.stats) < cycles):
+        now = time.monotonic()
+        if now >= next_take:
+            window.take()
+            next_take = now + take_every
+        time.sleep(POLL_S if cycles is not None else max(0.0, min(next_take, end) - now))
+    closed = window.close()
+    elapsed = time.monotonic() - started
+    duration, period_error = closed["duration_ns"], closed["period_error_ns"]
+    counted = closed["cycles"] if cycles is None else cycles
+    return Window(
+        cycles=counted,
+        overruns=closed["overruns"],
+        duration_ns=duration[:counted],
+        period_error_ns=period_error[:counted],
+        lost=closed["lost"],
+        warmup_cycles=warmup_cycles,
+        seconds=elapsed,
+    )
+
+
+@contextlib.contextmanager
+def cycle_running(
+    engine: Any, realtime: RealtimeSection, clock: str = "wall", real_time_factor: float = 1.0
+) -> Iterator[CycleThread]:
+    """A started engine on ``CycleThread`` as the daemon runs it (heap frozen first); stopped, joined and the heap
+    thawed on the way out, whatever happened inside."""
+    freeze_heap(realtime)
+    cycle = CycleThread(engine, clock, real_time_factor, realtime)
+    cycle.start()
+    try:
+        yield cycle
+    finally:
+        cycle.stop()
+        cycle.join(5.0)
+        thaw_heap()

@@ -1,0 +1,43 @@
+"""measure_window: the one recipe (warm up, restart the statistics on the cycle thread, count a window)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import pytest
+
+from hild.bench.measure import cycle_running, measure_window
+from hild.engine import Engine
+
+
+def test_it_warms_up_restarts_and_returns_exactly_the_cycles_asked_for(make_engine: Callable[..., Engine]) -> None:
+    engine = make_engine()  # lockstep: sim clock, as fast as it goes
+    realtime = engine.loaded.config.realtime
+    with cycle_running(engine, realtime, clock="sim", real_time_factor=0.0):
+        window = measure_window(engine, warmup=0.05, cycles=300, take_every=0.01)
+        ran = engine.cycle
+    assert window.warmup_cycles > 0  # the warm-up ran, and is not in the window
+    assert ran >= window.warmup_cycles + 300
+    assert 300 <= engine.stats.cycles <= engine.cycle - window.warmup_cycles  # restarted after the warm-up
+    assert window.cycles == 300 and window.lost == 0
+    assert len(window.duration_ns) == len(window.period_error_ns) == 300
+    assert (window.duration_ns > 0).all()
+    figures = window.figures()
+    assert figures["cycles"] == 300 and figures["duration_us"]["n"] == 300
+
+
+def test_a_window_of_seconds_holds_every_cycle_it_counted(make_engine: Callable[..., Engine]) -> None:
+    engine = make_engine()
+    with cycle_running(engine, engine.loaded.config.realtime, clock="sim", real_time_factor=0.0):
+        window = measure_window(engine, warmup=0.0, seconds=0.1, take_every=0.01)
+    assert window.seconds >= 0.1
+    assert window.cycles > 0 and window.lost == 0
+    assert len(window.duration_ns) == window.cycles
+
+
+def test_it_wants_seconds_or_cycles_not_both(make_engine: Callable[..., Engine]) -> None:
+    engine = make_engine()
+    with pytest.raises(ValueError, match="one of the two"):
+        measure_window(engine, warmup=0.0)
+    with pytest.raises(ValueError, match="one of the two"):
+        measure_window(engine, warmup=0.0, seconds=1.0, cycles=10)
