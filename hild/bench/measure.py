@@ -1,10 +1,11 @@
 """One measurement of an in-process cycle: warm up, restart the loop statistics, count a window, return it.
 
 Every in-process measurement (the bench's empty-thread floor, the tools) follows this recipe, so it lives here
-once. The statistics are restarted *on the cycle thread* (``submit``), between two cycles, so no record races the
-reset; the window is then read without the cycle's help (:class:`hild.bench.window.StatsWindow`), copied every
-``take_every`` seconds so a window may be longer than the rolling arrays. :func:`cycle_running` starts the cycle
-thread the way the daemon does and always stops it.
+once, with :func:`start_engine` (a config's engine as the daemon starts it) and :func:`cycle_running` (the cycle
+thread as the daemon runs it, always stopped). The statistics are restarted *on the cycle thread* (``submit``),
+between two cycles, so no record races the reset; the window is then read without the cycle's help
+(:class:`hild.bench.window.StatsWindow`), copied every ``take_every`` seconds so a window may be longer than the
+rolling arrays.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ from __future__ import annotations
 import contextlib
 import math
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future
 from dataclasses import dataclass
 from typing import Any, Protocol
@@ -21,9 +22,11 @@ import numpy as np
 
 from hild.bench.report import loop_figures
 from hild.bench.window import DRAIN_S, StatsWindow, recorded
+from hild.config.loader import LoadedConfig
 from hild.config.model import RealtimeSection
 from hild.cycle import CycleThread
-from hild.realtime import freeze_heap, thaw_heap
+from hild.engine import Engine
+from hild.realtime import apply_process_settings, freeze_heap, thaw_heap
 from hild.stats import LoopStats
 
 RESTART_TIMEOUT = 5.0  # s for the cycle thread to take the restart
@@ -104,6 +107,19 @@ def measure_window(
         warmup_cycles=warmup_cycles,
         seconds=elapsed,
     )
+
+
+def start_engine(loaded: LoadedConfig, activate: Sequence[str] = ()) -> Engine:
+    """The config's engine, started with the daemon's process settings, with ``activate`` controllers active."""
+    apply_process_settings(loaded.config.realtime)
+    engine = Engine(loaded)
+    engine.start()
+    if activate:
+        result = engine.switch(list(activate), [])
+        if not result.ok:
+            engine.stop()
+            raise RuntimeError(f"cannot activate {', '.join(activate)}: {result.error}")
+    return engine
 
 
 @contextlib.contextmanager

@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from pathlib import Path
 
 import pytest
 
-from hild.bench.measure import cycle_running, measure_window
+from hild.bench.measure import cycle_running, measure_window, start_engine
+from hild.config import load_config
 from hild.engine import Engine
+from tests.conftest import mock_robot
 
 
 def test_it_warms_up_restarts_and_returns_exactly_the_cycles_asked_for(make_engine: Callable[..., Engine]) -> None:
@@ -41,3 +44,16 @@ def test_it_wants_seconds_or_cycles_not_both(make_engine: Callable[..., Engine])
         measure_window(engine, warmup=0.0)
     with pytest.raises(ValueError, match="one of the two"):
         measure_window(engine, warmup=0.0, seconds=1.0, cycles=10)
+
+
+def test_start_engine_starts_the_configs_engine_with_the_controllers_asked_for(
+    write_config: Callable[..., Path],
+) -> None:
+    loaded = load_config(write_config(mock_robot()))
+    engine = start_engine(loaded, ["fwd"])
+    try:
+        assert {r.name for r in engine.manager.active} == {"jsb", "fwd"}  # autostart, and the one asked for
+    finally:
+        engine.stop()
+    with pytest.raises(RuntimeError, match="cannot activate nope"):
+        start_engine(load_config(write_config(mock_robot())), ["nope"])
