@@ -58,12 +58,15 @@ class Window:
         return loop_figures(self.cycles, self.overruns, self.duration_ns, self.period_error_ns)
 
 
-def restart(stats: LoopStats) -> Callable[[], int]:
-    """An action for the cycle thread: reset ``stats`` and return how many cycles they had counted."""
+def restart(stats: LoopStats, also: Callable[[], None] | None = None) -> Callable[[], int]:
+    """An action for the cycle thread: reset ``stats`` (and run ``also``); returns how many cycles they had
+    counted."""
 
     def action() -> int:
         before = stats.cycles
         stats.reset()
+        if also is not None:
+            also()
         return before
 
     return action
@@ -76,13 +79,15 @@ def measure_window(
     seconds: float | None = None,
     cycles: int | None = None,
     take_every: float = DRAIN_S,
+    also_restart: Callable[[], None] | None = None,
 ) -> Window:
     """Let a running cycle warm up for ``warmup`` s, restart its statistics, then count ``seconds`` of cycles or
-    exactly ``cycles`` cycles (give one of the two)."""
+    exactly ``cycles`` cycles (give one of the two). ``also_restart``: the caller's own counters, restarted on the
+    cycle thread together with the statistics."""
     if (seconds is None) == (cycles is None):
         raise ValueError("measure a window of seconds or of cycles, one of the two")
     time.sleep(warmup)
-    warmup_cycles = int(engine.submit(restart(engine.stats)).result(RESTART_TIMEOUT))
+    warmup_cycles = int(engine.submit(restart(engine.stats, also_restart)).result(RESTART_TIMEOUT))
     window = StatsWindow(engine.stats)
     window.open(from_start=True)
     started = time.monotonic()
