@@ -28,7 +28,6 @@ import os
 import platform
 import shlex
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -42,6 +41,7 @@ from typing import Any
 import numpy as np
 
 from hild.api.client import HildClient, HildError, HildUnreachable, ServoStream
+from hild.bench.children import free_endpoint
 from hild.config import LoadedConfig, load_config
 from hild.config.documents import load_document
 from hild.engine import Engine
@@ -164,12 +164,6 @@ def format_tracking(row: dict[str, Any]) -> str:
 
 
 # ---- the daemon -------------------------------------------------------------------------------------------------
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
 def full_rate_copy(config: Path, directory: Path) -> Path:
     """A copy of ``config`` in ``directory`` with the broadcaster at the update rate and model paths made absolute.
 
@@ -194,7 +188,7 @@ def full_rate_copy(config: Path, directory: Path) -> Path:
 @contextlib.contextmanager
 def running_daemon(config: Path, robot: str, workdir: Path) -> Iterator[HildClient]:
     """``hild run`` on a free loopback port, a connected client; the daemon is stopped (or killed) on the way out."""
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    endpoint = free_endpoint()
     log = workdir / "daemon.log"
     command = [sys.executable, "-m", "hild.cli", "run", str(config), "--listen", endpoint, "--log-level", "warning"]
     with log.open("wb") as out:

@@ -35,7 +35,6 @@ import json
 import os
 import queue
 import random
-import socket
 import subprocess
 import sys
 import threading
@@ -48,6 +47,7 @@ from typing import IO, Any
 import numpy as np
 
 from hild.api.client import HildClient, HildError, HildUnreachable
+from hild.bench.children import free_endpoint
 from hild.bench.latency import SampleLog, match_commands, match_replies, send_probes
 from hild.bench.load import (
     FLOOD_BYTES,
@@ -243,12 +243,6 @@ def scenario_config(
 
 
 # ---- the daemon process ------------------------------------------------------------------------------------------
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
 class HostError(RuntimeError):
     pass
 
@@ -257,7 +251,7 @@ class HostProcess:
     """A ``hild.bench.host`` child: the daemon of one scenario, plus its JSON-lines control channel."""
 
     def __init__(self, config: Path, log: Path, rig: str | None, bridge: bool = False) -> None:
-        self.endpoint = f"tcp/127.0.0.1:{free_port()}"
+        self.endpoint = free_endpoint()
         self.log_path = log
         self._log: IO[bytes] = log.open("wb")
         self.cycle_pid: int | None = None

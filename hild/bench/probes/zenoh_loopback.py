@@ -22,7 +22,6 @@ cores shared with the clients and Zenoh) costs, the rest is what serving the req
 from __future__ import annotations
 
 import json
-import socket
 import subprocess
 import sys
 import threading
@@ -36,6 +35,7 @@ import zenoh
 
 from hild.api.keys import Keys
 from hild.api.session import client_config, declare_json_publisher, open_session, server_config
+from hild.bench.children import end_child, free_endpoint
 from hild.config.model import ZenohSection
 from hild.stats import percentiles
 
@@ -43,12 +43,6 @@ PING, PONG, ONE_WAY, RESULTS = "hild_probe/ping", "hild_probe/pong", "hild_probe
 PAYLOAD_PAD = bytes(56)  # a stamp plus padding: the size of a small JSON command
 REPLY_TIMEOUT = 1.0  # s for one pong
 START_TIMEOUT = 20.0  # s for the echo process to come up
-
-
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
 
 
 def _publisher(session: zenoh.Session, key: str) -> zenoh.Publisher:
@@ -121,7 +115,7 @@ class Decoy:
 
     def __init__(self, robot: str, replies: dict[str, str], inputs: list[tuple[str, str]], spec_path: str) -> None:
         Path(spec_path).write_text(json.dumps({"replies": replies, "inputs": inputs}), encoding="utf-8")
-        self.endpoint = f"tcp/127.0.0.1:{_free_port()}"
+        self.endpoint = free_endpoint()
         self._process = subprocess.Popen(
             [sys.executable, "-m", "hild.bench.probes.zenoh_loopback", "decoy", self.endpoint, robot, spec_path],
             stdin=subprocess.PIPE,
@@ -134,13 +128,7 @@ class Decoy:
             raise RuntimeError(f"the decoy process did not come up (exit {self._process.poll()})")
 
     def close(self) -> None:
-        if self._process.stdin is not None:
-            self._process.stdin.close()
-        try:
-            self._process.wait(5.0)
-        except subprocess.TimeoutExpired:
-            self._process.kill()
-            self._process.wait()
+        end_child(self._process)
 
     def __enter__(self) -> Decoy:
         return self
@@ -166,7 +154,7 @@ def zenoh_round_trip(
     count: int = 2000, puts: int = 2000, put_rate: float = 1000.0, gap: float = 0.0005
 ) -> dict[str, Any]:
     """Ping-pong ``count`` times (``gap`` s apart) and ``puts`` stamped samples at ``put_rate`` Hz; see the module."""
-    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    endpoint = free_endpoint()
     echo = subprocess.Popen([sys.executable, "-m", "hild.bench.probes.zenoh_loopback", endpoint], stdin=subprocess.PIPE)
     session = None
     try:
@@ -232,13 +220,7 @@ def zenoh_round_trip(
     finally:
         if session is not None:
             session.close()
-        if echo.stdin is not None:
-            echo.stdin.close()
-        try:
-            echo.wait(5.0)
-        except subprocess.TimeoutExpired:
-            echo.kill()
-            echo.wait()
+        end_child(echo)
 
 
 class _Publisher:
