@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hild.config import load_config
+from hild.bench.measure import lockstep_engine
 from hild.cycle import wait_until
 from hild.engine import Engine
 from hild.motion.reference import standard_trajectory
@@ -45,22 +45,6 @@ CONDITIONS = (  # label, sleep (s), spin (ns)
     ("sleep 0.4 + spin 0.4 ms", 0.0004, 400_000),
     ("spin 0.8 ms", 0.0, 800_000),
 )
-
-
-def lockstep_engine(config: Path, rate: float) -> Engine:
-    loaded = load_config(config)
-    cfg = loaded.config
-    for name, params in loaded.driver_params.items():  # keep the twin's physics step
-        substeps = getattr(params, "substeps", None)
-        if substeps is not None:
-            loaded.driver_params[name] = params.model_copy(
-                update={"substeps": max(1, round(substeps * cfg.update_rate / rate))}
-            )
-    clock = cfg.clock.model_copy(update={"source": "sim", "real_time_factor": 0.0})
-    loaded.config = cfg.model_copy(update={"update_rate": rate, "clock": clock})
-    engine = Engine(loaded)
-    engine.start()
-    return engine
 
 
 def wake_costs(engine: Engine, cycles: int) -> list[tuple[str, float, float]]:

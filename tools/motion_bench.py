@@ -42,9 +42,9 @@ import numpy as np
 
 from hild.api.client import HildClient, HildError, HildUnreachable, ServoStream
 from hild.bench.children import free_endpoint
-from hild.config import LoadedConfig, load_config
+from hild.bench.measure import RateRefused, lockstep_engine
+from hild.config import load_config
 from hild.config.documents import load_document
-from hild.engine import Engine
 from hild.motion.reference import standard_trajectory
 from hild.stats import percentiles
 
@@ -60,42 +60,11 @@ STILL_FOR = 0.1  # s: a servo step starts only after the joint has been still th
 
 
 # ---- 1. tracking on the lockstep twin ---------------------------------------------------------------------------
-class SkipRun(Exception):
-    """This config cannot run at the requested rate; the reason is reported instead of numbers."""
-
-
-def lockstep_twin(config: Path, rate: float | None) -> Engine:
-    """The config on the sim clock (lockstep), optionally at another update rate, started.
-
-    At another rate each MuJoCo twin's ``substeps`` is scaled so its physics step stays what the config chose."""
-    loaded: LoadedConfig = load_config(config)
-    cfg = loaded.config
-    update: dict[str, Any] = {"clock": cfg.clock.model_copy(update={"source": "sim", "real_time_factor": 0.0})}
-    if rate is not None and rate != cfg.update_rate:
-        try:
-            type(cfg).model_validate({**cfg.model_dump(), "update_rate": rate})
-        except ValueError as exc:  # pydantic's ValidationError: keep its first message, not the whole report
-            errors = getattr(exc, "errors", None)
-            reason = errors()[0]["msg"] if callable(errors) else str(exc)
-            raise SkipRun(f"update_rate {rate:g} not allowed: {reason}") from None
-        for name, params in loaded.driver_params.items():
-            substeps = getattr(params, "substeps", None)
-            if substeps is None:
-                raise SkipRun(f"hardware {name!r} has no substeps to keep its physics step at {rate:g} Hz")
-            scaled = max(1, round(substeps * cfg.update_rate / rate))
-            loaded.driver_params[name] = params.model_copy(update={"substeps": scaled})
-        update["update_rate"] = rate
-    loaded.config = cfg.model_copy(update=update)
-    engine = Engine(loaded)
-    engine.start()
-    return engine
-
-
 def measure_tracking(config: Path, rate: float | None) -> dict[str, Any]:
     """Run the standard trajectory through joint_trajectory; tracking error = final command − measured position."""
     try:
-        engine = lockstep_twin(config, rate)
-    except SkipRun as exc:
+        engine = lockstep_engine(config, rate)
+    except RateRefused as exc:
         return {"config": config.name, "rate_hz": rate, "skipped": str(exc)}
     try:
         switched = engine.switch([JTC], [])
@@ -355,7 +324,7 @@ def servo_floor(config: Path, joint_name: str, step: float, threshold: float) ->
 
     Counted from the cycle that takes the target (1 = that cycle); no Zenoh, no pick-up wait, no thread wake-up,
     so the daemon's latency minus this is the transport and scheduling share."""
-    engine = lockstep_twin(config, None)
+    engine = lockstep_engine(config, None)
     try:
         joint = engine.joints.index(joint_name)
         if not engine.switch([SERVO], []).ok:

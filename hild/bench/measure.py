@@ -1,8 +1,9 @@
 """One measurement of an in-process cycle: warm up, restart the loop statistics, count a window, return it.
 
 Every in-process measurement (the bench's empty-thread floor, the tools) follows this recipe, so it lives here
-once, with :func:`start_engine` (a config's engine as the daemon starts it) and :func:`cycle_running` (the cycle
-thread as the daemon runs it, always stopped). The statistics are restarted *on the cycle thread* (``submit``),
+once, with :func:`start_engine` (a config's engine as the daemon starts it), :func:`lockstep_engine` (the same on
+the sim clock, as fast as it goes) and :func:`cycle_running` (the cycle thread as the daemon runs it, always
+stopped). The statistics are restarted *on the cycle thread* (``submit``),
 between two cycles, so no record races the reset; the window is then read without the cycle's help
 (:class:`hild.bench.window.StatsWindow`), copied every ``take_every`` seconds so a window may be longer than the
 rolling arrays.
@@ -16,12 +17,14 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
 
 from hild.bench.report import loop_figures
 from hild.bench.window import DRAIN_S, StatsWindow, recorded
+from hild.config import load_config
 from hild.config.loader import LoadedConfig
 from hild.config.model import RealtimeSection
 from hild.cycle import CycleThread
@@ -112,6 +115,36 @@ def measure_window(
         warmup_cycles=warmup_cycles,
         seconds=elapsed,
     )
+
+
+class RateRefused(ValueError):
+    """The config cannot run at the rate asked for; the reason is reported instead of numbers."""
+
+
+def lockstep_engine(config: Path, rate: float | None = None) -> Engine:
+    """The config's engine on the sim clock as fast as it goes (lockstep), optionally at another update rate,
+    started. At another rate each twin's ``substeps`` is scaled so its physics step stays what the config chose."""
+    loaded = load_config(config)
+    cfg = loaded.config
+    update: dict[str, Any] = {"clock": cfg.clock.model_copy(update={"source": "sim", "real_time_factor": 0.0})}
+    if rate is not None and rate != cfg.update_rate:
+        try:
+            type(cfg).model_validate({**cfg.model_dump(), "update_rate": rate})
+        except ValueError as exc:  # pydantic's ValidationError: keep its first message, not the whole report
+            errors = getattr(exc, "errors", None)
+            reason = errors()[0]["msg"] if callable(errors) else str(exc)
+            raise RateRefused(f"update_rate {rate:g} not allowed: {reason}") from None
+        for name, params in loaded.driver_params.items():
+            substeps = getattr(params, "substeps", None)
+            if substeps is None:
+                raise RateRefused(f"hardware {name!r} has no substeps to keep its physics step at {rate:g} Hz")
+            scaled = max(1, round(substeps * cfg.update_rate / rate))
+            loaded.driver_params[name] = params.model_copy(update={"substeps": scaled})
+        update["update_rate"] = rate
+    loaded.config = cfg.model_copy(update=update)
+    engine = Engine(loaded)
+    engine.start()
+    return engine
 
 
 def start_engine(loaded: LoadedConfig, activate: Sequence[str] = ()) -> Engine:

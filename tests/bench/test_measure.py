@@ -7,10 +7,10 @@ from pathlib import Path
 
 import pytest
 
-from hild.bench.measure import cycle_running, measure_window, start_engine
+from hild.bench.measure import RateRefused, cycle_running, lockstep_engine, measure_window, start_engine
 from hild.config import load_config
 from hild.engine import Engine
-from tests.conftest import mock_robot
+from tests.conftest import CONFIGS, mock_robot
 
 
 def test_it_warms_up_restarts_and_returns_exactly_the_cycles_asked_for(make_engine: Callable[..., Engine]) -> None:
@@ -57,3 +57,19 @@ def test_start_engine_starts_the_configs_engine_with_the_controllers_asked_for(
         engine.stop()
     with pytest.raises(RuntimeError, match="cannot activate nope"):
         start_engine(load_config(write_config(mock_robot())), ["nope"])
+
+
+def test_a_lockstep_engine_at_another_rate_keeps_the_twins_physics_step() -> None:
+    engine = lockstep_engine(CONFIGS / "arm6_twin.yaml", rate=1000.0)  # the config runs at 500 Hz, substeps 2
+    try:
+        assert engine.update_rate == 1000.0 and engine.clock_source == "sim"
+        assert engine.loaded.config.clock.real_time_factor == 0.0
+        (params,) = engine.loaded.driver_params.values()
+        assert params.substeps == 1  # type: ignore[attr-defined]
+    finally:
+        engine.stop()
+
+
+def test_a_lockstep_engine_refuses_a_rate_its_hardware_cannot_follow(write_config: Callable[..., Path]) -> None:
+    with pytest.raises(RateRefused, match="no substeps"):
+        lockstep_engine(write_config(mock_robot()), rate=1000.0)  # the mock robot runs at 500 Hz
