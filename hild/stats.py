@@ -150,22 +150,3 @@ class LoopStats:
         self.duration.reset()
         self.period_error.reset()
         self._percentiles = None
-
-
-def format_loop_table(rows: list[dict[str, object]]) -> str:
-    """A fixed-width table of ``LoopStats.summary()`` rows (each with ``rate_hz``), for tools and reports."""
-    lines = [
-        f"{'rate':>6} {'cycles':>7} {'dur p50':>8} {'p99':>7} {'p99.9':>7} {'max':>8} "
-        f"{'perr p50':>8} {'p99':>7} {'p99.9':>7} {'max':>8} {'ovr/10k':>8}"
-    ]
-    for r in rows:
-        d, p = r["duration_us"], r["period_error_us"]
-        assert isinstance(d, dict) and isinstance(p, dict)
-        cycles = int(r["cycles"])  # type: ignore[call-overload]
-        per_10k = round(int(r["overruns"]) * 10_000 / max(1, cycles), 1)  # type: ignore[call-overload]
-        lines.append(
-            f"{r['rate_hz']:>6g} {cycles:>7} {d['p50']:>8} {d['p99']:>7} {d['p999']:>7} {d['max']:>8} "
-            f"{p['p50']:>8} {p['p99']:>7} {p['p999']:>7} {p['max']:>8} {per_10k:>8}"
-        )
-    lines.append("(µs; duration = wake → write done; period error = |Δwake − T|)")
-    return "\n".join(lines)

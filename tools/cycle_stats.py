@@ -17,8 +17,8 @@ import sys
 from typing import Any
 
 from hild.bench.measure import cycle_running, measure_window, start_engine
+from hild.bench.report import format_loop_table
 from hild.config import load_config
-from hild.stats import format_loop_table
 
 WARMUP_S = 1.0
 
