@@ -63,6 +63,7 @@ from hild.bench.probes.zenoh_loopback import Decoy
 from hild.bench.report import loop_figures, rise_pct, summarize_ns
 from hild.bench.rigs import rig_class
 from hild.config.documents import load_document
+from hild.stats import percentiles
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 ARM6 = CONFIGS / "arm6_twin.yaml"
@@ -587,4 +588,5 @@ def accepts_during(accepts: list[tuple[float, float]], spans: list[tuple[float, 
     inside = [seconds * 1e3 for sent, seconds in accepts if any(a <= sent <= b for a, b in spans)]
     if not inside:
         return {"n": 0}
-    return {"n": len(inside), "p50": round(float(np.median(inside)), 1), "max": round(max(inside), 1)}
+    figures = percentiles(inside, "ms", to="ms")
+    return {"n": len(inside), "p50": figures["p50"], "max": figures["max"]}
