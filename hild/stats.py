@@ -131,8 +131,8 @@ class LoopStats:
     def summary(self, max_age: float = 0.0) -> dict[str, object]:
         """Counters (always current) and percentiles over the window.
 
-        The percentiles cost ~0.2 ms of CPU (and GIL) per call over a 10k window; a caller that may be polled
-        fast (status at 200 Hz) passes ``max_age`` to reuse ones computed less than that many seconds ago."""
+        The percentiles cost CPU (and the GIL) on every call over a full window (docs/performance.md); a caller
+        that may be polled fast (status) passes ``max_age`` to reuse ones computed less than that many seconds ago."""
         now = time.monotonic()
         if self._percentiles is None or now - self._percentiles_at > max_age:
             self._percentiles = (self.duration.summary_us(), self.period_error.summary_us())

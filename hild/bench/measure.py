@@ -1,12 +1,11 @@
 """One measurement of an in-process cycle: warm up, restart the loop statistics, count a window, return it.
 
-Every in-process measurement (the bench's empty-thread floor, the tools) follows this recipe, so it lives here
-once, with :func:`start_engine` (a config's engine as the daemon starts it), :func:`lockstep_engine` (the same on
-the sim clock, as fast as it goes) and :func:`cycle_running` (the cycle thread as the daemon runs it, always
-stopped). The statistics are restarted *on the cycle thread* (``submit``),
-between two cycles, so no record races the reset; the window is then read without the cycle's help
-(:class:`hild.bench.window.StatsWindow`), copied every ``take_every`` seconds so a window may be longer than the
-rolling arrays.
+Every in-process measurement (the bench's empty-thread floor, the tools) follows this recipe, so it lives here once,
+with :func:`start_engine` (a config's engine as the daemon starts it), :func:`lockstep_engine` (the same on the sim
+clock, as fast as it goes) and :func:`cycle_running` (the cycle thread as the daemon runs it, always stopped). The
+statistics are restarted *on the cycle thread* (``submit``), between two cycles, so no record races the reset; the
+window is then read without the cycle's help (:class:`hild.bench.window.StatsWindow`), copied every ``take_every``
+seconds so a window may be longer than the rolling arrays.
 """
 
 from __future__ import annotations
