@@ -437,6 +437,37 @@ def format_report(report: dict[str, Any]) -> str:
     return "\n".join(lines + _hild_lines(report))
 
 
+def _zenoh_line(z: dict[str, Any]) -> str:
+    ow, ps = z["one_way_us"], z["put_to_subscriber_us"]
+    return (
+        f"Zenoh loopback, client → peer: one-way (RTT/2) p50 {ow['p50']} p99 {ow['p99']} max {ow['max']}; "
+        f"put → subscriber p50 {ps['p50']} p99 {ps['p99']} max {ps['max']} ({z['pings']} pings, {z['puts']} puts)"
+    )
+
+
+def _can_virtual_line(c: dict[str, Any]) -> str:
+    ow, rt = c["one_way_us"], c["round_trip_us"]
+    return (
+        f"python-can virtual, one thread: send → recv p50 {ow['p50']} p99 {ow['p99']}; "
+        f"request → reply p50 {rt['p50']} p99 {rt['p99']} max {rt['max']} ({c['frames']} frames)"
+    )
+
+
+def _mj_step_line(s: dict[str, Any]) -> str:
+    st = s["step_us"]
+    return (
+        f"mj_step ({s['model']}, {s['timestep_ms']} ms): p50 {st['p50']} p99 {st['p99']} max {st['max']} "
+        f"mean {st['mean']} ({s['steps']} steps)"
+    )
+
+
+PROBE_LINES = (  # the floor section's probe, its label when it failed, its line when it ran
+    ("zenoh", "Zenoh ping-pong", _zenoh_line),
+    ("can_virtual", "python-can virtual", _can_virtual_line),
+    ("mj_step", "mj_step", _mj_step_line),
+)
+
+
 def _floor_lines(floor: dict[str, Any]) -> list[str]:
     lines = ["FLOOR (same run)"]
     w = (26, 6, 7, 8, 7, 7, 8, 8, 7, 8, 8)
@@ -478,37 +509,10 @@ def _floor_lines(floor: dict[str, Any]) -> list[str]:
                 w,
             )
         )
-    z = floor.get("zenoh")
-    if z:
-        if "error" in z:
-            lines.append(f"Zenoh ping-pong: {z['error']}")
-        else:
-            ow, ps = z["one_way_us"], z["put_to_subscriber_us"]
-            lines.append(
-                f"Zenoh loopback, client → peer: one-way (RTT/2) p50 {ow['p50']} p99 {ow['p99']} max {ow['max']}; "
-                f"put → subscriber p50 {ps['p50']} p99 {ps['p99']} max {ps['max']} "
-                f"({z['pings']} pings, {z['puts']} puts)"
-            )
-    c = floor.get("can_virtual")
-    if c:
-        if "error" in c:
-            lines.append(f"python-can virtual: {c['error']}")
-        else:
-            ow, rt_ = c["one_way_us"], c["round_trip_us"]
-            lines.append(
-                f"python-can virtual, one thread: send → recv p50 {ow['p50']} p99 {ow['p99']}; "
-                f"request → reply p50 {rt_['p50']} p99 {rt_['p99']} max {rt_['max']} ({c['frames']} frames)"
-            )
-    s = floor.get("mj_step")
-    if s:
-        if "error" in s:
-            lines.append(f"mj_step: {s['error']}")
-        else:
-            st = s["step_us"]
-            lines.append(
-                f"mj_step ({s['model']}, {s['timestep_ms']} ms): p50 {st['p50']} p99 {st['p99']} max {st['max']} "
-                f"mean {st['mean']} ({s['steps']} steps)"
-            )
+    for key, label, line in PROBE_LINES:
+        probe = floor.get(key)
+        if probe:
+            lines.append(f"{label}: {probe['error']}" if "error" in probe else line(probe))
     if "empty_thread_error" in floor:
         lines.append(f"empty thread: {floor['empty_thread_error']}")
     lines.append("")
