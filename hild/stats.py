@@ -8,12 +8,37 @@ live in a given buffer (a cell of the shared region): the cycle process records,
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
+Unit = Literal["s", "ms", "us", "ns"]
+PER_SECOND: dict[str, float] = {"s": 1.0, "ms": 1e3, "us": 1e6, "ns": 1e9}
+
 _COUNT, _MAX = 0, 1
 _CYCLES, _OVERRUNS, _CONSECUTIVE = 0, 1, 2
+
+
+def percentiles(
+    values: Sequence[float] | np.ndarray, unit: Unit, *, to: Unit = "us", digits: int = 1
+) -> dict[str, float]:
+    """p50/p99/p99.9/max of ``values`` measured in ``unit``, converted to ``to`` and rounded to ``digits``
+    (all zeros for no values). The unit is named at every call because measuring code collects seconds,
+    nanoseconds and milliseconds alike; numpy's linear interpolation over every value."""
+    data = np.asarray(values, dtype=float)
+    if data.size == 0:
+        return {"p50": 0.0, "p99": 0.0, "p999": 0.0, "max": 0.0}
+    scale = PER_SECOND[to] / PER_SECOND[unit]
+    p50, p99, p999 = (float(v) * scale for v in np.percentile(data, [50, 99, 99.9]))
+    top = float(data.max()) * scale
+    return {
+        "p50": round(p50, digits),
+        "p99": round(p99, digits),
+        "p999": round(p999, digits),
+        "max": round(top, digits),
+    }
 
 
 def window_bytes(size: int) -> int:
@@ -50,12 +75,12 @@ class RollingWindow:
             head[_MAX] = value_ns
 
     def summary_us(self) -> dict[str, float]:
+        """Percentiles over the window, µs; ``max`` is the largest value since the last reset, which the window
+        may no longer hold."""
         n = min(self.count, len(self.values))
         if n == 0:
-            return {"p50": 0.0, "p99": 0.0, "p999": 0.0, "max": 0.0}
-        window = self.values[:n].copy()
-        p50, p99, p999 = np.percentile(window, [50, 99, 99.9]) / 1e3
-        return {"p50": round(p50, 1), "p99": round(p99, 1), "p999": round(p999, 1), "max": round(self.max / 1e3, 1)}
+            return percentiles((), "ns")
+        return {**percentiles(self.values[:n], "ns"), "max": round(self.max / 1e3, 1)}
 
     def reset(self) -> None:
         self._head[:] = 0
@@ -106,8 +131,8 @@ class LoopStats:
     def summary(self, max_age: float = 0.0) -> dict[str, object]:
         """Counters (always current) and percentiles over the window.
 
-        The percentiles cost ~0.2 ms of CPU (and GIL) per call over a 10k window; a caller that may be polled
-        fast (status at 200 Hz) passes ``max_age`` to reuse ones computed less than that many seconds ago."""
+        The percentiles cost CPU (and the GIL) on every call over a full window (docs/performance.md); a caller
+        that may be polled fast (status) passes ``max_age`` to reuse ones computed less than that many seconds ago."""
         now = time.monotonic()
         if self._percentiles is None or now - self._percentiles_at > max_age:
             self._percentiles = (self.duration.summary_us(), self.period_error.summary_us())
@@ -125,22 +150,3 @@ class LoopStats:
         self.duration.reset()
         self.period_error.reset()
         self._percentiles = None
-
-
-def format_loop_table(rows: list[dict[str, object]]) -> str:
-    """A fixed-width table of ``LoopStats.summary()`` rows (each with ``rate_hz``), for tools and reports."""
-    lines = [
-        f"{'rate':>6} {'cycles':>7} {'dur p50':>8} {'p99':>7} {'p99.9':>7} {'max':>8} "
-        f"{'perr p50':>8} {'p99':>7} {'p99.9':>7} {'max':>8} {'ovr/10k':>8}"
-    ]
-    for r in rows:
-        d, p = r["duration_us"], r["period_error_us"]
-        assert isinstance(d, dict) and isinstance(p, dict)
-        cycles = int(r["cycles"])  # type: ignore[call-overload]
-        per_10k = round(int(r["overruns"]) * 10_000 / max(1, cycles), 1)  # type: ignore[call-overload]
-        lines.append(
-            f"{r['rate_hz']:>6g} {cycles:>7} {d['p50']:>8} {d['p99']:>7} {d['p999']:>7} {d['max']:>8} "
-            f"{p['p50']:>8} {p['p99']:>7} {p['p999']:>7} {p['max']:>8} {per_10k:>8}"
-        )
-    lines.append("(µs; duration = wake → write done; period error = |Δwake − T|)")
-    return "\n".join(lines)

@@ -32,10 +32,11 @@ from pathlib import Path
 
 import numpy as np
 
-from hild.config import load_config
+from hild.bench.measure import lockstep_engine
 from hild.cycle import wait_until
 from hild.engine import Engine
 from hild.motion.reference import standard_trajectory
+from hild.stats import percentiles
 
 CONDITIONS = (  # label, sleep (s), spin (ns)
     ("hot (back to back)", 0.0, 0),
@@ -44,22 +45,6 @@ CONDITIONS = (  # label, sleep (s), spin (ns)
     ("sleep 0.4 + spin 0.4 ms", 0.0004, 400_000),
     ("spin 0.8 ms", 0.0, 800_000),
 )
-
-
-def lockstep_engine(config: Path, rate: float) -> Engine:
-    loaded = load_config(config)
-    cfg = loaded.config
-    for name, params in loaded.driver_params.items():  # keep the twin's physics step
-        substeps = getattr(params, "substeps", None)
-        if substeps is not None:
-            loaded.driver_params[name] = params.model_copy(
-                update={"substeps": max(1, round(substeps * cfg.update_rate / rate))}
-            )
-    clock = cfg.clock.model_copy(update={"source": "sim", "real_time_factor": 0.0})
-    loaded.config = cfg.model_copy(update={"update_rate": rate, "clock": clock})
-    engine = Engine(loaded)
-    engine.start()
-    return engine
 
 
 def wake_costs(engine: Engine, cycles: int) -> list[tuple[str, float, float]]:
@@ -80,12 +65,13 @@ def wake_costs(engine: Engine, cycles: int) -> list[tuple[str, float, float]]:
             start = time.perf_counter_ns()
             engine.run_cycles(1)
             took[k] = (time.perf_counter_ns() - start) / 1e3
-        rows.append((label, float(np.percentile(took, 50)), float(np.percentile(took, 99))))
+        figures = percentiles(took, "us")
+        rows.append((label, figures["p50"], figures["p99"]))
     return rows
 
 
 def gil_release(engine: Engine) -> dict[str, int]:
-    from drivers.mujoco.probe import gil_release as measure  # MuJoCo stays in its room
+    from hild.bench.probes.mj_step import gil_release as measure
 
     twin = engine.hardware[0].component
     return measure(twin.model, twin.data)
@@ -154,9 +140,8 @@ def neighbour_costs(engine: Engine, rate: float, rounds: int, block: int) -> lis
         process.wait()
     rows = []
     for label, blocks in took.items():
-        d = np.concatenate(blocks)
-        p50, p99, p999 = (float(v) for v in np.percentile(d, [50, 99, 99.9]))
-        rows.append((label, p50, p99, p999))
+        figures = percentiles(np.concatenate(blocks), "us")
+        rows.append((label, figures["p50"], figures["p99"], figures["p999"]))
     return rows
 
 

@@ -3,9 +3,10 @@
 
     python tools/cycle_stats.py configs/arm6_twin.yaml --rates 500 1000 --seconds 10
 
-For each rate it starts the engine (hardware, supervisor, autostart controllers), runs the cycle thread for the
-given time with the same real-time settings the daemon applies, and reports cycle duration and period error
-(p50/p99/p99.9/max, µs) and overruns per 10k cycles. No Zenoh session is opened: this is the cycle alone.
+For each rate it starts the engine (hardware, supervisor, autostart controllers), runs the cycle thread with the
+same real-time settings the daemon applies, and after a warm-up reports cycle duration and period error
+(p50/p99/p99.9/max, µs) and overruns per 10k cycles over the window (``hild.bench.measure``). No Zenoh session is
+opened: this is the cycle alone; ``hild bench`` measures the whole daemon.
 """
 
 from __future__ import annotations
@@ -13,40 +14,22 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
+from typing import Any
 
+from hild.bench.measure import cycle_running, measure_window, start_engine
+from hild.bench.report import format_loop_table
 from hild.config import load_config
-from hild.cycle import CycleThread
-from hild.engine import Engine
-from hild.realtime import apply_process_settings, freeze_heap
+
+WARMUP_S = 1.0
 
 
-def measure(config: str, rate: float, seconds: float, activate: list[str]) -> dict[str, object]:
+def measure(config: str, rate: float, seconds: float, activate: list[str]) -> dict[str, Any]:
     loaded = load_config(config)
     loaded.config = loaded.config.model_copy(update={"update_rate": rate})
-    cfg = loaded.config
-    engine = Engine(loaded)
-    apply_process_settings(cfg.realtime)
-    engine.start()
-    if activate:
-        result = engine.switch(activate, [])
-        if not result.ok:
-            raise SystemExit(f"cannot activate {activate}: {result.error}")
-    freeze_heap(cfg.realtime)
-    cycle = CycleThread(engine, "wall", 1.0, cfg.realtime)
-    cycle.start()
-    time.sleep(1.0)  # warm-up, not counted
-    engine.stats.reset()
-    time.sleep(seconds)
-    summary = engine.stats.summary()
-    cycle.stop()
-    cycle.join()
-    cycles = max(1, int(summary["cycles"]))
-    summary["overruns_per_10k"] = round(int(summary["overruns"]) * 10_000 / cycles, 2)
-    summary["rate_hz"] = rate
-    summary["mode"] = engine.overall_mode()
-    summary["realtime"] = engine.realtime_report
-    return summary
+    engine = start_engine(loaded, activate)
+    with cycle_running(engine, loaded.config.realtime):
+        window = measure_window(engine, warmup=WARMUP_S, seconds=seconds)
+    return {**window.figures(), "rate_hz": rate, "mode": engine.overall_mode(), "realtime": engine.realtime_report}
 
 
 def main() -> int:
@@ -58,20 +41,7 @@ def main() -> int:
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
     results = [measure(args.config, rate, args.seconds, args.activate) for rate in args.rates]
-    if args.json:
-        print(json.dumps(results, indent=2))
-        return 0
-    print(
-        f"{'rate':>6} {'cycles':>7} {'dur p50':>8} {'p99':>7} {'p99.9':>7} {'max':>8} "
-        f"{'perr p50':>8} {'p99':>7} {'p99.9':>7} {'max':>8} {'ovr/10k':>8}"
-    )
-    for r in results:
-        d, p = r["duration_us"], r["period_error_us"]
-        print(
-            f"{r['rate_hz']:>6g} {r['cycles']:>7} {d['p50']:>8} {d['p99']:>7} {d['p999']:>7} {d['max']:>8} "
-            f"{p['p50']:>8} {p['p99']:>7} {p['p999']:>7} {p['max']:>8} {r['overruns_per_10k']:>8}"
-        )
-    print("(µs; duration = wake → write done; period error = |Δwake − T|)", file=sys.stderr)
+    print(json.dumps(results, indent=2) if args.json else format_loop_table(results))
     return 0
 
 

@@ -28,7 +28,6 @@ import os
 import platform
 import shlex
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -42,10 +41,12 @@ from typing import Any
 import numpy as np
 
 from hild.api.client import HildClient, HildError, HildUnreachable, ServoStream
-from hild.config import LoadedConfig, load_config
+from hild.bench.children import free_endpoint
+from hild.bench.measure import RateRefused, lockstep_engine
+from hild.config import load_config
 from hild.config.documents import load_document
-from hild.engine import Engine
 from hild.motion.reference import standard_trajectory
+from hild.stats import percentiles
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 JTC = "joint_trajectory"
@@ -59,42 +60,11 @@ STILL_FOR = 0.1  # s: a servo step starts only after the joint has been still th
 
 
 # ---- 1. tracking on the lockstep twin ---------------------------------------------------------------------------
-class SkipRun(Exception):
-    """This config cannot run at the requested rate; the reason is reported instead of numbers."""
-
-
-def lockstep_twin(config: Path, rate: float | None) -> Engine:
-    """The config on the sim clock (lockstep), optionally at another update rate, started.
-
-    At another rate each MuJoCo twin's ``substeps`` is scaled so its physics step stays what the config chose."""
-    loaded: LoadedConfig = load_config(config)
-    cfg = loaded.config
-    update: dict[str, Any] = {"clock": cfg.clock.model_copy(update={"source": "sim", "real_time_factor": 0.0})}
-    if rate is not None and rate != cfg.update_rate:
-        try:
-            type(cfg).model_validate({**cfg.model_dump(), "update_rate": rate})
-        except ValueError as exc:  # pydantic's ValidationError: keep its first message, not the whole report
-            errors = getattr(exc, "errors", None)
-            reason = errors()[0]["msg"] if callable(errors) else str(exc)
-            raise SkipRun(f"update_rate {rate:g} not allowed: {reason}") from None
-        for name, params in loaded.driver_params.items():
-            substeps = getattr(params, "substeps", None)
-            if substeps is None:
-                raise SkipRun(f"hardware {name!r} has no substeps to keep its physics step at {rate:g} Hz")
-            scaled = max(1, round(substeps * cfg.update_rate / rate))
-            loaded.driver_params[name] = params.model_copy(update={"substeps": scaled})
-        update["update_rate"] = rate
-    loaded.config = cfg.model_copy(update=update)
-    engine = Engine(loaded)
-    engine.start()
-    return engine
-
-
 def measure_tracking(config: Path, rate: float | None) -> dict[str, Any]:
     """Run the standard trajectory through joint_trajectory; tracking error = final command − measured position."""
     try:
-        engine = lockstep_twin(config, rate)
-    except SkipRun as exc:
+        engine = lockstep_engine(config, rate)
+    except RateRefused as exc:
         return {"config": config.name, "rate_hz": rate, "skipped": str(exc)}
     try:
         switched = engine.switch([JTC], [])
@@ -163,12 +133,6 @@ def format_tracking(row: dict[str, Any]) -> str:
 
 
 # ---- the daemon -------------------------------------------------------------------------------------------------
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
 def full_rate_copy(config: Path, directory: Path) -> Path:
     """A copy of ``config`` in ``directory`` with the broadcaster at the update rate and model paths made absolute.
 
@@ -193,7 +157,7 @@ def full_rate_copy(config: Path, directory: Path) -> Path:
 @contextlib.contextmanager
 def running_daemon(config: Path, robot: str, workdir: Path) -> Iterator[HildClient]:
     """``hild run`` on a free loopback port, a connected client; the daemon is stopped (or killed) on the way out."""
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    endpoint = free_endpoint()
     log = workdir / "daemon.log"
     command = [sys.executable, "-m", "hild.cli", "run", str(config), "--listen", endpoint, "--log-level", "warning"]
     with log.open("wb") as out:
@@ -227,16 +191,13 @@ def running_daemon(config: Path, robot: str, workdir: Path) -> Iterator[HildClie
 
 
 def percentiles_ms(samples_s: Sequence[float]) -> dict[str, float | int]:
+    """``percentiles`` in ms (to the µs), with the count and the fastest sample."""
     if not samples_s:
         return {"n": 0}
-    values = np.asarray(samples_s) * 1e3
-    p50, p99 = np.percentile(values, [50, 99])
     return {
-        "n": len(values),
-        "p50": round(float(p50), 3),
-        "p99": round(float(p99), 3),
-        "max": round(float(values.max()), 3),
-        "min": round(float(values.min()), 3),
+        "n": len(samples_s),
+        **percentiles(samples_s, "s", to="ms", digits=3),
+        "min": round(min(samples_s) * 1e3, 3),
     }
 
 
@@ -363,7 +324,7 @@ def servo_floor(config: Path, joint_name: str, step: float, threshold: float) ->
 
     Counted from the cycle that takes the target (1 = that cycle); no Zenoh, no pick-up wait, no thread wake-up,
     so the daemon's latency minus this is the transport and scheduling share."""
-    engine = lockstep_twin(config, None)
+    engine = lockstep_engine(config, None)
     try:
         joint = engine.joints.index(joint_name)
         if not engine.switch([SERVO], []).ok:

@@ -7,11 +7,12 @@ For each clock (lockstep = sim clock as fast as possible; wall = real time) and 
 cycle thread (hild.cycle.CycleThread) with the daemon's real-time settings, without telemetry and with a file sink
 in a temporary directory (the recorder process, and ``Telemetry.run`` watching it on an asyncio loop on the main
 thread, the way the daemon does). ``--repeat N`` runs N off/on pairs, interleaved (off, on, off, on, …) so a drift
-of the machine hits both alike, and reports each run and the mean of each pair of sides. The tap is called where
-the daemon's engine calls it (``Engine.step``, right after the hardware writes) and its own cost is timed
-separately. Reports cycle duration (wake-up → writes done) p50/p99 (µs), the p99 rise, overruns per 10k cycles
-(they count the whole step, tap included), the tap's p50/p99, the recorder's flush mean/max (ms, in its own
-process) and the recording's size (kB/s).
+of the machine hits both alike, and reports each run and the mean of each pair of sides. The tap is called where the
+daemon's engine calls it (``Engine.step``, right after the hardware writes) and its own cost is timed separately.
+Engine, cycle thread and window come from the measuring room (``hild.bench.measure``). Reports cycle duration
+(wake-up → writes done) p50/p99 (µs), the p99 rise, overruns per 10k cycles (they count the whole step, tap
+included), the tap's p50/p99, the recorder's flush mean/max (ms, in its own process) and the recording's size
+(kB/s).
 """
 
 from __future__ import annotations
@@ -27,12 +28,13 @@ from typing import Any
 
 import numpy as np
 
+from hild.bench.measure import cycle_running, measure_window, start_engine
 from hild.config import load_config
 from hild.config.model import TelemetrySection
-from hild.cycle import CycleThread
-from hild.engine import Engine
-from hild.realtime import apply_process_settings, freeze_heap, thaw_heap
+from hild.stats import percentiles
 from hild.telemetry import Telemetry
+
+WARMUP_S = 1.0  # s, not counted
 
 
 class TimedTap:
@@ -47,6 +49,9 @@ class TimedTap:
         self.tap_ns[self.calls % len(self.tap_ns)] = time.perf_counter_ns() - t0
         self.calls += 1
 
+    def restart(self) -> None:
+        self.calls = 0
+
 
 async def _measure(
     config: str, clock: str, rate: float, seconds: float, with_telemetry: bool, flush_period: float = 0.1
@@ -60,25 +65,17 @@ async def _measure(
         sinks=[{"kind": "file", "path": str(Path(tmp.name) / "cost.rrd")}] if with_telemetry else [],  # type: ignore[list-item]
     )
     loaded.config = cfg.model_copy(update={"update_rate": rate, "telemetry": section})
-    engine = Engine(loaded)
+    engine = start_engine(loaded)
     telemetry = Telemetry.from_config(loaded, engine.stats)
     tap_ns = np.zeros(200_000, dtype=np.int64)
     timed = TimedTap(telemetry.tap, tap_ns) if telemetry else None
     engine.tap = timed  # where the daemon puts it: Engine.step calls it after the hardware writes
-    apply_process_settings(cfg.realtime)
-    engine.start()
-    freeze_heap(cfg.realtime)
-    cycle = CycleThread(engine, clock, 0.0 if clock == "sim" else 1.0, cfg.realtime)
     watcher = asyncio.create_task(telemetry.run()) if telemetry else None
-    cycle.start()
-    await asyncio.sleep(1.0)  # warm-up, not counted
-    engine.stats.reset()
-    first_tap = timed.calls if timed else 0
-    await asyncio.sleep(seconds)
-    summary = engine.stats.summary()
-    taps = min((timed.calls if timed else 0) - first_tap, len(tap_ns))
-    cycle.stop()
-    await asyncio.to_thread(cycle.join, 5.0)
+    with cycle_running(engine, cfg.realtime, clock, 0.0 if clock == "sim" else 1.0):
+        window = await asyncio.to_thread(
+            measure_window, engine, warmup=WARMUP_S, seconds=seconds, also_restart=timed.restart if timed else None
+        )
+        taps = min(timed.calls if timed else 0, len(tap_ns))
     size = 0
     if telemetry is not None:
         telemetry.close()
@@ -86,24 +83,21 @@ async def _measure(
         await watcher
         size = sum(f.stat().st_size for f in telemetry.files)
     tmp.cleanup()
-    thaw_heap()
-    d = summary["duration_us"]
-    assert isinstance(d, dict)
+    d = window.figures()["duration_us"]
     result: dict[str, Any] = {
         "clock": "lockstep" if clock == "sim" else "wall",
         "rate_hz": rate,
         "telemetry": with_telemetry,
-        "cycles": summary["cycles"],
-        "overruns": summary["overruns"],
-        "ovr_per_10k": round(1e4 * int(summary["overruns"]) / max(1, int(summary["cycles"])), 1),
+        "cycles": window.cycles,
+        "overruns": window.overruns,
+        "ovr_per_10k": round(1e4 * window.overruns / max(1, window.cycles), 1),
         "p50_us": d["p50"],
         "p99_us": d["p99"],
         "max_us": d["max"],
     }
     if telemetry is not None:
-        window = np.sort(tap_ns[:taps]) / 1e3 if taps else np.zeros(1)
-        result["tap_p50_us"] = round(float(np.percentile(window, 50)), 2)
-        result["tap_p99_us"] = round(float(np.percentile(window, 99)), 2)
+        tap = percentiles(tap_ns[:taps], "ns", digits=2)
+        result["tap_p50_us"], result["tap_p99_us"] = tap["p50"], tap["p99"]
         result["flush_mean_ms"] = round(float(telemetry.info["flush_mean_ms"]), 2)
         result["flush_max_ms"] = round(float(telemetry.info["flush_max_ms"]), 2)
         result["rrd_kB_per_s"] = round(size / 1e3 / (seconds + 1.0), 1)

@@ -141,12 +141,7 @@ def measure_floor(settings: Settings) -> dict[str, Any]:
     except Exception as exc:
         floor["empty_thread"] = []
         floor["empty_thread_error"] = f"{type(exc).__name__}: {exc}"
-    try:
-        from hild.api.probe import zenoh_round_trip  # zenoh lives in the api room
-
-        floor["zenoh"] = zenoh_round_trip(settings.zenoh_pings, settings.zenoh_puts)
-    except Exception as exc:
-        floor["zenoh"] = {"error": f"{type(exc).__name__}: {exc}"}
+    floor["zenoh"] = run_probe("zenoh", count=settings.zenoh_pings, puts=settings.zenoh_puts)
     floor["can_virtual"] = run_probe("can_virtual", count=settings.can_frames)
     floor["mj_step"] = run_probe("mj_step", count=settings.mj_steps, config=str(ARM6))
     return floor

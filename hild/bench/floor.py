@@ -6,38 +6,43 @@
   ``mlockall``), so the only difference from a scenario is the work inside the cycle and what shares the process.
   Lateness (wake − deadline) is recovered from the cycle clock: the wall clock's ``t`` is wake − start and every
   deadline is start + k·T, so lateness = t mod T (exact below one period, which is all but overruns).
-* **Library probes**: raw Zenoh on loopback (``hild.api.probe``), and the probes drivers register in the
-  entry-point group ``hild.probes`` (``can_virtual``: python-can's virtual bus; ``mj_step``: MuJoCo's step) —
-  hild never imports a driver, it asks for them by name.
+* **Library probes** (:mod:`hild.bench.probes`): raw Zenoh on loopback, python-can's virtual bus, MuJoCo's
+  step. Each is imported only when it runs, so a missing library is a line in the report, not a failed run.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
+import queue
 import subprocess
 import sys
-import threading
 import time
 from collections.abc import Callable
-from importlib.metadata import entry_points
+from concurrent.futures import Future
 from typing import Any
 
 import numpy as np
 
-from hild.bench.report import loop_figures, summarize_ns
+from hild.bench.measure import cycle_running, measure_window
+from hild.bench.report import summarize_ns
 from hild.config.model import RealtimeSection
-from hild.cycle import CycleThread
 from hild.events import EventLog
 from hild.realtime import CpuLatencyRequest, apply_process_settings, freeze_heap
 from hild.stats import LoopStats
 
-PROBES = "hild.probes"
+PROBES = {  # the floor section's name → (module in hild.bench.probes, function)
+    "zenoh": ("zenoh_loopback", "zenoh_round_trip"),
+    "can_virtual": ("can_virtual", "virtual_round_trip"),
+    "mj_step": ("mj_step", "mj_step"),
+}
 WARMUP_S = 0.5
 
 
 class EmptyEngine:
-    """The part of ``Engine`` that ``CycleThread`` uses, with a ``step`` that only notes its lateness."""
+    """The part of ``Engine`` that ``CycleThread`` and ``measure_window`` use, with a ``step`` that only notes its
+    lateness (kept at the loop statistics' count, so it covers the same window)."""
 
     def __init__(self, rate: float, capacity: int) -> None:
         self.period = 1.0 / rate
@@ -46,26 +51,21 @@ class EmptyEngine:
         self.realtime_report: dict[str, str] = {}
         self.events = EventLog()
         self.lateness = np.zeros(capacity, dtype=np.int64)
-        self.steps = 0
         self.write_done_ns = 0
-        self.warmup_cycles = -1
-        self._open_window = threading.Event()
+        self._asked: queue.SimpleQueue[tuple[Callable[[], Any], Future[Any]]] = queue.SimpleQueue()
 
-    def open_window(self) -> None:
-        """Ask the cycle thread to reset its statistics and start noting lateness; wait until it has."""
-        self._open_window.set()
-        while self.warmup_cycles < 0:
-            time.sleep(0.001)
+    def submit(self, action: Callable[[], Any]) -> Future[Any]:
+        """Run ``action`` on the cycle thread at its next step, as ``Engine.submit`` does."""
+        future: Future[Any] = Future()
+        self._asked.put((action, future))
+        return future
 
     def step(self, t: float, dt: float) -> None:
         self.write_done_ns = time.perf_counter_ns()  # nothing to write: the cycle's work ends here
-        if self.warmup_cycles >= 0:
-            self.lateness[self.steps % len(self.lateness)] = round(t * 1e9) % self.period_ns
-            self.steps += 1
-        elif self._open_window.is_set():  # on the cycle thread, so no record races the reset
-            cycles = self.stats.cycles
-            self.stats.reset()
-            self.warmup_cycles = cycles
+        if not self._asked.empty():
+            action, future = self._asked.get_nowait()
+            future.set_result(action())
+        self.lateness[self.stats.cycles % len(self.lateness)] = round(t * 1e9) % self.period_ns
 
     def stop(self) -> None:
         pass
@@ -75,17 +75,10 @@ def empty_thread(rate: float, seconds: float, realtime: RealtimeSection) -> dict
     """Run the empty cycle at ``rate`` for ``seconds`` (after a short warm-up); loop figures plus lateness."""
     capacity = max(10_000, int(rate * seconds) + 1000)
     engine = EmptyEngine(rate, capacity)
-    cycle = CycleThread(engine, "wall", 1.0, realtime)  # type: ignore[arg-type]
-    cycle.start()
-    time.sleep(WARMUP_S)
-    engine.open_window()
-    time.sleep(seconds)
-    cycle.stop()
-    cycle.join(5.0)
-    stats = engine.stats
-    n = min(stats.cycles, capacity)
-    figures = loop_figures(stats.cycles, stats.overruns, stats.duration.values[:n], stats.period_error.values[:n])
-    figures["lateness_us"] = summarize_ns(engine.lateness[: min(engine.steps, capacity)])
+    with cycle_running(engine, realtime):
+        window = measure_window(engine, warmup=WARMUP_S, seconds=seconds)
+    figures = window.figures()
+    figures["lateness_us"] = summarize_ns(engine.lateness[: min(window.cycles, capacity)])
     figures["rate_hz"] = rate
     figures["realtime"] = dict(engine.realtime_report)
     return figures
@@ -112,13 +105,12 @@ def measure_empty_threads(rates: list[float], seconds: float, realtime: Realtime
 
 
 def probe(name: str) -> Callable[..., dict[str, Any]]:
-    """The probe registered as ``name`` in ``hild.probes`` (a callable returning a dict)."""
-    for ep in entry_points(group=PROBES):
-        if ep.name == name:
-            loaded: Callable[..., dict[str, Any]] = ep.load()
-            return loaded
-    known = ", ".join(sorted(ep.name for ep in entry_points(group=PROBES))) or "none installed"
-    raise LookupError(f"no probe {name!r} in {PROBES} (known: {known})")
+    """The probe called ``name`` (a callable returning a dict), imported now: its library loads with it."""
+    if name not in PROBES:
+        raise LookupError(f"no probe {name!r} (known: {', '.join(PROBES)})")
+    module, function = PROBES[name]
+    found: Callable[..., dict[str, Any]] = getattr(importlib.import_module(f"hild.bench.probes.{module}"), function)
+    return found
 
 
 def run_probe(name: str, **kwargs: Any) -> dict[str, Any]:

@@ -4,10 +4,9 @@
 
 The process layout is the daemon's own — asyncio main thread with Zenoh, the cycle (a process of its own with
 ``realtime.cycle_process``, else a thread of this one), the telemetry recorder child — and, with ``--rig``,
-whatever the rig adds (the CAN rig: emulated drives serviced by a thread of this process). Rigs come from drivers
-through the entry-point group ``hild.bench_rigs``; hild never imports them directly. A python-can ``virtual``
-channel does not leave its process, so with the cycle elsewhere ``--can-bridge`` serves each of the rig's
-channels to the daemon's drivers over loopback (:mod:`hild.bench.bridge`).
+whatever the rig adds (the CAN rig: emulated drives serviced by a thread of this process; :mod:`hild.bench.rigs`).
+A python-can ``virtual`` channel does not leave its process, so with the cycle elsewhere ``--can-bridge`` serves
+each of the rig's channels to the daemon's drivers over loopback (:mod:`hild.bench.rigs.can_bridge`).
 
 The bench (the parent) talks to the daemon over Zenoh like any client, and to this host over stdin/stdout, one
 JSON object per line (stdout is moved to a private descriptor first, so nothing else can write into the
@@ -40,20 +39,18 @@ import os
 import sys
 import time
 from collections.abc import Callable
-from importlib.metadata import entry_points
 from pathlib import Path
-from typing import IO, Any, Protocol
+from typing import IO, Any
 
 from hild.bench.report import cpu_groups, cpu_percent
+from hild.bench.rigs import BenchRig, rig_class
 from hild.bench.window import DRAIN_S, ClockLag, StatsWindow, window_note
 from hild.cli import setup_logging
 from hild.config import ConfigError, load_config
-from hild.config.loader import LoadedConfig
 from hild.daemon import Daemon
 from hild.engine import MAX_STEP_PERIODS
 from hild.realtime import thaw_heap
 
-RIGS = "hild.bench_rigs"
 CLOCK_SAMPLES = 20
 CLOCK_POLL_S = 0.1  # s of polling the shared clock cell (the cycle in a process of its own)
 LAG_EVERY_S = 1.0  # s between two looks at the control clock's lag: often enough that no cycle is overwritten
@@ -63,37 +60,6 @@ CLOCK_POLL_GAP_NS = 20_000  # a change seen more than this after the previous lo
 READY_TIMEOUT = 60.0  # s from the daemon's start to its READY
 
 log = logging.getLogger("hild.bench.host")
-
-
-class BenchRig(Protocol):
-    """What a rig offers the bench (see drivers/can/bench_rig.py for the one hild ships)."""
-
-    trajectory_scale: float
-
-    @staticmethod
-    def robot_config(joints: int, rate: float) -> dict[str, Any]: ...
-
-    def start(self, loaded: LoadedConfig) -> None: ...
-
-    def attach(self, engine: Any) -> None: ...
-
-    def threads(self) -> dict[str, int]: ...
-
-    def counters(self) -> dict[str, int]: ...
-
-    def listen(self, on: bool) -> dict[str, Any]: ...
-
-    def stop(self) -> None: ...
-
-
-def rig_class(name: str) -> Callable[[], BenchRig]:
-    """The rig registered as ``name`` in ``hild.bench_rigs``."""
-    for ep in entry_points(group=RIGS):
-        if ep.name == name:
-            loaded: Callable[[], BenchRig] = ep.load()
-            return loaded
-    known = ", ".join(sorted(ep.name for ep in entry_points(group=RIGS))) or "none installed"
-    raise LookupError(f"no bench rig {name!r} in {RIGS} (known: {known})")
 
 
 def proc_ticks(path: str) -> int:
@@ -361,7 +327,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description="A hild bench scenario's daemon process (run by hild bench).")
     parser.add_argument("config")
     parser.add_argument("--listen", required=True, action="append")
-    parser.add_argument("--rig", help="a rig from the hild.bench_rigs entry-point group")
+    parser.add_argument("--rig", help="a rig from hild.bench.rigs (mit_can)")
     parser.add_argument(
         "--can-bridge", action="store_true", help="serve the rig's virtual CAN channels to the daemon over loopback"
     )
@@ -381,7 +347,7 @@ def main(argv: list[str] | None = None) -> int:
         if rig is not None:
             rig.start(loaded)  # the drives must be there before the daemon configures them
         if args.can_bridge:
-            from hild.bench.bridge import CanBridge
+            from hild.bench.rigs.can_bridge import CanBridge
 
             bridge = CanBridge()
             loaded = load_config(bridge.serve(Path(args.config)))  # the same robot, its buses served over loopback

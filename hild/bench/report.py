@@ -15,6 +15,8 @@ from typing import Any
 
 import numpy as np
 
+from hild.stats import percentiles
+
 CYCLE_P99_LIMIT_US = 250.0
 PERIOD_ERROR_FLOOR_FACTOR = 2.0
 OVERRUNS_PER_10K_LIMIT = 1.0
@@ -29,19 +31,10 @@ LATENCY_TARGET_SCENARIO = "can6"
 
 
 def summarize_ns(values_ns: Sequence[int] | np.ndarray) -> dict[str, float]:
-    """p50/p99/p99.9/max/mean of nanosecond samples, in µs rounded to 0.1 (zeros for no samples)."""
+    """``percentiles`` of nanosecond samples in µs, with their mean and count (zeros for no samples)."""
     values = np.asarray(values_ns, dtype=float)
-    if values.size == 0:
-        return {"p50": 0.0, "p99": 0.0, "p999": 0.0, "max": 0.0, "mean": 0.0, "n": 0}
-    p50, p99, p999 = (float(v) / 1e3 for v in np.percentile(values, [50, 99, 99.9]))
-    return {
-        "p50": round(p50, 1),
-        "p99": round(p99, 1),
-        "p999": round(p999, 1),
-        "max": round(float(values.max()) / 1e3, 1),
-        "mean": round(float(values.mean()) / 1e3, 1),
-        "n": int(values.size),
-    }
+    mean = round(float(values.mean()) / 1e3, 1) if values.size else 0.0
+    return {**percentiles(values, "ns"), "mean": mean, "n": int(values.size)}
 
 
 def per_10k(events: int, cycles: int) -> float:
@@ -64,6 +57,25 @@ def loop_figures(
         "duration_us": summarize_ns(duration_ns),
         "period_error_us": summarize_ns(period_error_ns),
     }
+
+
+def format_loop_table(rows: list[dict[str, object]]) -> str:
+    """A fixed-width table of loop figures (``LoopStats.summary()`` or ``loop_figures`` rows, each with ``rate_hz``)."""
+    lines = [
+        f"{'rate':>6} {'cycles':>7} {'dur p50':>8} {'p99':>7} {'p99.9':>7} {'max':>8} "
+        f"{'perr p50':>8} {'p99':>7} {'p99.9':>7} {'max':>8} {'ovr/10k':>8}"
+    ]
+    for r in rows:
+        d, p = r["duration_us"], r["period_error_us"]
+        assert isinstance(d, dict) and isinstance(p, dict)
+        cycles = int(r["cycles"])  # type: ignore[call-overload]
+        per_10k = round(int(r["overruns"]) * 10_000 / max(1, cycles), 1)  # type: ignore[call-overload]
+        lines.append(
+            f"{r['rate_hz']:>6g} {cycles:>7} {d['p50']:>8} {d['p99']:>7} {d['p999']:>7} {d['max']:>8} "
+            f"{p['p50']:>8} {p['p99']:>7} {p['p999']:>7} {p['max']:>8} {per_10k:>8}"
+        )
+    lines.append("(µs; duration = wake → write done; period error = |Δwake − T|)")
+    return "\n".join(lines)
 
 
 def cpu_percent(before: dict[str, int], after: dict[str, int], seconds: float, tick_hz: int) -> dict[str, float]:
@@ -425,6 +437,37 @@ def format_report(report: dict[str, Any]) -> str:
     return "\n".join(lines + _hild_lines(report))
 
 
+def _zenoh_line(z: dict[str, Any]) -> str:
+    ow, ps = z["one_way_us"], z["put_to_subscriber_us"]
+    return (
+        f"Zenoh loopback, client → peer: one-way (RTT/2) p50 {ow['p50']} p99 {ow['p99']} max {ow['max']}; "
+        f"put → subscriber p50 {ps['p50']} p99 {ps['p99']} max {ps['max']} ({z['pings']} pings, {z['puts']} puts)"
+    )
+
+
+def _can_virtual_line(c: dict[str, Any]) -> str:
+    ow, rt = c["one_way_us"], c["round_trip_us"]
+    return (
+        f"python-can virtual, one thread: send → recv p50 {ow['p50']} p99 {ow['p99']}; "
+        f"request → reply p50 {rt['p50']} p99 {rt['p99']} max {rt['max']} ({c['frames']} frames)"
+    )
+
+
+def _mj_step_line(s: dict[str, Any]) -> str:
+    st = s["step_us"]
+    return (
+        f"mj_step ({s['model']}, {s['timestep_ms']} ms): p50 {st['p50']} p99 {st['p99']} max {st['max']} "
+        f"mean {st['mean']} ({s['steps']} steps)"
+    )
+
+
+PROBE_LINES = (  # the floor section's probe, its label when it failed, its line when it ran
+    ("zenoh", "Zenoh ping-pong", _zenoh_line),
+    ("can_virtual", "python-can virtual", _can_virtual_line),
+    ("mj_step", "mj_step", _mj_step_line),
+)
+
+
 def _floor_lines(floor: dict[str, Any]) -> list[str]:
     lines = ["FLOOR (same run)"]
     w = (26, 6, 7, 8, 7, 7, 8, 8, 7, 8, 8)
@@ -466,37 +509,10 @@ def _floor_lines(floor: dict[str, Any]) -> list[str]:
                 w,
             )
         )
-    z = floor.get("zenoh")
-    if z:
-        if "error" in z:
-            lines.append(f"Zenoh ping-pong: {z['error']}")
-        else:
-            ow, ps = z["one_way_us"], z["put_to_subscriber_us"]
-            lines.append(
-                f"Zenoh loopback, client → peer: one-way (RTT/2) p50 {ow['p50']} p99 {ow['p99']} max {ow['max']}; "
-                f"put → subscriber p50 {ps['p50']} p99 {ps['p99']} max {ps['max']} "
-                f"({z['pings']} pings, {z['puts']} puts)"
-            )
-    c = floor.get("can_virtual")
-    if c:
-        if "error" in c:
-            lines.append(f"python-can virtual: {c['error']}")
-        else:
-            ow, rt_ = c["one_way_us"], c["round_trip_us"]
-            lines.append(
-                f"python-can virtual, one thread: send → recv p50 {ow['p50']} p99 {ow['p99']}; "
-                f"request → reply p50 {rt_['p50']} p99 {rt_['p99']} max {rt_['max']} ({c['frames']} frames)"
-            )
-    s = floor.get("mj_step")
-    if s:
-        if "error" in s:
-            lines.append(f"mj_step: {s['error']}")
-        else:
-            st = s["step_us"]
-            lines.append(
-                f"mj_step ({s['model']}, {s['timestep_ms']} ms): p50 {st['p50']} p99 {st['p99']} max {st['max']} "
-                f"mean {st['mean']} ({s['steps']} steps)"
-            )
+    for key, label, line in PROBE_LINES:
+        probe = floor.get(key)
+        if probe:
+            lines.append(f"{label}: {probe['error']}" if "error" in probe else line(probe))
     if "empty_thread_error" in floor:
         lines.append(f"empty thread: {floor['empty_thread_error']}")
     lines.append("")

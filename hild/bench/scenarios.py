@@ -6,19 +6,19 @@ joint, the joint_state_broadcaster at 100 Hz, and telemetry recording to a file 
 * ``mock6`` — configs/arm6_twin.yaml with its hardware swapped for the mock driver (same joints, controllers and
   gravity model): hild's own cost without physics.
 * ``twin6`` — configs/arm6_twin.yaml, ``substeps`` set so the physics step stays 1 ms at either rate.
-* ``can3``, ``can6`` — Damiao motors emulated in the daemon's process by the ``mit_can`` bench rig (a
-  ``hild.bench_rigs`` entry point from drivers/can), on a python-can virtual channel (served to the cycle process
-  over loopback when the cycle runs there: ``hild.bench.bridge``); these also measure the command → frame and
+* ``can3``, ``can6`` — Damiao motors emulated in the daemon's process by the ``mit_can`` bench rig
+  (``hild.bench.rigs``), on a python-can virtual channel (served to the cycle process over loopback when the cycle
+  runs there: ``hild.bench.rigs.can_bridge``); these also measure the command → frame and
   reply → sample latencies.
 * ``twin6@500-nospin``, ``can6@500-nospin`` — the same at 500 Hz with ``spin_us: 0`` (the cycle sleeps to its
   deadline): the whole daemon's CPU when the cycle does not spin.
 * ``interference`` — twin6 at 1 kHz with ``joint_trajectory_arm`` (the first three joints, trajectory) and
-  ``servo_wrist`` (the last three, streamed targets) active together, windows interleaved between no extra
-  clients, two pollers (``srv/status`` and ``srv/list_controllers`` at 200 Hz each), and the pollers plus a
-  1 kHz servo stream; then the same two loads aimed at a decoy daemon in another process
-  (``hild.api.probe.Decoy``), which load the machine alike while nothing reaches the daemon, so a rise can be
-  split into the machine's part and hild's; and an observer flooding ``srv/status`` with 1 MiB queries as fast
-  as they are answered (``flood``), while the trajectory's goals keep coming (their acceptance time is the
+  ``servo_wrist`` (the last three, streamed targets) active together, windows interleaved between no extra clients,
+  two pollers (``srv/status`` and ``srv/list_controllers`` at 200 Hz each), and the pollers plus a 1 kHz servo
+  stream; then the same two loads aimed at a decoy daemon in another process
+  (``hild.bench.probes.zenoh_loopback.Decoy``), which load the machine alike while nothing reaches the daemon, so a
+  rise can be split into the machine's part and hild's; and an observer flooding ``srv/status`` with 1 MiB queries
+  as fast as they are answered (``flood``), while the trajectory's goals keep coming (their acceptance time is the
   operator's view). The servo gets joints of its own so the trajectory keeps running in every window.
 
 Every scenario runs with ``realtime.cycle_process: true`` unless ``Settings.cycle_process`` is off
@@ -35,7 +35,6 @@ import json
 import os
 import queue
 import random
-import socket
 import subprocess
 import sys
 import threading
@@ -48,8 +47,7 @@ from typing import IO, Any
 import numpy as np
 
 from hild.api.client import HildClient, HildError, HildUnreachable
-from hild.api.probe import Decoy
-from hild.bench.host import rig_class
+from hild.bench.children import free_endpoint
 from hild.bench.latency import SampleLog, match_commands, match_replies, send_probes
 from hild.bench.load import (
     FLOOD_BYTES,
@@ -61,8 +59,11 @@ from hild.bench.load import (
     ServoStreamer,
     TrajectoryKeeper,
 )
+from hild.bench.probes.zenoh_loopback import Decoy
 from hild.bench.report import loop_figures, rise_pct, summarize_ns
+from hild.bench.rigs import rig_class
 from hild.config.documents import load_document
+from hild.stats import percentiles
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 ARM6 = CONFIGS / "arm6_twin.yaml"
@@ -227,7 +228,7 @@ def scenario_config(
     scale = 1.0
     if scenario.kind == "can":
         rig = CAN_RIG
-        cls: Any = rig_class(rig)
+        cls = rig_class(rig)
         data = cls.robot_config(scenario.joints, scenario.rate)
         scale = float(cls.trajectory_scale)
     else:
@@ -243,12 +244,6 @@ def scenario_config(
 
 
 # ---- the daemon process ------------------------------------------------------------------------------------------
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
 class HostError(RuntimeError):
     pass
 
@@ -257,7 +252,7 @@ class HostProcess:
     """A ``hild.bench.host`` child: the daemon of one scenario, plus its JSON-lines control channel."""
 
     def __init__(self, config: Path, log: Path, rig: str | None, bridge: bool = False) -> None:
-        self.endpoint = f"tcp/127.0.0.1:{free_port()}"
+        self.endpoint = free_endpoint()
         self.log_path = log
         self._log: IO[bytes] = log.open("wb")
         self.cycle_pid: int | None = None
@@ -593,4 +588,5 @@ def accepts_during(accepts: list[tuple[float, float]], spans: list[tuple[float, 
     inside = [seconds * 1e3 for sent, seconds in accepts if any(a <= sent <= b for a, b in spans)]
     if not inside:
         return {"n": 0}
-    return {"n": len(inside), "p50": round(float(np.median(inside)), 1), "max": round(max(inside), 1)}
+    figures = percentiles(inside, "ms", to="ms")
+    return {"n": len(inside), "p50": figures["p50"], "max": figures["max"]}

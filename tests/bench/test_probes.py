@@ -10,13 +10,14 @@ from typing import Any
 import can
 import pytest
 
-from drivers.can.bench_rig import CanBenchRig, motors_per_bus
 from drivers.can.protocol.flavours import DAMIAO
 from drivers.can.protocol.models import ranges_for
 from hild.api.client import HildClient, HildError
-from hild.api.probe import Decoy, zenoh_round_trip
 from hild.bench.floor import measure_empty_threads, probe, run_probe
-from hild.bench.host import proc_ticks, rig_class
+from hild.bench.host import proc_ticks
+from hild.bench.probes.zenoh_loopback import Decoy, zenoh_round_trip
+from hild.bench.rigs import rig_class
+from hild.bench.rigs.mit_can import CanBenchRig, motors_per_bus
 from hild.config import load_config
 from hild.config.model import RealtimeSection
 from tests.conftest import CONFIGS
@@ -124,7 +125,7 @@ def test_mj_step_gives_the_gil_away_and_pure_python_does_not() -> None:
     """Why the twin's cycle can wait on other threads: each mj_step releases the GIL (measured, not assumed)."""
     import mujoco
 
-    from drivers.mujoco.probe import gil_release
+    from hild.bench.probes.mj_step import gil_release
 
     model = mujoco.MjModel.from_xml_path(str(CONFIGS / "arm6.xml"))
     counts = gil_release(model, mujoco.MjData(model), seconds=0.2)

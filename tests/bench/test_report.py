@@ -13,6 +13,7 @@ from hild.bench.report import (
     cpu_groups,
     cpu_percent,
     evaluate_targets,
+    format_loop_table,
     format_report,
     judge,
     loop_figures,
@@ -288,3 +289,18 @@ def test_a_cycle_cpu_gives_the_cycle_its_core_and_everything_else_the_others() -
     realtime = settings.realtime()
     assert realtime["cpu_affinity"] == [cpus[-1]]
     assert realtime["client_cpu_affinity"] == cpus[:-1]
+
+
+def test_the_loop_table_has_a_row_per_rate_with_overruns_per_10k_cycles() -> None:
+    row = {**loop_figures(20_000, 3, [50_000] * 10, [1_000] * 10), "rate_hz": 1000.0}
+    lines = format_loop_table([row]).splitlines()
+    assert lines[0].split()[:2] == ["rate", "cycles"]
+    assert lines[1].split() == ["1000", "20000", "50.0", "50.0", "50.0", "50.0", "1.0", "1.0", "1.0", "1.0", "1.5"]
+
+
+def test_goal_acceptance_counts_only_the_goals_sent_inside_a_window() -> None:
+    from hild.bench.scenarios import accepts_during
+
+    accepts = [(1.0, 0.010), (2.5, 0.030), (3.5, 0.020), (9.0, 5.0)]  # (sent at, seconds to accept)
+    assert accepts_during(accepts, [(0.0, 3.0), (3.2, 4.0)]) == {"n": 3, "p50": 20.0, "max": 30.0}
+    assert accepts_during(accepts, [(4.0, 5.0)]) == {"n": 0}

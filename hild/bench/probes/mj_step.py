@@ -1,7 +1,6 @@
 """The physics floor for ``hild bench``: raw ``mj_step`` of a config's model, with nothing of hild around it.
 
-Registered as the ``mj_step`` probe (entry-point group ``hild.probes``), so hild can measure it without importing
-MuJoCo. The model is the config's ``mujoco`` hardware component's, at the twin's physics step
+The model is the config's ``mujoco`` hardware component's, at the twin's physics step
 (``period / substeps``) and start keyframe, so the figure is the part of the twin's cycle time that is MuJoCo's.
 """
 
@@ -19,6 +18,7 @@ import numpy as np
 from drivers.mujoco.twin import MujocoTwinParams
 from hild.config import load_config
 from hild.dynamics.model import load_model
+from hild.stats import percentiles
 
 WARMUP_STEPS = 200
 
@@ -49,21 +49,13 @@ def mj_step(count: int = 5000, config: str | Path | None = None, **_: Any) -> di
         mujoco.mj_step(model, data)
         if k >= WARMUP_STEPS:
             times[k - WARMUP_STEPS] = clock() - start
-    us = times / 1e3
-    p50, p99, p999 = np.percentile(us, [50, 99, 99.9])
     return {
         "model": Path(params.model).name,
         "component": name,
         "timestep_ms": round(model.opt.timestep * 1e3, 4),
         "substeps": params.substeps,
         "steps": count,
-        "step_us": {
-            "p50": round(float(p50), 1),
-            "p99": round(float(p99), 1),
-            "p999": round(float(p999), 1),
-            "max": round(float(us.max()), 1),
-            "mean": round(float(us.mean()), 1),
-        },
+        "step_us": {**percentiles(times, "ns"), "mean": round(float(times.mean()) / 1e3, 1)},
     }
 
 

@@ -1,7 +1,6 @@
 """The CAN floor for ``hild bench``: python-can's ``virtual`` bus alone, with no driver, codec or emulator.
 
-Registered as the ``can_virtual`` probe (entry-point group ``hild.probes``), so hild can measure it without
-importing python-can. Both directions run on one thread: send on bus A, ``recv(timeout=0)`` on bus B (the
+Both directions run on one thread: send on bus A, ``recv(timeout=0)`` on bus B (the
 virtual bus delivers synchronously, into B's queue, inside A's ``send``), then a reply back. What remains is the
 cost python-can itself adds per frame, the part of the driver's read/write time no driver change can remove.
 """
@@ -15,21 +14,9 @@ from typing import Any
 import numpy as np
 
 from drivers.can.bus import BusSpec, CanLink, open_bus
+from hild.stats import percentiles
 
 WARMUP_FRAMES = 1000
-
-
-def percentiles_us(values_s: np.ndarray) -> dict[str, float]:
-    """p50/p99/p99.9/max of seconds, in µs (rounded to 0.1)."""
-    if len(values_s) == 0:
-        return {"p50": 0.0, "p99": 0.0, "p999": 0.0, "max": 0.0}
-    p50, p99, p999 = (float(v) for v in np.percentile(values_s, [50, 99, 99.9]) * 1e6)
-    return {
-        "p50": round(p50, 1),
-        "p99": round(p99, 1),
-        "p999": round(p999, 1),
-        "max": round(float(values_s.max()) * 1e6, 1),
-    }
 
 
 def virtual_round_trip(count: int = 20_000, **_: Any) -> dict[str, Any]:
@@ -61,4 +48,4 @@ def virtual_round_trip(count: int = 20_000, **_: Any) -> dict[str, Any]:
     finally:
         host.shutdown()
         drive.shutdown()
-    return {"frames": count, "one_way_us": percentiles_us(one_way), "round_trip_us": percentiles_us(round_trip)}
+    return {"frames": count, "one_way_us": percentiles(one_way, "s"), "round_trip_us": percentiles(round_trip, "s")}

@@ -10,8 +10,8 @@ queue), and a frame reaches the emulated drive one loopback hop later; the bridg
 the emulated drives and the daemon's asyncio side, never with the cycle process. Their CPU is reported apart
 (``bridge``), like the emulator's.
 
-Measuring code: this is the one place outside ``drivers/can`` that imports the python-can stack (DESIGN.md §5
-exempts the measuring room, like the tests), and it only starts servers; hild's code paths never see it.
+Measuring code: the measuring room may import the python-can stack, like the tests (docs/architecture.md,
+"Rooms"); it only starts servers, and the product's code paths never see it.
 """
 
 from __future__ import annotations

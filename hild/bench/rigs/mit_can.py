@@ -1,7 +1,7 @@
 """The CAN bench rig: Damiao motors emulated in-process on python-can ``virtual`` channels, for ``hild bench``.
 
 A ``hild bench`` scenario runs the real daemon in a child process (``hild.bench.host``); for MIT-CAN scenarios
-this rig, found by name in the entry-point group ``hild.bench_rigs``, adds to that process what a robot would
+this rig (``hild.bench.rigs.rig_class("mit_can")``) adds to that process what a robot would
 have on the wire: n Damiao drives (DM4340 at the base, DM4310 at the wrist, firmware-faithful, ``drivers.can.
 emulator``) behind independent motor plants, serviced by one thread every ``EMULATOR_PERIOD``. The motors are
 spread over as many 1 Mbit/s buses as their traffic needs (``hild check`` refuses an over-full bus): 3 per bus
@@ -180,8 +180,7 @@ def wall_to_perf_offset_ns() -> int:
 
 
 class CanBenchRig:
-    """``hild.bench_rigs`` entry ``mit_can``: see the module docstring; the bench calls it in this order:
-    ``robot_config`` (parent) → ``start`` → ``attach`` → ``listen``/``counters`` … → ``stop`` (host process).
+    """The ``mit_can`` rig (a ``hild.bench.rigs.BenchRig``): see the module docstring.
 
     One emulator per bus, all serviced by one thread (a drive answers the frame it got in the last service)."""
 

@@ -1,8 +1,9 @@
 """The Zenoh floor for ``hild bench``: raw Zenoh on loopback between two processes, with no hild code in the path.
 
-The echo side runs in a child process (``python -m hild.api.probe ENDPOINT``) as the daemon does: a peer session
-listening on a loopback port, multicast scouting off. This process connects as a client, like ``HildClient``,
-and publishes as a client command does (express, INTERACTIVE_HIGH, congestion control DROP). Measured:
+The echo side runs in a child process (``python -m hild.bench.probes.zenoh_loopback ENDPOINT``) as the daemon does:
+a peer session listening on a loopback port, multicast scouting off. This process connects as a client, like
+``HildClient``, and publishes as a client command does (express, INTERACTIVE_HIGH, congestion control DROP).
+Measured:
 
 * **ping-pong**: publish on ``ping``; the echo's subscriber republishes the bytes on ``pong`` from its callback;
   round trip = pong arrival − ping publish, and one-way = RTT / 2.
@@ -11,17 +12,16 @@ and publishes as a client command does (express, INTERACTIVE_HIGH, congestion co
 
 Everything is µs, p50/p99/p99.9/max.
 
-The **decoy** (``python -m hild.api.probe decoy ENDPOINT ROBOT REPLIES.json``) stands in for a daemon in the
-interference windows: a peer that answers the same service keys with replies captured from the real daemon and
-decodes the same input samples, in its own process. Clients aimed at it load the machine as they would load the
-daemon, but nothing reaches the daemon: the cycle's p99 rise against the decoy is what the machine (two cores
-shared with the clients and Zenoh) costs, the rest is what serving the requests costs inside hild.
+The **decoy** (``python -m hild.bench.probes.zenoh_loopback decoy ENDPOINT ROBOT REPLIES.json``) stands in for a
+daemon in the interference windows: a peer that answers the same service keys with replies captured from the real
+daemon and decodes the same input samples, in its own process. Clients aimed at it load the machine as they would
+load the daemon, but nothing reaches the daemon: the cycle's p99 rise against the decoy is what the machine (two
+cores shared with the clients and Zenoh) costs, the rest is what serving the requests costs inside hild.
 """
 
 from __future__ import annotations
 
 import json
-import socket
 import subprocess
 import sys
 import threading
@@ -35,7 +35,9 @@ import zenoh
 
 from hild.api.keys import Keys
 from hild.api.session import client_config, declare_json_publisher, open_session, server_config
+from hild.bench.children import end_child, free_endpoint
 from hild.config.model import ZenohSection
+from hild.stats import percentiles
 
 PING, PONG, ONE_WAY, RESULTS = "hild_probe/ping", "hild_probe/pong", "hild_probe/oneway", "hild_probe/results"
 PAYLOAD_PAD = bytes(56)  # a stamp plus padding: the size of a small JSON command
@@ -43,22 +45,8 @@ REPLY_TIMEOUT = 1.0  # s for one pong
 START_TIMEOUT = 20.0  # s for the echo process to come up
 
 
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
 def _publisher(session: zenoh.Session, key: str) -> zenoh.Publisher:
     return declare_json_publisher(session, key, priority=zenoh.Priority.INTERACTIVE_HIGH, express=True)
-
-
-def percentiles_us(values_ns: np.ndarray) -> dict[str, float]:
-    if len(values_ns) == 0:
-        return {"p50": 0.0, "p99": 0.0, "p999": 0.0, "max": 0.0}
-    us = np.asarray(values_ns, dtype=float) / 1e3
-    p50, p99, p999 = (float(v) for v in np.percentile(us, [50, 99, 99.9]))
-    return {"p50": round(p50, 1), "p99": round(p99, 1), "p999": round(p999, 1), "max": round(float(us.max()), 1)}
 
 
 # ---- the echo process -------------------------------------------------------------------------------------------
@@ -127,9 +115,9 @@ class Decoy:
 
     def __init__(self, robot: str, replies: dict[str, str], inputs: list[tuple[str, str]], spec_path: str) -> None:
         Path(spec_path).write_text(json.dumps({"replies": replies, "inputs": inputs}), encoding="utf-8")
-        self.endpoint = f"tcp/127.0.0.1:{_free_port()}"
+        self.endpoint = free_endpoint()
         self._process = subprocess.Popen(
-            [sys.executable, "-m", "hild.api.probe", "decoy", self.endpoint, robot, spec_path],
+            [sys.executable, "-m", "hild.bench.probes.zenoh_loopback", "decoy", self.endpoint, robot, spec_path],
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             text=True,
@@ -140,13 +128,7 @@ class Decoy:
             raise RuntimeError(f"the decoy process did not come up (exit {self._process.poll()})")
 
     def close(self) -> None:
-        if self._process.stdin is not None:
-            self._process.stdin.close()
-        try:
-            self._process.wait(5.0)
-        except subprocess.TimeoutExpired:
-            self._process.kill()
-            self._process.wait()
+        end_child(self._process)
 
     def __enter__(self) -> Decoy:
         return self
@@ -172,8 +154,8 @@ def zenoh_round_trip(
     count: int = 2000, puts: int = 2000, put_rate: float = 1000.0, gap: float = 0.0005
 ) -> dict[str, Any]:
     """Ping-pong ``count`` times (``gap`` s apart) and ``puts`` stamped samples at ``put_rate`` Hz; see the module."""
-    endpoint = f"tcp/127.0.0.1:{_free_port()}"
-    echo = subprocess.Popen([sys.executable, "-m", "hild.api.probe", endpoint], stdin=subprocess.PIPE)
+    endpoint = free_endpoint()
+    echo = subprocess.Popen([sys.executable, "-m", "hild.bench.probes.zenoh_loopback", endpoint], stdin=subprocess.PIPE)
     session = None
     try:
         deadline = time.monotonic() + START_TIMEOUT
@@ -228,23 +210,17 @@ def zenoh_round_trip(
             "endpoint": "tcp loopback, client → peer (as HildClient → daemon)",
             "pings": count,
             "lost": lost,
-            "round_trip_us": percentiles_us(rtt),
-            "one_way_us": percentiles_us(rtt / 2),
+            "round_trip_us": percentiles(rtt, "ns"),
+            "one_way_us": percentiles(rtt / 2, "ns"),
             "puts": puts,
             "put_rate_hz": put_rate,
             "received": len(arrivals),
-            "put_to_subscriber_us": percentiles_us(np.array(arrivals, dtype=np.int64)),
+            "put_to_subscriber_us": percentiles(arrivals, "ns"),
         }
     finally:
         if session is not None:
             session.close()
-        if echo.stdin is not None:
-            echo.stdin.close()
-        try:
-            echo.wait(5.0)
-        except subprocess.TimeoutExpired:
-            echo.kill()
-            echo.wait()
+        end_child(echo)
 
 
 class _Publisher:

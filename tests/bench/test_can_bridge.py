@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from hild.bench.bridge import bridged_document, virtual_channels
+from hild.bench.rigs.can_bridge import bridged_document, virtual_channels
 
 
 def test_virtual_buses_are_renamed_to_their_servers_and_nothing_else_changes() -> None:

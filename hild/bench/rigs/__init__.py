@@ -1,0 +1,45 @@
+"""Rigs: what a bench scenario adds to the daemon's process so a robot's hardware is there without a robot.
+
+``mit_can`` (:mod:`hild.bench.rigs.mit_can`) emulates Damiao drives on python-can virtual channels;
+:mod:`hild.bench.rigs.can_bridge` serves those channels to a cycle in another process. The measuring room may
+import python-can, like the tests (docs/architecture.md, "Rooms"), so a rig is found by name here, not through an
+entry-point group.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Protocol
+
+
+class BenchRig(Protocol):
+    """What a rig offers the bench, called in this order: ``robot_config`` (the bench) → ``start`` → ``attach``
+    → ``listen``/``counters`` … → ``stop`` (the scenario's process)."""
+
+    trajectory_scale: float
+
+    @staticmethod
+    def robot_config(joints: int, rate: float) -> dict[str, Any]: ...
+
+    def start(self, loaded: Any) -> None: ...
+
+    def attach(self, engine: Any) -> None: ...
+
+    def threads(self) -> dict[str, int]: ...
+
+    def counters(self) -> dict[str, int]: ...
+
+    def listen(self, on: bool) -> dict[str, Any]: ...
+
+    def stop(self) -> None: ...
+
+
+RIGS = ("mit_can",)
+
+
+def rig_class(name: str) -> type[BenchRig]:
+    """The rig called ``name``, imported only when asked for (python-can loads with it)."""
+    if name == "mit_can":
+        from hild.bench.rigs.mit_can import CanBenchRig
+
+        return CanBenchRig
+    raise LookupError(f"no bench rig {name!r} (known: {', '.join(RIGS)})")
