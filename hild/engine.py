@@ -100,8 +100,8 @@ class Engine:
         self.wake_client: Callable[[], None] = wake_client or (lambda: None)
         # Set by the API: takes streamed commands at the start of each cycle, so no other thread takes the GIL
         # per sample (docs/performance.md, "A busy neighbour").
-        self.intake: Callable[[], None] | None = None
-        self.inputs_on_arrival = False  # the intake above takes them: one GIL handover per cycle, not per sample
+        self.take_inputs: Callable[[], None] | None = None
+        self.inputs_on_arrival = False  # take_inputs above takes them: one GIL handover per cycle, not per sample
         self.write_done_ns = 0  # perf_counter_ns when the last cycle's hardware writes were done
         self.events.on_emit = self._ring
         self.stats = stats or LoopStats()
@@ -379,7 +379,7 @@ class Engine:
         if estop_now:
             self._apply_estop()
         self._apply_requests(estop_now)
-        if self.intake is not None:
+        if self.take_inputs is not None:
             self._take_inputs()
         self._read(t, dt)
         sup = self.supervisor
@@ -539,10 +539,10 @@ class Engine:
     def _take_inputs(self) -> None:
         """Streamed commands, taken by the cycle itself (``hild.api.ports.ControllerPorts.take_inputs``)."""
         try:
-            self.intake()  # type: ignore[misc]
+            self.take_inputs()  # type: ignore[misc]
         except Exception as exc:  # a bug there must not end the cycle; without inputs, controllers time out
-            self.intake = None
-            self.events.emit("error", "api", f"the input intake failed and is off: {type(exc).__name__}: {exc}")
+            self.take_inputs = None
+            self.events.emit("error", "api", f"taking the inputs failed, and is off: {type(exc).__name__}: {exc}")
 
     def client_domain_lost(self, reason: str) -> None:
         """The client domain ended while the cycle runs (cycle thread): what controllers run for its clients ends

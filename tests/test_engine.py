@@ -419,16 +419,16 @@ def test_a_reset_waiting_for_its_drives_is_refused_by_an_estop(make_engine: Make
     assert engine.status()["mode"] == "estop"
 
 
-def test_the_intake_runs_first_in_every_cycle_and_a_failing_one_is_switched_off(make_engine: MakeEngine) -> None:
+def test_take_inputs_runs_first_in_every_cycle_and_a_failing_one_is_switched_off(make_engine: MakeEngine) -> None:
     engine = make_engine()
     assert engine.switch(["fwd"], []).ok
     taken: list[int] = []
 
-    def intake() -> None:  # what the API's intake does: hand a streamed command over before the controllers run
+    def take_inputs() -> None:  # as the API's does: hand a streamed command over before the controllers run
         taken.append(engine.cycle)
         send(engine, "fwd", [0.2, -0.2, 0.3])
 
-    engine.intake = intake
+    engine.take_inputs = take_inputs
     engine.run_cycles(1)
     assert modes(engine) == ["controlled"] * 3  # the controller used it in the cycle that took it
     engine.run_cycles(2)
@@ -438,7 +438,7 @@ def test_the_intake_runs_first_in_every_cycle_and_a_failing_one_is_switched_off(
         raise RuntimeError("bug")
 
     events(engine)
-    engine.intake = broken
+    engine.take_inputs = broken
     engine.run_cycles(2)  # the cycle goes on
-    assert engine.intake is None
-    assert [e for e in events(engine) if "the input intake failed and is off: RuntimeError: bug" in e]
+    assert engine.take_inputs is None
+    assert [e for e in events(engine) if "taking the inputs failed, and is off: RuntimeError: bug" in e]

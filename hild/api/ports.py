@@ -1,23 +1,22 @@
 """Controller inputs and outputs on Zenoh: one subscriber per input, one publisher per output ring.
 
-Inputs are queued by Zenoh in a small ring per input (``RingChannel``: no Python runs when a sample arrives) and
-taken by the cycle thread itself at the start of each cycle (:meth:`ControllerPorts.take_inputs`): the newest
-sample is decoded and given to the controller's input callable (which validates it and swaps it into a mailbox),
-older ones are superseded, like the controllers' own latest-value mailboxes. This is a deliberate exception to
-"parse on the producer's side": a callback per sample on another thread costs the cycle more than the decode and
-validation themselves, because every time another thread takes the GIL the cycle may have to wait for it and be
-woken again (measured: ``tools/cycle_causes.py`` part 3, docs/performance.md). The intake's work is bounded: one
-decode of at most ``CYCLE_DECODE`` bytes and one validation per input per cycle; larger samples are decoded on
-the asyncio loop in the heavy lane and handed over only if nothing newer was. Of those, each input keeps at most
-one waiting (a newer one replaces it undecoded) and one being decoded: 200 puts of 1 MiB once became 200 tasks,
-each holding its payload until decoded, and decoded before they were found superseded (the daemon grew by
-400 MiB and its cycle overran for a minute after the flood). Samples for an inactive controller are refused by
-the intake unread. Anything wrong drops that sample and emits a warning event: nothing moves on bad input.
-Warnings are rate-limited per key so a client streaming garbage at 1 kHz cannot flood the event log.
+Inputs are queued by Zenoh in a small ring per input (``RingChannel``: no Python runs when a sample arrives) and taken
+by the cycle thread itself at the start of each cycle (:meth:`ControllerPorts.take_inputs`): the newest sample is
+decoded and given to the controller's input callable (which validates it and swaps it into a mailbox), older ones are
+superseded, like the controllers' own latest-value mailboxes. This is a deliberate exception to "parse on the producer's
+side": a callback per sample on another thread costs the cycle more than the decode and validation themselves, because
+every time another thread takes the GIL the cycle may have to wait for it and be woken again (measured:
+``tools/cycle_causes.py`` part 3, docs/performance.md). That work is bounded: one decode of at most ``CYCLE_DECODE``
+bytes and one validation per input per cycle; larger samples are decoded on the asyncio loop by the large-payload worker
+and handed over only if nothing newer was. Of those, each input keeps at most one waiting (a newer one replaces it
+undecoded) and one being decoded: 200 puts of 1 MiB once became 200 tasks, each holding its payload until decoded, and
+decoded before they were found superseded (the daemon grew by 400 MiB and its cycle overran for a minute after the
+flood). Samples for an inactive controller are refused unread. Anything wrong drops that sample and emits a warning
+event: nothing moves on bad input. Warnings are rate-limited per key so a client streaming garbage at 1 kHz cannot flood
+the event log.
 
-Outputs are read from each controller's :class:`~hild.ring.SampleRing` through a private reader and published
-with congestion control DROP: under back-pressure old samples are lost, the loop is never held.
-"""
+Outputs are read from each controller's :class:`~hild.ring.SampleRing` through a private reader and published with
+congestion control DROP: under back-pressure old samples are lost, the loop is never held."""
 
 from __future__ import annotations
 
@@ -38,7 +37,7 @@ import zenoh
 from hild.action import ActionServer
 from hild.api.codec import FAST_DECODE, GOAL_LIMITS, MAX_PAYLOAD, REQUEST_LIMITS, Limits, PayloadError, decode, encode
 from hild.api.keys import RESERVED, Keys, check_chunk
-from hild.api.queries import SHUTTING_DOWN, Admitted, Gate, HeavyLane, clip, drop, reply_json
+from hild.api.queries import SHUTTING_DOWN, Admitted, LargePayloadWorker, QueryAdmission, clip, drop, reply_json
 from hild.api.session import declare_json_publisher
 from hild.domains.link import CycleLink
 from hild.ring import RingReader, SampleRing
@@ -46,7 +45,7 @@ from hild.ring import RingReader, SampleRing
 log = logging.getLogger("hild.api")
 
 INTAKE_CAPACITY = 64  # samples one input queues between two cycles; beyond that Zenoh drops the oldest, uncounted
-CYCLE_DECODE = FAST_DECODE  # bytes: a sample up to this size is decoded by the cycle's intake, larger ones by the loop
+CYCLE_DECODE = FAST_DECODE  # bytes: a sample up to this size is decoded by the cycle's take_inputs, larger by the loop
 GOAL_ID_REQUEST = 1024  # bytes: a cancel or result request is {"goal_id": "<32 hex digits>"}
 VERBS = {  # a goal endpoint's queries: size limit in bytes (refused larger before copying), decoding caps
     "goal": (MAX_PAYLOAD, GOAL_LIMITS),
@@ -58,7 +57,7 @@ REPORT_WINDOW = 1.0  # s
 
 
 @dataclass
-class Tally:
+class InputCounts:
     """Input samples as one thread counted them: one writer per tally, so the cycle never takes a lock."""
 
     commands: int = 0  # samples received
@@ -71,19 +70,19 @@ class Tally:
 class Counters:
     """What the API has seen; cheap integers, read by tests and diagnostics.
 
-    Input samples are counted by the cycle's intake (``cycle``) and, for large ones, the asyncio loop (``loop``);
-    queries are counted on Zenoh threads under ``lock``; publications on the loop."""
+    Input samples are counted by the cycle's ``take_inputs`` (``cycle``) and, for large ones, the asyncio loop
+    (``loop``); queries are counted on Zenoh threads under ``lock``; publications on the loop."""
 
     lock: threading.Lock = field(default_factory=threading.Lock, repr=False, compare=False)
-    cycle: Tally = field(default_factory=Tally)
-    loop: Tally = field(default_factory=Tally)
+    cycle: InputCounts = field(default_factory=InputCounts)
+    loop: InputCounts = field(default_factory=InputCounts)
     queries: int = 0
     published: int = 0
     publish_errors: int = 0
 
     @property
     def commands(self) -> int:
-        return self.cycle.commands  # the intake sees every sample first
+        return self.cycle.commands  # take_inputs sees every sample first
 
     @property
     def accepted(self) -> int:
@@ -109,7 +108,7 @@ class DropReporter:
     def __init__(self, emit: Callable[[str, str, str], None]) -> None:
         self._emit = emit
         self._windows: dict[str, tuple[float, int, int]] = {}  # key → (window start, reported, suppressed)
-        self._lock = threading.Lock()  # reports come from the cycle's intake and the loop (bad input only)
+        self._lock = threading.Lock()  # reports come from the cycle's ``take_inputs`` and the loop (bad input only)
 
     def report(self, source: str, key: str, reason: str) -> None:
         now = time.monotonic()
@@ -167,10 +166,10 @@ def _activity(instance: Any) -> Callable[[], bool]:
 
 @dataclass
 class InputSlot:
-    """One controller input: Zenoh queues its samples in a ring, the cycle's intake takes the newest.
+    """One controller input: Zenoh queues its samples in a ring, the cycle's ``take_inputs`` takes the newest.
 
     A large sample waits in ``pending`` (one place: a newer one replaces it, undecoded) for the input's one
-    delivery task on the loop. The cycle's intake writes ``taken``, ``large`` and ``pending``; the loop pops
+    delivery task on the loop. ``take_inputs`` (on the cycle) writes ``taken``, ``large`` and ``pending``; the loop pops
     ``pending`` and owns ``delivered``, ``kicked`` (cleared) and ``delivery``: no lock, nothing the cycle waits on.
     """
 
@@ -178,7 +177,7 @@ class InputSlot:
     controller: str
     accept: Callable[[Any], None]
     subscriber: Any = None  # zenoh.Subscriber on a RingChannel, once declared
-    active: Callable[[], bool] = _always  # whether the controller is active (read by the cycle's intake)
+    active: Callable[[], bool] = _always  # whether the controller is active (read by the cycle's ``take_inputs``)
     taken: int = 0  # samples handed over so far (cycle thread); a large one on the loop checks it is still newest
     pending: deque[tuple[Any, int, int]] = field(default_factory=lambda: deque(maxlen=1))  # (payload, taken, large)
     large: int = 0  # large samples put in ``pending`` so far (cycle thread)
@@ -204,7 +203,7 @@ class ControllerPorts:
         keys: Keys,
         loop: asyncio.AbstractEventLoop,
         counters: Counters,
-        lane: HeavyLane | None = None,
+        lane: LargePayloadWorker | None = None,
     ) -> None:
         self.session = session
         self.engine = engine
@@ -215,10 +214,10 @@ class ControllerPorts:
         self._drops = DropReporter(engine.events.emit)
         self._controllers: dict[str, ControllerEndpoints] = {}
         self._answering: set[asyncio.Task[None]] = set()
-        self.lane = lane or HeavyLane()
-        self._gate = Gate()  # goal, cancel and result queries of every controller, like the services' gate
+        self.lane = lane or LargePayloadWorker()
+        self._gate = QueryAdmission()  # goal, cancel and result queries of every controller, like the services' gate
         self._delivering: set[asyncio.Task[None]] = set()
-        self._intake: tuple[InputSlot, ...] = ()  # what the cycle's intake reads; replaced whole, never changed
+        self._taken_inputs: tuple[InputSlot, ...] = ()  # what take_inputs reads; replaced whole, never changed
 
     # ---- declaration ---------------------------------------------------------------------------------------
     def sync(self) -> None:
@@ -232,7 +231,7 @@ class ControllerPorts:
         for name, instance in current.items():
             if name not in self._controllers:
                 self._controllers[name] = self._declare(name, instance)
-        self._intake = tuple(slot for ep in self._controllers.values() for slot in ep.slots)  # one swap
+        self._taken_inputs = tuple(slot for ep in self._controllers.values() for slot in ep.slots)  # one swap
         for endpoints in gone:
             self._undeclare(endpoints)
 
@@ -308,7 +307,7 @@ class ControllerPorts:
 
     def close(self) -> None:
         self.closing = True
-        self._intake = ()
+        self._taken_inputs = ()
         for task in [*self._answering, *self._delivering]:
             task.cancel()
         for endpoints in self._controllers.values():
@@ -381,8 +380,8 @@ class ControllerPorts:
     async def _answer(
         self, key: str, query: zenoh.Query, handle: Callable[[Any], dict[str, Any]], raw: bytes, limits: Limits
     ) -> None:
-        """Goals are decoded, parsed and planned in a worker thread (large ones in the heavy lane, one at a time):
-        a long trajectory must stall neither the loop nor, with others, the cycle."""
+        """Goals are decoded, parsed and planned in a worker thread (large ones by the large-payload worker, one at
+        a time): a long trajectory must stall neither the loop nor, with others, the cycle."""
 
         def work() -> dict[str, Any]:
             return handle(decode(raw, limits))
@@ -397,7 +396,7 @@ class ControllerPorts:
             reply = {"ok": False, "error": reason or type(exc).__name__}
         reply_json(query, key, reply)
 
-    # ---- inputs (the cycle's intake) ---------------------------------------------------------------------------
+    # ---- inputs (taken by the cycle) ---------------------------------------------------------------------------
     def take_inputs(self) -> None:
         """At the start of each cycle, on the cycle thread: per input, take every queued sample and hand the newest
         to its controller, which validates it and swaps it into its mailbox; the rest are superseded.
@@ -405,7 +404,7 @@ class ControllerPorts:
         Bounded work: per input a few ``try_recv`` calls (Zenoh queued the samples without Python), and for the
         newest one decode of at most ``CYCLE_DECODE`` bytes and one validation. A larger sample replaces the one
         waiting for the loop, if any, undecoded. Nothing is decoded for an inactive controller."""
-        for slot in self._intake:
+        for slot in self._taken_inputs:
             newest, count = None, 0
             try:
                 while (sample := slot.subscriber.try_recv()) is not None:
@@ -417,7 +416,7 @@ class ControllerPorts:
 
     def _arrival_handler(self, slot: InputSlot) -> Callable[[zenoh.Sample], None]:
         """With the cycle in its own process, a sample is handed over on the Zenoh thread it arrives on: its GIL
-        is the client domain's alone, and no intake period is added to the command's way to the hardware."""
+        is the client domain's alone, and no cycle period is added to the command's way to the hardware."""
         owner = weakref.ref(self)
         lock = threading.Lock()  # one input's samples one at a time, so a later one is never overtaken
 
@@ -431,7 +430,7 @@ class ControllerPorts:
 
     def _hand_over(self, slot: InputSlot, newest: zenoh.Sample, count: int) -> None:
         """The newest of ``count`` samples of one input: refused for an inactive controller, decoded and handed
-        to the controller when small, queued for the loop's heavy lane when large."""
+        to the controller when small, queued for the loop's large-payload worker when large."""
         tally = self.counters.cycle
         tally.commands += count
         tally.superseded += count - 1
@@ -461,7 +460,7 @@ class ControllerPorts:
             tally.accepted += 1
 
     def _start_delivery(self, slot: InputSlot) -> None:
-        """The intake put a large sample in ``slot.pending``: start the input's delivery task unless it runs."""
+        """``take_inputs`` put a large sample in ``slot.pending``: start the input's delivery task unless it runs."""
         slot.kicked = False  # before looking: a sample put after this line kicks again
         if self.closing:
             slot.pending.clear()
@@ -476,8 +475,8 @@ class ControllerPorts:
         task.add_done_callback(self._delivering.discard)
 
     async def _deliver(self, slot: InputSlot) -> None:
-        """Large samples of one input, the newest pending each time, decoded in the heavy lane one at a time; each
-        handed over only if the cycle took nothing newer meanwhile (checked before decoding, and after)."""
+        """Large samples of one input, the newest pending each time, decoded by the large-payload worker one at a
+        time; each handed over only if the cycle took nothing newer meanwhile (checked before decoding, and after)."""
         tally = self.counters.loop
         while not self.closing:
             try:
@@ -486,7 +485,7 @@ class ControllerPorts:
                 return
             tally.superseded += index - slot.delivered - 1  # replaced while waiting, never decoded
             slot.delivered = index
-            if slot.taken != seq:  # a newer, small one was handed over by the intake meanwhile
+            if slot.taken != seq:  # a newer, small one was handed over by ``take_inputs`` meanwhile
                 tally.superseded += 1
                 continue
             try:

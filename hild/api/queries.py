@@ -1,18 +1,17 @@
 """Answering Zenoh queries, the same way for services and controller goal endpoints.
 
-A query handler runs on a Zenoh thread: its :class:`Gate` refuses oversized payloads unread and admits the query
-under an in-flight cap chosen by payload size (a flood is answered "busy" right there, before its payload is copied
-or anything is queued for the loop, so memory stays bounded however fast queries arrive, and a flood of large
-payloads never takes the places of small requests such as a cancel), then it copies the payload out and hops to
-the asyncio loop. Every query gets exactly one JSON reply and is then dropped, so the querier never waits for a
-timeout; a querier that went away costs a debug line, never an exception. Error texts are clipped: a reason that
-quotes a 1 MiB request must not send it back, nor put it in the log.
+A query handler runs on a Zenoh thread: its :class:`QueryAdmission` refuses oversized payloads unread and admits the
+query under an in-flight cap chosen by payload size (a flood is answered "busy" right there, before its payload is
+copied or anything is queued for the loop, so memory stays bounded however fast queries arrive, and a flood of large
+payloads never takes the places of small requests such as a cancel), then it copies the payload out and hops to the
+asyncio loop. Every query gets exactly one JSON reply and is then dropped, so the querier never waits for a timeout; a
+querier that went away costs a debug line, never an exception. Error texts are clipped: a reason that quotes a 1 MiB
+request must not send it back, nor put it in the log.
 
-Large payloads (over ``FAST_DECODE``) are decoded, and goals parsed, in the :class:`HeavyLane`: one at a time, in
-a worker thread. Python work on the asyncio side shares the GIL with the cycle thread; several threads chewing on
-megabytes at once starve it into consecutive overruns (measured: eight clients sending 1 MiB payloads faulted a
-500 Hz daemon within seconds). One at a time, the cycle gets the GIL back within a switch interval.
-"""
+Large payloads (over ``FAST_DECODE``) are decoded, and goals parsed, in the :class:`LargePayloadWorker`: one at a time,
+in a worker thread. Python work on the asyncio side shares the GIL with the cycle thread; several threads chewing on
+megabytes at once starve it into consecutive overruns (measured: eight clients sending 1 MiB payloads faulted a 500 Hz
+daemon within seconds). One at a time, the cycle gets the GIL back within a switch interval."""
 
 from __future__ import annotations
 
@@ -81,7 +80,7 @@ class Admitted:
         self.cap.release()
 
 
-class Gate:
+class QueryAdmission:
     """Admission of one endpoint group's queries where they are received, before anything is copied or queued."""
 
     def __init__(self, capacity: int = MAX_IN_FLIGHT, large_capacity: int = MAX_LARGE_IN_FLIGHT) -> None:
@@ -107,7 +106,7 @@ class Gate:
 T = TypeVar("T")
 
 
-class HeavyLane:
+class LargePayloadWorker:
     """Work on large payloads (decoding, parsing a goal): one job at a time, in a worker thread."""
 
     def __init__(self) -> None:

@@ -6,7 +6,7 @@ start of each cycle (``ControllerPorts.take_inputs``). Read-only queries (status
 and answered in batches on the asyncio loop when it wakes anyway, or every ``READ_PERIOD``, from a recent reply.
 Other queries (switch, e-stop, goals …) call our handlers on Zenoh's threads, which copy them out and hop to the
 loop, where they run. The cycle thread is
-reached only through ``engine.submit`` and ``engine.intake``, and read back through ring readers and
+reached only through ``engine.submit`` and ``engine.take_inputs``, and read back through ring readers and
 ``engine.status()``, so the API shares no lock with it. Every publisher uses congestion control DROP: a slow
 subscriber loses samples, it never stalls the loop or the cycle.
 
@@ -29,7 +29,7 @@ from hild.api.clients import watch_clients
 from hild.api.codec import encode
 from hild.api.keys import SERVICES, Keys
 from hild.api.ports import ControllerPorts, Counters
-from hild.api.queries import SHUTTING_DOWN, Admitted, Gate, HeavyLane, drop, reply_json
+from hild.api.queries import SHUTTING_DOWN, Admitted, LargePayloadWorker, QueryAdmission, drop, reply_json
 from hild.api.services import DEFAULT_TIMEOUT, Reply, Services
 from hild.api.session import declare_json_publisher, open_session, server_config
 from hild.api.unique import DaemonIdentity, check_unique, describe_other
@@ -62,7 +62,7 @@ class ApiServer:
         self.settings = settings
         self.listen = listen
         self.keys = Keys(engine.robot)
-        self.lane = HeavyLane()  # shared by services and controller endpoints: one large payload at a time
+        self.lane = LargePayloadWorker()  # shared by services and controller endpoints: one large payload at a time
         self.services = Services(engine, request_timeout, lane=self.lane)
         self.status_period = status_period
         self.counters = Counters()
@@ -78,8 +78,8 @@ class ApiServer:
         self._reads_task: asyncio.Task[None] | None = None
         self._read_queues: list[tuple[str, Any]] = []  # (service, queryable on a RingChannel)
         self._requests: set[asyncio.Task[None]] = set()
-        self._gate = Gate()
-        self._priority_gate = Gate()
+        self._gate = QueryAdmission()
+        self._priority_gate = QueryAdmission()
         self._last_change: int | None = None
         self._closing = False
         self._ros: RosFace | None = None  # when the config has a ros2 section (docs/ros2.md)
@@ -127,7 +127,7 @@ class ApiServer:
             self._publishers[name] = declare_json_publisher(session, name)
         self._ports = ControllerPorts(session, self.engine, self.keys, loop, self.counters, self.lane)
         self._ports.sync()
-        self.engine.intake = self._ports.take_inputs
+        self.engine.take_inputs = self._ports.take_inputs
         self._last_change = self.engine.change_seq
         for service in SERVICES:
             key = self.keys.service(service)
@@ -145,7 +145,7 @@ class ApiServer:
     async def close(self) -> None:
         """Withdraw the token first (clients see the daemon go), answer pending requests, then close."""
         self._closing = True
-        self.engine.intake = None
+        self.engine.take_inputs = None
         if self._ports is not None:
             self._ports.closing = True
         if self._token is not None:
@@ -261,7 +261,7 @@ class ApiServer:
             self._reply(service, query, admitted)
         elif self.services.readable(service, admitted.raw):
             self._read(service, query, admitted)
-        else:  # a large payload on a read-only service: parsed in the heavy lane, like any other request
+        else:  # a large payload on a read-only service: parsed by the large-payload worker, like any other request
             self._start_request(service, query, admitted)
 
     async def _read_loop(self) -> None:

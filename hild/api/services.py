@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from hild.api.codec import MAX_PAYLOAD, PayloadError, and_more, decode, encode, unknown_keys
-from hild.api.queries import HeavyLane, too_large
+from hild.api.queries import LargePayloadWorker, too_large
 from hild.domains.link import CycleLink
 from hild.requests import Enable, Refused, Request, Reset, SetZero, Switch
 
@@ -121,10 +121,12 @@ class Service:
 
 
 class Services:
-    def __init__(self, engine: CycleLink, timeout: float = DEFAULT_TIMEOUT, *, lane: HeavyLane | None = None) -> None:
+    def __init__(
+        self, engine: CycleLink, timeout: float = DEFAULT_TIMEOUT, *, lane: LargePayloadWorker | None = None
+    ) -> None:
         self.engine = engine
         self.timeout = timeout
-        self.lane = lane or HeavyLane()
+        self.lane = lane or LargePayloadWorker()
         self._read_cache: dict[str, tuple[int, float, bytes]] = {}  # service → (change_seq, monotonic, reply)
         self.table: dict[str, Service] = {
             "status": Service({}, read=self._status),

@@ -23,8 +23,8 @@ class CycleLink(Protocol):
     loaded: LoadedConfig
     events: EventLog  # where the client domain's own events go; the daemon drains it
     stats: LoopStats  # readable from the client domain
-    intake: Callable[[], None] | None  # the cycle takes inputs through this, unless inputs_on_arrival
-    inputs_on_arrival: bool  # inputs are handed over as they arrive (the cycle is elsewhere: no intake to share)
+    take_inputs: Callable[[], None] | None  # set by the API: the cycle takes inputs with it, unless inputs_on_arrival
+    inputs_on_arrival: bool  # inputs are handed over as they arrive (the cycle is elsewhere: nothing for it to take)
 
     @property
     def change_seq(self) -> int: ...

@@ -93,7 +93,7 @@ class Crossing:
 
 
 class RemoteCycle:
-    inputs_on_arrival = True  # no intake to share: inputs are validated and handed over as they arrive
+    inputs_on_arrival = True  # nothing for the cycle to take: inputs are validated and handed over as they arrive
 
     def __init__(self, loaded: LoadedConfig, crossing: Crossing | None = None) -> None:
         """With ``crossing`` None, this process carves the region and starts the cycle process itself
@@ -105,7 +105,7 @@ class RemoteCycle:
         self.update_rate = cfg.update_rate
         self.stop_descent = cfg.safety.stop_descent
         self.max_consecutive_overruns = cfg.safety.max_consecutive_overruns
-        self.intake = None
+        self.take_inputs = None
         self.crossing = crossing or Crossing.carve(loaded)
         self.events = self.crossing.events  # the client domain's own events, stamped with the cycle clock
         self.events.now = lambda: self.t

@@ -280,11 +280,11 @@ class FakeEngine:
         self.events = FakeEvents()
 
 
-def intake(loop: asyncio.AbstractEventLoop) -> tuple[ControllerPorts, FakeSubscriber, list[Any]]:
+def ports_with_inputs(loop: asyncio.AbstractEventLoop) -> tuple[ControllerPorts, FakeSubscriber, list[Any]]:
     ports = ControllerPorts(None, FakeEngine(), Keys("r"), loop, Counters())  # type: ignore[arg-type]
     accepted: list[Any] = []
     subscriber = FakeSubscriber()
-    ports._intake = (InputSlot("hild/r/ctrl/fwd/commands", "fwd", accepted.append, subscriber),)
+    ports._taken_inputs = (InputSlot("hild/r/ctrl/fwd/commands", "fwd", accepted.append, subscriber),)
     return ports, subscriber, accepted
 
 
@@ -303,19 +303,19 @@ def test_a_flood_of_large_samples_keeps_one_pending_and_decodes_only_the_newest(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     loop = asyncio.new_event_loop()
-    ports, subscriber, accepted = intake(loop)
+    ports, subscriber, accepted = ports_with_inputs(loop)
     decodes = Decodes(monkeypatch, ports_module)
     try:
         for k in range(50):  # 50 × 1 MiB, one per cycle, while the loop is busy elsewhere
             subscriber.put(large_command(k))
             ports.take_inputs()
-        loop.run_until_complete(asyncio.sleep(0))  # the loop's turn: it starts what the intake handed it
+        loop.run_until_complete(asyncio.sleep(0))  # the loop's turn: it starts what take_inputs handed it
         assert len(ports._delivering) <= 1  # was 50 tasks, each holding its 1 MiB until decoded
         settle(loop, ports)
         assert decodes.calls == 1 and accepted == [{"values": [49]}]  # was 50 decodes
         counters = ports.counters
         assert (counters.commands, counters.accepted, counters.superseded, counters.rejected) == (50, 1, 49, 0)
-        assert not ports._intake[0].pending  # nothing retained after the flood
+        assert not ports._taken_inputs[0].pending  # nothing retained after the flood
     finally:
         loop.close()
 
@@ -324,7 +324,7 @@ def test_samples_arriving_during_a_decode_wait_and_only_the_newest_is_decoded_ne
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     loop = asyncio.new_event_loop()
-    ports, subscriber, accepted = intake(loop)
+    ports, subscriber, accepted = ports_with_inputs(loop)
     decodes = Decodes(monkeypatch, ports_module)
     try:
         subscriber.put(large_command(0))
@@ -345,13 +345,13 @@ def test_samples_arriving_during_a_decode_wait_and_only_the_newest_is_decoded_ne
 
 def test_a_large_sample_superseded_by_a_small_one_is_never_decoded(monkeypatch: pytest.MonkeyPatch) -> None:
     loop = asyncio.new_event_loop()
-    ports, subscriber, accepted = intake(loop)
+    ports, subscriber, accepted = ports_with_inputs(loop)
     decodes = Decodes(monkeypatch, ports_module)
     try:
         subscriber.put(large_command(1))
         ports.take_inputs()  # handed to the loop, which has not run yet
         subscriber.put(b'{"values": [2]}')
-        ports.take_inputs()  # the newer, small one is handed over by the intake at once
+        ports.take_inputs()  # the newer, small one is handed over by take_inputs at once
         settle(loop, ports)
         assert accepted == [{"values": [2]}] and decodes.calls == 1  # only the small one's (was 2)
         assert ports.counters.superseded == 1 and ports.counters.accepted == 1
@@ -373,12 +373,12 @@ def test_large_samples_for_an_inactive_controller_are_refused_undecoded(
         wait_for(lambda: counters.commands - before[0] == 21, what="the flood to be taken")
     finally:
         publisher.undeclare()
-    assert decodes.calls == 0  # was one decode per large sample the intake took
+    assert decodes.calls == 0  # was one decode per large sample take_inputs took
     rejected, superseded = counters.rejected - before[1], counters.superseded - before[2]
     assert rejected >= 1 and rejected + superseded == 21 and counters.accepted == before[3]
     wait_for(lambda: daemon.events_with("controller fwd is not active"), what="the warning")
     assert len(daemon.events_with("controller fwd is not active")) <= 10  # rate-limited, as before
-    assert not any(slot.pending for slot in daemon.server._ports._intake)  # nothing retained
+    assert not any(slot.pending for slot in daemon.server._ports._taken_inputs)  # nothing retained
     # After the flood: a goal, then a command, are accepted.
     client.switch(activate=["traj"])
     goal = {"trajectory": {"joint_names": ["a", "b", "c"], "points": [{"positions": [0.1, -0.2, 0.0]}]}}
@@ -406,7 +406,7 @@ def test_a_flood_on_an_active_input_leaves_nothing_behind_and_the_newest_wins(
         publisher.undeclare()
     ports = daemon.server._ports
     wait_for(lambda: not ports._delivering, what="the deliveries to end")
-    assert not any(slot.pending for slot in ports._intake)  # nothing retained after the flood
+    assert not any(slot.pending for slot in ports._taken_inputs)  # nothing retained after the flood
     assert counters.accepted + counters.rejected + counters.superseded == counters.commands
     fwd_a = daemon.engine.manager.records["fwd_a"].instance
     wait_for(lambda: list(fwd_a._values) == [0.5], what="the newest command to be adopted")  # type: ignore[attr-defined]

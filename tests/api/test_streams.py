@@ -176,7 +176,7 @@ def test_a_flood_of_garbage_is_rate_limited_and_the_daemon_keeps_answering(daemo
     client.switch(activate=["fwd"])
     # One publisher that blocks rather than drops: every sample leaves, in order (a client's own drop sheds
     # samples under load before they reach the daemon, which would test Zenoh, not hild). Paced over many
-    # cycles, so the intake takes (and rejects) garbage again and again, not just the newest of one burst.
+    # cycles, so take_inputs takes (and rejects) garbage again and again, not just the newest of one burst.
     publisher = client.session.declare_publisher(FWD_KEY, congestion_control=zenoh.CongestionControl.BLOCK)
     counters = daemon.server.counters
     for _ in range(300):
@@ -186,7 +186,7 @@ def test_a_flood_of_garbage_is_rate_limited_and_the_daemon_keeps_answering(daemo
     publisher.put(b'{"values": [0.0, 0.0, 0.0]}')
     publisher.undeclare()
     wait_for(lambda: counters.accepted == 1, what=f"the good command after the flood ({counters})")
-    # Every sample the intake took is accounted for once (Zenoh drops the oldest beyond an input's ring, uncounted)
+    # Every sample take_inputs took is accounted for once (Zenoh drops the oldest beyond an input's ring, uncounted)
     assert counters.accepted + counters.dropped == counters.commands <= 301
     assert client.status()["ok"] is True
     reports = daemon.events_with(f"dropped command on {FWD_KEY}")

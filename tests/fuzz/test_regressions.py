@@ -15,7 +15,7 @@ from hild.action import GoalRejected
 from hild.api.codec import FAST_DECODE, GOAL_LIMITS, MAX_CONTAINERS, MAX_ELEMENTS, MAX_PAYLOAD, PayloadError, decode
 from hild.api.keys import Keys
 from hild.api.ports import ControllerPorts, Counters, InputSlot
-from hild.api.queries import BUSY, BUSY_LARGE, MAX_IN_FLIGHT, MAX_LARGE_IN_FLIGHT, Admitted, Gate, clip
+from hild.api.queries import BUSY, BUSY_LARGE, MAX_IN_FLIGHT, MAX_LARGE_IN_FLIGHT, Admitted, QueryAdmission, clip
 from hild.controllers.trajectory_goals import GoalContext, parse_goal
 from hild.motion.limits import KinematicLimits
 
@@ -83,7 +83,7 @@ class FakeQuery:
 
 
 def test_the_gate_caps_small_and_large_requests_separately() -> None:
-    gate = Gate()
+    gate = QueryAdmission()
     large = [gate.admit(FakeQuery(FakePayload(b" " * (FAST_DECODE + 1)))) for _ in range(MAX_LARGE_IN_FLIGHT + 1)]
     assert all(isinstance(a, Admitted) for a in large[:-1]) and large[-1] is BUSY_LARGE
     small = [gate.admit(FakeQuery(None)) for _ in range(MAX_IN_FLIGHT + 1)]
@@ -132,19 +132,19 @@ class FakeSubscriber:
         return self.queued.pop(0) if self.queued else None
 
 
-def intake(loop: asyncio.AbstractEventLoop) -> tuple[ControllerPorts, FakeSubscriber, list[Any], Counters]:
+def ports_with_inputs(loop: asyncio.AbstractEventLoop) -> tuple[ControllerPorts, FakeSubscriber, list[Any], Counters]:
     counters = Counters()
     ports = ControllerPorts(None, FakeEngine(Events()), Keys("r"), loop, counters)  # type: ignore[arg-type]
     accepted: list[Any] = []
     subscriber = FakeSubscriber()
-    ports._intake = (InputSlot("hild/r/ctrl/fwd/commands", "fwd", accepted.append, subscriber),)
+    ports._taken_inputs = (InputSlot("hild/r/ctrl/fwd/commands", "fwd", accepted.append, subscriber),)
     return ports, subscriber, accepted, counters
 
 
 def test_a_burst_on_one_input_keeps_only_the_newest_sample() -> None:
-    """1000 samples queued between two cycles: the intake hands over the newest; the rest are superseded unread."""
-    loop = asyncio.new_event_loop()  # never run: small samples are handed over by the cycle's intake
-    ports, subscriber, accepted, counters = intake(loop)
+    """1000 samples queued between two cycles: take_inputs hands over the newest; the rest are superseded unread."""
+    loop = asyncio.new_event_loop()  # never run: small samples are handed over by the cycle's take_inputs
+    ports, subscriber, accepted, counters = ports_with_inputs(loop)
     for k in range(1000):
         subscriber.put(json.dumps({"values": [k]}).encode())
     ports.take_inputs()
@@ -156,7 +156,7 @@ def test_a_burst_on_one_input_keeps_only_the_newest_sample() -> None:
 
 def test_a_large_sample_goes_to_the_loop_and_never_overtakes_a_newer_one() -> None:
     loop = asyncio.new_event_loop()
-    ports, subscriber, accepted, counters = intake(loop)
+    ports, subscriber, accepted, counters = ports_with_inputs(loop)
     large = json.dumps({"values": [1.0], "pad": " " * FAST_DECODE}).encode()
     try:
         subscriber.put(large)
@@ -175,9 +175,9 @@ def test_a_large_sample_goes_to_the_loop_and_never_overtakes_a_newer_one() -> No
         loop.close()
 
 
-def test_an_oversized_sample_is_refused_unread_by_the_intake() -> None:
+def test_an_oversized_sample_is_refused_unread_by_take_inputs() -> None:
     loop = asyncio.new_event_loop()
-    ports, subscriber, accepted, counters = intake(loop)
+    ports, subscriber, accepted, counters = ports_with_inputs(loop)
     subscriber.put(b" " * (MAX_PAYLOAD + 1))
     ports.take_inputs()
     loop.close()
