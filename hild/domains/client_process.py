@@ -9,22 +9,34 @@ process is gone.
 
 from __future__ import annotations
 
+import logging
+import os
 import pickle
 import signal
 import sys
+from typing import NoReturn
 
 from hild.cli import setup_logging
 from hild.daemon import Daemon, serve
 from hild.domains.main_process import ClientSpec
+from hild.realtime import thaw_heap
 
 
-def main() -> int:
+def main() -> NoReturn:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # a terminal's Ctrl-C reaches every process: the main one stops us
     spec: ClientSpec = pickle.load(sys.stdin.buffer)
     sys.stdin.close()
     setup_logging(spec.log_level)
-    return serve(Daemon(spec.loaded, spec.listen, spec.attachment))
+    code = serve(Daemon(spec.loaded, spec.listen, spec.attachment))
+    thaw_heap()
+    # Everything is closed (the API, telemetry). Zenoh drops the callbacks of undeclared subscribers on its own
+    # threads, so at the interpreter's teardown a controller's API half may still be held there, and nanobind
+    # (ruckig) reports it as a leak on stderr: end here, after the logs are flushed, without that teardown.
+    logging.shutdown()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    main()
