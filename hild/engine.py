@@ -83,7 +83,10 @@ class Engine:
         """``mailboxes``: where controllers' doors to their API halves live (in this process by default; cells of
         the shared region when the API half runs in the client domain). ``stats``: where the cycle's loop
         statistics go (a shared cell when another process reads them). ``wake_client``: called, from the cycle, when
-        there is something to publish (events, outputs, replies)."""
+        there is something to publish (events, outputs, replies).
+
+        Long because it builds the robot in the order each part needs the one before (arrays and transmissions,
+        hardware, supervisor, controller manager, controllers), kept in one place so that order is read at once."""
         cfg = loaded.config
         self.mailboxes = mailboxes or InProcess()
         self.loaded = loaded
@@ -130,36 +133,13 @@ class Engine:
         for k, slot in enumerate(self.hardware):
             self._joint_slot[slot.index] = k
 
-        gravity = None
-        if cfg.robot.model and cfg.safety.gravity_compensation:
-            from hild.dynamics.gravity import GravityModel  # mujoco stays behind this seam
-
-            gravity = GravityModel(loaded.directory / cfg.robot.model, self.joints).compute
+        self.supervisor = self._build_supervisor(loaded)
         s = cfg.safety
-        self.supervisor = Supervisor(
-            self.joints,
-            self.limits,
-            self._gains(cfg),
-            SafetySettings(
-                s.stale_feedback_cycles,
-                s.overspeed_factor,
-                Action[s.fault_action.upper()],
-                Action[s.estop_action.upper()],
-                stale_feedback_time=s.stale_feedback_time,
-                plausibility_margin=s.plausibility.margin,
-                plausible_speed_factor=s.plausibility.speed_factor,
-                plausible_step_tolerance=s.plausibility.step_tolerance,
-            ),
-            self.events,
-            gravity=gravity,
-            describe_fault=self._describe_fault,
-            applies_gains=self._applies_gains(),
-        )
         self.max_consecutive_overruns = s.max_consecutive_overruns
         self._max_step = MAX_STEP_PERIODS * self.period
         self.max_cycle_gap = s.max_cycle_gap
         self.stop_descent = s.stop_descent
-        self.available_interfaces = [
+        self.available_interfaces = [  # what controllers may claim: only fields the drives really use
             interface_name(j, f)
             for slot in self.hardware
             for j in slot.component.joints
@@ -180,6 +160,35 @@ class Engine:
             self.load_controller(name, spec.type, loaded.controller_params[name], spec.fallback_controllers)
 
     # ---- construction ---------------------------------------------------------------------------------------
+    def _build_supervisor(self, loaded: LoadedConfig) -> Supervisor:
+        """The supervisor with the config's safety settings, and gravity feed-forward when the robot has a model."""
+        cfg = loaded.config
+        gravity = None
+        if cfg.robot.model and cfg.safety.gravity_compensation:
+            from hild.dynamics.gravity import GravityModel  # mujoco stays behind this seam
+
+            gravity = GravityModel(loaded.directory / cfg.robot.model, self.joints).compute
+        s = cfg.safety
+        return Supervisor(
+            self.joints,
+            self.limits,
+            self._gains(cfg),
+            SafetySettings(
+                s.stale_feedback_cycles,
+                s.overspeed_factor,
+                Action[s.fault_action.upper()],
+                Action[s.estop_action.upper()],
+                stale_feedback_time=s.stale_feedback_time,
+                plausibility_margin=s.plausibility.margin,
+                plausible_speed_factor=s.plausibility.speed_factor,
+                plausible_step_tolerance=s.plausibility.step_tolerance,
+            ),
+            self.events,
+            gravity=gravity,
+            describe_fault=self._describe_fault,
+            applies_gains=self._applies_gains(),
+        )
+
     @staticmethod
     def _gains(cfg: Any) -> JointGains:
         js = list(cfg.joints.values())

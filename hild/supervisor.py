@@ -368,6 +368,12 @@ class Supervisor:
 
     # ---- the final command (after the controllers) --------------------------------------------------------
     def command(self, dt: float, state: JointState, ctrl: ServoCommand, out: ServoCommand) -> None:
+        """The final command of every joint: its mode's defaults for unclaimed fields, hold for unwritten joints,
+        the safe action for faulted ones, then the limits, in one pass over the joints.
+
+        Long on purpose: it is the hottest loop of the cycle, one joint per iteration with everything in locals, so
+        splitting it into per-step helpers would cost a call and the lookups per joint per cycle (the module
+        docstring says why a plain loop, not numpy)."""
         pos, g, pose = state.position, self._g, self._pose
         if self.gravity is not None:  # at the accepted pose (the state holds stand-ins for rejected readings)
             if self.gate.all_known:
