@@ -19,6 +19,7 @@ from typing import Any
 from hild.api.client import HildClient, HildError
 
 WAIT = 30.0
+START_TIMEOUT = 60.0  # s: a daemon imports MuJoCo and Zenoh before it answers; generous for a loaded machine
 
 
 def free_port() -> int:
@@ -96,25 +97,45 @@ def wait_for(
 
 
 class HildRun:
-    """``hild run <config> --listen <endpoint>``, its output in ``<config dir>/daemon.log``."""
+    """``hild run <config> --listen <endpoint>``, its output in ``log`` (default ``<config dir>/daemon.log``).
 
-    def __init__(self, config: Path, endpoint: str, robot: str) -> None:
+    ``cwd`` is where relative paths of the run land (recordings); ``env`` replaces the environment (e.g. a fake
+    systemd's ``NOTIFY_SOCKET``). Entering waits until the API answers and the cycle runs; leaving kills what
+    is still running (``stop`` first for an orderly stop)."""
+
+    def __init__(
+        self,
+        config: Path,
+        endpoint: str,
+        robot: str,
+        *,
+        log: Path | None = None,
+        cwd: Path | None = None,
+        env: dict[str, str] | None = None,
+    ) -> None:
         self.endpoint = endpoint
         self.robot = robot
-        self.log_path = config.parent / "daemon.log"
+        self.log_path = log or config.parent / "daemon.log"
         with self.log_path.open("wb") as out:
             self.process = subprocess.Popen(
                 [sys.executable, "-m", "hild.cli", "run", str(config), "--listen", endpoint],
                 stdout=out,
                 stderr=subprocess.STDOUT,
+                cwd=cwd,
+                env=env,
             )
 
     def __enter__(self) -> HildRun:
         try:
-            self.wait(self.answers, "the daemon to answer")
+            self.started()
         except BaseException:
             self.close()
             raise
+        return self
+
+    def started(self) -> HildRun:
+        """Wait until the API answers and the cycle runs (AssertionError with the log if it exits first)."""
+        self.wait(self.answers, "the daemon to answer", START_TIMEOUT)
         return self
 
     def __exit__(self, kind: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None) -> None:

@@ -22,7 +22,7 @@ import yaml
 
 from hild.api.client import HildClient, HildError, HildUnreachable
 from tests.conftest import CONFIGS
-from tests.helpers import free_port, wait_for
+from tests.helpers import HildRun, free_endpoint, free_port, wait_for
 
 
 class Recorder:
@@ -64,27 +64,16 @@ def run_to_exit(config: Path, endpoint: str) -> subprocess.CompletedProcess[str]
 
 
 @pytest.fixture
-def daemon(tmp_path: Path) -> Iterator[tuple[subprocess.Popen[bytes], str, Path]]:
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    log = tmp_path / "daemon.log"
-    with log.open("wb") as out:
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "hild.cli", "run", str(CONFIGS / "arm6_twin.yaml"), "--listen", endpoint],
-            stdout=out,
-            stderr=subprocess.STDOUT,
-            cwd=tmp_path,
-        )
+def daemon(tmp_path: Path) -> Iterator[HildRun]:
+    run = HildRun(CONFIGS / "arm6_twin.yaml", free_endpoint(), "arm6", log=tmp_path / "daemon.log", cwd=tmp_path)
     try:
-        yield proc, endpoint, log
+        yield run
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(10)
+        run.close()
 
 
-def test_daemon_over_zenoh_only(daemon: tuple[subprocess.Popen[bytes], str, Path]) -> None:
-    proc, endpoint, log = daemon
-    with connect_when_up(proc, endpoint, log, timeout=60.0) as arm:
+def test_daemon_over_zenoh_only(daemon: HildRun) -> None:
+    with daemon.started().client() as arm:
         arm.wait_alive(timeout=30.0)
         states, events = Recorder(), Recorder()
         arm.subscribe("joint_states", states)
@@ -153,9 +142,8 @@ def test_daemon_over_zenoh_only(daemon: tuple[subprocess.Popen[bytes], str, Path
         wait_for(lambda: arm.status()["mode"] == "hold", 10.0, "hold after reset")
 
     # Ctrl-C: hold, release the hardware, exit 0.
-    proc.send_signal(signal.SIGINT)
-    assert proc.wait(20) == 0, log.read_text()
-    text = log.read_text()
+    assert daemon.stop(20.0, signal.SIGINT) == 0, daemon.log
+    text = daemon.log
     assert "stopped: hardware released" in text
     assert "leaked" not in text  # extension objects were freed before the interpreter ended (no nanobind noise)
 
@@ -185,11 +173,8 @@ def test_taken_port_releases_the_hardware_and_exits_1(tmp_path: Path) -> None:
     assert "start-up failed; the hardware was released" in run.stderr  # refused before the cycle process started
 
 
-def test_a_second_daemon_of_the_same_robot_exits_1_naming_the_first(
-    daemon: tuple[subprocess.Popen[bytes], str, Path], tmp_path: Path
-) -> None:
-    proc, endpoint, log = daemon
-    connect_when_up(proc, endpoint, log, 60.0).close()
+def test_a_second_daemon_of_the_same_robot_exits_1_naming_the_first(daemon: HildRun, tmp_path: Path) -> None:
+    endpoint = daemon.started().endpoint
     config = tmp_path / "second.yaml"
     data = yaml.safe_load((CONFIGS / "arm6_twin.yaml").read_text())
     (tmp_path / "arm6.xml").write_text((CONFIGS / "arm6.xml").read_text())  # the robot's and the twin's model
@@ -201,4 +186,4 @@ def test_a_second_daemon_of_the_same_robot_exits_1_naming_the_first(
     assert f"listening on {endpoint}" in run.stderr
     # Refused before the hardware was touched (the cycle process is started only after the check): nothing enabled.
     assert "start-up failed; the hardware was released" in run.stderr
-    assert proc.poll() is None  # the first one runs on
+    assert daemon.process.poll() is None  # the first one runs on

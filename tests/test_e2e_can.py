@@ -24,7 +24,7 @@ from drivers.can.emulator.runtime import request
 from hild.client import HildError
 from hild.motion.reference import OFFSETS, standard_trajectory
 from tests.conftest import CONFIGS
-from tests.helpers import distinct_free_ports, wait_for
+from tests.helpers import HildRun, distinct_free_ports, wait_for
 from tests.test_e2e import Recorder, connect_when_up
 
 HOST = "127.0.0.1"
@@ -105,10 +105,7 @@ def rig(tmp_path: Path) -> Iterator[CanRig]:
             )
         )
         endpoint = f"tcp/{HOST}:{zenoh}"
-        with daemon_log.open("wb") as out:
-            daemon = subprocess.Popen(
-                [*command, "run", str(config), "--listen", endpoint], stdout=out, stderr=subprocess.STDOUT, cwd=tmp_path
-            )
+        daemon = HildRun(config, endpoint, "arm6", log=daemon_log, cwd=tmp_path).process
         yield CanRig(emulator, daemon, endpoint, (HOST, control), emulator_log, daemon_log)
     finally:
         if daemon is not None:

@@ -10,9 +10,7 @@ import asyncio
 import logging
 import os
 import re
-import signal
 import socket
-import subprocess
 import sys
 import threading
 import time
@@ -34,7 +32,7 @@ from hild.notify import (
     watchdog_interval,
 )
 from tests.conftest import CONFIGS, Systemd, merge, mock_robot, receive
-from tests.helpers import free_port
+from tests.helpers import HildRun, free_endpoint, free_port
 
 
 # ---- the client -------------------------------------------------------------------------------------------------
@@ -221,15 +219,11 @@ def test_hild_run_under_a_fake_systemd(systemd: tuple[Systemd, str], tmp_path: P
     env = {k: v for k, v in os.environ.items() if k not in ("WATCHDOG_PID", "NOTIFY_SOCKET")}
     # JOURNAL_STREAM makes the daemon log as under systemd (the value only has to be present).
     env.update(NOTIFY_SOCKET=path, WATCHDOG_USEC="200000", JOURNAL_STREAM="8:12345")
-    argv = [sys.executable, "-m", "hild.cli", "run", str(CONFIGS / "rrbot_twin.yaml")]
-    with log_path.open("wb") as out:
-        proc = subprocess.Popen(
-            [*argv, "--listen", f"tcp/127.0.0.1:{free_port()}"], stdout=out, stderr=subprocess.STDOUT, env=env
-        )
+    run = HildRun(CONFIGS / "rrbot_twin.yaml", free_endpoint(), "rrbot", log=log_path, cwd=tmp_path, env=env)
     try:
-        ready_at, ready = fake.wait_for("READY=1", 60.0, alive=lambda: proc.poll() is None)
+        ready_at, ready = fake.wait_for("READY=1", 60.0, alive=lambda: run.process.poll() is None)
         # READY=1 came only after the drives went live: the engine's start event is already in the log.
-        assert "held where they are" in log_path.read_text()
+        assert "held where they are" in run.log
         assert "WATCHDOG=1" not in fake.between(0.0, ready_at)
         assert re.fullmatch(r"READY=1\nSTATUS=hold at 500 Hz; cycle p99 .*", ready), ready
 
@@ -241,12 +235,9 @@ def test_hild_run_under_a_fake_systemd(systemd: tuple[Systemd, str], tmp_path: P
         assert any(m.startswith("STATUS=hold at 500 Hz") for m in running), running
 
         stop_at = time.monotonic()
-        proc.send_signal(signal.SIGTERM)
-        assert proc.wait(20.0) == 0, log_path.read_text()
+        assert run.stop(20.0) == 0, run.log
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(10)
+        run.close()
     fake.wait_for("STATUS=stopped", 2.0)  # sent before exit; the reader thread may not have stamped it yet
     after = fake.between(stop_at)
     assert any(m.startswith("STOPPING=1\nSTATUS=stopping") for m in after), after

@@ -21,7 +21,7 @@ import numpy as np
 from drivers.can.emulator.runtime import request
 from hild.api.client import HildClient, HildUnreachable
 from tests.conftest import CONFIGS
-from tests.helpers import distinct_free_ports, domain_pid
+from tests.helpers import HildRun, distinct_free_ports, domain_pid
 from tests.test_e2e_can import stop
 
 HOST = "127.0.0.1"
@@ -88,13 +88,7 @@ class CanProcesses:
         """Start ``hild run`` and return a client once its robot is alive."""
         log = self.directory / f"daemon{len(self.daemon_logs) + 1}.log"
         self.daemon_logs.append(log)
-        with log.open("wb") as out:
-            self.daemon = subprocess.Popen(
-                [*_hild(), "run", str(self.config), "--listen", self.endpoint],
-                stdout=out,
-                stderr=subprocess.STDOUT,
-                cwd=self.directory,
-            )
+        self.daemon = HildRun(self.config, self.endpoint, "arm6", log=log, cwd=self.directory).process
         deadline = time.monotonic() + START_TIMEOUT
         while True:
             try:

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 import threading
 import time
 from collections.abc import Callable
@@ -22,7 +21,7 @@ import yaml
 import zenoh
 
 from hild.api.client import HildClient, HildUnreachable
-from tests.helpers import free_endpoint
+from tests.helpers import HildRun, free_endpoint
 from tests.helpers import wait_for as api_wait_for
 
 ROBOT = "fuzz6"
@@ -138,13 +137,7 @@ class FuzzDaemon:
 
     # ---- lifecycle -------------------------------------------------------------------------------------------
     def start(self) -> None:
-        with self.log.open("wb") as out:
-            self.proc = subprocess.Popen(
-                [sys.executable, "-m", "hild.cli", "run", str(self.config), "--listen", self.endpoint],
-                stdout=out,
-                stderr=subprocess.STDOUT,
-                cwd=self.workdir,
-            )
+        self.proc = HildRun(self.config, self.endpoint, ROBOT, log=self.log, cwd=self.workdir).process
         deadline = time.monotonic() + WAIT
         while self.client is None:
             try:
