@@ -17,8 +17,8 @@ import yaml
 
 from hild.client import AsyncHildClient, HildError
 from hild.motion.reference import standard_trajectory
-from tests.helpers import wait_for
-from tests.test_e2e import Recorder, connect_when_up, daemon
+from tests.helpers import HildRun, wait_for
+from tests.test_e2e import Recorder, daemon
 
 __all__ = ["daemon"]  # the fixture, re-used
 
@@ -33,9 +33,9 @@ def ctl(endpoint: str, *args: str) -> tuple[int, str]:
     return proc.returncode, proc.stdout + proc.stderr
 
 
-def test_goals_and_streams_over_zenoh(daemon: tuple[subprocess.Popen[bytes], str, Path], tmp_path: Path) -> None:
-    proc, endpoint, log = daemon
-    with connect_when_up(proc, endpoint, log, timeout=60.0) as arm:
+def test_goals_and_streams_over_zenoh(daemon: HildRun, tmp_path: Path) -> None:
+    endpoint = daemon.endpoint
+    with daemon.started().client() as arm:
         arm.wait_alive(timeout=30.0)
         states = Recorder()
         arm.subscribe("joint_states", states)
@@ -101,11 +101,10 @@ def test_goals_and_streams_over_zenoh(daemon: tuple[subprocess.Popen[bytes], str
         assert np.abs(np.array(states.last()["position"]) - held).max() < 2e-3  # type: ignore[index]
 
 
-def test_async_client(daemon: tuple[subprocess.Popen[bytes], str, Path]) -> None:
+def test_async_client(daemon: HildRun) -> None:
     import asyncio
 
-    proc, endpoint, log = daemon
-    connect_when_up(proc, endpoint, log, timeout=60.0).close()
+    endpoint = daemon.started().endpoint
 
     async def main() -> str:
         async with await AsyncHildClient.connect("arm6", [endpoint], timeout=10.0) as arm:
