@@ -56,6 +56,16 @@ def mock_robot() -> dict[str, Any]:
     }
 
 
+def with_trajectory(config: dict[str, Any], *names: str, joints: tuple[str, ...] = ("a", "b", "c")) -> dict[str, Any]:
+    """``config`` (changed in place, and returned) with the acceleration and jerk limits a planner needs on every
+    joint, and a joint_trajectory controller on ``joints`` for each of ``names``."""
+    for joint in config["joints"].values():
+        joint["limits"].update(acceleration=10.0, jerk=100.0)
+    for name in names:
+        config["controllers"][name] = {"type": "joint_trajectory", "params": {"joints": list(joints)}}
+    return config
+
+
 def merge(base: dict[str, Any], patch: dict[str, Any]) -> dict[str, Any]:
     out = copy.deepcopy(base)
     for key, value in patch.items():

@@ -21,6 +21,7 @@ from hild.api.server import ApiServer
 from hild.config import load_config
 from hild.config.model import ZenohSection
 from hild.engine import Engine
+from tests.conftest import with_trajectory
 from tests.helpers import free_endpoint
 
 ROBOT = "mock3"
@@ -123,10 +124,7 @@ class Daemon:
 
 def engine_with_trajectory(tmp_path: Path) -> Engine:
     """The test robot plus a joint_trajectory controller ``traj`` (its planner needs acceleration and jerk)."""
-    config = robot_config()
-    for joint in config["joints"].values():
-        joint["limits"].update(acceleration=10.0, jerk=100.0)
-    config["controllers"]["traj"] = {"type": "joint_trajectory", "params": {"joints": ["a", "b", "c"]}}
+    config = with_trajectory(robot_config(), "traj")
     path = tmp_path / "robot.yaml"
     path.write_text(yaml.safe_dump(config, sort_keys=False))
     return Engine(load_config(path))

@@ -19,15 +19,12 @@ from hild.config import load_config
 from hild.engine import Engine
 from tests.api.conftest import ROBOT, Daemon, robot_config
 from tests.api.test_ctl import ctl
+from tests.conftest import with_trajectory
 from tests.helpers import free_endpoint
 
 
 def daemon_with(tmp_path: Path, trajectory_controllers: list[str]) -> Iterator[Daemon]:
-    config = robot_config()
-    for joint in config["joints"].values():
-        joint["limits"].update(acceleration=10.0, jerk=100.0)
-    for name in trajectory_controllers:
-        config["controllers"][name] = {"type": "joint_trajectory", "params": {"joints": ["a", "b", "c"]}}
+    config = with_trajectory(robot_config(), *trajectory_controllers)
     path = tmp_path / "robot.yaml"
     path.write_text(yaml.safe_dump(config, sort_keys=False))
     daemon = Daemon(Engine(load_config(path)), free_endpoint())

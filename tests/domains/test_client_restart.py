@@ -21,18 +21,14 @@ from hild.config import load_config
 from hild.domains.layout import Ask
 from hild.domains.main_process import RESTARTS_ALLOWED, MainProcess
 from hild.telemetry import replay
-from tests.conftest import merge, mock_robot
+from tests.conftest import merge, mock_robot, with_trajectory
 from tests.helpers import HildRun, free_endpoint
 
 REAL_TIME = {"clock": {"source": "sim", "real_time_factor": 1.0}}
-JTC = {"jtc": {"type": "joint_trajectory", "params": {"joints": ["a", "b", "c"]}}}
 
 
 def robot(patch: dict[str, Any] | None = None) -> dict[str, Any]:
-    config = merge(mock_robot(), {**REAL_TIME, "controllers": JTC})
-    for joint in config["joints"].values():
-        joint["limits"].update(acceleration=10.0, jerk=100.0)
-    return merge(config, patch or {})
+    return merge(with_trajectory(merge(mock_robot(), REAL_TIME), "jtc"), patch or {})
 
 
 def test_a_killed_client_domain_is_restarted_while_the_cycle_holds(write_config: Callable[..., Path]) -> None:

@@ -16,11 +16,12 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import logging
 import threading
 import time
 import weakref
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Coroutine
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -295,7 +296,11 @@ class RosFace:
             inlet.waiting = raw  # replaces the one waiting, undecoded
             return
         inlet.busy = True
-        task = self.loop.create_task(self._deliver(inlet, raw))
+        self._spawn(self._deliver(inlet, raw))
+
+    def _spawn(self, work: Coroutine[Any, Any, None]) -> None:
+        """Run ``work`` on the loop, kept until done (``close`` cancels what is left)."""
+        task = self.loop.create_task(work)
         self._tasks.add(task)
         task.add_done_callback(self._tasks.discard)
 
@@ -330,25 +335,13 @@ class RosFace:
             payload = query.payload
             raw = b"" if payload is None else payload.to_bytes() if len(payload) <= MAX_PAYLOAD else None
             raw_attachment = None if query.attachment is None else query.attachment.to_bytes()
+            answer = functools.partial(me._answer, name, type_name, serve, query, raw, raw_attachment)
             try:
-                me.loop.call_soon_threadsafe(me._start, name, type_name, serve, query, raw, raw_attachment)
+                me.loop.call_soon_threadsafe(lambda: me._spawn(answer()))
             except RuntimeError:  # the loop is closed
                 drop(query)
 
         return on_query
-
-    def _start(
-        self,
-        name: str,
-        type_name: str,
-        serve: Callable[[Any], Any],
-        query: zenoh.Query,
-        raw: bytes | None,
-        raw_attachment: bytes | None,
-    ) -> None:
-        task = self.loop.create_task(self._answer(name, type_name, serve, query, raw, raw_attachment))
-        self._tasks.add(task)
-        task.add_done_callback(self._tasks.discard)
 
     async def _answer(
         self,

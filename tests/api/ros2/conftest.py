@@ -18,6 +18,7 @@ from hild.api.ros2 import types, wire
 from hild.config import load_config
 from hild.engine import Engine
 from tests.api.conftest import WAIT, Daemon, robot_config
+from tests.conftest import with_trajectory
 from tests.helpers import free_endpoint
 
 # pyzeros' CDR library (cydr) compiles and caches its codecs in the working directory unless told otherwise: keep
@@ -34,10 +35,7 @@ def ros_robot_config(tmp_path: Path) -> dict[str, Any]:
     (tmp_path / "mock3.urdf").write_text(URDF)
     config["robot"]["model"] = "mock3.urdf"
     config["safety"] = {"gravity_compensation": False}
-    for joint in config["joints"].values():
-        joint["limits"].update(acceleration=10.0, jerk=100.0)
-    config["controllers"]["traj"] = {"type": "joint_trajectory", "params": {"joints": ["a", "b", "c"]}}
-    return config
+    return with_trajectory(config, "traj")
 
 
 @pytest.fixture
