@@ -1,0 +1,44 @@
+"""The measuring room's exemption stays bounded: ``hild/bench`` may import drivers and any library, like the tests,
+because ``hild bench`` measures the product as shipped; nothing else in ``hild`` imports ``drivers`` (drivers depend
+on hild, never the reverse), and no product code imports the measuring room."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+from tests.conftest import REPO
+
+MEASURING_ROOM = REPO / "hild" / "bench"
+
+
+def imports(path: Path) -> set[str]:
+    """Fully qualified modules ``path`` imports (absolute imports only: relative ones stay in their package)."""
+    names: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            names |= {alias.name for alias in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            names.add(node.module)
+    return names
+
+
+def product_modules() -> list[Path]:
+    return [p for root in ("hild", "drivers") for p in (REPO / root).rglob("*.py") if MEASURING_ROOM not in p.parents]
+
+
+def test_hild_outside_the_measuring_room_never_imports_drivers() -> None:
+    offenders = {
+        str(p.relative_to(REPO)): sorted(m for m in imports(p) if m.split(".")[0] == "drivers")
+        for p in product_modules()
+        if p.is_relative_to(REPO / "hild")
+    }
+    assert {k: v for k, v in offenders.items() if v} == {}
+
+
+def test_no_product_module_imports_the_measuring_room() -> None:
+    offenders = {
+        str(p.relative_to(REPO)): sorted(m for m in imports(p) if m == "hild.bench" or m.startswith("hild.bench."))
+        for p in product_modules()
+    }
+    assert {k: v for k, v in offenders.items() if v} == {}
