@@ -118,6 +118,7 @@ class Supervisor:
         describe_fault: DescribeFn | None = None,
         applies_gains: np.ndarray | None = None,
     ) -> None:
+        """Everything the cycle reads or writes is allocated here, once: ``command`` then allocates nothing."""
         n = len(joints)
         self.joints = joints
         self.limits = limits
@@ -156,6 +157,11 @@ class Supervisor:
         # Whether the drive applies the command's kp/kd itself (its torque is then predictable from them).
         self._applies_gains = [True] * n if applies_gains is None else [bool(a) for a in applies_gains]
 
+        self._allocate_cycle_state(n)
+        self.set_claims(ClaimMasks.empty(n))
+
+    def _allocate_cycle_state(self, n: int) -> None:
+        """The per-joint state only the cycle touches, as Python lists (no numpy scalar overhead in its loop)."""
         # Per-joint claim view, rebuilt at each switch (set_claims).
         self._owner = [-1] * n
         self._claims: list[tuple[bool, bool, bool, bool, bool]] = [(False,) * 5] * n  # type: ignore[list-item]
@@ -176,7 +182,6 @@ class Supervisor:
         self._pose = np.zeros(n)  # where gravity is computed: the accepted positions (0 where none is known)
         self._descent = (0.0, 0.0)  # (s left, s total) of a stop descent; (0, 0) when none runs
         self.descent_started = False
-        self.set_claims(ClaimMasks.empty(n))
 
     # ---- configuration (between cycles) -------------------------------------------------------------------
     def start(self, state: JointState) -> None:

@@ -104,6 +104,7 @@ class MujocoTwin(HardwareComponent):
     # ------------------------------------------------------------------ lifecycle (non real-time)
 
     def on_configure(self) -> None:
+        """Load the model, bind the configured joints to it, apply the params' physics; refuse a bad start."""
         p = self.params
         path = self.context.config_dir / p.model
         try:
@@ -118,6 +119,29 @@ class MujocoTwin(HardwareComponent):
                 f"{self.context.name}: joints do not match the model {path.name}: {exc}; "
                 f"configured joints: {', '.join(self.joints)}"
             ) from None
+        self._warn_about_unused_parts(model, jid)
+        for values, field in (
+            (p.friction, model.dof_frictionloss),
+            (p.armature, model.dof_armature),
+            (p.damping, model.dof_damping),
+        ):
+            for name, value in values.items():
+                field[dofadr[self.joints.index(name)]] = value
+        self._tau_lo, self._tau_hi = self._torque_limits(model, jid)
+        self._tau_lo_list, self._tau_hi_list = self._tau_lo.tolist(), self._tau_hi.tolist()
+
+        model.opt.timestep = self.context.period / p.substeps
+        if not p.gravity:
+            model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_GRAVITY)
+        self._keyframe = self._check_start(model, jid, path.name)
+
+        self.model, self.data = model, mujoco.MjData(model)
+        self._qposadr, self._dofadr = qposadr, dofadr
+        self._allocate()
+        self.reset()
+
+    def _warn_about_unused_parts(self, model: mujoco.MjModel, jid: np.ndarray) -> None:
+        """Model joints nobody drives, and actuators the twin never sets, surprise users: say so at configure."""
         passive = [
             name
             for i, name in enumerate(joint_names(model))
@@ -134,25 +158,14 @@ class MujocoTwin(HardwareComponent):
                 "at ctrl = 0 (a position actuator then pulls its joint towards 0): remove them from the model",
             )
 
-        for name, value in p.friction.items():
-            model.dof_frictionloss[dofadr[self.joints.index(name)]] = value
-        for name, value in p.armature.items():
-            model.dof_armature[dofadr[self.joints.index(name)]] = value
-        for name, value in p.damping.items():
-            model.dof_damping[dofadr[self.joints.index(name)]] = value
-        self._tau_lo, self._tau_hi = self._torque_limits(model, jid)
-        self._tau_lo_list, self._tau_hi_list = self._tau_lo.tolist(), self._tau_hi.tolist()
-
-        model.opt.timestep = self.context.period / p.substeps
-        if not p.gravity:
-            model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_GRAVITY)
-
-        self._keyframe = -1
+    def _check_start(self, model: mujoco.MjModel, jid: np.ndarray, model_name: str) -> int:
+        """The keyframe's index (-1: none); a missing keyframe or an initial position out of range is refused."""
+        p, keyframe = self.params, -1
         if p.keyframe is not None:
-            self._keyframe = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, p.keyframe)
-            if self._keyframe < 0:
+            keyframe = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, p.keyframe)
+            if keyframe < 0:
                 keys = [model.key(i).name for i in range(model.nkey)]
-                raise HardwareError(f"{self.context.name}: model {path.name} has no keyframe {p.keyframe!r} ({keys})")
+                raise HardwareError(f"{self.context.name}: model {model_name} has no keyframe {p.keyframe!r} ({keys})")
         for name, value in p.initial_positions.items():
             j = jid[self.joints.index(name)]
             if model.jnt_limited[j] and not model.jnt_range[j, 0] <= value <= model.jnt_range[j, 1]:
@@ -160,11 +173,7 @@ class MujocoTwin(HardwareComponent):
                 raise HardwareError(
                     f"{self.context.name}: initial position {value} of {name} is outside its range [{lo}, {hi}]"
                 )
-
-        self.model, self.data = model, mujoco.MjData(model)
-        self._qposadr, self._dofadr = qposadr, dofadr
-        self._allocate()
-        self.reset()
+        return keyframe
 
     def on_activate(self) -> None:
         self._clear_commands()

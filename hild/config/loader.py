@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import types
 import typing
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -28,6 +29,7 @@ from hild.hardware import BusUsage
 from hild.interfaces import FIELDS, ClaimError, interface_name, parse_interface
 
 Loc = tuple[str | int, ...]
+Report = Callable[[Loc, str], None]  # (where in the file, what is wrong)
 _UNION_TYPES = (typing.Union, types.UnionType)
 MAX_DEPTH = 64  # nested mappings/sequences; a robot config needs about 8
 MAX_NODES = 100_000  # values after alias expansion; a robot config has about a thousand
@@ -272,16 +274,14 @@ def load_config(path: str | Path) -> LoadedConfig:
         raise ConfigError(issues + _pydantic_issues(exc, RobotConfig, (), file, lines)) from None
 
     loaded = LoadedConfig(path=path.resolve(), config=config, file=file, lines=lines)
-    _load_plugins(loaded, file, lines, issues)
-    _cross_check(loaded, file, lines, issues)
-    _review_hardware(loaded, file, lines, issues)
-    _review_safety(loaded, file, lines, issues)
+    for check in (_load_plugins, _cross_check, _review_hardware, _review_safety):
+        check(loaded, issues)
     if issues:
         raise ConfigError(issues)
     return loaded
 
 
-def _load_plugins(loaded: LoadedConfig, file: str, lines: dict[Loc, int], issues: list[ConfigIssue]) -> None:
+def _load_plugins(loaded: LoadedConfig, issues: list[ConfigIssue]) -> None:
     c = loaded.config
     groups = (
         (
@@ -306,22 +306,28 @@ def _load_plugins(loaded: LoadedConfig, file: str, lines: dict[Loc, int], issues
             try:
                 cls = plugins.load(group, plugin_name)
             except plugins.PluginError as exc:
-                loc = (section, name, key)
-                issues.append(ConfigIssue(file, _line(lines, loc), _fmt(loc), str(exc)))
+                issues.append(loaded.issue((section, name, key), str(exc)))
                 continue
             classes[name] = cls
             try:
                 params[name] = cls.Params.model_validate(raw)
             except ValidationError as exc:
-                issues.extend(_pydantic_issues(exc, cls.Params, (section, name, "params"), file, lines))
+                issues.extend(_pydantic_issues(exc, cls.Params, (section, name, "params"), loaded.file, loaded.lines))
 
 
-def _cross_check(loaded: LoadedConfig, file: str, lines: dict[Loc, int], issues: list[ConfigIssue]) -> None:
-    c = loaded.config
+def _cross_check(loaded: LoadedConfig, issues: list[ConfigIssue]) -> None:
+    """What no single section can check alone: joints against hardware, files, controllers against drivers."""
 
     def report(loc: Loc, message: str) -> None:
-        issues.append(ConfigIssue(file, _line(lines, loc), _fmt(loc), message))
+        issues.append(loaded.issue(loc, message))
 
+    owner = _joint_owners(loaded.config, report)
+    _check_files(loaded, report)
+    _check_controllers(loaded, owner, report)
+
+
+def _joint_owners(c: RobotConfig, report: Report) -> dict[str, str]:
+    """Each joint's hardware component; a joint with none, two, or no definition is reported."""
     owner: dict[str, str] = {}
     for hw_name, hw in c.hardware.items():
         for joint in hw.joints:
@@ -335,7 +341,12 @@ def _cross_check(loaded: LoadedConfig, file: str, lines: dict[Loc, int], issues:
     for joint in c.joints:
         if joint not in owner:
             report(("joints", joint), f"joint {joint!r} belongs to no hardware component")
+    return owner
 
+
+def _check_files(loaded: LoadedConfig, report: Report) -> None:
+    """The robot model and every file a driver names exist (relative to the config's directory)."""
+    c = loaded.config
     if c.robot.model is not None and not (loaded.directory / c.robot.model).is_file():
         report(("robot", "model"), f"file not found: {loaded.directory / c.robot.model}")
     for hw_name in c.hardware:
@@ -346,10 +357,15 @@ def _cross_check(loaded: LoadedConfig, file: str, lines: dict[Loc, int], issues:
             if not (loaded.directory / relative).is_file():
                 report(("hardware", hw_name, "params", param), f"file not found: {loaded.directory / relative}")
 
+
+def _check_controllers(loaded: LoadedConfig, owner: dict[str, str], report: Report) -> None:
+    """Controllers name known joints, claim what their joints' drivers offer, and never two autostart one claim."""
+    c = loaded.config
     available = set()
     for joint, hw_name in owner.items():
         fields = getattr(loaded.driver_classes.get(hw_name), "COMMAND_FIELDS", FIELDS)
         available.update(interface_name(joint, f) for f in FIELDS if f in fields)
+    limits = {joint: section.limits for joint, section in c.joints.items()}
 
     autostart_claims: dict[str, str] = {}
     for name, spec in c.controllers.items():
@@ -359,7 +375,6 @@ def _cross_check(loaded: LoadedConfig, file: str, lines: dict[Loc, int], issues:
         for i, joint in enumerate(cls.joints_for(params)):
             if joint not in c.joints:
                 report(("controllers", name, "params", "joints", i), f"unknown joint {joint!r}")
-        limits = {joint: section.limits for joint, section in c.joints.items()}
         for problem in cls.robot_problems(params, limits):
             report(("controllers", name, "params"), problem)
         for claim in cls.claims_for(params):
@@ -387,7 +402,7 @@ BUS_LOAD_WARNING = 0.70
 BUS_LOAD_LIMIT = 1.00
 
 
-def _review_hardware(loaded: LoadedConfig, file: str, lines: dict[Loc, int], issues: list[ConfigIssue]) -> None:
+def _review_hardware(loaded: LoadedConfig, issues: list[ConfigIssue]) -> None:
     """Each driver's own findings, then shared media summed over components: load and identifier overlaps."""
     c = loaded.config
     buses: dict[str, list[tuple[str, BusUsage]]] = {}
@@ -399,7 +414,7 @@ def _review_hardware(loaded: LoadedConfig, file: str, lines: dict[Loc, int], iss
         joints = list(hw.joints)
         for finding in cls.review(params, joints, c.update_rate):
             if finding.level == "error":
-                issues.append(ConfigIssue(file, _line(lines, loc), _fmt(loc), finding.message))
+                issues.append(loaded.issue(loc, finding.message))
             else:
                 loaded.notes.append(f"{finding.level}: hardware {name}: {finding.message}")
         for usage in cls.bus_usage(params, joints, c.update_rate):
@@ -409,39 +424,24 @@ def _review_hardware(loaded: LoadedConfig, file: str, lines: dict[Loc, int], iss
         for name, usage in users:
             for ident in sorted(usage.ids):
                 if ident in seen and seen[ident] != name:
-                    loc = ("hardware", name, "params")
-                    issues.append(
-                        ConfigIssue(
-                            file,
-                            _line(lines, loc),
-                            _fmt(loc),
-                            f"id {ident:#x} on {bus} is also used by hardware {seen[ident]!r}",
-                        )
-                    )
+                    message = f"id {ident:#x} on {bus} is also used by hardware {seen[ident]!r}"
+                    issues.append(loaded.issue(("hardware", name, "params"), message))
                 seen.setdefault(ident, name)
         load = sum(u.bits_per_second for _, u in users) / min(u.capacity for _, u in users)
         text = f"bus {bus}: worst-case load {load:.0%} at {c.update_rate:g} Hz ({', '.join(n for n, _ in users)})"
         if load > BUS_LOAD_LIMIT:
-            loc = ("hardware", users[0][0], "params")
-            issues.append(
-                ConfigIssue(
-                    file,
-                    _line(lines, loc),
-                    _fmt(loc),
-                    f"{text}: over 100 %, frames would be "
-                    "late every cycle; lower update_rate or split the motors over more buses",
-                )
-            )
+            message = f"{text}: over 100 %, frames would be late every cycle; lower update_rate or split the motors"
+            issues.append(loaded.issue(("hardware", users[0][0], "params"), message + " over more buses"))
         elif load > BUS_LOAD_WARNING:
             loaded.notes.append(f"warning: {text}: above {BUS_LOAD_WARNING:.0%}, little headroom for retries")
         else:
             loaded.notes.append(text)
 
 
-def _review_safety(loaded: LoadedConfig, file: str, lines: dict[Loc, int], issues: list[ConfigIssue]) -> None:
+def _review_safety(loaded: LoadedConfig, issues: list[ConfigIssue]) -> None:
     """Unsafe combinations refuse the config; suspicious ones become warnings (hild/config/safety.py)."""
     for finding in review_safety(loaded.config, loaded.driver_classes, loaded.driver_params):
-        issue = ConfigIssue(file, _line(lines, finding.loc), _fmt(finding.loc), finding.message)
+        issue = loaded.issue(finding.loc, finding.message)
         if finding.level == "error":
             issues.append(issue)
         else:

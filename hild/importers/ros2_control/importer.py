@@ -86,17 +86,13 @@ def import_ros2_control(request: ImportRequest) -> ImportResult:
     with _staging(config_path) as staging:
         staged_urdf, staged_config = staging / urdf_path.name, staging / config_path.name
         staged_urdf.write_text(urdf_text)
-        try:
+        with _mujoco_refusal(robot, label, staging):
             ranges = mapping.position_ranges(robot, selected)
             inertias = joint_inertias(staged_urdf, [s.joint.name for s in selected], ranges)
-        except ValueError as exc:
-            raise _refused(exc, robot, label, staging) from None
         joints = mapping.plan_joints(robot, selected, inertias, plan.effort_pid(), plan.update_rate, report)
         start = {j.name: j.initial_position for j in joints if j.initial_position is not None}
-        try:
+        with _mujoco_refusal(robot, label, staging):
             exclusions = excluded_contacts(robot, staged_urdf, start, request.keep_self_contacts, report)
-        except ValueError as exc:
-            raise _refused(exc, robot, label, staging) from None
         substeps = mapping.choose_substeps(joints, plan.update_rate, report)
         _complete_effort_gains(plan, joints, report)
         doc = writer.build_document(
@@ -110,13 +106,7 @@ def import_ros2_control(request: ImportRequest) -> ImportResult:
             exclusions,
         )
         staged_config.write_text(writer.render(doc))
-        try:
-            loaded = load_config(staged_config)  # exactly what `hild check` does
-            check_with_model(loaded)
-        except ConfigError as exc:
-            detail = str(exc).replace(str(staged_config), str(config_path))
-            raise ImportFailure(f"the imported config does not pass `hild check` (please report):\n{detail}") from None
-        _relay_check_warnings(loaded.notes, joints, robot, report)
+        _relay_check_warnings(_hild_check(staged_config, config_path), joints, robot, report)
         if report.partial and not request.allow_partial:  # last: every real error in the input comes first
             raise report.partial_failure()
         os.replace(staged_urdf, urdf_path)
@@ -198,6 +188,27 @@ def _relay_check_warnings(notes: list[str], joints: list[mapping.JointPlan], rob
                 controller, where = joint.gains_pid
                 origin = f" (from your PID gains of {controller})"
         report.approximated(where, f"hild check warns: {key}: {message}{origin}")
+
+
+def _hild_check(staged_config: Path, config_path: Path) -> list[str]:
+    """Check the written config exactly as `hild check` does; its notes (warnings), or the failure under the
+    name the user asked for."""
+    try:
+        loaded = load_config(staged_config)
+        check_with_model(loaded)
+    except ConfigError as exc:
+        detail = str(exc).replace(str(staged_config), str(config_path))
+        raise ImportFailure(f"the imported config does not pass `hild check` (please report):\n{detail}") from None
+    return loaded.notes
+
+
+@contextlib.contextmanager
+def _mujoco_refusal(robot: Robot, label: str, staging: Path) -> Iterator[None]:
+    """MuJoCo's ValueError on the staged twin becomes an ImportFailure at the source line it is about."""
+    try:
+        yield
+    except ValueError as exc:
+        raise _refused(exc, robot, label, staging) from None
 
 
 def _refused(exc: ValueError, robot: Robot, label: str, staging: Path) -> ImportFailure:
