@@ -17,7 +17,6 @@ no longer there to watch it, cancel it or read its result; ``continue`` is for f
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -25,10 +24,9 @@ import numpy as np
 
 from hild.action import ActionServer, CancelRequest, ClientLost, ErrorCode, GoalRejected, GoalRequest, GoalStatus
 from hild.arrays import JointState, ServoCommand
-from hild.config.model import JointLimits
 from hild.config.params import Field, Params, model_validator
 from hild.controller import Controller, ControllerContext
-from hild.controllers.motion_common import first_taken_over, interface_claims, missing_planning_limits
+from hild.controllers.motion_common import PlansMotion, first_taken_over
 from hild.controllers.trajectory_goals import GoalContext, PreparedGoal, parse_goal
 from hild.motion.limits import KinematicLimits
 from hild.motion.planning import PlanningError, plan_stop
@@ -139,8 +137,9 @@ class Track:
         return self.trajectory.finished(t - self.t0)
 
 
-class JointTrajectoryController(Controller):
+class JointTrajectoryController(PlansMotion, Controller):
     Params = JointTrajectoryParams
+    KIND = "joint_trajectory"
 
     def __init__(self, context: ControllerContext, params: JointTrajectoryParams) -> None:
         super().__init__(context, params)
@@ -189,16 +188,6 @@ class JointTrajectoryController(Controller):
         )
 
     # ---- contract ----------------------------------------------------------------------------------------------
-    @classmethod
-    def claims_for(cls, params: Params) -> list[str]:
-        assert isinstance(params, JointTrajectoryParams)
-        return interface_claims(params.joints, params.command_interfaces)
-
-    @classmethod
-    def robot_problems(cls, params: Params, limits: Mapping[str, JointLimits]) -> list[str]:
-        assert isinstance(params, JointTrajectoryParams)
-        return missing_planning_limits("joint_trajectory", params.joints, limits)
-
     def action_server(self) -> ActionServer[PreparedGoal]:
         return self.action
 

@@ -1,32 +1,44 @@
-"""What controllers that plan motion (joint_trajectory, servo) share: their claims and the limits they need."""
+"""What controllers that plan motion (joint_trajectory, servo) share: their claims, the limits they need, and
+noticing the supervisor took a joint over."""
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Mapping
+from typing import ClassVar, Protocol, cast
 
 import numpy as np
 
 from hild.config.model import JointLimits
+from hild.config.params import Params
 from hild.interfaces import interface_name
 from hild.modes import JointMode
 
 _TAKEN_OVER = int(JointMode.FAULT)  # FAULT and ESTOP: the supervisor decides the command
 
 
-def interface_claims(joints: Sequence[str], fields: Iterable[str]) -> list[str]:
-    """``<joint>/<field>`` for every joint and each of ``fields``."""
-    fields = list(fields)
-    return [interface_name(j, f) for j in joints for f in fields]
+class PlansMotion:
+    """For controllers that plan motion: they claim each of their joints' command interfaces, and a joint without
+    acceleration and jerk limits cannot be planned for (unknown joints are reported elsewhere)."""
+
+    KIND: ClassVar[str]  # the controller type, as problems name it
+
+    @classmethod
+    def claims_for(cls, params: Params) -> list[str]:
+        planned = cast(_PlannedParams, params)
+        return [interface_name(j, f) for j in planned.joints for f in planned.command_interfaces]
+
+    @classmethod
+    def robot_problems(cls, params: Params, limits: Mapping[str, JointLimits]) -> list[str]:
+        return [
+            f"{cls.KIND} needs limits.acceleration and limits.jerk for joint {j} to plan its motion"
+            for j in cast(_PlannedParams, params).joints
+            if j in limits and (limits[j].acceleration is None or limits[j].jerk is None)
+        ]
 
 
-def missing_planning_limits(kind: str, joints: Sequence[str], limits: Mapping[str, JointLimits]) -> list[str]:
-    """One problem per joint without the acceleration and jerk limits a planner needs (unknown joints are
-    reported elsewhere)."""
-    return [
-        f"{kind} needs limits.acceleration and limits.jerk for joint {j} to plan its motion"
-        for j in joints
-        if j in limits and (limits[j].acceleration is None or limits[j].jerk is None)
-    ]
+class _PlannedParams(Protocol):
+    joints: list[str]
+    command_interfaces: list[str]
 
 
 def first_taken_over(modes: np.ndarray | None, index: np.ndarray, scratch: np.ndarray) -> int:

@@ -29,10 +29,9 @@ from ruckig import ControlInterface, InputParameter, OutputParameter, Result, Ru
 
 from hild.api.codec import and_more, unknown_keys
 from hild.arrays import JointState, ServoCommand
-from hild.config.model import JointLimits
 from hild.config.params import Field, Params, model_validator
 from hild.controller import Controller, ControllerContext
-from hild.controllers.motion_common import first_taken_over, interface_claims, missing_planning_limits
+from hild.controllers.motion_common import PlansMotion, first_taken_over
 from hild.crossing.mailboxes import LatestNumbers
 
 # Plan a hair inside the limits, so rounding in ruckig's profiles never trips the supervisor's velocity, slew
@@ -190,8 +189,9 @@ def speed_to_stop_within(distance: float, acceleration: float, jerk: float) -> f
     return -ratio + math.sqrt(ratio * ratio + 2.0 * distance * acceleration)
 
 
-class ServoController(Controller):
+class ServoController(PlansMotion, Controller):
     Params = ServoParams
+    KIND = "servo"
 
     def __init__(self, context: ControllerContext, params: ServoParams) -> None:
         super().__init__(context, params)
@@ -234,16 +234,6 @@ class ServoController(Controller):
         self.phase = Phase.HOLD
         self._last_target = -math.inf
         self._last_clamp = -math.inf
-
-    @classmethod
-    def claims_for(cls, params: Params) -> list[str]:
-        assert isinstance(params, ServoParams)
-        return interface_claims(params.joints, params.command_interfaces)
-
-    @classmethod
-    def robot_problems(cls, params: Params, limits: Mapping[str, JointLimits]) -> list[str]:
-        assert isinstance(params, ServoParams)
-        return missing_planning_limits("servo", params.joints, limits)
 
     def on_configure(self) -> None:
         inp = self._inp
@@ -376,18 +366,18 @@ class ServoController(Controller):
             self._last_clamp = t
 
     def _cruise(self) -> None:
-        inp = self._inp
-        inp.control_interface = ControlInterface.Velocity
-        inp.synchronization = Synchronization.No
-        inp.target_velocity = self._cruise_velocity
-        self.phase = Phase.CRUISE
+        self._to_velocity(self._cruise_velocity, Phase.CRUISE)
 
     def _stop(self) -> None:
+        self._to_velocity(self._zeros, Phase.STOP)
+
+    def _to_velocity(self, velocity: list[float], phase: Phase) -> None:
+        """Reach ``velocity`` jerk-limited, each joint on its own (no position target while streaming stops)."""
         inp = self._inp
         inp.control_interface = ControlInterface.Velocity
         inp.synchronization = Synchronization.No
-        inp.target_velocity = self._zeros
-        self.phase = Phase.STOP
+        inp.target_velocity = velocity
+        self.phase = phase
 
     def _hold_at(self, position: list[float]) -> None:
         inp = self._inp
