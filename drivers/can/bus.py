@@ -130,15 +130,16 @@ def rtr_bits(*, extended: bool = False) -> float:
 class CanLink:
     """One open bus plus its error bookkeeping. Cycle methods (``send``, ``poll``, ``end_cycle``) never block.
 
-    ``pump``: an optional callable run while a lifecycle hook waits for replies. In-process emulators (tests,
-    benchmarks) service their motors from it; on real hardware it stays None and the wait is a short ``recv``.
+    ``serve_while_waiting``: an optional callable run while a lifecycle hook waits for replies. In-process
+    emulators (tests, benchmarks) service their motors from it; on real hardware it stays None and the wait is a
+    short ``recv``.
     """
 
     def __init__(self, spec: BusSpec, send_failure_cycles: int = 3) -> None:
         self.spec = spec
         self.send_failure_cycles = send_failure_cycles
         self.bus: can.BusABC | None = None
-        self.pump: Callable[[], None] | None = None
+        self.serve_while_waiting: Callable[[], None] | None = None
         self.problem: str | None = None  # latched until clear()
         self.frames_sent = 0
         self.frames_received = 0
@@ -313,8 +314,8 @@ class CanLink:
         """Feed received frames to ``handle`` until ``done()`` or ``timeout`` seconds pass; True when done."""
         deadline = time.monotonic() + timeout
         while not done():
-            if self.pump is not None:
-                self.pump()
+            if self.serve_while_waiting is not None:
+                self.serve_while_waiting()
             msg = self.poll()
             if msg is not None:
                 handle(msg)
@@ -322,7 +323,7 @@ class CanLink:
             remaining = deadline - time.monotonic()
             if remaining <= 0.0:
                 return done()
-            if self.pump is None and self.bus is not None:
+            if self.serve_while_waiting is None and self.bus is not None:
                 try:
                     msg = self.bus.recv(timeout=min(remaining, 0.005))
                 except (can.CanError, OSError, ValueError) as exc:

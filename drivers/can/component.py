@@ -68,13 +68,13 @@ class CanComponent(HardwareComponent):
         self._frame_budget = 8 * drives + 64  # frames drained per read at most; the rest waits for the next cycle
 
     @property
-    def pump(self) -> Callable[[], None] | None:
+    def serve_while_waiting(self) -> Callable[[], None] | None:
         """Called while lifecycle hooks wait for replies: in-process emulators service their drives from it."""
-        return self.link.pump
+        return self.link.serve_while_waiting
 
-    @pump.setter
-    def pump(self, fn: Callable[[], None] | None) -> None:
-        self.link.pump = fn
+    @serve_while_waiting.setter
+    def serve_while_waiting(self, fn: Callable[[], None] | None) -> None:
+        self.link.serve_while_waiting = fn
 
     @classmethod
     def holds_at_stop(cls, params: Params) -> bool:

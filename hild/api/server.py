@@ -189,7 +189,7 @@ class ApiServer:
 
     # ---- publishing (asyncio thread) ----------------------------------------------------------------------------
     def publish(self, events: list[Event]) -> None:
-        """The doorbell rang: publish events, new output samples, and status if anything changed. Between ``open``
+        """The cycle woke us: publish events, new output samples, and status if anything changed. Between ``open``
         and ``start`` nothing is declared yet: the daemon logs the events, none are published."""
         if self.session is None or self._closing or self._ports is None:
             return

@@ -28,8 +28,8 @@ log = logging.getLogger("hild.api")
 
 # s: how long a read-only reply is reused while the engine has not changed. change_seq covers modes, faults,
 # limits, controllers and hardware, so what ages is only the stamp and the loop counters: a polled status is as
-# fresh as the one published every 0.2 s on hild/<robot>/status. A rebuild holds the GIL ~70 µs (six joints); at
-# 2 x 200 Hz polling, rebuilding every 20 ms was what polling still cost the cycle (docs/performance.md).
+# fresh as the one published every 0.2 s on hild/<robot>/status. A rebuild holds the GIL; at 2 x 200
+# Hz polling, rebuilding every 20 ms was what polling still cost the cycle (docs/performance.md has the figures).
 READ_MAX_AGE = 0.2
 EMPTY_REQUESTS = frozenset({b"", b"{}"})
 DEFAULT_TIMEOUT = 1.0  # s; below the client's default 2 s so the client sees our error, not its own timeout
@@ -175,7 +175,7 @@ class Services:
 
         A request without fields is answered from a reply at most ``READ_MAX_AGE`` old built since the engine's
         last change (``change_seq``: modes, faults, controllers): a client that switches and then asks sees the
-        switch, and a 10 kHz poll costs five builds a second (~70 µs each for six joints), not ten thousand."""
+        switch, and a 10 kHz poll costs five builds a second, not ten thousand."""
         empty = raw.strip() in EMPTY_REQUESTS
         change, now = self.engine.change_seq, time.monotonic()
         if empty:

@@ -46,7 +46,7 @@ class PolynomialSegment:
     """``p(τ) = Σ_k c_k τ^k`` per joint, ``k = 0..5``, ``τ`` in seconds from the segment's start.
 
     Position, velocity and acceleration coefficients are stacked into one (3J, 6) matrix at construction, so a
-    sample is one small matrix-vector product plus three copies (about 2 µs for six joints).
+    sample is one small matrix-vector product plus three copies.
     """
 
     def __init__(self, coefficients: np.ndarray, duration: float) -> None:

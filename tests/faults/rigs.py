@@ -3,7 +3,8 @@
 * :class:`CanRig` — a robot of emulated CAN drives (any MIT flavour, or ODrive) on a private python-can ``virtual``
   channel. A cycle is ``engine.step`` (read → supervise → controllers → write) then ``emulator.service`` at the
   cycle's end time, so a drive answers the command of cycle k before cycle k+1 reads: one cycle of transport, as
-  on a real bus. Lifecycle hooks that wait for replies service the emulator through the driver's ``pump``.
+  on a real bus. Lifecycle hooks that wait for replies service the emulator through the driver's
+  ``serve_while_waiting``.
 * :class:`TwinRig` — a shipped MuJoCo twin config on the sim clock.
 * :class:`ApiRig` — a twin rig with the daemon's Zenoh API on its own asyncio thread, reached by real clients over
   loopback. Only the API runs on its own; the cycles are still stepped here, one at a time.
@@ -233,7 +234,7 @@ class CanRig(Lockstep):
         try:
             engine = Engine(loaded)
             self.driver: Any = engine.hardware[0].component
-            self.driver.pump = self.pump
+            self.driver.serve_while_waiting = self.serve_while_waiting
             engine.start()
         except BaseException:
             self.bus.shutdown()
@@ -241,7 +242,7 @@ class CanRig(Lockstep):
             raise
         super().__init__(engine)
 
-    def pump(self) -> None:
+    def serve_while_waiting(self) -> None:
         self.now += 1e-4
         self.emulator.service(self.now)
 

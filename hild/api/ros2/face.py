@@ -9,7 +9,7 @@ nothing it sends reaches the cycle unvalidated.
 
 Threads: samples and queries arrive on Zenoh threads. A command is validated there and handed over (as the JSON
 API does when the cycle runs in its own process); a query hops to the asyncio loop, which answers it. ``flush``
-runs on the loop when the doorbell rings.
+runs on the loop when the cycle wakes the client domain.
 """
 
 from __future__ import annotations

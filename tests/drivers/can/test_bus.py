@@ -270,12 +270,12 @@ def test_collect_pumps_until_done_or_timeout() -> None:
     seen: list[int] = []
     ticks = itertools.count()
 
-    def pump() -> None:  # an in-process "device" answering on the third call
+    def serve_while_waiting() -> None:  # an in-process "device" answering on the third call
         if next(ticks) == 2:
             peer.send(can.Message(arbitration_id=0x40, data=b"", is_extended_id=False))
 
     try:
-        link.pump = pump
+        link.serve_while_waiting = serve_while_waiting
         assert link.collect(lambda m: seen.append(m.arbitration_id), lambda: bool(seen), timeout=1.0)
         assert seen == [0x40]
         assert not link.collect(lambda m: None, lambda: False, timeout=0.01)

@@ -58,7 +58,7 @@ class CanRig:
         self.engine = Engine(loaded)
         self.now = 0.0
         for slot in self.engine.hardware:
-            slot.component.pump = lambda: self.runtime.service(self.now)  # type: ignore[attr-defined]
+            slot.component.serve_while_waiting = lambda: self.runtime.service(self.now)  # type: ignore[attr-defined]
 
     def start(self) -> CanRig:
         self.engine.start()

@@ -2,7 +2,7 @@
 
 Each test builds a driver with its own virtual channel and an Emulator on the same channel; a cycle is
 ``write → emulator.service(t + dt) → read``. Lifecycle hooks that wait for replies get the emulator through the
-driver's ``pump``.
+driver's ``serve_while_waiting``.
 """
 
 from __future__ import annotations
@@ -77,11 +77,11 @@ class Rig:
         self.emulator = Emulator(self.emulator_bus, self.firmwares, self.plant)
         self.now = 0.0
         self.t = 0.0
-        self.driver.pump = self.pump
+        self.driver.serve_while_waiting = self.serve_while_waiting
         self.state = JointState.zeros(n)
         self.command = ServoCommand.zeros(n)
 
-    def pump(self) -> None:
+    def serve_while_waiting(self) -> None:
         self.now += 1e-4
         self.emulator.service(self.now)
 
@@ -674,9 +674,9 @@ class TwoBusRobot:
         ]
         self.now = 0.0
         for slot in self.engine.hardware:
-            slot.component.pump = self.pump  # type: ignore[attr-defined]
+            slot.component.serve_while_waiting = self.serve_while_waiting  # type: ignore[attr-defined]
 
-    def pump(self) -> None:
+    def serve_while_waiting(self) -> None:
         self.now += 1e-4
         for emulator in self.emulators:
             emulator.service(self.now)

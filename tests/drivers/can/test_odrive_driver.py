@@ -47,11 +47,11 @@ class Rig:
         self.emulator = Emulator(self.bus, self.firmwares, self.plant)
         self.now = 0.0
         self.t = 0.0
-        self.driver.pump = self.pump
+        self.driver.serve_while_waiting = self.serve_while_waiting
         self.state = JointState.zeros(n)
         self.command = ServoCommand.zeros(n)
 
-    def pump(self) -> None:
+    def serve_while_waiting(self) -> None:
         self.now += 5e-4
         self.emulator.service(self.now)
 
