@@ -22,11 +22,11 @@ from drivers.can.params import MitCanParams
 from drivers.can.protocol import damiao_registers as reg
 from drivers.can.protocol.mit import MitRanges, quantize
 from drivers.can.protocol.models import MODELS
-from hild.arrays import JointState, ServoCommand
 from hild.config import load_config
 from hild.engine import Engine
 from hild.hardware import HardwareContext, HardwareError
 from tests.conftest import joint
+from tests.drivers.can.lockstep import LockstepRig, rig_factory
 
 DM4310 = MODELS["damiao"]["DM4310"]
 AK80_9 = MODELS["tmotor"]["AK80-9"]
@@ -39,7 +39,7 @@ def p_lsb(r: MitRanges) -> float:
     return 2 * r.p_max / 65535
 
 
-class Rig:
+class Rig(LockstepRig):
     """One mit_can driver and its emulated motors on a private virtual channel, stepped in lockstep."""
 
     def __init__(
@@ -51,17 +51,7 @@ class Rig:
         positions: list[float] | None = None,
         **params: Any,
     ) -> None:
-        self.channel = f"mit-{uuid.uuid4().hex[:10]}"
-        self.events: list[tuple[str, str]] = []
-        joints = tuple(firmwares)
-        context = HardwareContext(
-            name="arm",
-            joints=joints,
-            config_dir=Path("."),
-            update_rate=RATE,
-            clock_source="sim",
-            emit_event=lambda level, msg: self.events.append((level, msg)),
-        )
+        super().__init__("mit", tuple(firmwares), RATE, wait_step=1e-4)
         raw = {
             "bus": {"interface": "virtual", "channel": self.channel},
             "flavour": flavour,
@@ -69,66 +59,18 @@ class Rig:
             "reply_timeout_ms": 50,
             **params,
         }
-        self.driver = MitCanDriver(context, MitCanParams.model_validate(raw))
-        self.firmwares = list(firmwares.values())
-        n = len(joints)
-        self.plant = MotorPlant(n, inertia=0.05, damping=0.05, positions=positions or [0.0] * n)
-        self.emulator_bus = can.Bus(interface="virtual", channel=self.channel)
-        self.emulator = Emulator(self.emulator_bus, self.firmwares, self.plant)
-        self.now = 0.0
-        self.t = 0.0
-        self.driver.serve_while_waiting = self.serve_while_waiting
-        self.state = JointState.zeros(n)
-        self.command = ServoCommand.zeros(n)
-
-    def serve_while_waiting(self) -> None:
-        self.now += 1e-4
-        self.emulator.service(self.now)
-
-    def start(self) -> None:
-        self.driver.on_configure()
-        self.driver.read(0.0, DT, self.state)
-        self.driver.on_activate()
+        n = len(firmwares)
+        self.attach(
+            MitCanDriver(self.context("arm"), MitCanParams.model_validate(raw)),
+            list(firmwares.values()),
+            MotorPlant(n, inertia=0.05, damping=0.05, positions=positions or [0.0] * n),
+        )
 
     def hold(self, kp: float = 20.0, kd: float = 1.0) -> None:
-        """Command every motor to hold its measured position."""
-        self.command.position[:] = self.state.position
-        self.command.velocity[:] = 0.0
-        self.command.effort[:] = 0.0
-        self.command.kp[:] = kp
-        self.command.kd[:] = kd
-
-    def cycle(self, count: int = 1) -> None:
-        for _ in range(count):
-            self.driver.write(self.t, DT, self.command)
-            self.now += DT
-            self.t += DT
-            self.emulator.service(self.now)
-            self.driver.read(self.t, DT, self.state)
-
-    def inject(self, msg: can.Message) -> None:
-        """A frame from somewhere else on the bus."""
-        self.emulator_bus.send(msg)
-
-    def close(self) -> None:
-        self.driver.on_deactivate()
-        self.driver.on_cleanup()
-        self.emulator_bus.shutdown()
+        super().hold(kp, kd)
 
 
-@pytest.fixture
-def rigs() -> Any:
-    made: list[Rig] = []
-
-    def make(*args: Any, **kwargs: Any) -> Rig:
-        rig = Rig(*args, **kwargs)
-        made.append(rig)
-        return rig
-
-    yield make
-    for rig in made:
-        rig.driver.on_cleanup()
-        rig.emulator_bus.shutdown()
+rigs = rig_factory(Rig)
 
 
 def damiao_rig(rigs: Any, n: int = 2, **params: Any) -> Rig:

@@ -4,90 +4,49 @@ from __future__ import annotations
 
 import math
 import struct
-import uuid
-from pathlib import Path
 from typing import Any
 
 import can
 import numpy as np
 import pytest
 
-from drivers.can.emulator import Emulator, MotorPlant, ODriveFirmware
+from drivers.can.emulator import MotorPlant, ODriveFirmware
 from drivers.can.odrive_driver import FAULT_NOT_CLOSED_LOOP, ODriveCanDriver
 from drivers.can.params import ODriveCanParams
 from drivers.can.protocol import odrive as od
 from drivers.can.protocol.odrive import AxisState, ControlMode, ODriveError
-from hild.arrays import JointState, ServoCommand
-from hild.hardware import HardwareContext, HardwareError
+from hild.hardware import HardwareError
+from tests.drivers.can.lockstep import LockstepRig, rig_factory
 
 RATE = 500.0
 DT = 1.0 / RATE
 TAU = 2.0 * math.pi
 
 
-class Rig:
+class Rig(LockstepRig):
+    """One odrive_can driver and its emulated axes on a private virtual channel, stepped in lockstep."""
+
     def __init__(self, nodes: dict[str, int], *, positions: list[float] | None = None, **params: Any) -> None:
-        channel = f"odrive-{uuid.uuid4().hex[:10]}"
-        self.events: list[tuple[str, str]] = []
-        context = HardwareContext(
-            "legs", tuple(nodes), Path("."), RATE, "sim", lambda level, msg: self.events.append((level, msg))
-        )
+        super().__init__("odrive", tuple(nodes), RATE, wait_step=5e-4)
         raw = {
-            "bus": {"interface": "virtual", "channel": channel},
+            "bus": {"interface": "virtual", "channel": self.channel},
             "axes": {joint: {"node_id": node} for joint, node in nodes.items()},
             "reply_timeout_ms": 50,
             **params,
         }
-        self.driver = ODriveCanDriver(context, ODriveCanParams.model_validate(raw))
         encoder_period = raw.get("encoder_rate_ms", 0.0) / 1000.0
-        self.firmwares = [ODriveFirmware(node, encoder_period=encoder_period) for node in nodes.values()]
         n = len(nodes)
-        self.plant = MotorPlant(n, inertia=0.01, damping=0.01, positions=positions or [0.0] * n)
-        self.bus = can.Bus(interface="virtual", channel=channel)
-        self.emulator = Emulator(self.bus, self.firmwares, self.plant)
-        self.now = 0.0
-        self.t = 0.0
-        self.driver.serve_while_waiting = self.serve_while_waiting
-        self.state = JointState.zeros(n)
-        self.command = ServoCommand.zeros(n)
+        self.attach(
+            ODriveCanDriver(self.context("legs"), ODriveCanParams.model_validate(raw)),
+            [ODriveFirmware(node, encoder_period=encoder_period) for node in nodes.values()],
+            MotorPlant(n, inertia=0.01, damping=0.01, positions=positions or [0.0] * n),
+        )
 
-    def serve_while_waiting(self) -> None:
-        self.now += 5e-4
-        self.emulator.service(self.now)
-
-    def start(self) -> None:
-        self.driver.on_configure()
-        self.driver.read(0.0, DT, self.state)
-        self.driver.on_activate()
-
-    def hold(self) -> None:
-        self.command.position[:] = self.state.position
-        self.command.velocity[:] = 0.0
-        self.command.effort[:] = 0.0
-        self.command.kp[:] = 50.0
-        self.command.kd[:] = 1.0
-
-    def cycle(self, count: int = 1) -> None:
-        for _ in range(count):
-            self.driver.write(self.t, DT, self.command)
-            self.now += DT
-            self.t += DT
-            self.emulator.service(self.now)
-            self.driver.read(self.t, DT, self.state)
+    def hold(self, kp: float = 50.0, kd: float = 1.0) -> None:
+        super().hold(kp, kd)
 
 
-@pytest.fixture
-def rigs() -> Any:
-    made: list[Rig] = []
-
-    def make(*args: Any, **kwargs: Any) -> Rig:
-        made.append(Rig(*args, **kwargs))
-        return made[-1]
-
-    yield make
-    for rig in made:
-        rig.driver.on_cleanup()
-        rig.bus.shutdown()
+rigs = rig_factory(Rig)
 
 
 def test_configure_reads_where_each_axis_is_without_arming(rigs: Any) -> None:
