@@ -189,9 +189,10 @@ class RosFace:
             self._token(SUBSCRIPTION, name, FLOAT64_ARRAY)
 
     def _declare_description(self) -> None:
-        """``/robot_description``, kept for late joiners (a latched writer)."""
-        model = self.engine.loaded.config.robot.model
-        if model is None or not model.lower().endswith(".urdf"):
+        """``/robot_description``, kept for late joiners (a latched writer): the URDF ``ros2.robot_description``
+        names, else ``robot.model`` when that is a URDF (an MJCF twin names a URDF of the same arm for ROS)."""
+        model = self.settings.robot_description or self.engine.loaded.config.robot.model
+        if model is None or (self.settings.robot_description is None and not model.lower().endswith(".urdf")):
             return
         path = Path(model)
         if not path.is_absolute():
