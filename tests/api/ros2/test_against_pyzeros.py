@@ -283,9 +283,12 @@ def test_pyzeros_subscribes_lists_and_switches(ros_daemon: Daemon, peer: zenoh.S
 
 
 async def _goal_session(
-    target: list[float], controller: str = "traj", joints: tuple[str, ...] = ("a", "b", "c")
+    target: list[float],
+    controller: str = "traj",
+    joints: tuple[str, ...] = ("a", "b", "c"),
+    action: str = "follow_joint_trajectory",
 ) -> dict[str, Any]:
-    base = f"/{controller}/follow_joint_trajectory/_action"
+    base = f"/{controller}/{action}/_action"
     switching = pyzeros.Client(SwitchController, "/controller_manager/switch_controller")
     send_goal = pyzeros.Client(SendGoal, f"{base}/send_goal")
     get_result = pyzeros.Client(GetResult, f"{base}/get_result")
