@@ -223,6 +223,16 @@ class TrajectoryAction:
             if goal is not None:
                 self._feedback.put(types.encode(self._feedback_message(goal, message), f"{ACTION}_FeedbackMessage"))
 
+    def close(self) -> None:
+        """The controller was unloaded: goals still running end CANCELED (as JTC's do when it is deactivated), so
+        a waiting ``get_result`` answers, and the status says so before the endpoints go."""
+        ending = [g for g in self._goals.values() if not g.done.is_set()]
+        for goal in ending:
+            goal.status, goal.error_string = CANCELED, "the controller was unloaded"
+            goal.done.set()
+        if ending:
+            self._publish_status()
+
     def _feedback_message(self, goal: Goal, message: dict[str, Any]) -> Any:
         header = m("std_msgs/msg/Header", stamp=_time(time.time_ns()), frame_id="")
         feedback = m(

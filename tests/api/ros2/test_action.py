@@ -58,14 +58,14 @@ def uuid_msg(raw: bytes) -> Any:
     return m("unique_identifier_msgs/msg/UUID", uuid=np.frombuffer(raw, dtype=np.uint8).copy())
 
 
-def send(peer: zenoh.Session, raw_id: bytes, body: Any) -> bool:
-    reply = call(peer, f"{BASE}/send_goal", SEND, request(SEND, goal_id=uuid_msg(raw_id), goal=body))
+def send(peer: zenoh.Session, raw_id: bytes, body: Any, base: str = BASE) -> bool:
+    reply = call(peer, f"{base}/send_goal", SEND, request(SEND, goal_id=uuid_msg(raw_id), goal=body))
     assert reply.ok is not None
     return bool(types.decode(reply.ok.payload.to_bytes(), f"{SEND}_Response").accepted)
 
 
-def result(peer: zenoh.Session, raw_id: bytes) -> Any:
-    reply = call(peer, f"{BASE}/get_result", RESULT, request(RESULT, goal_id=uuid_msg(raw_id)))
+def result(peer: zenoh.Session, raw_id: bytes, base: str = BASE) -> Any:
+    reply = call(peer, f"{base}/get_result", RESULT, request(RESULT, goal_id=uuid_msg(raw_id)))
     assert reply.ok is not None
     return types.decode(reply.ok.payload.to_bytes(), f"{RESULT}_Response")
 

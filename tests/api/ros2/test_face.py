@@ -83,11 +83,11 @@ def test_list_controllers_answers_with_the_controllers_and_echoes_the_attachment
     assert (meta.sequence, meta.gid) == (41, CLIENT_GID)
 
 
-def switch(peer: zenoh.Session, activate: list[str], strictness: int = 2) -> bool:
+def switch(peer: zenoh.Session, activate: list[str], strictness: int = 2, deactivate: tuple[str, ...] = ()) -> bool:
     payload = request(
         SWITCH,
         activate_controllers=activate,
-        deactivate_controllers=[],
+        deactivate_controllers=list(deactivate),
         strictness=strictness,
         activate_asap=False,
         timeout=types.message("builtin_interfaces/msg/Duration", sec=0, nanosec=0),
