@@ -21,6 +21,7 @@ import numpy as np
 
 from hild.action import ActionServer
 from hild.api.ros2 import types
+from hild.api.ros2.trajectory import trajectory_body
 
 if TYPE_CHECKING:
     from hild.api.ros2.face import RosFace, Writer
@@ -55,30 +56,14 @@ def _seconds(duration: Any) -> float:
     return float(duration.sec) + float(duration.nanosec) * 1e-9
 
 
-def trajectory_body(trajectory: Any) -> dict[str, Any]:
-    """A trajectory_msgs/JointTrajectory as the ``trajectory`` of hild's JSON goal body (the header's stamp is not
-    used: a trajectory starts when the cycle adopts it)."""
-    points = []
-    for p in trajectory.points:
-        point: dict[str, Any] = {
-            "positions": np.asarray(p.positions, dtype=float).tolist(),
-            "time_from_start": {"sec": int(p.time_from_start.sec), "nanosec": int(p.time_from_start.nanosec)},
-        }
-        for key, values in (("velocities", p.velocities), ("accelerations", p.accelerations), ("effort", p.effort)):
-            if len(values):
-                point[key] = np.asarray(values, dtype=float).tolist()
-        points.append(point)
-    return {"joint_names": list(trajectory.joint_names), "points": points}
-
-
-def goal_body(goal: Any) -> dict[str, Any]:
+def goal_body(goal: Any, now_ns: int) -> dict[str, Any]:
     """A FollowJointTrajectory goal as hild's JSON goal body; ValueError for what hild does not do."""
     multi = goal.multi_dof_trajectory
     if len(multi.joint_names) or len(multi.points):
         raise ValueError("multi-DOF trajectories are not supported")
     if len(goal.component_path_tolerance) or len(goal.component_goal_tolerance):
         raise ValueError("component tolerances (multi-DOF joints) are not supported")
-    body: dict[str, Any] = {"trajectory": trajectory_body(goal.trajectory)}
+    body: dict[str, Any] = {"trajectory": trajectory_body(goal.trajectory, now_ns)}
     for key in ("path_tolerance", "goal_tolerance"):
         entries = getattr(goal, key)
         if len(entries):
@@ -141,7 +126,8 @@ class TrajectoryAction:
     # ---- the joint_trajectory topic (asyncio thread) -------------------------------------------------------
     async def _on_trajectory(self, trajectory: Any) -> None:
         """JTC's topic: a goal without an action (no result, no feedback); refused ones are dropped commands."""
-        reply = await asyncio.to_thread(self.server.submit, {"trajectory": trajectory_body(trajectory)})
+        body = {"trajectory": trajectory_body(trajectory, time.time_ns())}
+        reply = await asyncio.to_thread(self.server.submit, body)
         if not reply.get("ok"):
             raise ValueError(str(reply.get("error")))
 
@@ -152,7 +138,7 @@ class TrajectoryAction:
         try:
             if uuid in self._goals:
                 raise ValueError("a goal with this id was already sent")
-            body = goal_body(request.goal)
+            body = goal_body(request.goal, now)
         except ValueError as exc:
             reply = {"ok": False, "error": str(exc)}
         else:  # parsing and planning off the loop, as the JSON goal endpoint does
