@@ -12,7 +12,6 @@ publishes each one). Statuses and error codes are ROS's: hild's come from Follow
 from __future__ import annotations
 
 import asyncio
-import time
 from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -21,6 +20,7 @@ import numpy as np
 
 from hild.action import ActionServer
 from hild.api.ros2 import types
+from hild.api.ros2.clock import ros_time
 from hild.api.ros2.trajectory import trajectory_body
 
 if TYPE_CHECKING:
@@ -75,10 +75,6 @@ def goal_body(goal: Any, now_ns: int) -> dict[str, Any]:
     return body
 
 
-def _time(ns: int) -> Any:
-    return m("builtin_interfaces/msg/Time", sec=ns // 10**9, nanosec=ns % 10**9)
-
-
 def _uuid(raw: bytes) -> Any:
     return m("unique_identifier_msgs/msg/UUID", uuid=np.frombuffer(raw, dtype=np.uint8).copy())
 
@@ -126,7 +122,7 @@ class TrajectoryAction:
     # ---- the joint_trajectory topic (asyncio thread) -------------------------------------------------------
     async def _on_trajectory(self, trajectory: Any) -> None:
         """JTC's topic: a goal without an action (no result, no feedback); refused ones are dropped commands."""
-        body = {"trajectory": trajectory_body(trajectory, time.time_ns())}
+        body = {"trajectory": trajectory_body(trajectory, self.face.now_ns())}
         reply = await asyncio.to_thread(self.server.submit, body)
         if not reply.get("ok"):
             raise ValueError(str(reply.get("error")))
@@ -134,7 +130,7 @@ class TrajectoryAction:
     # ---- services (asyncio thread) -------------------------------------------------------------------------
     async def _send_goal(self, request: Any) -> Any:
         uuid = bytes(np.asarray(request.goal_id.uuid, dtype=np.uint8))
-        now = time.time_ns()
+        now = self.face.now_ns()
         try:
             if uuid in self._goals:
                 raise ValueError("a goal with this id was already sent")
@@ -149,7 +145,7 @@ class TrajectoryAction:
             self._publish_status()
         else:
             self.face.refused(f"{self.name} send_goal", str(reply.get("error")))
-        return m(f"{ACTION}_SendGoal_Response", accepted=bool(reply.get("ok")), stamp=_time(now))
+        return m(f"{ACTION}_SendGoal_Response", accepted=bool(reply.get("ok")), stamp=ros_time(now))
 
     async def _get_result(self, request: Any) -> Any:
         """ROS's get_result answers when the goal has ended; an unknown id at once, with status UNKNOWN."""
@@ -183,7 +179,7 @@ class TrajectoryAction:
             code = CANCEL_TERMINATED
         else:
             code = CANCEL_REJECTED
-        infos = [m("action_msgs/msg/GoalInfo", goal_id=_uuid(g.uuid), stamp=_time(g.stamp_ns)) for g in canceling]
+        infos = [m("action_msgs/msg/GoalInfo", goal_id=_uuid(g.uuid), stamp=ros_time(g.stamp_ns)) for g in canceling]
         return m(f"{CANCEL_GOAL}_Response", return_code=code, goals_canceling=infos)
 
     # ---- out (asyncio thread) ------------------------------------------------------------------------------
@@ -220,7 +216,7 @@ class TrajectoryAction:
             self._publish_status()
 
     def _feedback_message(self, goal: Goal, message: dict[str, Any]) -> Any:
-        header = m("std_msgs/msg/Header", stamp=_time(time.time_ns()), frame_id="")
+        header = m("std_msgs/msg/Header", stamp=ros_time(self.face.now_ns()), frame_id="")
         feedback = m(
             f"{ACTION}_Feedback",
             header=header,
@@ -239,7 +235,7 @@ class TrajectoryAction:
         statuses = [
             m(
                 "action_msgs/msg/GoalStatus",
-                goal_info=m("action_msgs/msg/GoalInfo", goal_id=_uuid(g.uuid), stamp=_time(g.stamp_ns)),
+                goal_info=m("action_msgs/msg/GoalInfo", goal_id=_uuid(g.uuid), stamp=ros_time(g.stamp_ns)),
                 status=g.status,
             )
             for g in self._goals.values()

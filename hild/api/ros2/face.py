@@ -35,6 +35,7 @@ from hild.api.ports import DropReporter
 from hild.api.queries import clip, drop
 from hild.api.ros2 import types
 from hild.api.ros2.action import TrajectoryAction
+from hild.api.ros2.clock import CLOCK, CLOCK_TOPIC, RosClock, ros_time
 from hild.api.ros2.manager import ControllerManager
 from hild.api.ros2.wire import (
     DEFAULT_QOS,
@@ -129,6 +130,7 @@ class RosFace:
     _controllers: dict[str, Declared] = field(default_factory=dict)
     _tasks: set[asyncio.Task[None]] = field(default_factory=set)
     _drops: DropReporter | None = None
+    _clock: RosClock | None = None
     closing: bool = False
 
     # ---- declaration --------------------------------------------------------------------------------------------
@@ -138,6 +140,8 @@ class RosFace:
         zid = str(self.session.info.zid())
         self._node = NodeInfo(self.settings.domain_id, zid, self.settings.namespace, self.settings.node)
         self._tokens.append(self.session.liveliness().declare_token(self._node.node_token()))
+        sim = self.engine.loaded.config.clock.source == "sim"
+        self._clock = RosClock(self.engine, self.writer(CLOCK_TOPIC, CLOCK) if sim else None)
         self._sync(self._loaded_controllers())
         self._declare_description()
         ControllerManager(self, self.services, self.settings.node)  # ros2_control's services live under its node
@@ -188,6 +192,11 @@ class RosFace:
             yield
         finally:
             self._tokens, self._entities = saved
+
+    def now_ns(self) -> int:
+        """ROS time: the wall clock, or the sim clock when the cycle runs on it (``hild.api.ros2.clock``)."""
+        assert self._clock is not None
+        return self._clock.now_ns()
 
     def name(self, relative: str) -> str:
         return qualify(self.settings.namespace, relative)
@@ -282,18 +291,18 @@ class RosFace:
 
     # ---- out (asyncio thread) -----------------------------------------------------------------------------------
     def flush(self) -> None:
-        """Publish every joint-state sample the broadcaster wrote since the last flush, stamped with wall time
-        (ROS peers stamp with their clock; the cycle's own stamp is on hild's JSON topic)."""
+        """``/clock`` on the sim clock, then every joint-state sample the broadcaster wrote since the last flush,
+        stamped in ROS time: the wall clock when published, or the sample's own sim time."""
+        assert self._clock is not None
+        with contextlib.suppress(zenoh.ZError):
+            self._clock.tick()
         declared = list(self._controllers.values())
         for out in (d.joint_states for d in declared if d.joint_states is not None):
-            for _seq, _stamp, fields in out.reader.read():
-                now = time.time_ns()
+            for _seq, stamp, fields in out.reader.read():
                 msg = types.message(
                     JOINT_STATE,
                     header=types.message(
-                        "std_msgs/msg/Header",
-                        stamp=types.message("builtin_interfaces/msg/Time", sec=now // 10**9, nanosec=now % 10**9),
-                        frame_id="",
+                        "std_msgs/msg/Header", stamp=ros_time(self._clock.sample_ns(stamp)), frame_id=""
                     ),
                     name=out.names,
                     position=np.asarray(fields["position"], dtype=np.float64),

@@ -23,6 +23,7 @@ pyzeros = pytest.importorskip("pyzeros", reason="the ros2-verify extra (pyzeros)
 import asyncio_for_robotics as afor  # noqa: E402
 from ros2_pyterfaces.cyclone import idl  # noqa: E402
 from ros2_pyterfaces.cyclone.builtin_interfaces.msg import Duration, Time  # noqa: E402
+from ros2_pyterfaces.cyclone.rosgraph_msgs.msg import Clock  # noqa: E402
 from ros2_pyterfaces.cyclone.sensor_msgs.msg import JointState  # noqa: E402
 from ros2_pyterfaces.cyclone.service_msgs.msg import ServiceEventInfo  # noqa: E402
 from ros2_pyterfaces.cyclone.std_msgs.msg import Header  # noqa: E402
@@ -239,6 +240,7 @@ def test_pyzeros_computes_the_same_service_hashes() -> None:
     assert ListControllers.hash_rihs01() == types.type_hash("controller_manager_msgs/srv/ListControllers")
     assert SwitchController.hash_rihs01() == types.type_hash("controller_manager_msgs/srv/SwitchController")
     assert JointState.hash_rihs01() == types.type_hash("sensor_msgs/msg/JointState")
+    assert Clock.hash_rihs01() == types.type_hash("rosgraph_msgs/msg/Clock")
 
 
 def test_pyzeros_computes_the_same_action_hashes() -> None:
@@ -252,6 +254,8 @@ def test_pyzeros_computes_the_same_action_hashes() -> None:
 
 async def _session(daemon: Daemon) -> dict[str, Any]:
     joint_states = pyzeros.Sub(JointState, "/joint_states")
+    clock = pyzeros.Sub(Clock, "/clock")
+    tick = await asyncio.wait_for(clock.wait_for_value(), WAIT)
     listing = pyzeros.Client(ListControllers, "/controller_manager/list_controllers")
     switching = pyzeros.Client(SwitchController, "/controller_manager/switch_controller")
     state = await asyncio.wait_for(joint_states.wait_for_value(), WAIT)
@@ -264,7 +268,7 @@ async def _session(daemon: Daemon) -> dict[str, Any]:
         switching.call_async(SwitchController_Request(activate_controllers=["nope"], strictness=2)), WAIT
     )
     after = await asyncio.wait_for(listing.call_async(ListControllers_Request()), WAIT)
-    return {"state": state, "before": before, "switched": switched, "refused": refused, "after": after}
+    return {"state": state, "before": before, "switched": switched, "refused": refused, "after": after, "tick": tick}
 
 
 def test_pyzeros_subscribes_lists_and_switches(ros_daemon: Daemon, peer: zenoh.Session) -> None:
@@ -275,6 +279,9 @@ def test_pyzeros_subscribes_lists_and_switches(ros_daemon: Daemon, peer: zenoh.S
     with pyzeros.auto_context(node="pyzeros_probe", zenoh_session=peer, domain_id=0):
         got = asyncio.run(main())
     assert list(got["state"].name) == ["a", "b", "c"]
+    sim_now = ros_daemon.engine.t  # lockstep: ROS time is the sim clock, on /clock and in every stamp
+    for stamp in (got["tick"].clock, got["state"].header.stamp):
+        assert 0.0 < stamp.sec + stamp.nanosec * 1e-9 <= sim_now
     before = {c.name: c.state for c in got["before"].controller}
     assert before == {"jsb": "active", "fwd": "inactive", "fwd_a": "inactive", "traj": "inactive"}
     assert got["switched"].ok is True and got["refused"].ok is False

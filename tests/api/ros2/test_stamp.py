@@ -4,7 +4,6 @@ asks for a delayed start is refused — with accepted = false (or a dropped comm
 
 from __future__ import annotations
 
-import time
 import uuid as uuidlib
 
 import numpy as np
@@ -58,23 +57,30 @@ def test_a_delayed_start_is_refused() -> None:
         body(POINTS, NOW + NS)
 
 
+def sim_now(daemon: Daemon) -> int:
+    """The daemon's ROS time: its lockstep sim clock (what a ``use_sim_time`` node reads on ``/clock``), at least
+    1.5 s in so stamps in the past stay positive."""
+    wait_for(lambda: daemon.engine.t > 1.5, what="1.5 s of sim time")
+    return round(daemon.engine.t * NS)
+
+
 def test_over_ros_a_past_stamp_runs_the_rest_and_bad_stamps_are_refused(
     ros_daemon: Daemon, peer: zenoh.Session
 ) -> None:
     assert switch(peer, ["traj"])
     start = position(ros_daemon)
-    future = goal([point([0.3, 0.0, 0.0], 1.0)], stamp_ns=time.time_ns() + 5 * NS)
+    future = goal([point([0.3, 0.0, 0.0], 1.0)], stamp_ns=sim_now(ros_daemon) + 5 * NS)
     assert not send(peer, uuidlib.uuid4().bytes, future)
     wait_for(lambda: ros_daemon.events_with("in the future: hild does not delay"), what="the refusal's event")
-    ended = goal([point([0.3, 0.0, 0.0], 1.0)], stamp_ns=time.time_ns() - 60 * NS)
+    ended = goal([point([0.3, 0.0, 0.0], 0.5)], stamp_ns=sim_now(ros_daemon) - NS)
     assert not send(peer, uuidlib.uuid4().bytes, ended)
     wait_for(lambda: ros_daemon.events_with("ended before it arrived"), what="the refusal's event")
     np.testing.assert_allclose(position(ros_daemon), start, atol=1e-3)
 
     target = [0.2, 0.1, -0.1]
-    passed = [point([0.9, 0.9, 0.9], 0.5), point(target, 30.5)]  # the first point is 10 s behind the stamp
+    passed = [point([0.9, 0.9, 0.9], 0.5), point(target, 1.5)]  # the first point is 0.5 s behind the stamp
     raw_id = uuidlib.uuid4().bytes
-    assert send(peer, raw_id, goal(passed, stamp_ns=time.time_ns() - 30 * NS))  # 0.5 s left to the target
+    assert send(peer, raw_id, goal(passed, stamp_ns=sim_now(ros_daemon) - NS))  # 0.5 s left to the target
     done = result(peer, raw_id)
     assert (done.status, done.result.error_code) == (4, 0)  # SUCCEEDED
     np.testing.assert_allclose(position(ros_daemon), target, atol=0.02)
@@ -85,7 +91,7 @@ def test_the_topic_drops_a_delayed_trajectory_with_an_event(ros_daemon: Daemon, 
     start = position(ros_daemon)
     pub = peer.declare_publisher(wire.data_key(0, "/traj/joint_trajectory", TRAJECTORY))
     wait_for(lambda: pub.matching_status.matching, what="the daemon's subscriber")
-    delayed = goal([point([0.3, 0.0, 0.0], 1.0)], stamp_ns=time.time_ns() + 5 * NS).trajectory
+    delayed = goal([point([0.3, 0.0, 0.0], 1.0)], stamp_ns=sim_now(ros_daemon) + 5 * NS).trajectory
     pub.put(types.encode(delayed, TRAJECTORY), attachment=wire.attachment(1, bytes(16)))
     wait_for(lambda: ros_daemon.events_with("dropped command on /traj/joint_trajectory: the header stamp"))
     np.testing.assert_allclose(position(ros_daemon), start, atol=1e-3)
