@@ -39,9 +39,8 @@ from hild.api.ros2 import types  # noqa: E402
 from hild.config import load_config  # noqa: E402
 from hild.engine import Engine  # noqa: E402
 from tests.api.conftest import WAIT, Daemon  # noqa: E402
-from tests.api.ros2.conftest import peer_config  # noqa: E402
+from tests.api.ros2.conftest import peer_config, running  # noqa: E402
 from tests.conftest import CONFIGS  # noqa: E402
-from tests.helpers import free_endpoint  # noqa: E402
 
 T = idl.types
 
@@ -281,7 +280,7 @@ def test_pyzeros_subscribes_lists_and_switches(ros_daemon: Daemon, peer: zenoh.S
     assert list(got["state"].name) == ["a", "b", "c"]
     sim_now = ros_daemon.engine.t  # lockstep: ROS time is the sim clock, on /clock and in every stamp
     for stamp in (got["tick"].clock, got["state"].header.stamp):
-        assert 0.0 < stamp.sec + stamp.nanosec * 1e-9 <= sim_now
+        assert 0.0 < stamp.sec + stamp.nanosec * 1e-9 <= sim_now + 1e-9  # ns rounding
     before = {c.name: c.state for c in got["before"].controller}
     assert before == {"jsb": "active", "fwd": "inactive", "fwd_a": "inactive", "traj": "inactive"}
     assert got["switched"].ok is True and got["refused"].ok is False
@@ -352,12 +351,8 @@ def twin_daemon(tmp_path: Path) -> Iterator[Daemon]:
     shutil.copy(CONFIGS / "rrbot.urdf", tmp_path / "rrbot.urdf")
     path = tmp_path / "rrbot_twin.yaml"
     path.write_text(yaml.safe_dump(data, sort_keys=False))
-    daemon = Daemon(Engine(load_config(path)), free_endpoint())
-    daemon.start()
-    try:
+    with running(Engine(load_config(path))) as daemon:
         yield daemon
-    finally:
-        daemon.stop()
 
 
 def test_pyzeros_drives_the_twin(twin_daemon: Daemon) -> None:

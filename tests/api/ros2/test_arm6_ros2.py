@@ -16,10 +16,10 @@ from hild.config import load_config
 from hild.config.loader import LoadedConfig
 from hild.engine import Engine
 from tests.api.conftest import Daemon
-from tests.api.ros2.conftest import peer_config, ros_robot_config
+from tests.api.ros2.conftest import peer_config, ros_robot_config, running
 from tests.api.ros2.test_face import Inbox
 from tests.conftest import CONFIGS
-from tests.helpers import free_endpoint, wait_for
+from tests.helpers import wait_for
 
 STRING = "std_msgs/msg/String"
 
@@ -65,12 +65,8 @@ def robot_description(daemon: Daemon) -> str:
 
 @pytest.fixture
 def arm6_daemon() -> Iterator[Daemon]:
-    d = Daemon(Engine(lockstep(load_config(CONFIGS / "arm6_twin_ros2.yaml"))), free_endpoint())
-    d.start()
-    try:
+    with running(Engine(lockstep(load_config(CONFIGS / "arm6_twin_ros2.yaml")))) as d:
         yield d
-    finally:
-        d.stop()
 
 
 def test_the_arm6_daemon_publishes_its_urdf(arm6_daemon: Daemon) -> None:
@@ -83,10 +79,6 @@ def test_a_missing_robot_description_is_an_error_event_not_a_crash(tmp_path: Pat
     config["ros2"]["robot_description"] = "nowhere.urdf"
     path = tmp_path / "robot.yaml"
     path.write_text(yaml.safe_dump(config, sort_keys=False))
-    daemon = Daemon(Engine(load_config(path)), free_endpoint())
-    daemon.start()
-    try:
+    with running(Engine(load_config(path))) as daemon:
         wait_for(lambda: daemon.events_with("/robot_description not offered"), what="the error event")
         assert daemon.events_with("nowhere.urdf")
-    finally:
-        daemon.stop()
