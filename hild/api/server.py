@@ -223,6 +223,8 @@ class ApiServer:
         self._last_change = seq
         assert self._ports is not None
         self._ports.sync()
+        if self._ros is not None:
+            self._ros.sync()
         self._publish_status()
         return True
 

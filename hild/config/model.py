@@ -211,6 +211,11 @@ class Ros2Section(Params):
         pattern=r"^[A-Za-z_][A-Za-z0-9_]*$",
         description="ROS node name; services live under <namespace>/controller_manager as in ros2_control.",
     )
+    robot_description: str | None = Field(
+        default=None,
+        min_length=1,
+        description="URDF published on /robot_description, relative to this file; absent: robot.model if a .urdf.",
+    )
 
 
 class FileSinkSpec(Params):

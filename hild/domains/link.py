@@ -32,6 +32,9 @@ class CycleLink(Protocol):
     @property
     def cycle(self) -> int: ...
 
+    @property
+    def t(self) -> float: ...  # the cycle clock: wall time since start, or the sim clock t = k·dt
+
     def request(self, request: Request) -> concurrent.futures.Future[Any]: ...
 
     def request_estop(self) -> concurrent.futures.Future[Any]: ...

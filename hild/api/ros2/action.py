@@ -12,7 +12,6 @@ publishes each one). Statuses and error codes are ROS's: hild's come from Follow
 from __future__ import annotations
 
 import asyncio
-import time
 from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -21,6 +20,8 @@ import numpy as np
 
 from hild.action import ActionServer
 from hild.api.ros2 import types
+from hild.api.ros2.clock import ros_time
+from hild.api.ros2.trajectory import trajectory_body
 
 if TYPE_CHECKING:
     from hild.api.ros2.face import RosFace, Writer
@@ -55,30 +56,14 @@ def _seconds(duration: Any) -> float:
     return float(duration.sec) + float(duration.nanosec) * 1e-9
 
 
-def trajectory_body(trajectory: Any) -> dict[str, Any]:
-    """A trajectory_msgs/JointTrajectory as the ``trajectory`` of hild's JSON goal body (the header's stamp is not
-    used: a trajectory starts when the cycle adopts it)."""
-    points = []
-    for p in trajectory.points:
-        point: dict[str, Any] = {
-            "positions": np.asarray(p.positions, dtype=float).tolist(),
-            "time_from_start": {"sec": int(p.time_from_start.sec), "nanosec": int(p.time_from_start.nanosec)},
-        }
-        for key, values in (("velocities", p.velocities), ("accelerations", p.accelerations), ("effort", p.effort)):
-            if len(values):
-                point[key] = np.asarray(values, dtype=float).tolist()
-        points.append(point)
-    return {"joint_names": list(trajectory.joint_names), "points": points}
-
-
-def goal_body(goal: Any) -> dict[str, Any]:
+def goal_body(goal: Any, now_ns: int) -> dict[str, Any]:
     """A FollowJointTrajectory goal as hild's JSON goal body; ValueError for what hild does not do."""
     multi = goal.multi_dof_trajectory
     if len(multi.joint_names) or len(multi.points):
         raise ValueError("multi-DOF trajectories are not supported")
     if len(goal.component_path_tolerance) or len(goal.component_goal_tolerance):
         raise ValueError("component tolerances (multi-DOF joints) are not supported")
-    body: dict[str, Any] = {"trajectory": trajectory_body(goal.trajectory)}
+    body: dict[str, Any] = {"trajectory": trajectory_body(goal.trajectory, now_ns)}
     for key in ("path_tolerance", "goal_tolerance"):
         entries = getattr(goal, key)
         if len(entries):
@@ -88,10 +73,6 @@ def goal_body(goal: Any) -> dict[str, Any]:
     if _seconds(goal.goal_time_tolerance) > 0.0:
         body["goal_time_tolerance"] = _seconds(goal.goal_time_tolerance)
     return body
-
-
-def _time(ns: int) -> Any:
-    return m("builtin_interfaces/msg/Time", sec=ns // 10**9, nanosec=ns % 10**9)
 
 
 def _uuid(raw: bytes) -> Any:
@@ -141,18 +122,19 @@ class TrajectoryAction:
     # ---- the joint_trajectory topic (asyncio thread) -------------------------------------------------------
     async def _on_trajectory(self, trajectory: Any) -> None:
         """JTC's topic: a goal without an action (no result, no feedback); refused ones are dropped commands."""
-        reply = await asyncio.to_thread(self.server.submit, {"trajectory": trajectory_body(trajectory)})
+        body = {"trajectory": trajectory_body(trajectory, self.face.now_ns())}
+        reply = await asyncio.to_thread(self.server.submit, body)
         if not reply.get("ok"):
             raise ValueError(str(reply.get("error")))
 
     # ---- services (asyncio thread) -------------------------------------------------------------------------
     async def _send_goal(self, request: Any) -> Any:
         uuid = bytes(np.asarray(request.goal_id.uuid, dtype=np.uint8))
-        now = time.time_ns()
+        now = self.face.now_ns()
         try:
             if uuid in self._goals:
                 raise ValueError("a goal with this id was already sent")
-            body = goal_body(request.goal)
+            body = goal_body(request.goal, now)
         except ValueError as exc:
             reply = {"ok": False, "error": str(exc)}
         else:  # parsing and planning off the loop, as the JSON goal endpoint does
@@ -163,7 +145,7 @@ class TrajectoryAction:
             self._publish_status()
         else:
             self.face.refused(f"{self.name} send_goal", str(reply.get("error")))
-        return m(f"{ACTION}_SendGoal_Response", accepted=bool(reply.get("ok")), stamp=_time(now))
+        return m(f"{ACTION}_SendGoal_Response", accepted=bool(reply.get("ok")), stamp=ros_time(now))
 
     async def _get_result(self, request: Any) -> Any:
         """ROS's get_result answers when the goal has ended; an unknown id at once, with status UNKNOWN."""
@@ -197,7 +179,7 @@ class TrajectoryAction:
             code = CANCEL_TERMINATED
         else:
             code = CANCEL_REJECTED
-        infos = [m("action_msgs/msg/GoalInfo", goal_id=_uuid(g.uuid), stamp=_time(g.stamp_ns)) for g in canceling]
+        infos = [m("action_msgs/msg/GoalInfo", goal_id=_uuid(g.uuid), stamp=ros_time(g.stamp_ns)) for g in canceling]
         return m(f"{CANCEL_GOAL}_Response", return_code=code, goals_canceling=infos)
 
     # ---- out (asyncio thread) ------------------------------------------------------------------------------
@@ -223,8 +205,18 @@ class TrajectoryAction:
             if goal is not None:
                 self._feedback.put(types.encode(self._feedback_message(goal, message), f"{ACTION}_FeedbackMessage"))
 
+    def close(self) -> None:
+        """The controller was unloaded: goals still running end CANCELED (as JTC's do when it is deactivated), so
+        a waiting ``get_result`` answers, and the status says so before the endpoints go."""
+        ending = [g for g in self._goals.values() if not g.done.is_set()]
+        for goal in ending:
+            goal.status, goal.error_string = CANCELED, "the controller was unloaded"
+            goal.done.set()
+        if ending:
+            self._publish_status()
+
     def _feedback_message(self, goal: Goal, message: dict[str, Any]) -> Any:
-        header = m("std_msgs/msg/Header", stamp=_time(time.time_ns()), frame_id="")
+        header = m("std_msgs/msg/Header", stamp=ros_time(self.face.now_ns()), frame_id="")
         feedback = m(
             f"{ACTION}_Feedback",
             header=header,
@@ -243,7 +235,7 @@ class TrajectoryAction:
         statuses = [
             m(
                 "action_msgs/msg/GoalStatus",
-                goal_info=m("action_msgs/msg/GoalInfo", goal_id=_uuid(g.uuid), stamp=_time(g.stamp_ns)),
+                goal_info=m("action_msgs/msg/GoalInfo", goal_id=_uuid(g.uuid), stamp=ros_time(g.stamp_ns)),
                 status=g.status,
             )
             for g in self._goals.values()

@@ -21,7 +21,7 @@ import logging
 import threading
 import time
 import weakref
-from collections.abc import Awaitable, Callable, Coroutine
+from collections.abc import Awaitable, Callable, Coroutine, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -35,6 +35,7 @@ from hild.api.ports import DropReporter
 from hild.api.queries import clip, drop
 from hild.api.ros2 import types
 from hild.api.ros2.action import TrajectoryAction
+from hild.api.ros2.clock import CLOCK, CLOCK_TOPIC, RosClock, ros_time
 from hild.api.ros2.manager import ControllerManager
 from hild.api.ros2.wire import (
     DEFAULT_QOS,
@@ -83,6 +84,23 @@ class JointStatesOut:
     names: list[str]
 
 
+def _undeclare(entities: list[Any]) -> None:
+    for entity in entities:
+        with contextlib.suppress(zenoh.ZError):
+            entity.undeclare()
+
+
+@dataclass
+class Declared:
+    """What one controller put on ROS 2: withdrawn together when it is unloaded."""
+
+    instance: Any
+    tokens: list[Any] = field(default_factory=list)
+    entities: list[Any] = field(default_factory=list)
+    joint_states: JointStatesOut | None = None
+    action: TrajectoryAction | None = None
+
+
 @dataclass
 class Inlet:
     """One subscription whose messages are handled on the loop: one at a time, the newest waiting (a flood
@@ -107,12 +125,12 @@ class RosFace:
     loop: asyncio.AbstractEventLoop
     _node: NodeInfo | None = None
     _next_id: int = 0
-    _tokens: list[Any] = field(default_factory=list)
+    _tokens: list[Any] = field(default_factory=list)  # where declarations go: the node's, or a controller's
     _entities: list[Any] = field(default_factory=list)
-    _joint_states: list[JointStatesOut] = field(default_factory=list)
-    _actions: list[TrajectoryAction] = field(default_factory=list)
+    _controllers: dict[str, Declared] = field(default_factory=dict)
     _tasks: set[asyncio.Task[None]] = field(default_factory=set)
     _drops: DropReporter | None = None
+    _clock: RosClock | None = None
     closing: bool = False
 
     # ---- declaration --------------------------------------------------------------------------------------------
@@ -122,12 +140,13 @@ class RosFace:
         zid = str(self.session.info.zid())
         self._node = NodeInfo(self.settings.domain_id, zid, self.settings.namespace, self.settings.node)
         self._tokens.append(self.session.liveliness().declare_token(self._node.node_token()))
-        for name, instance in self._controllers().items():
-            self._declare_controller(name, instance)
+        sim = self.engine.loaded.config.clock.source == "sim"
+        self._clock = RosClock(self.engine, self.writer(CLOCK_TOPIC, CLOCK) if sim else None)
+        self._sync(self._loaded_controllers())
         self._declare_description()
         ControllerManager(self, self.services, self.settings.node)  # ros2_control's services live under its node
 
-    def _controllers(self) -> dict[str, Any]:
+    def _loaded_controllers(self) -> dict[str, Any]:
         """The loaded controllers; the copy is retried when the records change while it is taken (start-up)."""
         for _ in range(99):
             try:
@@ -135,6 +154,49 @@ class RosFace:
             except RuntimeError:
                 time.sleep(0.001)
         return self.engine.controllers()
+
+    def sync(self) -> None:
+        """Controllers loaded or unloaded since: declare what the new ones offer, withdraw what the gone ones did
+        (asyncio thread; the API calls it when the controllers change, as it syncs its own endpoints)."""
+        try:
+            current = self.engine.controllers()
+        except RuntimeError:  # the records changed while copied; the next change brings us back here
+            return
+        self._sync(current)
+
+    def _sync(self, current: dict[str, Any]) -> None:
+        stale = [n for n, d in self._controllers.items() if current.get(n) is not d.instance]
+        for name in stale:
+            self._withdraw(self._controllers.pop(name))
+        new = [n for n in current if n not in self._controllers]
+        if not new:
+            return
+        kinds = {c["name"]: c["type"] for c in self.engine.snapshot().controllers}
+        for name in new:
+            if name in kinds:  # not yet in the snapshot: the next sync declares it
+                self._controllers[name] = self._declare_controller(name, current[name], kinds[name])
+
+    def _withdraw(self, declared: Declared) -> None:
+        """An unloaded controller's tokens first (ROS graph tools see its endpoints go), then its entities."""
+        if declared.action is not None:
+            declared.action.close()
+        _undeclare([*declared.tokens, *declared.entities])
+
+    @contextlib.contextmanager
+    def _declaring_for(self, declared: Declared) -> Iterator[None]:
+        """Tokens and entities declared inside go to ``declared`` (the writer, service and subscription helpers
+        are shared with the node's own declarations)."""
+        saved = self._tokens, self._entities
+        self._tokens, self._entities = declared.tokens, declared.entities
+        try:
+            yield
+        finally:
+            self._tokens, self._entities = saved
+
+    def now_ns(self) -> int:
+        """ROS time: the wall clock, or the sim clock when the cycle runs on it (``hild.api.ros2.clock``)."""
+        assert self._clock is not None
+        return self._clock.now_ns()
 
     def name(self, relative: str) -> str:
         return qualify(self.settings.namespace, relative)
@@ -164,23 +226,27 @@ class RosFace:
         self._entities.append(publisher)
         return Writer(publisher, self._token(PUBLISHER, name, type_name, LATCHED_QOS if latched else DEFAULT_QOS))
 
-    def _declare_controller(self, controller: str, instance: Any) -> None:
+    def _declare_controller(self, controller: str, instance: Any, kind: str) -> Declared:
+        declared = Declared(instance)
         try:
-            outputs = dict(instance.outputs())
-            inputs = dict(instance.inputs())
-        except Exception as exc:
+            with self._declaring_for(declared):
+                self._declare_endpoints(declared, controller, kind)
+        except Exception as exc:  # a controller that cannot be exposed costs its own endpoints, not the face
             self.engine.events.emit("error", SOURCE, f"controller {controller}: not exposed on ROS 2: {exc}")
-            return
+        return declared
+
+    def _declare_endpoints(self, declared: Declared, controller: str, kind: str) -> None:
+        instance = declared.instance
+        outputs = dict(instance.outputs())
+        inputs = dict(instance.inputs())
         ring = outputs.get("joint_states")
         if ring is not None:
             names = list(getattr(ring, "names", None) or self.engine.joints)
-            self._joint_states.append(
-                JointStatesOut(self.writer(self.name("joint_states"), JOINT_STATE), RingReader(ring), names)
-            )
-        kind = self.engine.loaded.config.controllers[controller].type
+            writer = self.writer(self.name("joint_states"), JOINT_STATE)
+            declared.joint_states = JointStatesOut(writer, RingReader(ring), names)
         server = instance.action_server() if kind == "joint_trajectory" else None
         if server is not None:
-            self._actions.append(TrajectoryAction(self, controller, server))
+            declared.action = TrajectoryAction(self, controller, server)
         accept = inputs.get("commands")
         if accept is not None and kind == "forward_command":
             name = self.name(f"{controller}/commands")
@@ -189,9 +255,10 @@ class RosFace:
             self._token(SUBSCRIPTION, name, FLOAT64_ARRAY)
 
     def _declare_description(self) -> None:
-        """``/robot_description``, kept for late joiners (a latched writer)."""
-        model = self.engine.loaded.config.robot.model
-        if model is None or not model.lower().endswith(".urdf"):
+        """``/robot_description``, kept for late joiners (a latched writer): the URDF ``ros2.robot_description``
+        names, else ``robot.model`` when that is a URDF (an MJCF twin names a URDF of the same arm for ROS)."""
+        model = self.settings.robot_description or self.engine.loaded.config.robot.model
+        if model is None or (self.settings.robot_description is None and not model.lower().endswith(".urdf")):
             return
         path = Path(model)
         if not path.is_absolute():
@@ -215,27 +282,27 @@ class RosFace:
         self.closing = True
         for task in list(self._tasks):
             task.cancel()
-        for entity in [*self._tokens, *self._entities]:
-            with contextlib.suppress(zenoh.ZError):
-                entity.undeclare()
+        declared = list(self._controllers.values())
+        tokens = [*self._tokens, *(t for d in declared for t in d.tokens)]
+        _undeclare([*tokens, *self._entities, *(e for d in declared for e in d.entities)])
         self._tokens.clear()
         self._entities.clear()
-        self._joint_states.clear()
-        self._actions.clear()
+        self._controllers.clear()
 
     # ---- out (asyncio thread) -----------------------------------------------------------------------------------
     def flush(self) -> None:
-        """Publish every joint-state sample the broadcaster wrote since the last flush, stamped with wall time
-        (ROS peers stamp with their clock; the cycle's own stamp is on hild's JSON topic)."""
-        for out in self._joint_states:
-            for _seq, _stamp, fields in out.reader.read():
-                now = time.time_ns()
+        """``/clock`` on the sim clock, then every joint-state sample the broadcaster wrote since the last flush,
+        stamped in ROS time: the wall clock when published, or the sample's own sim time."""
+        assert self._clock is not None
+        with contextlib.suppress(zenoh.ZError):
+            self._clock.tick()
+        declared = list(self._controllers.values())
+        for out in (d.joint_states for d in declared if d.joint_states is not None):
+            for _seq, stamp, fields in out.reader.read():
                 msg = types.message(
                     JOINT_STATE,
                     header=types.message(
-                        "std_msgs/msg/Header",
-                        stamp=types.message("builtin_interfaces/msg/Time", sec=now // 10**9, nanosec=now % 10**9),
-                        frame_id="",
+                        "std_msgs/msg/Header", stamp=ros_time(self._clock.sample_ns(stamp)), frame_id=""
                     ),
                     name=out.names,
                     position=np.asarray(fields["position"], dtype=np.float64),
@@ -244,7 +311,7 @@ class RosFace:
                 )
                 with contextlib.suppress(zenoh.ZError):
                     out.writer.put(types.encode(msg, JOINT_STATE))
-        for action in self._actions:
+        for action in (d.action for d in declared if d.action is not None):
             try:
                 action.flush()
             except Exception:  # a bug costs this flush of one action, not the daemon's publishing

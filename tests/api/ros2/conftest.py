@@ -3,6 +3,7 @@ by hand (hild.api.ros2.wire/types build them; test_against_* check those against
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import tempfile
@@ -45,14 +46,21 @@ def ros_engine(tmp_path: Path) -> Engine:
     return Engine(load_config(path))
 
 
-@pytest.fixture
-def ros_daemon(ros_engine: Engine) -> Iterator[Daemon]:
-    d = Daemon(ros_engine, free_endpoint())
+@contextlib.contextmanager
+def running(engine: Engine) -> Iterator[Daemon]:
+    """``engine`` served by a daemon on a free loopback port, stopped on leaving."""
+    d = Daemon(engine, free_endpoint())
     d.start()
     try:
         yield d
     finally:
         d.stop()
+
+
+@pytest.fixture
+def ros_daemon(ros_engine: Engine) -> Iterator[Daemon]:
+    with running(ros_engine) as d:
+        yield d
 
 
 def peer_config(endpoint: str) -> zenoh.Config:

@@ -39,12 +39,20 @@ def point(positions: list[float], at: float) -> Any:
     )
 
 
-def goal(points: list[Any], joints: tuple[str, ...] = ("a", "b", "c")) -> Any:
-    header = m("std_msgs/msg/Header", stamp=m("builtin_interfaces/msg/Time", sec=0, nanosec=0), frame_id="")
+def stamp(ns: int) -> Any:
+    return m("builtin_interfaces/msg/Time", sec=ns // 10**9, nanosec=ns % 10**9)
+
+
+def goal(points: list[Any], joints: tuple[str, ...] = ("a", "b", "c"), stamp_ns: int = 0) -> Any:
+    """A FollowJointTrajectory goal; ``stamp_ns``: the trajectory's header stamp (0: start now)."""
+    header = m("std_msgs/msg/Header", stamp=stamp(0), frame_id="")
     multi = m("trajectory_msgs/msg/MultiDOFJointTrajectory", header=header, joint_names=[], points=[])
+    traj_header = m("std_msgs/msg/Header", stamp=stamp(stamp_ns), frame_id="")
     return m(
         f"{ACTION}_Goal",
-        trajectory=m("trajectory_msgs/msg/JointTrajectory", header=header, joint_names=list(joints), points=points),
+        trajectory=m(
+            "trajectory_msgs/msg/JointTrajectory", header=traj_header, joint_names=list(joints), points=points
+        ),
         multi_dof_trajectory=multi,
         path_tolerance=[],
         component_path_tolerance=[],
@@ -58,14 +66,14 @@ def uuid_msg(raw: bytes) -> Any:
     return m("unique_identifier_msgs/msg/UUID", uuid=np.frombuffer(raw, dtype=np.uint8).copy())
 
 
-def send(peer: zenoh.Session, raw_id: bytes, body: Any) -> bool:
-    reply = call(peer, f"{BASE}/send_goal", SEND, request(SEND, goal_id=uuid_msg(raw_id), goal=body))
+def send(peer: zenoh.Session, raw_id: bytes, body: Any, base: str = BASE) -> bool:
+    reply = call(peer, f"{base}/send_goal", SEND, request(SEND, goal_id=uuid_msg(raw_id), goal=body))
     assert reply.ok is not None
     return bool(types.decode(reply.ok.payload.to_bytes(), f"{SEND}_Response").accepted)
 
 
-def result(peer: zenoh.Session, raw_id: bytes) -> Any:
-    reply = call(peer, f"{BASE}/get_result", RESULT, request(RESULT, goal_id=uuid_msg(raw_id)))
+def result(peer: zenoh.Session, raw_id: bytes, base: str = BASE) -> Any:
+    reply = call(peer, f"{base}/get_result", RESULT, request(RESULT, goal_id=uuid_msg(raw_id)))
     assert reply.ok is not None
     return types.decode(reply.ok.payload.to_bytes(), f"{RESULT}_Response")
 

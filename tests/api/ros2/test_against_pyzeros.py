@@ -23,6 +23,7 @@ pyzeros = pytest.importorskip("pyzeros", reason="the ros2-verify extra (pyzeros)
 import asyncio_for_robotics as afor  # noqa: E402
 from ros2_pyterfaces.cyclone import idl  # noqa: E402
 from ros2_pyterfaces.cyclone.builtin_interfaces.msg import Duration, Time  # noqa: E402
+from ros2_pyterfaces.cyclone.rosgraph_msgs.msg import Clock  # noqa: E402
 from ros2_pyterfaces.cyclone.sensor_msgs.msg import JointState  # noqa: E402
 from ros2_pyterfaces.cyclone.service_msgs.msg import ServiceEventInfo  # noqa: E402
 from ros2_pyterfaces.cyclone.std_msgs.msg import Header  # noqa: E402
@@ -38,9 +39,8 @@ from hild.api.ros2 import types  # noqa: E402
 from hild.config import load_config  # noqa: E402
 from hild.engine import Engine  # noqa: E402
 from tests.api.conftest import WAIT, Daemon  # noqa: E402
-from tests.api.ros2.conftest import peer_config  # noqa: E402
+from tests.api.ros2.conftest import peer_config, running  # noqa: E402
 from tests.conftest import CONFIGS  # noqa: E402
-from tests.helpers import free_endpoint  # noqa: E402
 
 T = idl.types
 
@@ -239,6 +239,7 @@ def test_pyzeros_computes_the_same_service_hashes() -> None:
     assert ListControllers.hash_rihs01() == types.type_hash("controller_manager_msgs/srv/ListControllers")
     assert SwitchController.hash_rihs01() == types.type_hash("controller_manager_msgs/srv/SwitchController")
     assert JointState.hash_rihs01() == types.type_hash("sensor_msgs/msg/JointState")
+    assert Clock.hash_rihs01() == types.type_hash("rosgraph_msgs/msg/Clock")
 
 
 def test_pyzeros_computes_the_same_action_hashes() -> None:
@@ -252,6 +253,8 @@ def test_pyzeros_computes_the_same_action_hashes() -> None:
 
 async def _session(daemon: Daemon) -> dict[str, Any]:
     joint_states = pyzeros.Sub(JointState, "/joint_states")
+    clock = pyzeros.Sub(Clock, "/clock")
+    tick = await asyncio.wait_for(clock.wait_for_value(), WAIT)
     listing = pyzeros.Client(ListControllers, "/controller_manager/list_controllers")
     switching = pyzeros.Client(SwitchController, "/controller_manager/switch_controller")
     state = await asyncio.wait_for(joint_states.wait_for_value(), WAIT)
@@ -264,7 +267,7 @@ async def _session(daemon: Daemon) -> dict[str, Any]:
         switching.call_async(SwitchController_Request(activate_controllers=["nope"], strictness=2)), WAIT
     )
     after = await asyncio.wait_for(listing.call_async(ListControllers_Request()), WAIT)
-    return {"state": state, "before": before, "switched": switched, "refused": refused, "after": after}
+    return {"state": state, "before": before, "switched": switched, "refused": refused, "after": after, "tick": tick}
 
 
 def test_pyzeros_subscribes_lists_and_switches(ros_daemon: Daemon, peer: zenoh.Session) -> None:
@@ -275,6 +278,9 @@ def test_pyzeros_subscribes_lists_and_switches(ros_daemon: Daemon, peer: zenoh.S
     with pyzeros.auto_context(node="pyzeros_probe", zenoh_session=peer, domain_id=0):
         got = asyncio.run(main())
     assert list(got["state"].name) == ["a", "b", "c"]
+    sim_now = ros_daemon.engine.t  # lockstep: ROS time is the sim clock, on /clock and in every stamp
+    for stamp in (got["tick"].clock, got["state"].header.stamp):
+        assert 0.0 < stamp.sec + stamp.nanosec * 1e-9 <= sim_now + 1e-9  # ns rounding
     before = {c.name: c.state for c in got["before"].controller}
     assert before == {"jsb": "active", "fwd": "inactive", "fwd_a": "inactive", "traj": "inactive"}
     assert got["switched"].ok is True and got["refused"].ok is False
@@ -283,9 +289,12 @@ def test_pyzeros_subscribes_lists_and_switches(ros_daemon: Daemon, peer: zenoh.S
 
 
 async def _goal_session(
-    target: list[float], controller: str = "traj", joints: tuple[str, ...] = ("a", "b", "c")
+    target: list[float],
+    controller: str = "traj",
+    joints: tuple[str, ...] = ("a", "b", "c"),
+    action: str = "follow_joint_trajectory",
 ) -> dict[str, Any]:
-    base = f"/{controller}/follow_joint_trajectory/_action"
+    base = f"/{controller}/{action}/_action"
     switching = pyzeros.Client(SwitchController, "/controller_manager/switch_controller")
     send_goal = pyzeros.Client(SendGoal, f"{base}/send_goal")
     get_result = pyzeros.Client(GetResult, f"{base}/get_result")
@@ -342,12 +351,8 @@ def twin_daemon(tmp_path: Path) -> Iterator[Daemon]:
     shutil.copy(CONFIGS / "rrbot.urdf", tmp_path / "rrbot.urdf")
     path = tmp_path / "rrbot_twin.yaml"
     path.write_text(yaml.safe_dump(data, sort_keys=False))
-    daemon = Daemon(Engine(load_config(path)), free_endpoint())
-    daemon.start()
-    try:
+    with running(Engine(load_config(path))) as daemon:
         yield daemon
-    finally:
-        daemon.stop()
 
 
 def test_pyzeros_drives_the_twin(twin_daemon: Daemon) -> None:

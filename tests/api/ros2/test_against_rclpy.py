@@ -21,6 +21,7 @@ rclpy = pytest.importorskip("rclpy", reason="the ros2-verify extra (real ROS 2 J
 from action_msgs.msg import GoalInfo, GoalStatus, GoalStatusArray  # noqa: E402
 from builtin_interfaces.msg import Time  # noqa: E402
 from rclpy.serialization import deserialize_message, serialize_message  # noqa: E402
+from rosgraph_msgs.msg import Clock  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension, String  # noqa: E402
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint  # noqa: E402
@@ -110,6 +111,11 @@ CASES: dict[str, tuple[Callable[[], Any], Callable[[], Any], type]] = {
     ),
     "trajectory_msgs/msg/JointTrajectory": (hild_trajectory, ros_trajectory, JointTrajectory),
     "action_msgs/msg/GoalStatusArray": (hild_status, ros_status, GoalStatusArray),
+    "rosgraph_msgs/msg/Clock": (
+        lambda: m("rosgraph_msgs/msg/Clock", clock=m("builtin_interfaces/msg/Time", sec=7, nanosec=8_000_009)),
+        lambda: Clock(clock=Time(sec=7, nanosec=8_000_009)),
+        Clock,
+    ),
 }
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import threading
 from typing import Any
 
@@ -18,6 +19,7 @@ JOINT_STATE = "sensor_msgs/msg/JointState"
 FLOAT64_ARRAY = "std_msgs/msg/Float64MultiArray"
 LIST = "controller_manager_msgs/srv/ListControllers"
 SWITCH = "controller_manager_msgs/srv/SwitchController"
+CLOCK = "rosgraph_msgs/msg/Clock"
 
 
 class Inbox:
@@ -83,11 +85,11 @@ def test_list_controllers_answers_with_the_controllers_and_echoes_the_attachment
     assert (meta.sequence, meta.gid) == (41, CLIENT_GID)
 
 
-def switch(peer: zenoh.Session, activate: list[str], strictness: int = 2) -> bool:
+def switch(peer: zenoh.Session, activate: list[str], strictness: int = 2, deactivate: tuple[str, ...] = ()) -> bool:
     payload = request(
         SWITCH,
         activate_controllers=activate,
-        deactivate_controllers=[],
+        deactivate_controllers=list(deactivate),
         strictness=strictness,
         activate_asap=False,
         timeout=types.message("builtin_interfaces/msg/Duration", sec=0, nanosec=0),
@@ -201,3 +203,25 @@ def test_a_request_without_rmw_zenohs_attachment_is_refused(ros_daemon: Daemon, 
     )
     assert len(replies) == 1 and replies[0].err is not None
     wait_for(lambda: ros_daemon.events_with("attachment of 0 bytes"), what="the warning event")
+
+
+def test_on_the_sim_clock_clock_is_published_and_stamps_are_sim_time(ros_daemon: Daemon, peer: zenoh.Session) -> None:
+    """/clock (rosgraph_msgs/msg/Clock) carries the lockstep clock, at most every 10 ms of it, never ahead of the
+    cycle; /joint_states is stamped with its sample's sim time, so use_sim_time nodes see one clock."""
+    ticks, states = Inbox(), Inbox()
+    clock = peer.declare_subscriber(wire.data_key(0, "/clock", CLOCK), ticks)
+    joint_states = peer.declare_subscriber(wire.data_key(0, "/joint_states", JOINT_STATE), states)
+    wait_for(lambda: len(ticks) >= 5 and len(states) >= 5, what="clock ticks and joint states")
+    now = ros_daemon.engine.t
+    clock.undeclare()
+    joint_states.undeclare()
+
+    def seconds(t: Any) -> float:
+        return float(t.sec) + float(t.nanosec) * 1e-9
+
+    ticked = [seconds(types.decode(s.payload.to_bytes(), CLOCK).clock) for s in ticks.samples]
+    assert all(b - a >= 0.01 - 1e-9 for a, b in itertools.pairwise(ticked)) and 0.0 <= ticked[-1] <= now + 1e-9
+    stamped = [seconds(types.decode(s.payload.to_bytes(), JOINT_STATE).header.stamp) for s in states.samples]
+    assert stamped == sorted(stamped) and 0.0 <= stamped[-1] <= now + 1e-9  # sim seconds, not the wall clock's epoch
+    keys = [str(r.ok.key_expr) for r in peer.liveliness().get("@ros2_lv/0/**", timeout=WAIT) if r.ok is not None]
+    assert any(k.split("/")[5:10:4] == ["MP", "%clock"] for k in keys if k.count("/") > 9)

@@ -3,6 +3,7 @@ wall clock: pyzeros lists the controllers and a FollowJointTrajectory goal runs 
 the face through their API halves and shared-memory rings here, not the in-process engine of the other tests."""
 
 import asyncio
+import time
 from pathlib import Path
 from typing import Any
 
@@ -54,3 +55,5 @@ def test_hild_run_speaks_ros2(tmp_path: Path) -> None:
     assert {c.name for c in got["listing"].controller} == {"jsb", "fwd", "fwd_a", "traj"}
     assert got["accepted"].accepted and (got["result"].status, got["result"].result.error_code) == (4, 0)
     assert max(abs(p - t) for p, t in zip(got["state"].position, target, strict=True)) < 0.02
+    stamp = got["state"].header.stamp  # on the wall clock ROS time is the epoch's, as any ROS node's (no /clock)
+    assert abs(stamp.sec + stamp.nanosec * 1e-9 - time.time()) < 60
