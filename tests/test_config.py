@@ -135,3 +135,9 @@ def test_schema_includes_plugin_params(capsys: pytest.CaptureFixture[str]) -> No
     assert set(fwd["properties"]) == {"joints", "interface", "command_timeout"}
     drivers = {v["if"]["properties"]["driver"]["const"] for v in schema["$defs"]["HardwareSection"]["allOf"]}
     assert {"mock", "mujoco"} <= drivers
+
+
+def test_missing_robot_description_file(write_config: Callable[..., Path]) -> None:
+    """`hild check` names the URDF ROS 2 would be given, not only the daemon at run time."""
+    data = merge(mock_robot(), {"ros2": {"robot_description": "nowhere.urdf"}})
+    assert "ros2.robot_description: file not found" in "\n".join(issues_of(write_config(data)))

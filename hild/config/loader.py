@@ -345,10 +345,12 @@ def _joint_owners(c: RobotConfig, report: Report) -> dict[str, str]:
 
 
 def _check_files(loaded: LoadedConfig, report: Report) -> None:
-    """The robot model and every file a driver names exist (relative to the config's directory)."""
+    """The robot model, the URDF ROS 2 is given, and every file a driver names exist (relative to the config)."""
     c = loaded.config
-    if c.robot.model is not None and not (loaded.directory / c.robot.model).is_file():
-        report(("robot", "model"), f"file not found: {loaded.directory / c.robot.model}")
+    named = {("robot", "model"): c.robot.model, ("ros2", "robot_description"): c.ros2 and c.ros2.robot_description}
+    for loc, relative in named.items():
+        if relative and not (loaded.directory / relative).is_file():
+            report(loc, f"file not found: {loaded.directory / relative}")
     for hw_name in c.hardware:
         cls, params = loaded.driver_classes.get(hw_name), loaded.driver_params.get(hw_name)
         if cls is None or params is None:

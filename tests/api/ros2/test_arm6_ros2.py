@@ -74,11 +74,16 @@ def test_the_arm6_daemon_publishes_its_urdf(arm6_daemon: Daemon) -> None:
     assert robot_description(arm6_daemon) == (CONFIGS / "arm6.urdf").read_text()
 
 
-def test_a_missing_robot_description_is_an_error_event_not_a_crash(tmp_path: Path) -> None:
+def test_a_robot_description_gone_after_the_check_is_an_error_event_not_a_crash(tmp_path: Path) -> None:
+    """`hild check` refuses a missing file (tests/test_config.py); one removed between loading and starting is
+    reported by the daemon, which runs on without it."""
     config = ros_robot_config(tmp_path)
-    config["ros2"]["robot_description"] = "nowhere.urdf"
+    config["ros2"]["robot_description"] = "vanishing.urdf"
+    (tmp_path / "vanishing.urdf").write_text("<robot name='r'/>")
     path = tmp_path / "robot.yaml"
     path.write_text(yaml.safe_dump(config, sort_keys=False))
-    with running(Engine(load_config(path))) as daemon:
+    loaded = load_config(path)
+    (tmp_path / "vanishing.urdf").unlink()
+    with running(Engine(loaded)) as daemon:
         wait_for(lambda: daemon.events_with("/robot_description not offered"), what="the error event")
-        assert daemon.events_with("nowhere.urdf")
+        assert daemon.events_with("vanishing.urdf")
