@@ -43,7 +43,7 @@ from typing import Any
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))  # tests.faults.processes hosts the emulator process for --backend can
+sys.path.insert(0, str(ROOT))  # (kept until the soak moves into hild.bench)
 
 from hild.api.client import GoalHandle, HildClient, HildError, HildUnreachable  # noqa: E402
 
@@ -133,7 +133,7 @@ class TwinDaemon:
     """``hild run`` on the arm6 twin at ``rate``, in a temporary directory."""
 
     def __init__(self, directory: Path, rate: float) -> None:
-        from tests.faults.rigs import free_endpoint
+        from hild.bench.children import free_endpoint
 
         doc = yaml.safe_load((ROOT / "configs" / "arm6_twin.yaml").read_text())
         doc["update_rate"] = rate
@@ -178,7 +178,7 @@ class CanDaemon:
     """``hild emulate`` and ``hild run`` on configs/arm6_can_loopback.yaml (tests/faults/processes.py)."""
 
     def __init__(self, directory: Path, rate: float) -> None:
-        from tests.faults.processes import CanProcesses
+        from hild.bench.daemon import CanProcesses
 
         self.processes = CanProcesses(directory)
         if rate != 500.0:
