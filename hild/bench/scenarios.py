@@ -128,6 +128,7 @@ class Settings:
     cycle_process: bool = True  # realtime.cycle_process for every scenario (False: hild bench --one-process)
     can_remote: bool = False  # serve the emulated CAN channels over loopback even with the cycle in the daemon
     cycle_cpu: int | None = None  # the cycle (and the floor's empty thread) on this CPU, everything else off it
+    soak_seconds: float | None = None  # the soak's length when --seconds gives it (hild.bench.cli)
 
     @classmethod
     def make(
@@ -159,7 +160,7 @@ class Settings:
         else:
             s = cls()
         if seconds is not None:
-            s.seconds = seconds
+            s.seconds = s.soak_seconds = seconds
             s.interference_seconds = seconds if quick else max(0.5, seconds / 2)
             s.floor_seconds = min(s.floor_seconds, max(0.5, seconds))
         s.priority = priority
