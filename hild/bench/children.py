@@ -42,15 +42,17 @@ def wait_for(
     timeout: float = WAIT,
     what: str = "condition",
     tick: Callable[[], None] | None = None,
+    logs: Callable[[], str] | None = None,
 ) -> Any:
-    """``condition()``'s first truthy value; AssertionError after ``timeout`` s. ``tick`` runs between tries."""
+    """``condition()``'s first truthy value; AssertionError after ``timeout`` s, with ``logs()`` when given.
+    ``tick`` runs between tries (it may raise, e.g. when the process waited for has exited)."""
     deadline = time.monotonic() + timeout
     while True:
         value = condition()
         if value:
             return value
         if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
+            raise AssertionError(f"timed out after {timeout:g} s waiting for {what}" + (f":\n{logs()}" if logs else ""))
         if tick is not None:
             tick()
         time.sleep(0.005)

@@ -12,7 +12,6 @@ import os
 import signal
 import subprocess
 import sys
-import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from types import TracebackType
@@ -22,7 +21,7 @@ import numpy as np
 
 from drivers.can.emulator.runtime import request
 from hild.api.client import HildClient, HildError
-from hild.bench.children import WAIT, LoggedChild, distinct_free_ports
+from hild.bench.children import WAIT, LoggedChild, distinct_free_ports, wait_for
 
 START_TIMEOUT = 60.0  # s: a daemon imports MuJoCo and Zenoh before it answers; generous for a loaded machine
 HILD = (sys.executable, "-m", "hild.cli")
@@ -102,8 +101,12 @@ class HildRun(LoggedChild):
 
     def started(self, timeout: float = START_TIMEOUT) -> HildRun:
         """Wait until the API answers and the cycle runs (AssertionError with the log if it exits first)."""
-        self.wait(self.answers, "the daemon to answer", timeout)
+        wait_for(self.answers, timeout, "the daemon to answer", tick=self._running, logs=lambda: self.log)
         return self
+
+    def _running(self) -> None:
+        if self.process.poll() is not None:
+            raise AssertionError(f"the daemon exited ({self.process.returncode}) before it answered:\n{self.log}")
 
     def connected(self, timeout: float = START_TIMEOUT) -> HildClient:
         """A client of the daemon once it answers and its cycle runs."""
@@ -128,24 +131,13 @@ class HildRun(LoggedChild):
 
     def wait(self, condition: Callable[[], Any], what: str, timeout: float = WAIT) -> Any:
         """``condition()``'s first truthy value; AssertionError with the log after ``timeout`` s."""
-        deadline = time.monotonic() + timeout
-        while not (value := condition()):
-            if self.process.poll() is not None and condition == self.answers:
-                raise AssertionError(f"the daemon exited ({self.process.returncode}) before {what}:\n{self.log}")
-            if time.monotonic() > deadline:
-                raise AssertionError(f"timed out after {timeout:g} s waiting for {what}:\n{self.log}")
-            time.sleep(0.02)
-        return value
+        return wait_for(condition, timeout, what, logs=lambda: self.log)
 
     def wait_log(self, text: str, timeout: float = WAIT) -> None:
         self.wait(lambda: text in self.log, f"{text!r} in the log", timeout)
 
     def wait_gone(self, pid: int, what: str) -> None:
         self.wait(lambda: not running(pid), what)
-
-
-class ProcessError(AssertionError):
-    pass
 
 
 class CanProcesses:
@@ -189,7 +181,7 @@ class CanProcesses:
             return True
         except OSError:
             if self.emulator.poll() is not None:
-                raise ProcessError(f"the emulator exited:\n{self.emulator_child.log}") from None
+                raise AssertionError(f"the emulator exited:\n{self.emulator_child.log}") from None
             return False
 
     def status(self) -> dict[str, Any]:
@@ -241,11 +233,7 @@ class CanProcesses:
         return self.daemon_logs[-1].read_text() if self.daemon_logs else ""
 
     def wait(self, condition: Callable[[], Any], what: str, timeout: float = 20.0) -> None:
-        deadline = time.monotonic() + timeout
-        while not condition():
-            if time.monotonic() > deadline:
-                raise ProcessError(f"timed out after {timeout:g} s waiting for {what}\n{self.logs()}")
-            time.sleep(0.02)
+        wait_for(condition, timeout, what, logs=self.logs)
 
     def logs(self) -> str:
         return f"--- emulator:\n{self.emulator_child.log}\n--- daemon:\n{self.daemon_log()}"

@@ -47,7 +47,7 @@ import numpy as np
 
 from hild.api.client import HildClient, HildError, HildUnreachable
 from hild.bench.children import LoggedChild, free_endpoint
-from hild.bench.daemon import CONFIGS
+from hild.bench.daemon import CONFIGS, START_TIMEOUT
 from hild.bench.latency import SampleLog, match_commands, match_replies, send_probes
 from hild.bench.load import (
     FLOOD_BYTES,
@@ -73,7 +73,6 @@ FORWARD = "forward_position"
 JTC_ARM = "joint_trajectory_arm"
 SERVO_WRIST = "servo_wrist"
 CAN_RIG = "mit_can"
-START_TIMEOUT = 60.0  # s for a daemon process to be ready
 REQUEST_TIMEOUT = 30.0  # s for one host request
 PROBE_DELTA_LSB = 3  # the command probe's step in position LSBs: clear of quantization, far below one cycle's slew
 PROBE_TOL_LSB = 1.5
