@@ -6,6 +6,7 @@ Everything waits for a condition with a timeout, never a fixed sleep.
 
 from __future__ import annotations
 
+import contextlib
 import signal
 import socket
 import subprocess
@@ -43,9 +44,10 @@ def wait_for(
     what: str = "condition",
     tick: Callable[[], None] | None = None,
     logs: Callable[[], str] | None = None,
+    every: float = 0.005,
 ) -> Any:
-    """``condition()``'s first truthy value; AssertionError after ``timeout`` s, with ``logs()`` when given.
-    ``tick`` runs between tries (it may raise, e.g. when the process waited for has exited)."""
+    """``condition()``'s first truthy value, tried ``every`` s; AssertionError after ``timeout`` s, with ``logs()``
+    when given. ``tick`` runs between tries (it may raise, e.g. when the process waited for has exited)."""
     deadline = time.monotonic() + timeout
     while True:
         value = condition()
@@ -55,13 +57,14 @@ def wait_for(
             raise AssertionError(f"timed out after {timeout:g} s waiting for {what}" + (f":\n{logs()}" if logs else ""))
         if tick is not None:
             tick()
-        time.sleep(0.005)
+        time.sleep(every)
 
 
 def end_child(process: subprocess.Popen[str] | subprocess.Popen[bytes], timeout: float = END_TIMEOUT) -> None:
     """Close the child's stdin (its sign to stop), wait for it, and kill it if it does not end in time."""
     if process.stdin is not None:
-        process.stdin.close()
+        with contextlib.suppress(OSError):  # a child that is gone leaves a broken pipe
+            process.stdin.close()
     try:
         process.wait(timeout)
     except subprocess.TimeoutExpired:
@@ -84,12 +87,12 @@ class LoggedChild:
     ) -> None:
         self.log_path = log
         with log.open("wb") as out:  # the child has its own copy of the descriptor
-            if control:
-                self.process: subprocess.Popen[Any] = subprocess.Popen(
-                    command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=out, text=True, bufsize=1, cwd=cwd
-                )
-            else:
-                self.process = subprocess.Popen(command, stdout=out, stderr=subprocess.STDOUT, cwd=cwd, env=env)
+            pipes: dict[str, Any] = (
+                {"stdin": subprocess.PIPE, "stdout": subprocess.PIPE, "stderr": out, "text": True, "bufsize": 1}
+                if control
+                else {"stdout": out, "stderr": subprocess.STDOUT}
+            )
+            self.process: subprocess.Popen[Any] = subprocess.Popen(command, cwd=cwd, env=env, **pipes)
 
     @property
     def pid(self) -> int:
@@ -110,11 +113,9 @@ class LoggedChild:
             self.process.send_signal(sig)
         return int(self.process.wait(timeout))
 
-    def end(self, timeout: float = WAIT, sig: signal.Signals | None = signal.SIGTERM) -> int:
-        """``stop`` (or, with ``sig`` None, only wait ``timeout`` s), then kill it if it is still running."""
+    def end(self, timeout: float = WAIT, sig: signal.Signals = signal.SIGTERM) -> int:
+        """``stop``, then kill it if it has not exited within ``timeout`` s; the exit code."""
         try:
-            if sig is None:
-                return int(self.process.wait(timeout))
             return self.stop(timeout, sig)
         except subprocess.TimeoutExpired:
             return self.kill()

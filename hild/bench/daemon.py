@@ -21,7 +21,7 @@ import numpy as np
 
 from drivers.can.emulator.runtime import request
 from hild.api.client import HildClient, HildError
-from hild.bench.children import WAIT, LoggedChild, distinct_free_ports, wait_for
+from hild.bench.children import WAIT, LoggedChild, distinct_free_ports, end_child, wait_for
 
 START_TIMEOUT = 60.0  # s: a daemon imports MuJoCo and Zenoh before it answers; generous for a loaded machine
 HILD = (sys.executable, "-m", "hild.cli")
@@ -101,7 +101,7 @@ class HildRun(LoggedChild):
 
     def started(self, timeout: float = START_TIMEOUT) -> HildRun:
         """Wait until the API answers and the cycle runs (AssertionError with the log if it exits first)."""
-        wait_for(self.answers, timeout, "the daemon to answer", tick=self._running, logs=lambda: self.log)
+        wait_for(self.answers, timeout, "the daemon to answer", self._running, lambda: self.log, every=0.05)
         return self
 
     def _running(self) -> None:
@@ -131,7 +131,7 @@ class HildRun(LoggedChild):
 
     def wait(self, condition: Callable[[], Any], what: str, timeout: float = WAIT) -> Any:
         """``condition()``'s first truthy value; AssertionError with the log after ``timeout`` s."""
-        return wait_for(condition, timeout, what, logs=lambda: self.log)
+        return wait_for(condition, timeout, what, logs=lambda: self.log, every=0.02)
 
     def wait_log(self, text: str, timeout: float = WAIT) -> None:
         self.wait(lambda: text in self.log, f"{text!r} in the log", timeout)
@@ -160,7 +160,6 @@ class CanProcesses:
         command = [*HILD, "emulate", str(CONFIGS / self.CONFIG), "--serve-remote", bus, "--control", control_at]
         self.emulator_child = LoggedChild([*command, *emulator_args], directory / "emulator.log", cwd=directory)
         self.emulator = self.emulator_child.process
-        self.emulator_log = self.emulator_child.log_path
         try:
             self.wait(self._answers, "the emulator's control socket", START_TIMEOUT)
             text = (CONFIGS / self.CONFIG).read_text()
@@ -233,7 +232,7 @@ class CanProcesses:
         return self.daemon_logs[-1].read_text() if self.daemon_logs else ""
 
     def wait(self, condition: Callable[[], Any], what: str, timeout: float = 20.0) -> None:
-        wait_for(condition, timeout, what, logs=self.logs)
+        wait_for(condition, timeout, what, logs=self.logs, every=0.02)
 
     def logs(self) -> str:
         return f"--- emulator:\n{self.emulator_child.log}\n--- daemon:\n{self.daemon_log()}"
@@ -244,4 +243,4 @@ class CanProcesses:
         if self.emulator.poll() is None:
             with contextlib.suppress(OSError):
                 request(self.control, {"op": "stop"}, timeout=5.0)
-        self.emulator_child.end(10.0, sig=None)
+        end_child(self.emulator, 10.0)

@@ -46,7 +46,7 @@ from typing import Any
 import numpy as np
 
 from hild.api.client import HildClient, HildError, HildUnreachable
-from hild.bench.children import LoggedChild, free_endpoint
+from hild.bench.children import LoggedChild, end_child, free_endpoint
 from hild.bench.daemon import CONFIGS, START_TIMEOUT
 from hild.bench.latency import SampleLog, match_commands, match_replies, send_probes
 from hild.bench.load import (
@@ -300,10 +300,7 @@ class HostProcess(LoggedChild):
         if self.process.poll() is None:
             with contextlib.suppress(HostError):
                 self.request("stop", timeout=5.0)
-            self.end(30.0, sig=None)
-        if self.process.stdin is not None:
-            with contextlib.suppress(OSError):
-                self.process.stdin.close()
+        end_child(self.process, 30.0)
         return self.process.returncode
 
 
