@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import json
 import threading
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -19,15 +18,13 @@ import yaml
 import zenoh
 
 from hild.api.client import HildClient
-from tests.helpers import HildRun, free_endpoint
-from tests.helpers import wait_for as api_wait_for
+from tests.helpers import HildRun, free_endpoint, wait_for
 
 ROBOT = "fuzz6"
 JOINTS = ("a", "b", "c", "d", "e", "f")
 START = {"a": 0.1, "b": -0.2, "c": 0.3, "d": -0.1, "e": 0.2, "f": 0.0}
 LOWER, UPPER, SOFT_MARGIN, VELOCITY = -1.0, 1.0, 0.05, 2.0
 CONTROLLERS = {"joint_trajectory": ("a", "b"), "servo": ("c", "d"), "fwd": ("e", "f")}
-WAIT = 20.0  # s: generous; conditions are normally met in milliseconds
 
 
 def robot_config() -> dict[str, Any]:
@@ -69,11 +66,6 @@ def robot_config() -> dict[str, Any]:
             },
         },
     }
-
-
-def wait_for(condition: Callable[[], Any], timeout: float = WAIT, what: str = "condition") -> Any:
-    """tests.api's wait, with this suite's longer default (a fuzzed daemon may be busy)."""
-    return api_wait_for(condition, timeout, what)
 
 
 class Motion:
