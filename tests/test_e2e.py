@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 import yaml
 
-from hild.api.client import HildClient, HildError, HildUnreachable
+from hild.api.client import HildError
 from tests.conftest import CONFIGS
 from tests.helpers import HildRun, free_endpoint, free_port, wait_for
 
@@ -43,18 +43,6 @@ class Recorder:
     def texts(self) -> list[str]:
         with self.lock:
             return [m.get("message", "") for m in self.messages]
-
-
-def connect_when_up(proc: subprocess.Popen[bytes], endpoint: str, log: Path, timeout: float) -> HildClient:
-    """The daemon imports MuJoCo and Zenoh before it listens: retry until it does (or dies)."""
-    deadline = time.monotonic() + timeout
-    while True:
-        try:
-            return HildClient(robot="arm6", connect=[endpoint], timeout=5.0)
-        except HildUnreachable:
-            if proc.poll() is not None or time.monotonic() > deadline:
-                pytest.fail(f"daemon never came up (exit {proc.poll()}):\n{log.read_text()}")
-            time.sleep(0.2)
 
 
 def run_to_exit(config: Path, endpoint: str) -> subprocess.CompletedProcess[str]:

@@ -9,113 +9,32 @@ is for a condition with a generous timeout; both processes are always killed.
 from __future__ import annotations
 
 import signal
-import subprocess
-import sys
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
 
 from drivers.can.emulator.runtime import request
+from hild.bench.daemon import CanProcesses
 from hild.client import HildError
 from hild.motion.reference import OFFSETS, standard_trajectory
-from tests.conftest import CONFIGS
-from tests.helpers import HildRun, distinct_free_ports, wait_for
-from tests.test_e2e import Recorder, connect_when_up
-
-HOST = "127.0.0.1"
-
-
-@dataclass
-class CanRig:
-    emulator: subprocess.Popen[bytes]
-    daemon: subprocess.Popen[bytes]
-    endpoint: str
-    control: tuple[str, int]
-    emulator_log: Path
-    daemon_log: Path
-
-    def status(self) -> dict[str, Any]:
-        reply = request(self.control, {"op": "status"}, timeout=10.0)
-        assert reply["ok"], reply
-        return reply
-
-    def positions(self) -> np.ndarray:
-        return np.array([j["position"] for j in self.status()["joints"]])
-
-    def logs(self) -> str:
-        try:
-            loop = self.status()["loop"]
-        except (OSError, AssertionError, KeyError) as exc:
-            loop = f"unavailable: {exc}"
-        return (
-            f"--- emulator loop: {loop}\n--- emulator:\n{self.emulator_log.read_text()}\n"
-            f"--- daemon:\n{self.daemon_log.read_text()}"
-        )
-
-
-def stop(proc: subprocess.Popen[bytes]) -> None:
-    if proc.poll() is None:
-        proc.kill()
-        proc.wait(10)
+from tests.helpers import wait_for
+from tests.test_e2e import Recorder
 
 
 @pytest.fixture
-def rig(tmp_path: Path) -> Iterator[CanRig]:
-    remote, control, zenoh = distinct_free_ports(3)
-    emulator_log, daemon_log = tmp_path / "emulator.log", tmp_path / "daemon.log"
-    command = [sys.executable, "-m", "hild.cli"]
-    with emulator_log.open("wb") as out:
-        emulator = subprocess.Popen(
-            [
-                *command,
-                "emulate",
-                str(CONFIGS / "arm6_can_loopback.yaml"),
-                "--serve-remote",
-                f"{HOST}:{remote}",
-                "--control",
-                f"{HOST}:{control}",
-            ],
-            stdout=out,
-            stderr=subprocess.STDOUT,
-            cwd=tmp_path,
-        )
-    daemon: subprocess.Popen[bytes] | None = None
+def rig(tmp_path: Path) -> Iterator[CanProcesses]:
+    rigs = CanProcesses(tmp_path)
     try:
-        # The control socket opens after the remote bus is served: once it answers, the bus is there.
-        deadline = time.monotonic() + 60.0
-        while True:
-            try:
-                request((HOST, control), {"op": "status"}, timeout=2.0)
-                break
-            except OSError:
-                if emulator.poll() is not None or time.monotonic() > deadline:
-                    pytest.fail(f"emulator never came up (exit {emulator.poll()}):\n{emulator_log.read_text()}")
-                time.sleep(0.1)
-        text = (CONFIGS / "arm6_can_loopback.yaml").read_text()
-        assert "ws://127.0.0.1:54701/" in text and "model: arm6.xml" in text
-        config = tmp_path / "arm6_can_loopback.yaml"
-        config.write_text(
-            text.replace("ws://127.0.0.1:54701/", f"ws://{HOST}:{remote}/").replace(
-                "model: arm6.xml", f"model: {CONFIGS / 'arm6.xml'}"
-            )
-        )
-        endpoint = f"tcp/{HOST}:{zenoh}"
-        daemon = HildRun(config, endpoint, "arm6", log=daemon_log, cwd=tmp_path).process
-        yield CanRig(emulator, daemon, endpoint, (HOST, control), emulator_log, daemon_log)
+        yield rigs
     finally:
-        if daemon is not None:
-            stop(daemon)
-        stop(emulator)
+        rigs.close()
 
 
-def test_trajectory_over_zenoh_drives_the_emulated_arm(rig: CanRig) -> None:
-    with connect_when_up(rig.daemon, rig.endpoint, rig.daemon_log, timeout=60.0) as arm:
-        arm.wait_alive(timeout=30.0)
+def test_trajectory_over_zenoh_drives_the_emulated_arm(rig: CanProcesses) -> None:
+    with rig.start_daemon() as arm:
         states = Recorder()
         arm.subscribe("joint_states", states)
         wait_for(lambda: states.last() is not None, 10.0, "joint_states")
@@ -172,8 +91,8 @@ def test_trajectory_over_zenoh_drives_the_emulated_arm(rig: CanRig) -> None:
         assert "damiao fault 0x8: over-voltage" in faults()[5] and faults()[:5] == [None] * 5, faults()
 
     # Ctrl-C: the daemon holds, disables the drives and exits; the emulator sees them disabled.
-    rig.daemon.send_signal(signal.SIGINT)
-    assert rig.daemon.wait(30) == 0, rig.logs()
+    assert rig.run is not None
+    assert rig.run.stop(30, signal.SIGINT) == 0, rig.logs()
     wait_for(lambda: not any(j["enabled"] for j in rig.status()["joints"]), 10.0, "the drives to be disabled")
     assert request(rig.control, {"op": "stop"}) == {"ok": True}
     assert rig.emulator.wait(30) == 0, rig.logs()

@@ -18,7 +18,6 @@ import argparse
 import dataclasses
 import gc
 import pickle
-import statistics
 import sys
 import time
 from collections.abc import Callable
@@ -35,6 +34,7 @@ from hild.motion.limits import KinematicLimits
 from hild.motion.planning import plan_stop
 from hild.motion.segments import Segment
 from hild.motion.trajectory import Trajectory, splice, timed_segments
+from hild.stats import percentiles
 
 J = 6
 NAMES = [f"j{k}" for k in range(J)]
@@ -114,7 +114,7 @@ def measure(prepared: PreparedGoal, runs: int) -> dict[str, float]:
             trajectory.sample(k * 1e-3, p, v, a)
         rows["sample"].append((time.perf_counter() - start) / cycles)
         del crossed, trajectory
-    result = {key: statistics.median(values) for key, values in rows.items()}
+    result = {key: percentiles(values, "s", to="s", digits=9)["p50"] for key, values in rows.items()}
     result["kib"] = len(pickle.dumps(request, PROTOCOL)) / 1024
     return result
 

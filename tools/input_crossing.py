@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import statistics
 import sys
 import threading
 import time
@@ -29,6 +28,7 @@ from hild.controllers.servo import ServoTarget, TargetRecord
 from hild.crossing.latest import LatestCell, latest_bytes
 from hild.crossing.mailboxes import LATEST_BYTES, Shared, SharedLatest
 from hild.crossing.region import Region
+from hild.stats import percentiles
 
 
 @dataclasses.dataclass(frozen=True, slots=True)
@@ -54,7 +54,7 @@ def median_take(put: Callable[[], None], take: Callable[[], object], takes: int)
         empty.append(t2 - t1)
         spans.append(t1 - t0)
         assert got is not None
-    return (statistics.median(spans) - statistics.median(empty)) / 1e3
+    return percentiles(spans, "ns", digits=3)["p50"] - percentiles(empty, "ns", digits=3)["p50"]
 
 
 def main() -> None:

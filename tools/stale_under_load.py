@@ -34,10 +34,8 @@ from typing import Any
 
 import yaml
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
 from drivers.can.emulator.runtime import request
-from tests.faults.processes import CanProcesses
+from hild.bench.daemon import CanProcesses
 
 MOVE = 0.4  # rad, every joint, back and forth
 POLL = 0.005  # s between status polls while waiting for the silent joint's fault

@@ -3,50 +3,44 @@ whole lockstep engine step, on the arm6 twin (6 joints, gravity feed-forward).
 
     python tools/supervisor_cost.py            # best of 5 runs; µs per call
 
-Run it on two checkouts to compare (PYTHONPATH=<checkout>); the numbers are this machine's, best of several runs
-so that scheduling noise drops out.
+The numbers are this machine's, best of several runs so that scheduling noise drops out; compare two checkouts on
+the same machine (PYTHONPATH=<checkout>).
 """
 
 from __future__ import annotations
 
-import inspect
-import sys
 import time
-from pathlib import Path
+from collections.abc import Callable
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-from hild.engine import Engine
-from tests.faults.rigs import twin_config
+from hild.bench.daemon import CONFIGS
+from hild.bench.measure import lockstep_engine
 
 
-def best(fn: object, calls: int, runs: int = 5) -> float:
+def best(fn: Callable[[], object], calls: int, runs: int = 5) -> float:
     """Microseconds per call, best of ``runs``."""
     times = []
     for _ in range(runs):
         start = time.perf_counter()
         for _ in range(calls):
-            fn()  # type: ignore[operator]
+            fn()
         times.append((time.perf_counter() - start) / calls * 1e6)
     return min(times)
 
 
 def main() -> None:
-    engine = Engine(twin_config("arm6_twin.yaml"))
-    engine.start()
-    engine.run_cycles(500)
-    sup, state, command, final = engine.supervisor, engine.state, engine.command, engine.final
-    with_dt = len(inspect.signature(sup.check).parameters) == 2  # before [trust], check took the state only
+    engine = lockstep_engine(CONFIGS / "arm6_twin.yaml")
+    try:
+        engine.run_cycles(500)
+        sup, state, command, final = engine.supervisor, engine.state, engine.command, engine.final
 
-    def check_and_command() -> None:
-        if with_dt:
+        def check_and_command() -> None:
             sup.check(state, engine.period)
-        else:
-            sup.check(state)  # type: ignore[call-arg]
-        sup.command(engine.period, state, command, final)
+            sup.command(engine.period, state, command, final)
 
-    step = best(lambda: engine.run_cycles(1), 4000)
-    supervise = best(check_and_command, 20000)
+        step = best(lambda: engine.run_cycles(1), 4000)
+        supervise = best(check_and_command, 20000)
+    finally:
+        engine.stop()
     print(f"engine step {step:.1f} µs, supervisor check + command {supervise:.1f} µs (arm6 twin, 6 joints)")
 
 

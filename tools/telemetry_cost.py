@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from hild.bench.measure import cycle_running, measure_window, start_engine
+from hild.bench.report import rise_pct
 from hild.config import load_config
 from hild.config.model import TelemetrySection
 from hild.stats import percentiles
@@ -83,14 +84,15 @@ async def _measure(
         await watcher
         size = sum(f.stat().st_size for f in telemetry.files)
     tmp.cleanup()
-    d = window.figures()["duration_us"]
+    figures = window.figures()
+    d = figures["duration_us"]
     result: dict[str, Any] = {
         "clock": "lockstep" if clock == "sim" else "wall",
         "rate_hz": rate,
         "telemetry": with_telemetry,
         "cycles": window.cycles,
         "overruns": window.overruns,
-        "ovr_per_10k": round(1e4 * window.overruns / max(1, window.cycles), 1),
+        "ovr_per_10k": figures["overruns_per_10k"],
         "p50_us": d["p50"],
         "p99_us": d["p99"],
         "max_us": d["max"],
@@ -122,7 +124,7 @@ def main() -> int:
             for _ in range(max(1, args.repeat)):
                 off = asyncio.run(_measure(args.config, clock, rate, args.seconds, False))
                 on = asyncio.run(_measure(args.config, clock, rate, args.seconds, True, args.flush_period))
-                on["p99_rise_pct"] = _rise(on["p99_us"], off["p99_us"])
+                on["p99_rise_pct"] = rise_pct(on["p99_us"], off["p99_us"])
                 rows += [off, on]
                 pairs.append((off, on))
             mean = {
@@ -135,7 +137,7 @@ def main() -> int:
                     for k in ("p50_us", "p99_us", "ovr_per_10k")
                 },
             }
-            mean["p99_rise_pct"] = _rise(mean["on_p99_us"], mean["off_p99_us"])
+            mean["p99_rise_pct"] = rise_pct(mean["on_p99_us"], mean["off_p99_us"])
             means.append(mean)
     if args.json:
         print(json.dumps({"runs": rows, "means": means}, indent=2))
@@ -168,10 +170,6 @@ def main() -> int:
         file=sys.stderr,
     )
     return 0
-
-
-def _rise(on: float, off: float) -> float:
-    return round(100 * (on - off) / max(off, 1e-9), 1)
 
 
 if __name__ == "__main__":

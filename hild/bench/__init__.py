@@ -7,6 +7,8 @@ empty sleep+spin thread), ``probes`` (each library timed alone: Zenoh, python-ca
 up, restart the statistics, count a window), ``window`` (reading the loop statistics without the cycle's help),
 ``scenarios`` (robot configs and one daemon process per scenario), ``host`` (what runs inside that process),
 ``load`` (the clients: trajectories, pollers, a servo stream), ``latency`` (command → frame and reply → sample
-matching), ``report`` (figures, targets, the table and the JSON). docs/performance.md has the method and what
+matching), ``report`` (figures, targets, the table and the JSON), ``children`` (free ports, a child process with a
+log file), ``daemon`` (``hild run`` and the CAN emulator as child processes, shared with the tests and tools),
+``motion`` and ``soak`` (``hild bench --only motion``, ``--only soak``). docs/performance.md has the method and what
 each figure means.
 """

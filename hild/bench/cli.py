@@ -9,6 +9,9 @@ after the other (never two daemons at once); the interference windows; targets f
 ``--only`` (shell-style patterns): ``floor``, ``interference``, ``mock6@500`` … ``can6@1000`` and
 ``twin6@500-nospin``, ``can6@500-nospin`` (or a base name such as ``can6`` for all of its). Every scenario runs
 with the cycle in a process of its own; ``--one-process`` runs them as before, the cycle a thread of the daemon.
+Two sections run only when named, after the rest: ``motion`` (tracking on the lockstep twin, goal acceptance and
+servo latency over Zenoh: ``hild.bench.motion``) and ``soak`` (``hild run`` on the twin at 1 kHz under random
+goals, servo streams and faults for 3 min, ``--quick`` 20 s, or ``--seconds``: ``hild.bench.soak``).
 See docs/performance.md for what each figure means.
 """
 
@@ -43,6 +46,9 @@ from hild.config.model import RealtimeSection
 PACKAGES = ("hild", "numpy", "eclipse-zenoh", "python-can", "mujoco", "ruckig", "rerun-sdk", "pydantic")
 FLOOR_RATES = (500.0, 1000.0)
 SECTIONS = ("floor", *(s.name for s in SCENARIOS), "interference")
+NAMED_ONLY = ("motion", "soak")  # not part of a whole run: they measure the motion paths and endurance
+SOAK_SECONDS = 180.0
+SOAK_QUICK_SECONDS = 20.0
 
 
 def register(subparsers: Any) -> None:
@@ -54,7 +60,12 @@ def register(subparsers: Any) -> None:
     )
     parser.add_argument("--quick", action="store_true", help="short windows: a smoke run, not numbers to quote")
     parser.add_argument("--seconds", type=float, help="counted seconds per scenario window (default 10, quick 1.5)")
-    parser.add_argument("--only", nargs="+", metavar="NAME", help=f"run only these ({', '.join(SECTIONS)})")
+    parser.add_argument(
+        "--only",
+        nargs="+",
+        metavar="NAME",
+        help=f"run only these ({', '.join(SECTIONS)}; and, only when named, {', '.join(NAMED_ONLY)})",
+    )
     parser.add_argument("--json", type=Path, metavar="OUT.json", help="also write the whole report as JSON")
     parser.add_argument(
         "--priority", type=int, help="SCHED_FIFO priority for every cycle thread (default: the config's, i.e. off)"
@@ -96,7 +107,8 @@ def register(subparsers: Any) -> None:
 
 
 def selected(only: list[str] | None) -> list[str]:
-    """The sections ``--only`` names (all by default); a pattern matches a name or a scenario's base name."""
+    """The sections ``--only`` names (all but ``NAMED_ONLY`` by default); a pattern matches a name or a scenario's
+    base name, a ``NAMED_ONLY`` section only its exact name."""
     if not only:
         return list(SECTIONS)
     chosen = []
@@ -104,7 +116,7 @@ def selected(only: list[str] | None) -> list[str]:
         base = name.split("@")[0]
         if any(fnmatch.fnmatch(name, p) or fnmatch.fnmatch(base, p) for p in only):
             chosen.append(name)
-    return chosen
+    return chosen + [name for name in NAMED_ONLY if name in only]
 
 
 def machine_info() -> dict[str, Any]:
@@ -194,11 +206,46 @@ def bench(settings: Settings, sections: list[str], workdir: Path) -> dict[str, A
             report["interference"] = run_interference(workdir, settings)
         except Exception as exc:
             report["interference"] = {"scenario": INTERFERENCE.name, "error": str(exc)}
+    for name in NAMED_ONLY:
+        if name in sections:
+            progress(f"{name} …")
+            try:
+                report[name] = run_named(name, settings)
+            except Exception as exc:
+                report[name] = {"error": f"{type(exc).__name__}: {exc}"}
     report["machine"]["load_average"]["after"] = round(os.getloadavg()[0], 2)
     report["machine"]["busy"] = busy(report["machine"])
     report["bench"]["seconds_total"] = round(time.monotonic() - started, 1)
-    report["targets"] = evaluate_targets(report)
+    report["targets"] = evaluate_targets(report) if set(sections) & set(SECTIONS) else []  # none for motion, soak
     return report
+
+
+def run_named(name: str, settings: Settings) -> dict[str, Any]:
+    """A ``NAMED_ONLY`` section's report (imported here: ``hild`` starts without them)."""
+    if name == "motion":
+        from hild.bench.motion import MotionSettings, run_motion
+
+        return run_motion(MotionSettings.quick() if settings.quick else MotionSettings())
+    from hild.bench.soak import run_soak
+
+    seconds = settings.soak_seconds or (SOAK_QUICK_SECONDS if settings.quick else SOAK_SECONDS)
+    return run_soak(seconds).as_dict()
+
+
+def format_named(report: dict[str, Any]) -> list[str]:
+    """The ``NAMED_ONLY`` sections' text, one entry each that ran."""
+    texts = []
+    if "motion" in report:
+        from hild.bench.motion import format_motion
+
+        motion = report["motion"]
+        texts.append(f"MOTION error: {motion['error']}" if "error" in motion else format_motion(motion))
+    if "soak" in report:
+        from hild.bench.soak import Report
+
+        soak = report["soak"]
+        texts.append(f"SOAK error: {soak['error']}" if "error" in soak else Report.from_dict(soak).text())
+    return texts
 
 
 def run(args: argparse.Namespace) -> int:
@@ -240,11 +287,14 @@ def run(args: argparse.Namespace) -> int:
     else:
         with tempfile.TemporaryDirectory(prefix="hild-bench-") as tmp:
             report = bench(settings, sections, Path(tmp))
-    print(format_report(report))
+    print("\n\n".join([format_report(report), *format_named(report)]))
     if args.json:
         write_json(report, args.json)
         print(f"\n(JSON written to {args.json})")
     failed = [r["name"] for r in report["scenarios"] if r.get("error")]
     if "error" in report["interference"]:
         failed.append("interference")
+    failed += [name for name in NAMED_ONLY if "error" in report.get(name, {})]
+    if "soak" in report and not report["soak"].get("passed", False):
+        failed.append("soak")
     return 1 if failed else 0

@@ -35,19 +35,19 @@ import json
 import os
 import queue
 import random
-import subprocess
 import sys
 import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
 import numpy as np
 
 from hild.api.client import HildClient, HildError, HildUnreachable
-from hild.bench.children import free_endpoint
+from hild.bench.children import LoggedChild, end_child, free_endpoint
+from hild.bench.daemon import CONFIGS, START_TIMEOUT
 from hild.bench.latency import SampleLog, match_commands, match_replies, send_probes
 from hild.bench.load import (
     FLOOD_BYTES,
@@ -65,7 +65,6 @@ from hild.bench.rigs import rig_class
 from hild.config.documents import load_document
 from hild.stats import percentiles
 
-CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 ARM6 = CONFIGS / "arm6_twin.yaml"
 PHYSICS_STEP = 0.001  # s: the twin's physics step at every rate
 BROADCASTER = "joint_state_broadcaster"
@@ -74,7 +73,6 @@ FORWARD = "forward_position"
 JTC_ARM = "joint_trajectory_arm"
 SERVO_WRIST = "servo_wrist"
 CAN_RIG = "mit_can"
-START_TIMEOUT = 60.0  # s for a daemon process to be ready
 REQUEST_TIMEOUT = 30.0  # s for one host request
 PROBE_DELTA_LSB = 3  # the command probe's step in position LSBs: clear of quantization, far below one cycle's slew
 PROBE_TOL_LSB = 1.5
@@ -129,6 +127,7 @@ class Settings:
     cycle_process: bool = True  # realtime.cycle_process for every scenario (False: hild bench --one-process)
     can_remote: bool = False  # serve the emulated CAN channels over loopback even with the cycle in the daemon
     cycle_cpu: int | None = None  # the cycle (and the floor's empty thread) on this CPU, everything else off it
+    soak_seconds: float | None = None  # the soak's length when --seconds gives it (hild.bench.cli)
 
     @classmethod
     def make(
@@ -160,7 +159,7 @@ class Settings:
         else:
             s = cls()
         if seconds is not None:
-            s.seconds = seconds
+            s.seconds = s.soak_seconds = seconds
             s.interference_seconds = seconds if quick else max(0.5, seconds / 2)
             s.floor_seconds = min(s.floor_seconds, max(0.5, seconds))
         s.priority = priority
@@ -248,26 +247,22 @@ class HostError(RuntimeError):
     pass
 
 
-class HostProcess:
+class HostProcess(LoggedChild):
     """A ``hild.bench.host`` child: the daemon of one scenario, plus its JSON-lines control channel."""
 
     def __init__(self, config: Path, log: Path, rig: str | None, bridge: bool = False) -> None:
         self.endpoint = free_endpoint()
-        self.log_path = log
-        self._log: IO[bytes] = log.open("wb")
         self.cycle_pid: int | None = None
         self.bridged = bool(rig and bridge)
         command = [sys.executable, "-m", "hild.bench.host", str(config), "--listen", self.endpoint]
         command += (["--rig", rig] if rig else []) + (["--can-bridge"] if rig and bridge else [])
-        self.proc = subprocess.Popen(
-            command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._log, text=True, bufsize=1
-        )
+        super().__init__(command, log, control=True)
         self._lines: queue.Queue[str | None] = queue.Queue()
         threading.Thread(target=self._read, name="bench-host-reader", daemon=True).start()
 
     def _read(self) -> None:
-        assert self.proc.stdout is not None
-        for line in self.proc.stdout:
+        assert self.process.stdout is not None
+        for line in self.process.stdout:
             self._lines.put(line)
         self._lines.put(None)
 
@@ -277,15 +272,9 @@ class HostProcess:
         except queue.Empty:
             raise HostError(f"no answer from the daemon process within {timeout:g} s{self.log_tail()}") from None
         if line is None:
-            raise HostError(f"the daemon process ended (exit {self.proc.poll()}){self.log_tail()}")
+            raise HostError(f"the daemon process ended (exit {self.process.poll()}){self.log_tail()}")
         message: dict[str, Any] = json.loads(line)
         return message
-
-    def log_tail(self, lines: int = 15) -> str:
-        if not self._log.closed:
-            self._log.flush()
-        text = self.log_path.read_text(errors="replace").strip().splitlines()[-lines:]
-        return (":\n    " + "\n    ".join(text)) if text else ""
 
     def wait_ready(self) -> dict[str, Any]:
         message = self._next(START_TIMEOUT)
@@ -295,10 +284,10 @@ class HostProcess:
         return message
 
     def request(self, op: str, timeout: float = REQUEST_TIMEOUT, **fields: Any) -> dict[str, Any]:
-        assert self.proc.stdin is not None
+        assert self.process.stdin is not None
         try:
-            self.proc.stdin.write(json.dumps({"op": op, **fields}) + "\n")
-            self.proc.stdin.flush()
+            self.process.stdin.write(json.dumps({"op": op, **fields}) + "\n")
+            self.process.stdin.flush()
         except (BrokenPipeError, OSError) as exc:
             raise HostError(f"the daemon process is gone ({exc}){self.log_tail()}") from None
         reply = self._next(timeout)
@@ -307,19 +296,12 @@ class HostProcess:
         return reply
 
     def close(self) -> int | None:
-        if self.proc.poll() is None:
+        """Ask the host to stop the daemon, wait for it (kill it after 30 s); its exit code."""
+        if self.process.poll() is None:
             with contextlib.suppress(HostError):
                 self.request("stop", timeout=5.0)
-            try:
-                self.proc.wait(30.0)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-        if self.proc.stdin is not None:
-            with contextlib.suppress(OSError):
-                self.proc.stdin.close()
-        self._log.close()
-        return self.proc.returncode
+        end_child(self.process, 30.0)
+        return self.process.returncode
 
 
 def connect(endpoint: str, robot: str) -> HildClient:

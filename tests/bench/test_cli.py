@@ -23,6 +23,8 @@ def test_only_takes_names_and_base_names_as_patterns() -> None:
     assert selected(["*nospin"]) == ["twin6@500-nospin", "can6@500-nospin"]
     assert selected(["floor", "*@1000"]) == ["floor", "mock6@1000", "twin6@1000", "can3@1000", "can6@1000"]
     assert selected(["nothing"]) == []
+    assert selected(["*"]) == list(SECTIONS)  # motion and soak run only when named
+    assert selected(["soak", "motion", "floor"]) == ["floor", "motion", "soak"]
 
 
 def ordered(p: dict[str, float]) -> bool:

@@ -35,11 +35,11 @@ from drivers.can.protocol.models import MODELS
 from drivers.can.protocol.odrive import ODriveError
 from hild.api.client import HildError
 from hild.arrays import JointState, ServoCommand
+from hild.bench.daemon import CanProcesses
 from hild.config import load_config
 from hild.controllers.joint_trajectory import JointTrajectoryController
 from hild.controllers.servo import Phase
 from hild.domains.cycle_process import PARENT_CHECK
-from tests.faults.processes import CanProcesses
 from tests.faults.rigs import JTC, ApiRig, CanRig, Lockstep, MockRig, TwinRig
 from tests.helpers import running
 

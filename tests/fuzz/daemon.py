@@ -9,10 +9,7 @@ any motion in ``joint_states`` is a command that got through.
 from __future__ import annotations
 
 import json
-import subprocess
 import threading
-import time
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -20,16 +17,14 @@ from typing import Any
 import yaml
 import zenoh
 
-from hild.api.client import HildClient, HildUnreachable
-from tests.helpers import HildRun, free_endpoint
-from tests.helpers import wait_for as api_wait_for
+from hild.api.client import HildClient
+from tests.helpers import HildRun, free_endpoint, wait_for
 
 ROBOT = "fuzz6"
 JOINTS = ("a", "b", "c", "d", "e", "f")
 START = {"a": 0.1, "b": -0.2, "c": 0.3, "d": -0.1, "e": 0.2, "f": 0.0}
 LOWER, UPPER, SOFT_MARGIN, VELOCITY = -1.0, 1.0, 0.05, 2.0
 CONTROLLERS = {"joint_trajectory": ("a", "b"), "servo": ("c", "d"), "fwd": ("e", "f")}
-WAIT = 20.0  # s: generous; conditions are normally met in milliseconds
 
 
 def robot_config() -> dict[str, Any]:
@@ -71,11 +66,6 @@ def robot_config() -> dict[str, Any]:
             },
         },
     }
-
-
-def wait_for(condition: Callable[[], Any], timeout: float = WAIT, what: str = "condition") -> Any:
-    """tests.api's wait, with this suite's longer default (a fuzzed daemon may be busy)."""
-    return api_wait_for(condition, timeout, what)
 
 
 class Motion:
@@ -128,7 +118,7 @@ class FuzzDaemon:
         self.config = workdir / "fuzz6.yaml"
         self.config.write_text(yaml.safe_dump(robot_config(), sort_keys=False))
         self.log = workdir / "daemon.log"
-        self.proc: subprocess.Popen[bytes] | None = None
+        self.run: HildRun | None = None
         self.client: HildClient | None = None
         self.motion = Motion()
         self.events: list[dict[str, Any]] = []
@@ -137,16 +127,8 @@ class FuzzDaemon:
 
     # ---- lifecycle -------------------------------------------------------------------------------------------
     def start(self) -> None:
-        self.proc = HildRun(self.config, self.endpoint, ROBOT, log=self.log, cwd=self.workdir).process
-        deadline = time.monotonic() + WAIT
-        while self.client is None:
-            try:
-                self.client = HildClient(ROBOT, connect=[self.endpoint], timeout=5.0)
-            except HildUnreachable:
-                if self.proc.poll() is not None or time.monotonic() > deadline:
-                    raise AssertionError(f"daemon never came up:\n{self.log.read_text()}") from None
-                time.sleep(0.05)
-        self.client.wait_alive(WAIT)
+        self.run = HildRun(self.config, self.endpoint, ROBOT, log=self.log, cwd=self.workdir)
+        self.client = self.run.connected()
         self.client.subscribe("joint_states", self.motion)
         self.client.subscribe("events", self.events.append)
         wait_for(lambda: self.motion.count() > 0, what="joint_states")
@@ -161,13 +143,8 @@ class FuzzDaemon:
     def stop(self) -> None:
         if self.client is not None:
             self.client.close()
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.terminate()
-            try:
-                self.proc.wait(10)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(10)
+        if self.run is not None:
+            self.run.end(10.0)
 
     @property
     def session(self) -> Any:
@@ -176,12 +153,12 @@ class FuzzDaemon:
 
     @property
     def pid(self) -> int:
-        assert self.proc is not None
-        return self.proc.pid
+        assert self.run is not None
+        return self.run.pid
 
     def alive(self) -> bool:
-        assert self.proc is not None
-        if self.proc.poll() is None:
+        assert self.run is not None
+        if self.run.process.poll() is None:
             return True
         self.deaths += 1
         return False
