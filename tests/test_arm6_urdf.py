@@ -84,3 +84,16 @@ def test_urdf_velocity_and_effort_limits_are_the_configs() -> None:
         assert float(limit.get("effort", "nan")) == joint.limits.effort, name
         assert float(limit.get("lower", "nan")) == joint.limits.position.lower, name
         assert float(limit.get("upper", "nan")) == joint.limits.position.upper, name
+
+
+def test_urdf_soft_limits_are_hilds() -> None:
+    """MoveIt bounds its plans by <safety_controller>'s soft limits: they are where hild's soft margin begins."""
+    joints = load_config(CONFIGS / "arm6_twin.yaml").config.joints
+    urdf_joints = ET.parse(CONFIGS / "arm6.urdf").getroot().iter("joint")
+    safety = {j.get("name"): j.find("safety_controller") for j in urdf_joints}
+    for name, joint in joints.items():
+        soft = safety[name]
+        assert soft is not None, name
+        margin = joint.limits.soft_margin
+        assert float(soft.get("soft_lower_limit", "nan")) == pytest.approx(joint.limits.position.lower + margin), name
+        assert float(soft.get("soft_upper_limit", "nan")) == pytest.approx(joint.limits.position.upper - margin), name
