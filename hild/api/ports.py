@@ -80,6 +80,14 @@ class Counters:
     published: int = 0
     publish_errors: int = 0
 
+    def publish(self, publisher: zenoh.Publisher, message: dict[str, Any]) -> None:
+        """Put one JSON message; a failed put is counted, never raised: the loop publishes on (asyncio thread)."""
+        try:
+            publisher.put(encode(message))
+            self.published += 1
+        except zenoh.ZError:
+            self.publish_errors += 1
+
     @property
     def commands(self) -> int:
         return self.cycle.commands  # take_inputs sees every sample first
@@ -320,11 +328,7 @@ class ControllerPorts:
         for endpoints in self._controllers.values():
             for port in endpoints.outputs:
                 for msg in port.messages():
-                    try:
-                        port.publisher.put(encode(msg))
-                        self.counters.published += 1
-                    except zenoh.ZError:
-                        self.counters.publish_errors += 1
+                    self.counters.publish(port.publisher, msg)
             if endpoints.action is not None:
                 self._flush_action(endpoints.action)
 
@@ -332,11 +336,7 @@ class ControllerPorts:
         messages = [(port.result, r.as_dict()) for r in port.server.collect()]
         messages += [(port.feedback, m) for m in port.server.feedback_messages()]
         for publisher, message in messages:
-            try:
-                publisher.put(encode(message))
-                self.counters.published += 1
-            except zenoh.ZError:
-                self.counters.publish_errors += 1
+            self.counters.publish(publisher, message)
 
     # ---- goal queries ---------------------------------------------------------------------------------------------
     def _query_handler(

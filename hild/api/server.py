@@ -26,7 +26,6 @@ from typing import TYPE_CHECKING, Any
 import zenoh
 
 from hild.api.clients import watch_clients
-from hild.api.codec import encode
 from hild.api.keys import SERVICES, Keys
 from hild.api.ports import ControllerPorts, Counters
 from hild.api.queries import SHUTTING_DOWN, Admitted, LargePayloadWorker, QueryAdmission, drop, reply_json
@@ -196,7 +195,7 @@ class ApiServer:
         self.answer_reads()  # the loop is awake anyway: answer what queued since
         events_pub = self._publishers[self.keys.events]
         for event in events:
-            self._put(events_pub, event.as_dict())
+            self.counters.publish(events_pub, event.as_dict())
         self._check_changes()
         assert self._ports is not None
         self._ports.flush()
@@ -234,14 +233,7 @@ class ApiServer:
         except Exception:  # read back while the cycle changes it (rare); the next period retries
             log.debug("status read failed", exc_info=True)
             return
-        self._put(self._publishers[self.keys.status], status)
-
-    def _put(self, publisher: zenoh.Publisher, message: dict[str, Any]) -> None:
-        try:
-            publisher.put(encode(message))
-            self.counters.published += 1
-        except zenoh.ZError:
-            self.counters.publish_errors += 1
+        self.counters.publish(self._publishers[self.keys.status], status)
 
     # ---- read-only services, in batches (asyncio thread) -------------------------------------------------------
     def answer_reads(self) -> None:
