@@ -7,7 +7,8 @@ at the start of an update, reports feedback into a preallocated ring and a final
 into messages. Results wait in that queue for at most ``KEPT_RESULTS`` goals: if the API half collects none for
 that long (it is gone), later results are refused there and the restarted API half learns the goal's end from
 the cycle's own record. Results of recent goals are kept so a client that missed the published
-result can still ask for it.
+result can still ask for it; the API half also leaves them in a latest-value cell of its own, so that the API
+half a restarted client domain builds answers for goals that ended before the crash too.
 
 A goal body may name its sender (``"client": "<id>"``, the id of the sender's Zenoh liveliness token,
 hild/api/clients.py). When that token goes away, ``client_lost`` hands each of the sender's running goals to the
@@ -28,13 +29,14 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
-from hild.crossing.mailboxes import InProcess, Mailboxes, Queue
+from hild.crossing.mailboxes import InProcess, Latest, Mailboxes, Queue
 from hild.ring import RingReader
 
 G = TypeVar("G")
 
 PENDING_GOALS = 16  # goals accepted but not yet adopted by the cycle; more are refused ("busy")
 KEPT_RESULTS = 256  # finished goals whose result can still be queried
+KEPT_BYTES = 256 << 10  # those results as the pickle left for a restarted API half (texts of ~1 KB each fit)
 GOAL_BYTES = 16 << 20  # a prepared goal as it crosses to the cycle process: MAX_POINTS points, planned
 CLIENT_KEY = "client"  # optional key of a goal body: the sender's liveliness id
 _CLIENT_ID = re.compile(r"^[A-Za-z0-9_\-.]{1,64}$")  # one Zenoh key chunk, bounded
@@ -123,6 +125,8 @@ class ActionServer(Generic[G]):
         self.feedback = boxes.ring("feedback", len(self.joint_names), (*FEEDBACK_FIELDS, "serial"), capacity=64)
         self._feedback_reader = RingReader(self.feedback)
         self._finished: Queue[GoalResult] = boxes.queue("results", KEPT_RESULTS)  # cycle → API half
+        self._kept: Latest[list[GoalResult]] = boxes.latest("kept_results", KEPT_BYTES)  # API half → its successor
+        self._inherited = False  # the predecessor's kept results are in the store (taken at the first absorb)
         self._serials = itertools.count(1)
         self._live: dict[str, int] = {}  # accepted, no result yet: goal id → serial
         self._ids_by_serial: dict[int, str] = {}
@@ -189,6 +193,11 @@ class ActionServer(Generic[G]):
 
     def _absorb(self) -> None:
         """Move results the cycle reported into the store (any asyncio-side thread)."""
+        if not self._inherited:
+            self._inherited = True
+            for kept in self._kept.take() or ():  # a dead predecessor's: already published by it
+                self._results[kept.goal_id] = kept
+        absorbed = False
         while (result := self._finished.poll()) is not None:
             serial = self._live.pop(result.goal_id, None)
             if serial is not None:
@@ -198,6 +207,19 @@ class ActionServer(Generic[G]):
             while len(self._results) > KEPT_RESULTS:
                 self._results.popitem(last=False)
             self._unannounced.append(result)
+            absorbed = True
+        if absorbed:
+            self._leave_results()
+
+    def _leave_results(self) -> None:
+        """Leave the store where a successor can take it; texts longer than planned keep only the newest."""
+        kept = list(self._results.values())
+        while kept:
+            try:
+                self._kept.put(kept)
+                return
+            except ValueError:
+                kept = kept[len(kept) // 2 :]
 
     def client_lost(self, client: str) -> list[str]:
         """``client``'s liveliness token went away: hand each of its running goals to the cycle as a

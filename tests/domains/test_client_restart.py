@@ -93,6 +93,22 @@ def test_a_goal_running_when_the_client_domain_dies_ends_aborted_and_stays_query
         assert run.stop() == 0
 
 
+def test_results_of_goals_that_ended_before_the_client_domain_died_stay_queryable(
+    write_config: Callable[..., Path],
+) -> None:
+    """The client domain leaves its store of results in the shared region, and the next one answers for them: a
+    client that asks for a goal's result after a restart is not told the goal is unknown."""
+    with HildRun(write_config(robot()), free_endpoint(), "mock3") as run, run.client() as client:
+        client.switch(["jtc"], [])
+        ended = [client.send_goal("jtc", {"positions": [p, -p, p], "duration": 0.2}).wait(20.0) for p in (0.2, 0.0)]
+        assert [r["status"] for r in ended] == ["succeeded", "succeeded"], ended
+        os.kill(run.client_process(), signal.SIGKILL)
+        for before in ended:
+            after = run.wait(lambda g=before["goal_id"]: _result(client, g), "the new client domain to answer")
+            assert after == before
+        assert run.stop() == 0
+
+
 def test_killing_the_main_process_stops_both_domains_and_releases_the_arm(write_config: Callable[..., Path]) -> None:
     with HildRun(write_config(robot()), free_endpoint(), "mock3") as run:
         cycle, client = run.cycle_process(), run.client_process()
