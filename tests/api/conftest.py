@@ -7,6 +7,7 @@ Tests wait on conditions (``wait_for``) with generous timeouts; no assertion dep
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import threading
 import time
 from collections.abc import Iterator
@@ -122,29 +123,38 @@ class Daemon:
         return [e for e in list(self.published_events) if text in e["message"]]
 
 
-def engine_with_trajectory(tmp_path: Path) -> Engine:
-    """The test robot plus a joint_trajectory controller ``traj`` (its planner needs acceleration and jerk)."""
-    config = with_trajectory(robot_config(), "traj")
+def engine_from(config: dict[str, Any], tmp_path: Path) -> Engine:
+    """An engine for ``config``, loaded from ``tmp_path/robot.yaml`` as the daemon loads its file."""
     path = tmp_path / "robot.yaml"
     path.write_text(yaml.safe_dump(config, sort_keys=False))
     return Engine(load_config(path))
 
 
-@pytest.fixture
-def engine(tmp_path: Path) -> Engine:
-    path = tmp_path / "robot.yaml"
-    path.write_text(yaml.safe_dump(robot_config(), sort_keys=False))
-    return Engine(load_config(path))
+def engine_with_trajectory(tmp_path: Path) -> Engine:
+    """The test robot plus a joint_trajectory controller ``traj`` (its planner needs acceleration and jerk)."""
+    return engine_from(with_trajectory(robot_config(), "traj"), tmp_path)
 
 
-@pytest.fixture
-def daemon(engine: Engine) -> Iterator[Daemon]:
+@contextlib.contextmanager
+def running(engine: Engine) -> Iterator[Daemon]:
+    """``engine`` served by a daemon on a free loopback port, stopped on leaving."""
     d = Daemon(engine, free_endpoint())
     d.start()
     try:
         yield d
     finally:
         d.stop()
+
+
+@pytest.fixture
+def engine(tmp_path: Path) -> Engine:
+    return engine_from(robot_config(), tmp_path)
+
+
+@pytest.fixture
+def daemon(engine: Engine) -> Iterator[Daemon]:
+    with running(engine) as d:
+        yield d
 
 
 @pytest.fixture

@@ -10,7 +10,7 @@ trajectory's header stamp is read against it.
 from __future__ import annotations
 
 import time
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from hild.api.ros2 import types
 from hild.domains.link import CycleLink
@@ -30,6 +30,11 @@ def ns(seconds: float) -> int:
 
 def ros_time(stamp_ns: int) -> object:
     return types.message("builtin_interfaces/msg/Time", sec=stamp_ns // NS, nanosec=stamp_ns % NS)
+
+
+def ros_ns(time: Any) -> int:
+    """A builtin_interfaces Time or Duration as integer nanoseconds (``ros_time``'s inverse)."""
+    return int(time.sec) * NS + int(time.nanosec)
 
 
 class RosClock:

@@ -15,18 +15,15 @@ from typing import Any
 
 import numpy as np
 
-NS = 1_000_000_000
+from hild.api.ros2.clock import NS, ros_ns
+
 FUTURE_SLACK_NS = 100_000_000  # a stamp this little ahead of the robot's clock is clock skew: start now
-
-
-def _ns(time: Any) -> int:
-    return int(time.sec) * NS + int(time.nanosec)
 
 
 def trajectory_body(trajectory: Any, now_ns: int) -> dict[str, Any]:
     """The JSON ``trajectory``; ValueError (the ROS-side refusal's reason) for a stamp hild cannot honour."""
     elapsed = 0
-    stamp = _ns(trajectory.header.stamp)
+    stamp = ros_ns(trajectory.header.stamp)
     if stamp != 0:
         elapsed = now_ns - stamp
         if elapsed < -FUTURE_SLACK_NS:
@@ -37,7 +34,7 @@ def trajectory_body(trajectory: Any, now_ns: int) -> dict[str, Any]:
         elapsed = max(elapsed, 0)
     points = []
     for p in trajectory.points:
-        at = _ns(p.time_from_start) - elapsed
+        at = ros_ns(p.time_from_start) - elapsed
         if elapsed and at <= 0:
             continue  # passed already: JTC samples the trajectory from its stamp, so these never run
         point: dict[str, Any] = {

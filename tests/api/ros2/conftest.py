@@ -3,7 +3,6 @@ by hand (hild.api.ros2.wire/types build them; test_against_* check those against
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import tempfile
@@ -12,15 +11,12 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-import yaml
 import zenoh
 
 from hild.api.ros2 import types, wire
-from hild.config import load_config
 from hild.engine import Engine
-from tests.api.conftest import WAIT, Daemon, robot_config
+from tests.api.conftest import WAIT, Daemon, engine_from, robot_config, running
 from tests.conftest import with_trajectory
-from tests.helpers import free_endpoint
 
 # pyzeros' CDR library (cydr) compiles and caches its codecs in the working directory unless told otherwise: keep
 # them out of the repository. Read when cydr is imported, which is after this conftest.
@@ -41,20 +37,7 @@ def ros_robot_config(tmp_path: Path) -> dict[str, Any]:
 
 @pytest.fixture
 def ros_engine(tmp_path: Path) -> Engine:
-    path = tmp_path / "robot.yaml"
-    path.write_text(yaml.safe_dump(ros_robot_config(tmp_path), sort_keys=False))
-    return Engine(load_config(path))
-
-
-@contextlib.contextmanager
-def running(engine: Engine) -> Iterator[Daemon]:
-    """``engine`` served by a daemon on a free loopback port, stopped on leaving."""
-    d = Daemon(engine, free_endpoint())
-    d.start()
-    try:
-        yield d
-    finally:
-        d.stop()
+    return engine_from(ros_robot_config(tmp_path), tmp_path)
 
 
 @pytest.fixture
