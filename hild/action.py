@@ -11,7 +11,7 @@ result can still ask for it; the API half also leaves them in a latest-value cel
 half a restarted client domain builds answers for goals that ended before the crash too.
 
 A goal body may name its sender (``"client": "<id>"``, the id of the sender's Zenoh liveliness token,
-hild/api/clients.py). When that token goes away, ``client_lost`` hands each of the sender's running goals to the
+hild/api/goal_senders.py). When that token goes away, ``client_lost`` hands each of the sender's running goals to the
 cycle as a :class:`ClientLost` request; the controller decides (joint_trajectory: ``on_client_lost``). A controller
 that does not know the request treats it as the cancel it derives from: the safe default.
 
@@ -30,7 +30,7 @@ from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
 from hild.crossing.mailboxes import InProcess, Latest, Mailboxes, Queue
-from hild.ring import RingReader
+from hild.crossing.ring import RingReader
 
 G = TypeVar("G")
 

@@ -31,8 +31,8 @@ def setup_logging(level: str) -> None:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from hild.daemon import run_daemon
-    from hild.realtime import thaw_heap
+    from hild.cycle.realtime import thaw_heap
+    from hild.daemon.daemon import run_daemon
 
     setup_logging(args.log_level)
     try:

@@ -13,7 +13,7 @@ cycle takes with a copy into an array it owns, without allocating or unpickling)
 on the Zenoh thread a sample arrives on when the cycle has a process of its own; in one process, on the cycle
 thread at the start of a cycle (the asyncio loop for payloads over 4 KiB). So it must be quick, thread-safe and
 never wait on anything.
-Outputs (e.g. joint states) leave through :class:`~hild.ring.SampleRing`\\ s.
+Outputs (e.g. joint states) leave through :class:`~hild.crossing.ring.SampleRing`\\ s.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from hild.arrays import JointState, ServoCommand
 from hild.config.model import JointLimits
 from hild.config.params import Params
 from hild.crossing.mailboxes import InProcess, Mailboxes
-from hild.ring import SampleRing
+from hild.crossing.ring import SampleRing
 
 
 class ControllerState(enum.StrEnum):

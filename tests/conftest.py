@@ -14,7 +14,7 @@ import pytest
 import yaml
 
 from hild.config import load_config
-from hild.engine import Engine
+from hild.cycle.engine import Engine
 
 REPO = Path(__file__).resolve().parent.parent
 CONFIGS = REPO / "configs"

@@ -10,7 +10,7 @@ from typing import Any
 
 import pytest
 
-from drivers.can.driver import MitCanDriver
+from drivers.can.mit_driver import MitCanDriver
 from drivers.mock import MockHardware
 from hild.cli import main
 from hild.config import ConfigError, load_config

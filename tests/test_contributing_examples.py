@@ -15,7 +15,7 @@ import pytest
 
 from hild import plugins
 from hild.config import load_config
-from hild.engine import Engine
+from hild.cycle.engine import Engine
 from tests.conftest import REPO, joint
 
 EXAMPLES = REPO / "docs" / "examples"

@@ -6,8 +6,8 @@ import time
 from collections.abc import Callable
 
 from hild.config.model import RealtimeSection
-from hild.cycle import CycleThread
-from hild.engine import Engine
+from hild.cycle.engine import Engine
+from hild.cycle.pacing import CycleThread
 
 
 def test_sim_clock_steps_exactly_and_stop_releases_hardware(make_engine: Callable[..., Engine]) -> None:

@@ -9,8 +9,8 @@ import pytest
 
 from hild.arrays import JointState, ServoCommand
 from hild.controller import Controller
-from hild.engine import Engine
-from hild.supervisor import Fault
+from hild.cycle.engine import Engine
+from hild.cycle.supervisor import Fault
 
 MakeEngine = Callable[..., Engine]
 
@@ -334,7 +334,7 @@ def test_transmissions_map_joint_and_actuator_space(make_engine: MakeEngine) -> 
 
 
 def test_broadcaster_publishes_at_its_rate(make_engine: MakeEngine) -> None:
-    from hild.ring import RingReader
+    from hild.crossing.ring import RingReader
 
     engine = make_engine()
     reader = RingReader(engine.manager.records["jsb"].instance.ring, start_at_head=False)
@@ -367,8 +367,8 @@ def test_forward_command_rejects_bad_input(make_engine: MakeEngine) -> None:
 
 
 def test_estop_is_never_refused_even_with_a_full_request_queue(make_engine: MakeEngine) -> None:
-    from hild.engine import REQUEST_QUEUE
-    from hild.requests import Refused
+    from hild.crossing.requests import Refused
+    from hild.cycle.engine import REQUEST_QUEUE
 
     engine = make_engine()
     engine.switch(["fwd"], [])
@@ -386,7 +386,7 @@ def test_estop_is_never_refused_even_with_a_full_request_queue(make_engine: Make
 def test_a_reset_sent_before_an_estop_took_effect_never_clears_it(make_engine: MakeEngine) -> None:
     """Found when the two crossed processes: resets already queued when an e-stop arrives were applied right after
     it, in the same cycle, and cleared it."""
-    from hild.requests import Refused, Reset
+    from hild.crossing.requests import Refused, Reset
 
     engine = make_engine()
     engine.switch(["fwd"], [])
@@ -405,8 +405,8 @@ def test_a_reset_sent_before_an_estop_took_effect_never_clears_it(make_engine: M
 
 
 def test_a_reset_waiting_for_its_drives_is_refused_by_an_estop(make_engine: MakeEngine) -> None:
-    from hild.engine import Deferred
-    from hild.requests import Refused
+    from hild.crossing.requests import Refused
+    from hild.cycle.engine import Deferred
 
     engine = make_engine()
     waiting = engine.submit(lambda: Deferred(lambda: None), clears_estop=True)  # its drives never confirm

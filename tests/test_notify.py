@@ -21,9 +21,9 @@ from pathlib import Path
 import pytest
 
 from hild.config import load_config
-from hild.daemon import Daemon
-from hild.engine import Engine
-from hild.notify import (
+from hild.cycle.engine import Engine
+from hild.daemon.daemon import Daemon
+from hild.main.notify import (
     READY_AFTER_CYCLES,
     SystemdNotifier,
     WatchdogGate,
@@ -158,7 +158,7 @@ def test_daemon_withholds_pings_while_its_cycle_stalls(
     monkeypatch.setenv("WATCHDOG_USEC", "200000")  # ping period 50 ms
     monkeypatch.delenv("WATCHDOG_PID", raising=False)
     # Wall clock at 500 Hz; keep the test process's GC and GIL switch interval as they are.
-    # The cycle as a thread of this process (tests/domains has the same with the cycle in its own process).
+    # The cycle as a thread of this process (tests/processes has the same with the cycle in its own process).
     realtime = {"gc_freeze": False, "switch_interval": sys.getswitchinterval(), "cycle_process": False}
     patch = {"clock": {"source": "wall"}, "realtime": realtime}
     daemon = Daemon(load_config(write_config(merge(mock_robot(), patch))), [f"tcp/127.0.0.1:{free_port()}"])

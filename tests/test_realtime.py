@@ -9,7 +9,7 @@ import threading
 from pathlib import Path
 
 from hild.config.model import RealtimeSection
-from hild.realtime import CpuLatencyRequest, apply_process_settings, apply_thread_settings
+from hild.cycle.realtime import CpuLatencyRequest, apply_process_settings, apply_thread_settings
 
 
 def test_the_cpu_latency_request_is_written_and_held_until_released(tmp_path: Path) -> None:

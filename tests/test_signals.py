@@ -8,7 +8,7 @@ from typing import Any
 import pytest
 
 from hild.config import load_config
-from hild.daemon import Daemon
+from hild.daemon.daemon import Daemon
 
 
 def test_a_second_signal_forces_the_exit(write_config: Any, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -16,7 +16,7 @@ def test_a_second_signal_forces_the_exit(write_config: Any, monkeypatch: pytest.
 
     daemon = Daemon(load_config(write_config(mock_robot())))
     exits: list[int] = []
-    monkeypatch.setattr("hild.daemon.os._exit", exits.append)
+    monkeypatch.setattr("hild.daemon.daemon.os._exit", exits.append)
     daemon._on_signal(signal.SIGTERM)
     assert daemon._stopping.is_set() and exits == []  # orderly: hold, release, exit 0
     daemon._on_signal(signal.SIGINT)

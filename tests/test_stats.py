@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from hild.stats import LoopStats, percentiles
+from hild.crossing.stats import LoopStats, percentiles
 
 
 def _fill(stats: LoopStats, duration_ns: int, count: int) -> None:

@@ -23,10 +23,10 @@ from hypothesis import strategies as st
 
 from hild.arrays import JointState, ServoCommand
 from hild.controller import JointLimitArrays
-from hild.events import EventLog
+from hild.crossing.events import EventLog
+from hild.cycle.supervisor import LIMIT_EFFORT, Action, Fault, JointGains, SafetySettings, Supervisor
 from hild.interfaces import ClaimMasks
 from hild.modes import JointMode
-from hild.supervisor import LIMIT_EFFORT, Action, Fault, JointGains, SafetySettings, Supervisor
 
 N = 3
 DT = 0.002

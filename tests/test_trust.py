@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 from hild.arrays import ServoCommand
-from hild.engine import MAX_STEP_PERIODS, Engine
-from hild.supervisor import Fault
+from hild.cycle.engine import MAX_STEP_PERIODS, Engine
+from hild.cycle.supervisor import Fault
 from tests.faults.rigs import JTC, TwinRig
 
 MakeEngine = Callable[..., Engine]
@@ -216,7 +216,7 @@ def test_stopping_with_a_descent_lowers_the_arm_and_never_drops_it() -> None:
 
 def test_the_cycle_thread_runs_the_descent_before_it_releases_the_hardware() -> None:
     from hild.config.model import RealtimeSection
-    from hild.cycle import CycleThread
+    from hild.cycle.pacing import CycleThread
 
     rig = TwinRig(safety={"stop_descent": 0.5})
     engine = rig.engine

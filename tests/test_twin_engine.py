@@ -9,8 +9,8 @@ import pytest
 
 from hild.config import load_config
 from hild.config.model import PlausibilitySection
-from hild.engine import Engine
-from hild.supervisor import Fault
+from hild.cycle.engine import Engine
+from hild.cycle.supervisor import Fault
 from tests.conftest import CONFIGS
 from tests.test_engine import JumpGuard, events, modes, send
 

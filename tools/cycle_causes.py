@@ -33,10 +33,10 @@ from pathlib import Path
 import numpy as np
 
 from hild.bench.measure import lockstep_engine
-from hild.cycle import wait_until
-from hild.engine import Engine
+from hild.crossing.stats import percentiles
+from hild.cycle.engine import Engine
+from hild.cycle.pacing import wait_until
 from hild.motion.reference import standard_trajectory
-from hild.stats import percentiles
 
 CONDITIONS = (  # label, sleep (s), spin (ns)
     ("hot (back to back)", 0.0, 0),

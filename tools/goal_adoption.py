@@ -30,11 +30,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from hild.action import GoalRequest
 from hild.controllers.trajectory_goals import GoalContext, PreparedGoal, TimedPlan, parse_goal
+from hild.crossing.stats import percentiles
 from hild.motion.limits import KinematicLimits
 from hild.motion.planning import plan_stop
 from hild.motion.segments import Segment
 from hild.motion.trajectory import Trajectory, splice, timed_segments
-from hild.stats import percentiles
 
 J = 6
 NAMES = [f"j{k}" for k in range(J)]

@@ -28,7 +28,7 @@ from hild.controllers.servo import ServoTarget, TargetRecord
 from hild.crossing.latest import LatestCell, latest_bytes
 from hild.crossing.mailboxes import LATEST_BYTES, Shared, SharedLatest
 from hild.crossing.region import Region
-from hild.stats import percentiles
+from hild.crossing.stats import percentiles
 
 
 @dataclasses.dataclass(frozen=True, slots=True)

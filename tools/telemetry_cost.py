@@ -4,8 +4,8 @@
     python tools/telemetry_cost.py configs/arm6_twin.yaml --rates 500 1000 --seconds 10
 
 For each clock (lockstep = sim clock as fast as possible; wall = real time) and rate, the engine runs on the real
-cycle thread (hild.cycle.CycleThread) with the daemon's real-time settings, without telemetry and with a file sink
-in a temporary directory (the recorder process, and ``Telemetry.run`` watching it on an asyncio loop on the main
+cycle thread (hild.cycle.pacing.CycleThread) with the daemon's real-time settings, without telemetry and with a file
+sink in a temporary directory (the recorder process, and ``Telemetry.run`` watching it on an asyncio loop on the main
 thread, the way the daemon does). ``--repeat N`` runs N off/on pairs, interleaved (off, on, off, on, …) so a drift
 of the machine hits both alike, and reports each run and the mean of each pair of sides. The tap is called where the
 daemon's engine calls it (``Engine.step``, right after the hardware writes) and its own cost is timed separately.
@@ -32,7 +32,7 @@ from hild.bench.measure import cycle_running, measure_window, start_engine
 from hild.bench.report import rise_pct
 from hild.config import load_config
 from hild.config.model import TelemetrySection
-from hild.stats import percentiles
+from hild.crossing.stats import percentiles
 from hild.telemetry import Telemetry
 
 WARMUP_S = 1.0  # s, not counted

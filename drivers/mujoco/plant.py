@@ -3,7 +3,7 @@
 `hild emulate --plant twin` puts firmware-faithful drives (drivers/can/emulator) in front of this plant, so a daemon
 talking CAN sees the same arm the twin driver simulates. The emulator works in *actuator space* — the shaft angle a
 drive senses and the torque it produces — while the model is built in joint space, so every joint carries the
-config's transmission, mapped by the daemon's own :class:`hild.transmission.Transmissions`:
+config's transmission, mapped by the daemon's own :class:`hild.cycle.transmission.Transmissions`:
 
 * positions and velocities are published in actuator space;
 * a drive torque acts on the joint through the transmission (applied as ``qfrc_applied``); the drives saturate
@@ -21,8 +21,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from hild.cycle.transmission import Transmissions
 from hild.dynamics.model import SCALAR_JOINT_TYPES, joint_names, load_model, scalar_joint_addresses
-from hild.transmission import Transmissions
 
 __all__ = ["TwinPlant"]
 

@@ -32,8 +32,8 @@ from typing import Any
 
 import zenoh
 
-from hild.api.clients import client_token_key, new_client_id
 from hild.api.codec import encode
+from hild.api.goal_senders import client_token_key, new_client_id
 from hild.api.keys import ALIVE_ANY, Keys, check_chunk, robot_of_alive_key
 from hild.api.session import DEFAULT_CONNECT, client_config, declare_json_publisher, open_session, zenoh_error_text
 
@@ -357,7 +357,7 @@ class HildClient:
             raise HildError(str(reply.get("error")))
         return reply
 
-    # ---- presence (goal senders' liveliness, hild/api/clients.py) ----------------------------------------------------
+    # ---- presence (goal senders' liveliness, hild/api/goal_senders.py) -----------------------------------------
     def _watched(self, goal: dict[str, Any]) -> dict[str, Any]:
         """``goal`` naming this client, whose liveliness token is declared first (once per client)."""
         key = client_token_key(self.robot, self.client_id)

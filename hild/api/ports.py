@@ -15,8 +15,8 @@ flood). Samples for an inactive controller are refused unread. Anything wrong dr
 event: nothing moves on bad input. Warnings are rate-limited per key so a client streaming garbage at 1 kHz cannot flood
 the event log.
 
-Outputs are read from each controller's :class:`~hild.ring.SampleRing` through a private reader and published with
-congestion control DROP: under back-pressure old samples are lost, the loop is never held."""
+Outputs are read from each controller's :class:`~hild.crossing.ring.SampleRing` through a private reader and
+published with congestion control DROP: under back-pressure old samples are lost, the loop is never held."""
 
 from __future__ import annotations
 
@@ -39,8 +39,8 @@ from hild.api.codec import FAST_DECODE, GOAL_LIMITS, MAX_PAYLOAD, REQUEST_LIMITS
 from hild.api.keys import RESERVED, Keys, check_chunk
 from hild.api.queries import SHUTTING_DOWN, Admitted, LargePayloadWorker, QueryAdmission, clip, drop, reply_json
 from hild.api.session import declare_json_publisher
-from hild.domains.link import CycleLink
-from hild.ring import RingReader, SampleRing
+from hild.crossing.ring import RingReader, SampleRing
+from hild.daemon.link import CycleLink
 
 log = logging.getLogger("hild.api")
 

@@ -10,7 +10,7 @@ reached only through ``engine.submit`` and ``engine.take_inputs``, and read back
 ``engine.status()``, so the API shares no lock with it. Every publisher uses congestion control DROP: a slow
 subscriber loses samples, it never stalls the loop or the cycle.
 
-Goal senders' liveliness tokens are watched (hild/api/clients.py): when one goes away, the sender's running goals
+Goal senders' liveliness tokens are watched (hild/api/goal_senders.py): when one goes away, the sender's running goals
 are handed to their controllers (``_client_gone``).
 """
 
@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any
 
 import zenoh
 
-from hild.api.clients import watch_clients
+from hild.api.goal_senders import watch_clients
 from hild.api.keys import SERVICES, Keys
 from hild.api.ports import ControllerPorts, Counters
 from hild.api.queries import SHUTTING_DOWN, Admitted, LargePayloadWorker, QueryAdmission, drop, reply_json
@@ -33,8 +33,8 @@ from hild.api.services import DEFAULT_TIMEOUT, Reply, Services
 from hild.api.session import declare_json_publisher, open_session, server_config
 from hild.api.unique import DaemonIdentity, check_unique, describe_other
 from hild.config.model import Ros2Section, ZenohSection
-from hild.domains.link import CycleLink
-from hild.events import Event
+from hild.crossing.events import Event
+from hild.daemon.link import CycleLink
 
 if TYPE_CHECKING:
     from hild.api.ros2.face import RosFace

@@ -21,8 +21,8 @@ from typing import Any
 
 from hild.api.codec import MAX_PAYLOAD, PayloadError, and_more, decode, encode, unknown_keys
 from hild.api.queries import LargePayloadWorker, too_large
-from hild.domains.link import CycleLink
-from hild.requests import Enable, Refused, Request, Reset, SetZero, Switch
+from hild.crossing.requests import Enable, Refused, Request, Reset, SetZero, Switch
+from hild.daemon.link import CycleLink
 
 log = logging.getLogger("hild.api")
 

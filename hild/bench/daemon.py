@@ -43,8 +43,8 @@ def child_pids(pid: int) -> list[int]:
 
 
 def domain_pid(main_pid: int, module: str) -> int:
-    """The one child of the daemon's main process running ``hild.domains.<module>``."""
-    found = [pid for pid in child_pids(main_pid) if f"hild.domains.{module}".encode() in _cmdline(pid)]
+    """The one child of the daemon's main process running ``python -m <module>``."""
+    found = [pid for pid in child_pids(main_pid) if module.encode() in _cmdline(pid)]
     assert len(found) == 1, f"the daemon {main_pid} has {len(found)} {module} children: {child_pids(main_pid)}"
     return found[0]
 
@@ -113,10 +113,10 @@ class HildRun(LoggedChild):
         return self.started(timeout).client()
 
     def client_process(self) -> int:
-        return domain_pid(self.pid, "client_process")
+        return domain_pid(self.pid, "hild.daemon.process")
 
     def cycle_process(self) -> int:
-        return domain_pid(self.pid, "cycle_process")
+        return domain_pid(self.pid, "hild.cycle.process")
 
     def client(self, timeout: float = 5.0) -> HildClient:
         return HildClient(self.robot, [self.endpoint], timeout=timeout)

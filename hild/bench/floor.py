@@ -1,6 +1,6 @@
 """The floor: what this machine gives a Python cycle before hild adds anything, measured in the same run.
 
-* **Empty thread**: ``hild.cycle.CycleThread`` itself — same sleep+spin pacing, same real-time settings, same
+* **Empty thread**: ``hild.cycle.pacing.CycleThread`` itself — same sleep+spin pacing, same real-time settings, same
   ``LoopStats`` bookkeeping — driving an engine whose ``step`` does nothing. It runs in a child process of its own
   (``python -m hild.bench.floor``) with the daemon's process settings (switch interval, gc freeze, optional
   ``mlockall``), so the only difference from a scenario is the work inside the cycle and what shares the process.
@@ -28,9 +28,9 @@ import numpy as np
 from hild.bench.measure import cycle_running, measure_window
 from hild.bench.report import summarize_ns
 from hild.config.model import RealtimeSection
-from hild.events import EventLog
-from hild.realtime import CpuLatencyRequest, apply_process_settings, freeze_heap
-from hild.stats import LoopStats
+from hild.crossing.events import EventLog
+from hild.crossing.stats import LoopStats
+from hild.cycle.realtime import CpuLatencyRequest, apply_process_settings, freeze_heap
 
 PROBES = {  # the floor section's name → (module in hild.bench.probes, function)
     "zenoh": ("zenoh_loopback", "zenoh_round_trip"),

@@ -47,9 +47,9 @@ from hild.bench.rigs import BenchRig, rig_class
 from hild.bench.window import DRAIN_S, ClockLag, StatsWindow, window_note
 from hild.cli import setup_logging
 from hild.config import ConfigError, load_config
-from hild.daemon import Daemon
-from hild.engine import MAX_STEP_PERIODS
-from hild.realtime import thaw_heap
+from hild.cycle.engine import MAX_STEP_PERIODS
+from hild.cycle.realtime import thaw_heap
+from hild.daemon.daemon import Daemon
 
 CLOCK_SAMPLES = 20
 CLOCK_POLL_S = 0.1  # s of polling the shared clock cell (the cycle in a process of its own)

@@ -26,10 +26,10 @@ from hild.bench.window import DRAIN_S, StatsWindow, recorded
 from hild.config import load_config
 from hild.config.loader import LoadedConfig
 from hild.config.model import RealtimeSection
-from hild.cycle import CycleThread
-from hild.engine import Engine
-from hild.realtime import apply_process_settings, freeze_heap, thaw_heap
-from hild.stats import LoopStats
+from hild.crossing.stats import LoopStats
+from hild.cycle.engine import Engine
+from hild.cycle.pacing import CycleThread
+from hild.cycle.realtime import apply_process_settings, freeze_heap, thaw_heap
 
 RESTART_TIMEOUT = 5.0  # s for the cycle thread to take the restart
 POLL_S = 0.002  # s between two looks at the count while waiting for a number of cycles

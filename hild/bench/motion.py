@@ -45,8 +45,8 @@ from hild.bench.daemon import CONFIGS, HildRun
 from hild.bench.measure import RateRefused, lockstep_engine
 from hild.config import load_config
 from hild.config.documents import load_document
+from hild.crossing.stats import percentiles
 from hild.motion.reference import standard_trajectory
-from hild.stats import percentiles
 
 JTC = "joint_trajectory"
 SERVO = "servo"

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from hild.stats import percentiles
+from hild.crossing.stats import percentiles
 
 CYCLE_P99_LIMIT_US = 250.0
 PERIOD_ERROR_FLOOR_FACTOR = 2.0

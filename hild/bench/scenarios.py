@@ -63,7 +63,7 @@ from hild.bench.probes.zenoh_loopback import Decoy
 from hild.bench.report import loop_figures, rise_pct, summarize_ns
 from hild.bench.rigs import rig_class
 from hild.config.documents import load_document
-from hild.stats import percentiles
+from hild.crossing.stats import percentiles
 
 ARM6 = CONFIGS / "arm6_twin.yaml"
 PHYSICS_STEP = 0.001  # s: the twin's physics step at every rate

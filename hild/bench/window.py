@@ -17,7 +17,7 @@ The pure parts (``ring_slots``, ``plan_copy``, ``overwritten``, ``clock_lag_ns``
 
 **The control clock's lag.** Controllers stamp their samples (joint_states) with the engine's control clock, which
 stops advancing by more than ``MAX_STEP_PERIODS`` periods per cycle: after a stall it lags the cycle clock by the
-stall (``hild.engine``). With the cycle in another process that lag is not in the shared region, but every stall
+stall (``hild.cycle.engine``). With the cycle in another process that lag is not in the shared region, but every stall
 is in the period errors: a cycle woken more than two periods after the last has a period error e > T, and the
 control clock lost e − T (a wake early by e < T cannot be told apart from one late by e, and is never a stall).
 :class:`ClockLag` reads every period error from the cycle's start and sums that.
@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from hild.stats import LoopStats
+from hild.crossing.stats import LoopStats
 
 DRAIN_S = 2.0  # s between takes: far below what the arrays hold at 1 kHz (10 000 cycles = 10 s)
 

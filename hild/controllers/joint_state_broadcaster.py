@@ -3,7 +3,7 @@
 It claims nothing, so it runs alongside any controller and survives an e-stop. Samples go into a preallocated
 ring; the API publishes them on ``hild/<robot>/joint_states`` from the asyncio side. ``fresh`` (1 or 0 per joint)
 says whether the sample is a new accepted reading; 0 means the drive's reading was missing or rejected as
-implausible and the values are the last accepted ones (hild.plausibility), never the bad reading.
+implausible and the values are the last accepted ones (hild.cycle.plausibility), never the bad reading.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import numpy as np
 from hild.arrays import JointState, ServoCommand
 from hild.config.params import Field, Params
 from hild.controller import Controller, ControllerContext
-from hild.ring import SampleRing
+from hild.crossing.ring import SampleRing
 
 PUBLISHED_FIELDS = ("position", "velocity", "effort", "fresh")
 

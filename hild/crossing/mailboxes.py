@@ -9,7 +9,8 @@ inputs the cycle takes every cycle cross as fixed-size float64 records (``latest
 the door owns: no allocation, no unpickling). Requests, goals, replies and the status snapshot cross as pickles of
 what their writer prepared (numpy arrays, dataclasses of them, segment tables), unpickled only when one arrives.
 
-The interfaces are those of :mod:`hild.mailbox` and :mod:`hild.ring`, so controller code is the same either way.
+The interfaces are those of :mod:`hild.crossing.inprocess` and :mod:`hild.crossing.ring`, so controller code is the
+same either way.
 """
 
 from __future__ import annotations
@@ -21,11 +22,11 @@ from typing import Any, Generic, Protocol, TypeVar
 
 import numpy as np
 
+from hild.crossing.inprocess import BoundedQueue, LatestSlot
 from hild.crossing.latest import LatestCell, NumbersCell, as_record, latest_bytes, numbers_bytes
 from hild.crossing.queue import ByteQueue, queue_bytes
 from hild.crossing.region import Region
-from hild.mailbox import BoundedQueue, LatestSlot
-from hild.ring import SampleRing, ring_bytes
+from hild.crossing.ring import SampleRing, ring_bytes
 
 T = TypeVar("T")
 
@@ -83,7 +84,7 @@ class Mailboxes(Protocol):
 
 
 class InProcess:
-    """Both halves in one process: the plain lock-free objects of :mod:`hild.mailbox`."""
+    """Both halves in one process: the plain lock-free objects of :mod:`hild.crossing.inprocess`."""
 
     def latest(self, name: str, max_bytes: int = LATEST_BYTES) -> Latest[Any]:
         return LatestSlot()
@@ -179,7 +180,7 @@ class Shared:
         return self.region.carve(full, nbytes) if self.create else self.region.find(full, nbytes)
 
     def cell(self, name: str, nbytes: int) -> memoryview:
-        """A raw cell, for a structure that lays itself out (e.g. ``hild.stats.LoopStats``)."""
+        """A raw cell, for a structure that lays itself out (e.g. ``hild.crossing.stats.LoopStats``)."""
         return self._cell(name, nbytes)
 
     def numbers(self, name: str, count: int, dtype: type[np.generic] = np.int64) -> np.ndarray:

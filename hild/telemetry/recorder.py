@@ -27,8 +27,8 @@ from pathlib import Path
 from typing import Any
 
 from hild.config.model import TelemetrySection
-from hild.events import Event
-from hild.stats import LoopStats
+from hild.crossing.events import Event
+from hild.crossing.stats import LoopStats
 from hild.telemetry.errors import TelemetryError
 from hild.telemetry.tap import SharedRing
 

@@ -24,7 +24,7 @@ from multiprocessing import shared_memory
 import numpy as np
 
 from hild.arrays import JointState, ServoCommand
-from hild.stats import LoopStats
+from hild.crossing.stats import LoopStats
 
 FIELDS = ("measured_position", "measured_velocity", "measured_effort", "position", "velocity", "effort")
 _HEAD, _DROPPED = 0, 1  # int64 header cells: rows ever committed (producer), rows lost (consumer)

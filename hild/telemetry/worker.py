@@ -28,7 +28,7 @@ import numpy as np
 import rerun as rr
 
 from hild.config.model import FileSinkSpec
-from hild.events import Event
+from hild.crossing.events import Event
 from hild.telemetry import layout
 from hild.telemetry.errors import TelemetryError
 from hild.telemetry.outlets import FileOutlet, LiveOutlet, Outlet

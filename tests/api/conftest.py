@@ -21,7 +21,7 @@ from hild.api.client import HildClient
 from hild.api.server import ApiServer
 from hild.config import load_config
 from hild.config.model import ZenohSection
-from hild.engine import Engine
+from hild.cycle.engine import Engine
 from tests.conftest import with_trajectory
 from tests.helpers import free_endpoint
 
@@ -75,7 +75,7 @@ class Stepper(threading.Thread):
 
 
 class Daemon:
-    """Engine + stepper + ApiServer on a background asyncio loop, wired like hild.daemon (coalesced wake-ups)."""
+    """Engine + stepper + ApiServer on a background asyncio loop, wired like hild.daemon.daemon (coalesced wake-ups)."""
 
     def __init__(self, engine: Engine, endpoint: str, settings: ZenohSection | None = None) -> None:
         self.engine = engine

@@ -16,7 +16,7 @@ import yaml
 
 from hild.api.ctl import EXIT_OK, EXIT_SERVICE
 from hild.config import load_config
-from hild.engine import Engine
+from hild.cycle.engine import Engine
 from tests.api.conftest import ROBOT, Daemon, robot_config
 from tests.api.test_ctl import ctl
 from tests.conftest import with_trajectory

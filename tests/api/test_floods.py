@@ -41,7 +41,7 @@ from hild.api.services import EMPTY_REQUEST, FIELDS_REQUEST, MAX_NAMES, RequestE
 from hild.controllers.servo import ServoController
 from hild.controllers.trajectory_goals import MAX_POINTS, parse_goal
 from hild.crossing.mailboxes import Flag
-from hild.engine import Engine
+from hild.cycle.engine import Engine
 from tests.api.conftest import ROBOT, WAIT, Daemon, engine_with_trajectory
 from tests.fuzz.test_regressions import goal_context
 from tests.helpers import wait_for

@@ -27,7 +27,7 @@ from hild.api.session import client_config, file_endpoints, server_config
 from hild.cli import main as hild_main
 from hild.config import load_config
 from hild.config.model import TelemetrySection, ZenohSection
-from hild.engine import Engine
+from hild.cycle.engine import Engine
 from tests.api.conftest import ROBOT, Daemon, engine_with_trajectory
 from tests.conftest import CONFIGS
 from tests.helpers import free_endpoint, wait_for

@@ -12,7 +12,7 @@ import zenoh
 
 from hild.api.client import HildClient, HildUnreachable
 from hild.api.codec import MAX_PAYLOAD
-from hild.engine import Engine
+from hild.cycle.engine import Engine
 from tests.api.conftest import ROBOT, Daemon
 from tests.helpers import free_endpoint, wait_for
 

@@ -16,9 +16,9 @@ import yaml
 from hild.api.unique import RobotNameTaken
 from hild.config import load_config
 from hild.config.model import ZenohSection
-from hild.daemon import Daemon as DaemonProcess
-from hild.daemon import run_daemon
-from hild.engine import Engine
+from hild.cycle.engine import Engine
+from hild.daemon.daemon import Daemon as DaemonProcess
+from hild.daemon.daemon import run_daemon
 from hild.hardware import HardwareError
 from tests.api.conftest import Daemon, robot_config
 from tests.helpers import free_endpoint, wait_for

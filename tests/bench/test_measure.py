@@ -9,7 +9,7 @@ import pytest
 
 from hild.bench.measure import RateRefused, cycle_running, lockstep_engine, measure_window, start_engine
 from hild.config import load_config
-from hild.engine import Engine
+from hild.cycle.engine import Engine
 from tests.conftest import CONFIGS, mock_robot
 
 

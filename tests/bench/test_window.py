@@ -17,7 +17,7 @@ from hild.bench.window import (
     stall_history,
     window_note,
 )
-from hild.stats import LoopStats, stats_bytes
+from hild.crossing.stats import LoopStats, stats_bytes
 
 
 def record(stats: LoopStats, first: int, n: int, overrun_every: int = 0) -> None:

@@ -9,9 +9,9 @@ import pytest
 
 from hild.action import ErrorCode, GoalResult
 from hild.controllers.joint_trajectory import JointTrajectoryController
-from hild.engine import Engine
+from hild.cycle.engine import Engine
+from hild.cycle.supervisor import Fault
 from hild.motion.reference import standard_trajectory
-from hild.supervisor import Fault
 from tests.test_engine import JumpGuard, events
 from tests.test_twin_engine import twin
 

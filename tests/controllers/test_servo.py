@@ -23,7 +23,7 @@ from hild.controllers.servo import (
     speed_to_stop_within,
     stopping_distance,
 )
-from hild.engine import Engine
+from hild.cycle.engine import Engine
 from tests.conftest import merge, mock_robot
 from tests.test_engine import JumpGuard, events, modes
 from tests.test_twin_engine import twin
@@ -491,7 +491,7 @@ def test_deactivate_mid_motion_holds_and_reactivation_starts_from_the_measured_s
 def test_the_plan_advances_with_the_cycle_clocks_real_period(make_engine: MakeEngine) -> None:
     """A slightly late or early wall-clock cycle advances the plan by the time that really passed; a cycle later
     than MAX_STEP_PERIODS advances it by that much only (the stream resumes where it was, no catch-up step)."""
-    from hild.engine import MAX_STEP_PERIODS
+    from hild.cycle.engine import MAX_STEP_PERIODS
 
     engine, servo = started(make_engine, command_timeout=2.0)
     servo.accept({"positions": [0.1, -0.2, 0.3], "velocities": [0.5, 0.0, 0.0]})
@@ -664,7 +664,7 @@ def test_null_velocities_mean_none_given(make_engine: MakeEngine) -> None:
 
 
 def test_a_fault_makes_servo_follow_the_arm_and_reset_resumes_without_a_jump() -> None:
-    from hild.supervisor import Fault
+    from hild.cycle.supervisor import Fault
     from tests.test_twin_engine import twin
 
     engine = twin("arm6_twin.yaml")

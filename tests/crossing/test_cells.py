@@ -17,7 +17,7 @@ from hild.crossing.latest import LatestCell, NumbersCell, latest_bytes, numbers_
 from hild.crossing.mailboxes import InProcess, LatestNumbers, Shared
 from hild.crossing.queue import ByteQueue, queue_bytes
 from hild.crossing.region import Region, RegionError
-from hild.ring import RingReader
+from hild.crossing.ring import RingReader
 
 SIZE = 1 << 20
 

@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 
 from hild.action import GoalStatus
-from hild.api.halves import api_halves
 from hild.config import LoadedConfig, load_config
 from hild.controller import Controller
 from hild.crossing.mailboxes import Shared
 from hild.crossing.region import Region
-from hild.engine import Engine
+from hild.cycle.engine import Engine
+from hild.daemon.halves import api_halves
 from hild.motion.tables import SegmentTable
 from tests.test_engine import events
 from tests.test_twin_engine import CONFIGS

@@ -1,5 +1,5 @@
 """A client domain's API half leaves the results it collected in the shared region; the API half of the client
-domain started after it died answers for them (tests/domains/test_client_restart.py does it with real processes)."""
+domain started after it died answers for them (tests/processes/test_client_restart.py does it with real processes)."""
 
 from __future__ import annotations
 

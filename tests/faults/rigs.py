@@ -41,8 +41,8 @@ from hild.config import load_config
 from hild.config.loader import LoadedConfig
 from hild.config.model import ZenohSection
 from hild.controllers.joint_trajectory import JointTrajectoryController
-from hild.engine import MAX_STEP_PERIODS, Engine
-from hild.events import Event
+from hild.crossing.events import Event
+from hild.cycle.engine import MAX_STEP_PERIODS, Engine
 from hild.modes import MODE_NAMES
 from tests.conftest import CONFIGS
 from tests.helpers import free_endpoint

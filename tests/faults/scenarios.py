@@ -39,7 +39,7 @@ from hild.bench.daemon import CanProcesses
 from hild.config import load_config
 from hild.controllers.joint_trajectory import JointTrajectoryController
 from hild.controllers.servo import Phase
-from hild.domains.cycle_process import PARENT_CHECK
+from hild.cycle.process import PARENT_CHECK
 from tests.faults.rigs import JTC, ApiRig, CanRig, Lockstep, MockRig, TwinRig
 from tests.helpers import running
 

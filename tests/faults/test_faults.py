@@ -18,8 +18,8 @@ from drivers.can.emulator.mit_firmware import DamiaoFirmware
 from drivers.can.protocol.mit import special_kind
 from hild.arrays import JointState, ServoCommand
 from hild.controller import Controller
-from hild.cycle import CycleThread
-from hild.supervisor import Fault
+from hild.cycle.pacing import CycleThread
+from hild.cycle.supervisor import Fault
 from tests.faults.rigs import JTC, CanRig, TwinRig
 from tests.faults.scenarios import OPERATOR_PAUSE, SCENARIOS, Row
 from tests.faults.table import committed, render

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from hild.action import PENDING_GOALS, ActionServer, ClientLost, GoalRejected, GoalRequest, GoalStatus, split_client
-from hild.api.clients import client_of_key, client_token_key
+from hild.api.goal_senders import client_of_key, client_token_key
 from tests.faults.rigs import JTC, ApiRig, TwinRig
 
 

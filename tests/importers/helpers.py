@@ -10,7 +10,7 @@ import numpy as np
 
 from hild.action import GoalResult
 from hild.config import load_config
-from hild.engine import Engine
+from hild.cycle.engine import Engine
 from hild.importers.ros2_control.importer import ImportRequest, ImportResult, import_ros2_control
 
 ROBOTS = Path(__file__).resolve().parent / "robots"

@@ -18,7 +18,7 @@ import yaml
 
 from hild.config import ConfigError, load_config
 from hild.config.stop_review import check_with_model
-from hild.engine import Engine
+from hild.cycle.engine import Engine
 from hild.importers.ros2_control.importer import ImportResult
 from hild.importers.ros2_control.report import ImportFailure
 from tests.importers.helpers import MY_ARM, ROBOTS, import_robot, lockstep, run_goal, waypoints

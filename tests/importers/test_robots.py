@@ -10,7 +10,7 @@ import pytest
 import yaml
 
 from hild.config import load_config
-from hild.engine import Engine
+from hild.cycle.engine import Engine
 from tests.importers.helpers import ARM2, MY_ARM, RRBOT, import_robot, lockstep, run_goal, waypoints
 
 ARM_JOINTS = ["shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3"]

@@ -26,8 +26,8 @@ import yaml
 
 from hild.arrays import JointState, ServoCommand
 from hild.config import ConfigError, load_config
-from hild.engine import Engine
-from hild.events import Event
+from hild.crossing.events import Event
+from hild.cycle.engine import Engine
 from hild.modes import JointMode
 from hild.telemetry import Telemetry, TelemetryError, TelemetryTap, layout
 from hild.telemetry.recorder import EVENT_QUEUE
@@ -259,7 +259,7 @@ def test_tap_every_records_one_cycle_in_k() -> None:
 
 
 def test_tap_reads_the_last_cycle_duration_from_loop_stats() -> None:
-    from hild.stats import LoopStats
+    from hild.crossing.stats import LoopStats
 
     stats = LoopStats()
     tap = TelemetryTap(2, 8, stats=stats)
@@ -366,7 +366,7 @@ def test_the_daemon_process_never_loads_rerun() -> None:
 _KILLED_DAEMON = """
 import os, signal, sys
 from hild.config import load_config
-from hild.engine import Engine
+from hild.cycle.engine import Engine
 from hild.telemetry import Telemetry
 loaded = load_config(sys.argv[1])
 engine = Engine(loaded)

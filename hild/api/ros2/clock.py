@@ -13,7 +13,7 @@ import time
 from typing import TYPE_CHECKING, Any
 
 from hild.api.ros2 import types
-from hild.domains.link import CycleLink
+from hild.daemon.link import CycleLink
 
 if TYPE_CHECKING:
     from hild.api.ros2.face import Writer

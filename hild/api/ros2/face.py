@@ -53,8 +53,8 @@ from hild.api.ros2.wire import (
 )
 from hild.api.services import Services
 from hild.config.model import Ros2Section
-from hild.domains.link import CycleLink
-from hild.ring import RingReader
+from hild.crossing.ring import RingReader
+from hild.daemon.link import CycleLink
 
 log = logging.getLogger("hild.api.ros2")
 

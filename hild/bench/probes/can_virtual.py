@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from drivers.can.bus import BusSpec, CanLink, open_bus
-from hild.stats import percentiles
+from hild.crossing.stats import percentiles
 
 WARMUP_FRAMES = 1000
 

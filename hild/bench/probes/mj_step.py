@@ -17,8 +17,8 @@ import numpy as np
 
 from drivers.mujoco.twin import MujocoTwinParams
 from hild.config import load_config
+from hild.crossing.stats import percentiles
 from hild.dynamics.model import load_model
-from hild.stats import percentiles
 
 WARMUP_STEPS = 200
 

@@ -37,7 +37,7 @@ from hild.api.keys import Keys
 from hild.api.session import client_config, declare_json_publisher, open_session, server_config
 from hild.bench.children import end_child, free_endpoint
 from hild.config.model import ZenohSection
-from hild.stats import percentiles
+from hild.crossing.stats import percentiles
 
 PING, PONG, ONE_WAY, RESULTS = "hild_probe/ping", "hild_probe/pong", "hild_probe/oneway", "hild_probe/results"
 PAYLOAD_PAD = bytes(56)  # a stamp plus padding: the size of a small JSON command

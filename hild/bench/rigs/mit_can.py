@@ -30,9 +30,9 @@ from typing import Any
 import can
 
 from drivers.can.bus import frame_bits, open_bus
-from drivers.can.driver import MotorWiring, wire_motors
 from drivers.can.emulator import Emulator, MotorPlant
 from drivers.can.emulator.runtime import build_firmware
+from drivers.can.mit_driver import MotorWiring, wire_motors
 from drivers.can.params import MitCanParams
 from drivers.can.protocol.mit import POSITION_BITS, decode_command, decode_state, special_kind
 from hild.config.loader import LoadedConfig

@@ -14,7 +14,7 @@ import pytest
 import zenoh
 
 from hild.api.ros2 import types, wire
-from hild.engine import Engine
+from hild.cycle.engine import Engine
 from tests.api.conftest import WAIT, Daemon, engine_from, robot_config, running
 from tests.conftest import with_trajectory
 

@@ -37,7 +37,7 @@ from ros2_pyterfaces.cyclone.unique_identifier_msgs.msg import UUID  # noqa: E40
 
 from hild.api.ros2 import types  # noqa: E402
 from hild.config import load_config  # noqa: E402
-from hild.engine import Engine  # noqa: E402
+from hild.cycle.engine import Engine  # noqa: E402
 from tests.api.conftest import WAIT, Daemon  # noqa: E402
 from tests.api.ros2.conftest import peer_config, running  # noqa: E402
 from tests.conftest import CONFIGS  # noqa: E402

@@ -14,7 +14,7 @@ import zenoh.ext
 from hild.api.ros2 import types, wire
 from hild.config import load_config
 from hild.config.loader import LoadedConfig
-from hild.engine import Engine
+from hild.cycle.engine import Engine
 from tests.api.conftest import Daemon
 from tests.api.ros2.conftest import peer_config, ros_robot_config, running
 from tests.api.ros2.test_face import Inbox

@@ -17,7 +17,7 @@ from typing import Any
 import can
 import pytest
 
-from drivers.can.driver import MitCanDriver
+from drivers.can.mit_driver import MitCanDriver
 from drivers.can.odrive_driver import ODriveCanDriver
 from drivers.can.params import MitCanParams, ODriveCanParams
 from drivers.can.protocol import odrive as od

@@ -28,7 +28,7 @@ from drivers.mujoco.plant import TwinPlant
 from hild.cli import build_parser, main
 from hild.config import load_config
 from hild.controllers.joint_trajectory import JointTrajectoryController
-from hild.engine import Engine
+from hild.cycle.engine import Engine
 from hild.motion.reference import OFFSETS, standard_trajectory
 from tests.conftest import CONFIGS, joint
 

@@ -15,15 +15,15 @@ import can
 import numpy as np
 import pytest
 
-from drivers.can.driver import FAULT_DISABLED, MitCanDriver
 from drivers.can.emulator import DamiaoFirmware, Emulator, MotorPlant, MyActuatorFirmware, TMotorFirmware
 from drivers.can.emulator.base import MotorFirmware
+from drivers.can.mit_driver import FAULT_DISABLED, MitCanDriver
 from drivers.can.params import MitCanParams
 from drivers.can.protocol import damiao_registers as reg
 from drivers.can.protocol.mit import MitRanges, quantize
 from drivers.can.protocol.models import MODELS
 from hild.config import load_config
-from hild.engine import Engine
+from hild.cycle.engine import Engine
 from hild.hardware import HardwareContext, HardwareError
 from tests.conftest import joint
 from tests.drivers.can.lockstep import LockstepRig, rig_factory

@@ -1,6 +1,6 @@
 """Operator requests to the cycle, as typed records, and the one error type their refusals take.
 
-A request is applied by the engine between two cycles (:meth:`hild.engine.Engine.apply`), in the daemon's own
+A request is applied by the engine between two cycles (:meth:`hild.cycle.engine.Engine.apply`), in the daemon's own
 process or across the shared region into the cycle process: so each is a small frozen value that pickles, never a
 closure. Its answer is a reply dict; a request that is refused raises :class:`Refused`, whichever side it crosses.
 """

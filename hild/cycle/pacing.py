@@ -17,8 +17,8 @@ import threading
 import time
 
 from hild.config.model import RealtimeSection
-from hild.engine import Engine
-from hild.realtime import apply_thread_settings
+from hild.cycle.engine import Engine
+from hild.cycle.realtime import apply_thread_settings
 
 SPIN_NS = 200_000  # the default of realtime.spin_us
 

@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 
 from hild.config import load_config
-from hild.domains.layout import Ask
-from hild.domains.main_process import RESTARTS_ALLOWED, MainProcess
+from hild.crossing.cells import Ask
+from hild.main.process import RESTARTS_ALLOWED, MainProcess
 from hild.telemetry import replay
 from tests.conftest import merge, mock_robot, with_trajectory
 from tests.helpers import HildRun, free_endpoint

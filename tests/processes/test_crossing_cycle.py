@@ -11,13 +11,13 @@ from pathlib import Path
 import pytest
 
 from hild.config import load_config
+from hild.crossing.cells import REQUESTS, EngineCells
 from hild.crossing.mailboxes import Shared
 from hild.crossing.region import Region
-from hild.domains.cycle_process import ClientWakeup, CrossingCycle, Outbox
-from hild.domains.layout import REQUESTS, EngineCells
-from hild.domains.remote import RemoteCycle
-from hild.engine import Engine
-from hild.requests import Refused, Reset, SetZero, Switch
+from hild.crossing.requests import Refused, Reset, SetZero, Switch
+from hild.cycle.engine import Engine
+from hild.cycle.process import ClientWakeup, CrossingCycle, Outbox
+from hild.daemon.remote import RemoteCycle
 from tests.conftest import mock_robot
 
 

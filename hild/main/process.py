@@ -1,8 +1,8 @@
 """The daemon's main process when the cycle runs in a process of its own: it starts both domains and keeps them.
 
 ``hild run`` with ``realtime.cycle_process`` is three processes: this one (small: no Zenoh, no controller
-``update``), the client domain (:mod:`hild.domains.client_process`: Zenoh, the API, telemetry) and the cycle
-process (:mod:`hild.domains.cycle_process`). This process carves the shared region, starts the client domain,
+``update``), the client domain (:mod:`hild.daemon.process`: Zenoh, the API, telemetry) and the cycle
+process (:mod:`hild.cycle.process`). This process carves the shared region, starts the client domain,
 starts the cycle process once the client domain has opened Zenoh and made sure this robot's name is free (the
 hardware is not touched before), and then:
 
@@ -29,9 +29,9 @@ import time
 from dataclasses import dataclass
 
 from hild.config.loader import LoadedConfig
-from hild.domains.layout import Ask, ClientPhase, ClientVital, Phase
-from hild.domains.remote import Attachment, Crossing, RemoteCycle
-from hild.notify import ServiceReport, SystemdNotifier
+from hild.crossing.cells import Ask, ClientPhase, ClientVital, Phase
+from hild.daemon.remote import Attachment, Crossing, RemoteCycle
+from hild.main.notify import ServiceReport, SystemdNotifier
 
 log = logging.getLogger("hild.daemon")
 
@@ -85,7 +85,7 @@ class MainProcess:
         spec = ClientSpec(self.loaded, self.listen, self.crossing.attachment(os.getpid(), restarted_after), level)
         env = {k: v for k, v in os.environ.items() if k not in _SYSTEMD_VARIABLES}
         self.client = subprocess.Popen(
-            [sys.executable, "-m", "hild.domains.client_process"],
+            [sys.executable, "-m", "hild.daemon.process"],
             stdin=subprocess.PIPE,
             pass_fds=(self.crossing.region.fd, self.crossing.wakeup_fd),
             env=env,

@@ -22,8 +22,8 @@ import socket
 from collections.abc import Mapping
 from typing import Protocol
 
-from hild.api.status import STATS_MAX_AGE
-from hild.stats import LoopStats
+from hild.crossing.stats import LoopStats
+from hild.daemon.status import STATS_MAX_AGE
 
 log = logging.getLogger("hild.notify")
 
@@ -180,7 +180,7 @@ def status_line(mode: str, update_rate: float, loop: Mapping[str, object]) -> st
 
 
 class CycleFigures(Protocol):
-    """What the service report reads of the cycle (met by ``hild.domains.link.CycleLink``)."""
+    """What the service report reads of the cycle (met by ``hild.daemon.link.CycleLink``)."""
 
     update_rate: float
     stats: LoopStats

@@ -5,8 +5,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-from hild.snapshot import Snapshot
-from hild.stats import LoopStats
+from hild.crossing.snapshot import Snapshot
+from hild.crossing.stats import LoopStats
 
 HARDWARE_STATUS_FIELDS = ("name", "driver", "state", "fault")
 STATS_MAX_AGE = 0.1  # s: status polled at 200 Hz recomputes loop percentiles at most 10 times a second

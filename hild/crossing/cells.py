@@ -18,7 +18,7 @@ import numpy as np
 
 from hild.crossing.mailboxes import Latest, Queue, Shared
 from hild.crossing.region import Region
-from hild.stats import LoopStats, stats_bytes
+from hild.crossing.stats import LoopStats, stats_bytes
 
 REGION_BYTES = 2 << 30  # virtual: a memfd is backed only where written (goal queues are sized for 1 MiB goals)
 REQUESTS = 64  # requests in flight; more are refused "busy" (as the engine's own queue does)

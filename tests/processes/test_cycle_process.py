@@ -1,6 +1,6 @@
 """The daemon with its cycle in a process of its own (``realtime.cycle_process``), driven from outside over Zenoh.
 
-Most tests run the real ``hild.daemon.Daemon`` on this thread's event loop (it owns the signal handlers) with the
+Most tests run the real ``hild.daemon.daemon.Daemon`` on this thread's event loop (it owns the signal handlers) with the
 cycle process it starts itself (as the bench and embedding code do); the watchdog test runs ``hild run``'s main
 process the same way, and the stall test ``hild run`` itself. Clients use a free loopback port; the cycle process
 paces the mock robot on the sim clock at real time.
@@ -21,9 +21,9 @@ import pytest
 
 from hild.api.client import HildClient
 from hild.config import load_config
-from hild.daemon import Daemon, StartupError
-from hild.domains.layout import ClientPhase, Phase
-from hild.domains.main_process import MainProcess
+from hild.crossing.cells import ClientPhase, Phase
+from hild.daemon.daemon import Daemon, StartupError
+from hild.main.process import MainProcess
 from tests.conftest import Systemd, merge, mock_robot
 from tests.helpers import HildRun, free_endpoint
 

@@ -16,7 +16,7 @@ import numpy as np
 
 from hild.arrays import JointState, ServoCommand
 from hild.controller import Controller, ControllerState
-from hild.events import EventLog
+from hild.crossing.events import EventLog
 from hild.interfaces import ClaimError, ClaimMasks, build_masks, check_claims, parse_interface
 
 

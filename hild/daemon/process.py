@@ -1,8 +1,8 @@
-"""The client domain as a process of its own: ``python -m hild.domains.client_process``.
+"""The client domain as a process of its own: ``python -m hild.daemon.process``.
 
-Started (and restarted) by the daemon's main process (:mod:`hild.domains.main_process`) with a pickled
-:class:`hild.domains.main_process.ClientSpec` on its standard input and the shared region and wake-up eventfd as
-inherited file descriptors. It runs :class:`hild.daemon.Daemon` attached to the cycle process the main process
+Started (and restarted) by the daemon's main process (:mod:`hild.main.process`) with a pickled
+:class:`hild.main.process.ClientSpec` on its standard input and the shared region and wake-up eventfd as
+inherited file descriptors. It runs :class:`hild.daemon.daemon.Daemon` attached to the cycle process the main process
 started: Zenoh, the API, telemetry. It exits when told (SIGTERM), when the cycle has stopped, or when the main
 process is gone.
 """
@@ -17,9 +17,9 @@ import sys
 from typing import NoReturn
 
 from hild.cli import setup_logging
-from hild.daemon import Daemon, serve
-from hild.domains.main_process import ClientSpec
-from hild.realtime import thaw_heap
+from hild.cycle.realtime import thaw_heap
+from hild.daemon.daemon import Daemon, serve
+from hild.main.process import ClientSpec
 
 
 def main() -> NoReturn:

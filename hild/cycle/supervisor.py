@@ -3,8 +3,8 @@
 Every cycle, whatever the controllers do:
 
 * ``check(state, dt)`` (after read) first passes every reading through the plausibility gate
-  (``hild.plausibility``): a non-finite reading, one outside the hard limits and their margin, a jump no joint could
-  make in the time since the last accepted one, or a frozen position is *rejected* — the state then carries the
+  (``hild.cycle.plausibility``): a non-finite reading, one outside the hard limits and their margin, a jump no joint
+  could make in the time since the last accepted one, or a frozen position is *rejected* — the state then carries the
   last accepted reading, marked not fresh, so nothing downstream ever sees it. Then it detects faults: stale or
   implausible feedback (rejected readings count like missing ones), drive fault codes, overspeed. Faults latch
   until ``reset``.
@@ -44,10 +44,10 @@ import numpy as np
 
 from hild.arrays import JointState, ServoCommand
 from hild.controller import JointLimitArrays
-from hild.events import EventLog
+from hild.crossing.events import EventLog
+from hild.cycle.plausibility import BEYOND_LIMITS, NONE, FeedbackGate
 from hild.interfaces import FIELDS, ClaimMasks
 from hild.modes import JointMode
-from hild.plausibility import BEYOND_LIMITS, NONE, FeedbackGate
 
 
 class Fault(enum.IntEnum):

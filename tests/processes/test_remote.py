@@ -8,9 +8,9 @@ from pathlib import Path
 import pytest
 
 from hild.config import load_config
-from hild.domains.layout import REQUESTS, Ask, Vital
-from hild.domains.remote import RemoteCycle
-from hild.requests import Refused, Reset
+from hild.crossing.cells import REQUESTS, Ask, Vital
+from hild.crossing.requests import Refused, Reset
+from hild.daemon.remote import RemoteCycle
 from tests.conftest import mock_robot
 
 

@@ -1,6 +1,6 @@
 """The daemon: the client domain (one asyncio main thread) around the cycle (DESIGN.md §1, docs/architecture.md).
 
-The cycle runs in a process of its own (``realtime.cycle_process``, :mod:`hild.domains.cycle_process`), which the
+The cycle runs in a process of its own (``realtime.cycle_process``, :mod:`hild.cycle.process`), which the
 daemon spawns, feeds through the shared region and watches; or as a thread of this process.
 
 Start-up order matters for safety: the Zenoh session opens first and refuses to go on if another daemon of this
@@ -10,8 +10,8 @@ drives are enabled last, right before the cycle thread starts.
 Shutdown runs the other way: stop accepting commands, hold, release hardware, close.
 
 Under systemd (``Type=notify``) the daemon says READY=1 only once the drives are live and the cycle has run a few
-cycles with the supervisor holding, pings the watchdog only while the cycle earns it (``hild.notify.WatchdogGate``),
-keeps ``STATUS=`` current and says STOPPING=1 when it starts to shut down.
+cycles with the supervisor holding, pings the watchdog only while the cycle earns it
+(``hild.main.notify.WatchdogGate``), keeps ``STATUS=`` current and says STOPPING=1 when it starts to shut down.
 """
 
 from __future__ import annotations
@@ -26,15 +26,15 @@ import time
 from typing import Any
 
 from hild.config.loader import LoadedConfig
-from hild.cycle import CycleThread
-from hild.domains.layout import Ask, ClientPhase, ClientVital, Phase, Vital
-from hild.domains.link import CycleLink
-from hild.domains.remote import Attachment, CycleProcessError, RemoteCycle
-from hild.engine import Engine
-from hild.events import Event, log_event
+from hild.crossing.cells import Ask, ClientPhase, ClientVital, Phase, Vital
+from hild.crossing.events import Event, log_event
+from hild.cycle.engine import Engine
+from hild.cycle.pacing import CycleThread
+from hild.cycle.realtime import CpuLatencyRequest, apply_client_settings, apply_process_settings, freeze_heap
+from hild.daemon.link import CycleLink
+from hild.daemon.remote import Attachment, CycleProcessError, RemoteCycle
 from hild.hardware import HardwareError
-from hild.notify import ServiceReport, SystemdNotifier
-from hild.realtime import CpuLatencyRequest, apply_client_settings, apply_process_settings, freeze_heap
+from hild.main.notify import ServiceReport, SystemdNotifier
 
 log = logging.getLogger("hild.daemon")
 
@@ -205,7 +205,7 @@ class Daemon:
         cfg = self.loaded.config
         telemetry = None
         if self.telemetry is not None:
-            from hild.domains.cycle_process import TelemetryRing
+            from hild.cycle.process import TelemetryRing
 
             telemetry = TelemetryRing(*self.telemetry.ring_layout)
         if self.attachment is None:
@@ -364,7 +364,7 @@ def run_daemon(loaded: LoadedConfig, listen: list[str] | None = None) -> int:
     if threading.current_thread() is not threading.main_thread():
         raise RuntimeError("the daemon must run on the main thread (it owns the signal handlers)")
     if loaded.config.realtime.cycle_process:
-        from hild.domains.main_process import run_main_process
+        from hild.main.process import run_main_process
 
         return run_main_process(loaded, listen)
     try:

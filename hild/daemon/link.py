@@ -7,14 +7,14 @@ from collections.abc import Callable
 from typing import Any, Protocol
 
 from hild.config.loader import LoadedConfig
-from hild.events import EventLog
-from hild.requests import Request
-from hild.snapshot import Snapshot
-from hild.stats import LoopStats
+from hild.crossing.events import EventLog
+from hild.crossing.requests import Request
+from hild.crossing.snapshot import Snapshot
+from hild.crossing.stats import LoopStats
 
 
 class CycleLink(Protocol):
-    """Met by :class:`hild.engine.Engine` (the cycle in this process) and :class:`hild.domains.remote.RemoteCycle`
+    """Met by :class:`hild.cycle.engine.Engine` (the cycle in this process) and :class:`hild.daemon.remote.RemoteCycle`
     (the cycle in a process of its own)."""
 
     robot: str

@@ -5,7 +5,7 @@
     apply queued requests → read → transmissions → supervisor.check → controllers → supervisor.command
     → transmissions → write
 
-It is driven by the cycle thread (``hild.cycle``) in the daemon, or called directly by tests in lockstep, which
+It is driven by the cycle thread (``hild.cycle.pacing``) in the daemon, or called directly by tests in lockstep, which
 makes control tests deterministic. Everything else talks to the engine through ``submit`` (requests applied at
 the start of the next cycle, answered through a ``concurrent.futures.Future``) and reads it back through
 ``status()`` and the controllers' output rings.
@@ -26,18 +26,18 @@ from hild import plugins
 from hild.arrays import JointState, ServoCommand, contiguous_slice, gather_command, scatter_state
 from hild.config.loader import LoadedConfig
 from hild.controller import ControllerContext, JointLimitArrays
+from hild.crossing.events import EventLog
+from hild.crossing.inprocess import BoundedQueue
 from hild.crossing.mailboxes import InProcess, Mailboxes
-from hild.events import EventLog
+from hild.crossing.requests import Enable, Refused, Request, Reset, SetZero, Switch
+from hild.crossing.snapshot import Snapshot
+from hild.crossing.stats import LoopStats
+from hild.cycle.manager import ControllerManager, SwitchResult
+from hild.cycle.supervisor import Action, Fault, JointGains, SafetySettings, Supervisor, limit_names
+from hild.cycle.transmission import Transmissions
 from hild.hardware import HardwareComponent, HardwareContext, HardwareError, Lifecycle
 from hild.interfaces import interface_name
-from hild.mailbox import BoundedQueue
-from hild.manager import ControllerManager, SwitchResult
 from hild.modes import MODE_NAMES, JointMode
-from hild.requests import Enable, Refused, Request, Reset, SetZero, Switch
-from hild.snapshot import Snapshot
-from hild.stats import LoopStats
-from hild.supervisor import Action, Fault, JointGains, SafetySettings, Supervisor, limit_names
-from hild.transmission import Transmissions
 
 REQUEST_QUEUE = 64
 HEALTH_POLL_HZ = 20.0
@@ -489,8 +489,9 @@ class Engine:
         return future
 
     def request(self, request: Request) -> concurrent.futures.Future[Any]:
-        """An operator request (:mod:`hild.requests`), applied at the start of the next cycle. Its future holds the
-        reply dict, or raises :class:`~hild.requests.Refused`; an e-stop takes its own path and is never refused."""
+        """An operator request (:mod:`hild.crossing.requests`), applied at the start of the next cycle. Its future
+        holds the reply dict, or raises :class:`~hild.crossing.requests.Refused`; an e-stop takes its own path and is
+        never refused."""
         if isinstance(request, Switch | Reset | Enable | SetZero):
             return self.submit(lambda: self.apply(request), clears_estop=isinstance(request, Reset))
         return self.request_estop()
@@ -756,7 +757,7 @@ class Engine:
 
     def status(self) -> dict[str, Any]:
         """The status reply, as the API renders it (tests and tools that hold the engine itself)."""
-        from hild.api.status import loop_status, render_status  # the API renders status; tests holding the engine
+        from hild.daemon.status import loop_status, render_status  # the API renders status; tests holding the engine
 
         loop = loop_status(self.update_rate, self.clock_source, self.stats)
         return render_status(self.robot, self.snapshot(), self.t, self.supervisor.longest_silence, loop)

@@ -1,6 +1,6 @@
 """The client domain's side of a cycle that runs in a process of its own.
 
-:class:`RemoteCycle` meets :class:`hild.domains.link.CycleLink` for the API and the daemon: requests go into the
+:class:`RemoteCycle` meets :class:`hild.daemon.link.CycleLink` for the API and the daemon: requests go into the
 shared region's queue (a full queue refuses at once, as the engine's own does), e-stops through their own counter
 (never queued behind anything), and replies, events and snapshots come back when the cycle wakes this process and
 the loop calls :meth:`RemoteCycle.take`. The controllers' API halves are built here first: building them carves
@@ -21,15 +21,15 @@ import threading
 from dataclasses import dataclass
 from typing import Any
 
-from hild.api.status import loop_status, render_status
 from hild.config.loader import LoadedConfig
+from hild.crossing.cells import REGION_BYTES, REQUESTS, Ask, EngineCells, Phase, Vital
+from hild.crossing.events import Event, EventLog
 from hild.crossing.mailboxes import Shared
 from hild.crossing.region import Region
-from hild.domains.cycle_process import CycleSpec, TelemetryRing
-from hild.domains.layout import REGION_BYTES, REQUESTS, Ask, EngineCells, Phase, Vital
-from hild.events import Event, EventLog
-from hild.requests import Estop, Refused, Request
-from hild.snapshot import Snapshot
+from hild.crossing.requests import Estop, Refused, Request
+from hild.crossing.snapshot import Snapshot
+from hild.cycle.process import CycleSpec, TelemetryRing
+from hild.daemon.status import loop_status, render_status
 
 GO_TIMEOUT = 120.0  # s: a cycle process brought up but never told to go releases the hardware and exits
 PHASE_POLL = 0.005  # s
@@ -57,7 +57,7 @@ class Crossing:
     a client domain started later finds the same cells (:meth:`attach`)."""
 
     def __init__(self, loaded: LoadedConfig, region: Region, wakeup_fd: int, *, create: bool) -> None:
-        from hild.api.halves import api_halves  # builds every controller plugin: only when the cycle is elsewhere
+        from hild.daemon.halves import api_halves  # builds every controller plugin: only when the cycle is elsewhere
 
         self.region = region
         self.wakeup_fd = wakeup_fd
@@ -82,7 +82,7 @@ class Crossing:
         gone)."""
         spec = CycleSpec(loaded, self.region.fd, self.region.size, self.wakeup_fd, os.getpid(), GO_TIMEOUT, telemetry)
         process = subprocess.Popen(
-            [sys.executable, "-m", "hild.domains.cycle_process"],
+            [sys.executable, "-m", "hild.cycle.process"],
             stdin=subprocess.PIPE,
             pass_fds=(self.region.fd, self.wakeup_fd),
         )

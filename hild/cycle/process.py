@@ -1,6 +1,6 @@
 """The cycle process: the engine alone, paced on its main thread, reached only through the shared region.
 
-Started by the client domain (:class:`hild.domains.remote.RemoteCycle`) as ``python -m hild.domains.cycle_process``
+Started by the client domain (:class:`hild.daemon.remote.RemoteCycle`) as ``python -m hild.cycle.process``
 with a pickled :class:`CycleSpec` on its standard input and two inherited file descriptors: the shared region and
 the wake-up eventfd (the client domain's loop waits on it). It runs no Zenoh, no asyncio and, once live, no Python
 thread but the cycle: nothing a client does can take its interpreter's lock.
@@ -27,13 +27,13 @@ from dataclasses import dataclass
 from typing import Any
 
 from hild.config.loader import LoadedConfig
+from hild.crossing.cells import Ask, EngineCells, Phase, Vital
+from hild.crossing.events import EventLog, log_event
 from hild.crossing.mailboxes import Shared
 from hild.crossing.region import Region
-from hild.cycle import CycleThread
-from hild.domains.layout import Ask, EngineCells, Phase, Vital
-from hild.engine import Engine
-from hild.events import EventLog, log_event
-from hild.realtime import apply_process_settings, freeze_heap, thaw_heap
+from hild.cycle.engine import Engine
+from hild.cycle.pacing import CycleThread
+from hild.cycle.realtime import apply_process_settings, freeze_heap, thaw_heap
 
 log = logging.getLogger("hild.cycle")
 
