@@ -175,3 +175,22 @@ def test_a_second_daemon_of_the_same_robot_exits_1_naming_the_first(daemon: Hild
     # Refused before the hardware was touched (the cycle process is started only after the check): nothing enabled.
     assert "start-up failed; the hardware was released" in run.stderr
     assert daemon.process.poll() is None  # the first one runs on
+
+
+def _mapped_libraries(pid: int) -> set[str]:
+    """The file names of the shared objects process ``pid`` has mapped."""
+    lines = Path(f"/proc/{pid}/maps").read_text().splitlines()
+    return {Path(line.split()[-1]).name for line in lines if ".so" in line.split()[-1]}
+
+
+def test_hild_run_is_three_processes_and_the_cycle_maps_no_client_library(daemon: HildRun) -> None:
+    """docs/architecture.md, "Three processes": the cycle process loads none of what clients reach (Zenoh, rerun,
+    rosbags); the client domain has Zenoh, which shows the check can see a mapped library."""
+    with daemon.started().client() as arm:
+        arm.wait_alive(timeout=30.0)
+        cycle, client = daemon.cycle_process(), daemon.client_process()
+        assert len({daemon.pid, cycle, client}) == 3
+        cycle_maps, client_maps = _mapped_libraries(cycle), _mapped_libraries(client)
+    client_only = ("zenoh", "rerun", "rosbags")
+    assert any("zenoh" in name for name in client_maps), sorted(client_maps)
+    assert sorted(name for name in cycle_maps if any(word in name for word in client_only)) == []

@@ -17,12 +17,10 @@ checked after the C scanner, so both scanners refuse the same nesting with the s
 
 from __future__ import annotations
 
-import itertools
 import json
 import json.scanner
 import math
 import sys
-from collections.abc import Collection, Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -33,7 +31,6 @@ MAX_ELEMENTS = 4096  # array elements + object members in a request or command (
 GOAL_CONTAINERS = 65_536  # in a goal: 10 000 points with velocities, accelerations and a {sec, nanosec} time each
 GOAL_ELEMENTS = 320_000  # in a goal: 10 000 points of 8 joints with velocities and accelerations (31 each)
 MAX_DEPTH = 32  # levels of nesting; the deepest legitimate payload (a goal's time_from_start) has 5
-SHOWN_KEYS = 3  # unknown keys a refusal names; the rest are counted
 
 
 @dataclass(frozen=True, slots=True)
@@ -51,27 +48,6 @@ GOAL_LIMITS = Limits(GOAL_CONTAINERS, GOAL_ELEMENTS, MAX_DEPTH)
 
 class PayloadError(ValueError):
     """The payload cannot be decoded; the message says why, for the sender."""
-
-
-def unknown_keys(obj: Mapping[str, Any], allowed: Collection[str]) -> tuple[list[str], int]:
-    """Up to ``SHOWN_KEYS`` keys of ``obj`` that ``allowed`` lacks, and how many more there are.
-
-    Work in ``len(allowed) + SHOWN_KEYS``, whatever the size of ``obj``: a refusal that sorted and joined all the
-    keys of a 90 000-key object held the GIL for 45 ms to build an 889 000-character error. When every unknown key
-    is shown they are sorted (the error reads as it always did); otherwise the first ones, in the sender's order.
-    """
-    count = len(obj) - sum(1 for key in allowed if key in obj)
-    if count <= 0:
-        return [], 0
-    shown = list(itertools.islice((key for key in obj if key not in allowed), SHOWN_KEYS))
-    if len(shown) == count:
-        shown.sort()
-    return shown, count - len(shown)
-
-
-def and_more(more: int) -> str:
-    """`` and N more`` after a list that ``unknown_keys`` cut short, else nothing."""
-    return f" and {more} more" if more else ""
 
 
 def _reject_constant(name: str) -> Any:

@@ -19,8 +19,9 @@ from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from hild.api.codec import MAX_PAYLOAD, PayloadError, and_more, decode, encode, unknown_keys
+from hild.api.codec import MAX_PAYLOAD, PayloadError, decode, encode
 from hild.api.queries import LargePayloadWorker, too_large
+from hild.controller import and_more, unknown_keys
 from hild.crossing.requests import Enable, Refused, Request, Reset, SetZero, Switch
 from hild.daemon.link import CycleLink
 

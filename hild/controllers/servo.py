@@ -27,10 +27,9 @@ from typing import Any, Literal, NamedTuple
 import numpy as np
 from ruckig import ControlInterface, InputParameter, OutputParameter, Result, Ruckig, RuckigError, Synchronization
 
-from hild.api.codec import and_more, unknown_keys
 from hild.arrays import JointState, ServoCommand
 from hild.config.params import Field, Params, model_validator
-from hild.controller import Controller, ControllerContext
+from hild.controller import Controller, ControllerContext, and_more, unknown_keys
 from hild.controllers.motion_common import PlansMotion, first_taken_over
 from hild.crossing.mailboxes import LatestNumbers
 

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from hild.action import GoalRejected
-from hild.api.codec import and_more, unknown_keys
+from hild.controller import and_more, unknown_keys
 from hild.motion.limits import KinematicLimits
 from hild.motion.planning import plan_move, plan_stop, plan_waypoints
 from hild.motion.segments import Segment

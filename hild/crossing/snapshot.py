@@ -1,7 +1,7 @@
 """The engine's state that changes only with ``change_seq``, as one immutable value.
 
 The cycle writes a new one whenever something changes (a mode, a fault, a controller, a hardware state) and never
-per cycle; the client domain renders the status and list replies from it (``hild.daemon.status``) together with the
+per cycle; the client domain renders the status and list replies from it (``hild.crossing.status``) together with the
 numbers that do move every cycle (the clock, the loop statistics, each joint's longest silence), which it reads
 from their own cells. Plain tuples and dicts: it pickles to cross into the other process.
 """

@@ -32,6 +32,7 @@ from hild.crossing.mailboxes import InProcess, Mailboxes
 from hild.crossing.requests import Enable, Refused, Request, Reset, SetZero, Switch
 from hild.crossing.snapshot import Snapshot
 from hild.crossing.stats import LoopStats
+from hild.crossing.status import loop_status, render_status
 from hild.cycle.manager import ControllerManager, SwitchResult
 from hild.cycle.supervisor import Action, Fault, JointGains, SafetySettings, Supervisor, limit_names
 from hild.cycle.transmission import Transmissions
@@ -756,9 +757,7 @@ class Engine:
         )
 
     def status(self) -> dict[str, Any]:
-        """The status reply, as the API renders it (tests and tools that hold the engine itself)."""
-        from hild.daemon.status import loop_status, render_status  # the API renders status; tests holding the engine
-
+        """The status reply, rendered as the client domain renders it for a cycle in another process."""
         loop = loop_status(self.update_rate, self.clock_source, self.stats)
         return render_status(self.robot, self.snapshot(), self.t, self.supervisor.longest_silence, loop)
 

@@ -191,7 +191,7 @@ class CrossingCycle(CycleThread):
 def _attach_telemetry(ring: TelemetryRing, engine: Engine) -> Any:
     """Record into the recorder's ring: mapped by its name, without multiprocessing's resource tracker (the daemon
     owns the name and unlinks it)."""
-    from hild.telemetry.tap import TelemetryTap, ring_bytes
+    from hild.crossing.telemetry import TelemetryTap, ring_bytes
 
     fd = os.open(f"/dev/shm/{ring.name}", os.O_RDWR)
     try:

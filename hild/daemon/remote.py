@@ -28,8 +28,8 @@ from hild.crossing.mailboxes import Shared
 from hild.crossing.region import Region
 from hild.crossing.requests import Estop, Refused, Request
 from hild.crossing.snapshot import Snapshot
+from hild.crossing.status import loop_status, render_status
 from hild.cycle.process import CycleSpec, TelemetryRing
-from hild.daemon.status import loop_status, render_status
 
 GO_TIMEOUT = 120.0  # s: a cycle process brought up but never told to go releases the hardware and exits
 PHASE_POLL = 0.005  # s

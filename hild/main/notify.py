@@ -23,7 +23,7 @@ from collections.abc import Mapping
 from typing import Protocol
 
 from hild.crossing.stats import LoopStats
-from hild.daemon.status import STATS_MAX_AGE
+from hild.crossing.status import STATS_MAX_AGE
 
 log = logging.getLogger("hild.notify")
 

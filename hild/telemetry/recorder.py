@@ -1,6 +1,6 @@
 """Telemetry, daemon side: a shared-memory ring for the cycle, and a recorder process that does all of rerun.
 
-The cycle thread only calls ``tap.record`` (hild/telemetry/tap.py), which writes plain numpy rows into a ring in
+The cycle thread only calls ``tap.record`` (hild/crossing/telemetry.py), which writes plain numpy rows into a ring in
 shared memory. Everything rerun does (building columns, ``send_columns``, 3D poses, file rotation) runs in a
 child process (hild/telemetry/worker.py), started with "spawn" so it inherits none of the daemon's threads, at a
 low priority. Why a process: a flush is 5–9 ms of Python-side work; in-process (a task or a thread) it holds the
@@ -21,7 +21,6 @@ import threading
 import time
 import weakref
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
 from multiprocessing.connection import wait as wait_for_any
 from pathlib import Path
 from typing import Any
@@ -29,8 +28,9 @@ from typing import Any
 from hild.config.model import TelemetrySection
 from hild.crossing.events import Event
 from hild.crossing.stats import LoopStats
+from hild.crossing.telemetry import SharedRing
 from hild.telemetry.errors import TelemetryError
-from hild.telemetry.tap import SharedRing
+from hild.telemetry.setup import TelemetrySetup
 
 log = logging.getLogger("hild.telemetry")
 
@@ -40,20 +40,6 @@ FLUSH_TIMEOUT = 5.0  # s flush() waits for the recorder's acknowledgement
 WATCH_PERIOD = 0.25  # s between run()'s checks that the recorder is alive
 EVENT_QUEUE = 1024  # events in flight to the recorder; more are dropped (and counted), never waited for
 RING_SECONDS = 2.0  # the ring keeps at least this much, or 10 flush periods, whichever is longer
-
-
-@dataclass(frozen=True)
-class TelemetrySetup:
-    """What telemetry needs to know about the robot (built from the config by ``Telemetry.from_config``)."""
-
-    robot: str
-    joints: tuple[str, ...]
-    update_rate: float
-    section: TelemetrySection
-    directory: Path  # relative sink paths start here (the config file's directory)
-    model: Path | None = None  # MJCF/URDF for the 3D view
-    avoid_cpus: tuple[int, ...] = ()  # the cycle thread's CPUs: the recorder runs elsewhere when it can
-    keep_existing: bool = False  # a restarted client domain's: the file its crashed predecessor wrote is kept
 
 
 def _child_main(*args: Any) -> None:

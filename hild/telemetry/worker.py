@@ -29,11 +29,11 @@ import rerun as rr
 
 from hild.config.model import FileSinkSpec
 from hild.crossing.events import Event
+from hild.crossing.telemetry import SharedRing, TelemetryRows, TelemetryTap
 from hild.telemetry import layout
 from hild.telemetry.errors import TelemetryError
 from hild.telemetry.outlets import FileOutlet, LiveOutlet, Outlet
-from hild.telemetry.recorder import TelemetrySetup
-from hild.telemetry.tap import SharedRing, TelemetryRows, TelemetryTap
+from hild.telemetry.setup import TelemetrySetup
 
 log = logging.getLogger("hild.telemetry")
 

@@ -27,12 +27,12 @@ import yaml
 from hild.arrays import JointState, ServoCommand
 from hild.config import ConfigError, load_config
 from hild.crossing.events import Event
+from hild.crossing.telemetry import SHM_PREFIX, TelemetryTap
 from hild.cycle.engine import Engine
 from hild.modes import JointMode
-from hild.telemetry import Telemetry, TelemetryError, TelemetryTap, layout
+from hild.telemetry import Telemetry, TelemetryError, layout
 from hild.telemetry.recorder import EVENT_QUEUE
 from hild.telemetry.replay import entity_row_counts, load_scalars, tracking
-from hild.telemetry.tap import SHM_PREFIX
 from hild.telemetry.worker import NICE
 from tests.conftest import CONFIGS, merge
 from tests.helpers import free_port

@@ -1,4 +1,5 @@
-"""The status reply, rendered in the client domain from the cycle's snapshot and its live numbers."""
+"""The status reply, rendered from the cycle's snapshot and its live numbers: by the client domain for a cycle in
+another process, by the engine itself for one in this process (both render it the same way)."""
 
 from __future__ import annotations
 
