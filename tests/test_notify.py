@@ -175,17 +175,17 @@ def test_daemon_withholds_pings_while_its_cycle_stalls(
         while not daemon.ready:
             assert not task.done() and time.monotonic() < deadline, "the daemon never became ready"
             await asyncio.sleep(0.01)
-        assert daemon.engine.started and daemon.engine.cycle > READY_AFTER_CYCLES
+        assert daemon.link.engine.started and daemon.link.engine.cycle > READY_AFTER_CYCLES
         marks["ready"] = time.monotonic()
         await asyncio.sleep(0.5)
-        daemon.engine.submit(wedge)
-        daemon.engine.submit(unwedged.set)  # applied only once the wedge is over
+        daemon.link.engine.submit(wedge)
+        daemon.link.engine.submit(unwedged.set)  # applied only once the wedge is over
         assert await asyncio.to_thread(wedged.wait, 5.0)
         marks["stalled"] = time.monotonic()
-        marks["stall_cycle"] = daemon.engine.cycle
+        marks["stall_cycle"] = daemon.link.engine.cycle
         await asyncio.sleep(0.6)
         marks["released"] = time.monotonic()
-        assert daemon.engine.cycle == marks["stall_cycle"]
+        assert daemon.link.engine.cycle == marks["stall_cycle"]
         release.set()
         assert await asyncio.to_thread(unwedged.wait, 5.0)
         await asyncio.sleep(0.5)

@@ -50,6 +50,8 @@ from hild.config import ConfigError, load_config
 from hild.cycle.engine import MAX_STEP_PERIODS
 from hild.cycle.realtime import thaw_heap
 from hild.daemon.daemon import Daemon
+from hild.daemon.local import LocalCycle
+from hild.daemon.remote import RemoteCycle
 
 CLOCK_SAMPLES = 20
 CLOCK_POLL_S = 0.1  # s of polling the shared clock cell (the cycle in a process of its own)
@@ -80,7 +82,7 @@ def counter_delta(after: dict[str, int], before: dict[str, int]) -> dict[str, in
 class Host:
     def __init__(self, daemon: Daemon, rig: BenchRig | None, out: IO[str], bridge: Any = None) -> None:
         self.daemon = daemon
-        self.link = daemon.link  # the engine (one process) or the RemoteCycle: both keep LoopStats and status
+        self.link = daemon.link  # a LocalCycle (one process) or a SpawnedCycle: both keep LoopStats and status
         self.rig = rig
         self.bridge = bridge
         self.out = out
@@ -100,14 +102,15 @@ class Host:
 
     @property
     def cycle_pid(self) -> int | None:
-        remote = self.daemon.remote
-        return remote.process.pid if remote is not None and remote.process is not None else None
+        process = self.link.process if isinstance(self.link, RemoteCycle) else None
+        return process.pid if process is not None else None
 
     def threads(self) -> dict[str, list[int]]:
         """This process's threads by group (the cycle thread only when the cycle runs here)."""
         ids = {"asyncio": [os.getpid()]}
-        if self.daemon.cycle is not None and self.daemon.cycle.native_id is not None:
-            ids["cycle"] = [self.daemon.cycle.native_id]
+        thread = self.link.thread if isinstance(self.link, LocalCycle) else None
+        if thread is not None and thread.native_id is not None:
+            ids["cycle"] = [thread.native_id]
         if self.rig is not None:
             ids.update({name: [tid] for name, tid in self.rig.threads().items()})
         if self.bridge is not None:
@@ -188,8 +191,7 @@ class Host:
         return str(self.link.loaded.config.clock.source)
 
     def cycle_t(self) -> float:
-        engine = self.daemon.engine
-        return float(engine.t if engine is not None else self.link.t)  # type: ignore[attr-defined]
+        return float(self.link.t)
 
     async def _follow_lag(self) -> None:
         lag = self.lag
@@ -201,7 +203,7 @@ class Host:
 
     async def clock(self) -> dict[str, Any]:
         """Where the control clock's zero is in ``perf_counter_ns``: what a sample's stamp counts from."""
-        engine = self.daemon.engine
+        engine = self.link.engine if isinstance(self.link, LocalCycle) else None
         if engine is not None:
             offsets = []
             for _ in range(CLOCK_SAMPLES):
@@ -209,8 +211,8 @@ class Host:
                 t, now = await asyncio.wrap_future(future)
                 offsets.append(now - round(t * 1e9))
             return self._clock_reply(min(offsets), max(offsets) - min(offsets), "cycle")
-        remote = self.daemon.remote
-        assert remote is not None
+        remote = self.link
+        assert isinstance(remote, RemoteCycle)
         offsets = await asyncio.to_thread(poll_clock, lambda: remote.t, CLOCK_POLL_S)
         if not offsets:
             return {"ok": False, "error": "the shared cycle clock did not move"}
@@ -249,7 +251,7 @@ class Host:
             "faults": [f"{j['name']}: {j['fault']}" for j in status["joints"] if j["fault"]],
             "realtime": status["realtime"],
             "cycle_process": self.cycle_pid is not None,
-            "cycle_python_threads": self.daemon.remote.python_threads if self.daemon.remote else None,
+            "cycle_python_threads": self.link.python_threads if isinstance(self.link, RemoteCycle) else None,
             "telemetry_dropped_rows": getattr(getattr(telemetry, "tap", None), "dropped", None),
         }
 
@@ -269,8 +271,8 @@ class Host:
                 return 1
             await asyncio.sleep(0.01)
         self.follow_lag()
-        if self.rig is not None and self.daemon.engine is not None:
-            self.rig.attach(self.daemon.engine)  # its drivers' counters; with the cycle elsewhere they stay there
+        if self.rig is not None and isinstance(self.link, LocalCycle):
+            self.rig.attach(self.link.engine)  # its drivers' counters; with the cycle elsewhere they stay there
         ready = {"event": "ready", "pid": os.getpid(), "robot": self.link.robot, "cycle_pid": self.cycle_pid}
         self.send({**ready, "threads": self.threads()})
         loop = asyncio.get_running_loop()

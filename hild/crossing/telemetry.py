@@ -245,3 +245,13 @@ class SharedRing:
             self.owner = False
         with contextlib.suppress(BufferError):  # a record() in flight still holds the old view: unmapped at exit
             self.shm.close()
+
+
+@dataclass(frozen=True)
+class TelemetryRing:
+    """The telemetry recorder's shared ring (POSIX shared memory the daemon created): the cycle records into it."""
+
+    name: str
+    joints: int
+    capacity: int
+    every: int

@@ -20,6 +20,7 @@ import mmap
 import os
 import pickle
 import signal
+import subprocess
 import sys
 import threading
 import time
@@ -27,10 +28,12 @@ from dataclasses import dataclass
 from typing import Any
 
 from hild.config.loader import LoadedConfig
+from hild.crossing.attach import Crossing
 from hild.crossing.cells import Ask, EngineCells, Phase, Vital
 from hild.crossing.events import EventLog, log_event
 from hild.crossing.mailboxes import Shared
 from hild.crossing.region import Region
+from hild.crossing.telemetry import TelemetryRing
 from hild.cycle.engine import Engine
 from hild.cycle.pacing import CycleThread
 from hild.cycle.realtime import apply_process_settings, freeze_heap, thaw_heap
@@ -40,16 +43,6 @@ log = logging.getLogger("hild.cycle")
 PARENT_CHECK = 0.1  # s: how often the cycle looks whether the daemon that started it still exists
 GO_POLL = 0.001  # s: while brought up, how often it looks for the client domain's go
 VITALS_EVERY = 0.05  # s: each joint's longest silence and the thread count are copied out this often
-
-
-@dataclass(frozen=True)
-class TelemetryRing:
-    """The telemetry recorder's shared ring (POSIX shared memory the daemon created): the cycle records into it."""
-
-    name: str
-    joints: int
-    capacity: int
-    every: int
 
 
 @dataclass(frozen=True)
@@ -270,6 +263,26 @@ def run(spec: CycleSpec) -> int:
     cells.vitals[Vital.PHASE] = Phase.STOPPED
     outbox.wakeup.send()
     return 1 if cycle.error is not None else 0
+
+
+GO_TIMEOUT = 120.0  # s: a cycle process brought up but never told to go releases the hardware and exits
+
+
+def spawn(loaded: LoadedConfig, crossing: Crossing, telemetry: TelemetryRing | None = None) -> subprocess.Popen[bytes]:
+    """Start the cycle process as a child of this process (which it watches: it stops when this one is gone),
+    reaching ``crossing``: the region and the wake-up eventfd are inherited, the rest is pickled on its stdin."""
+    spec = CycleSpec(
+        loaded, crossing.region.fd, crossing.region.size, crossing.wakeup_fd, os.getpid(), GO_TIMEOUT, telemetry
+    )
+    process = subprocess.Popen(
+        [sys.executable, "-m", "hild.cycle.process"],
+        stdin=subprocess.PIPE,
+        pass_fds=(crossing.region.fd, crossing.wakeup_fd),
+    )
+    assert process.stdin is not None
+    with process.stdin as stdin:
+        stdin.write(pickle.dumps(spec, pickle.HIGHEST_PROTOCOL))
+    return process
 
 
 def main() -> int:

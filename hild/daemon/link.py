@@ -1,21 +1,34 @@
-"""What the client domain (the API, the daemon's housekeeping) needs of the cycle, wherever the cycle runs."""
+"""The seam between the client domain and the cycle, wherever the cycle runs (docs/architecture.md).
+
+:class:`CycleLink` is what the API needs: the cycle's figures, its snapshot, and requests in. :class:`CycleHost` adds
+what the daemon needs to bring the cycle up, watch it and stop it. Three classes meet both, and the daemon never asks
+which it has: :class:`hild.daemon.remote.AttachedCycle` (``hild run``: the cycle process the main process started),
+:class:`hild.daemon.remote.SpawnedCycle` (a cycle process this process starts: embedding, the bench) and
+:class:`hild.daemon.local.LocalCycle` (the engine on a thread of this process: lockstep tests,
+``realtime.cycle_process: false``).
+"""
 
 from __future__ import annotations
 
+import asyncio
 import concurrent.futures
 from collections.abc import Callable
 from typing import Any, Protocol
 
 from hild.config.loader import LoadedConfig
-from hild.crossing.events import EventLog
+from hild.crossing.events import Event, EventLog
 from hild.crossing.requests import Request
 from hild.crossing.snapshot import Snapshot
 from hild.crossing.stats import LoopStats
+from hild.main.notify import ServiceReport, SilentReport, SystemdNotifier
+
+
+class StartupError(RuntimeError):
+    """The daemon could not start; the message says why, for the log and systemd's status line."""
 
 
 class CycleLink(Protocol):
-    """Met by :class:`hild.cycle.engine.Engine` (the cycle in this process) and :class:`hild.daemon.remote.RemoteCycle`
-    (the cycle in a process of its own)."""
+    """What the API reads of the cycle and asks of it."""
 
     robot: str
     joints: tuple[str, ...]
@@ -46,3 +59,37 @@ class CycleLink(Protocol):
     def status(self) -> dict[str, Any]: ...
 
     def controllers(self) -> dict[str, Any]: ...
+
+
+class CycleHost(CycleLink, Protocol):
+    """What the daemon does with the cycle, in the order it does it."""
+
+    signals: tuple[int, ...]  # the signals this process handles (the top process of the unit takes SIGINT too)
+    signal_meaning: str  # what a signal does, for the log
+    restarted_after: str | None  # why the previous client domain ended, when this one replaces it
+    realtime_report: dict[str, str]  # merged into the status reply's ``realtime``
+
+    @property
+    def telemetry_stats(self) -> LoopStats | None: ...  # loop statistics the recorder reads here, if any
+
+    def service_report(self, notifier: SystemdNotifier) -> ServiceReport | SilentReport: ...
+
+    def watch(self, loop: asyncio.AbstractEventLoop, on_wake: Callable[[], None]) -> None: ...
+
+    def take(self) -> list[Event]: ...  # on the loop, when woken: the cycle's events (and replies answered)
+
+    async def bring_up(self, telemetry: Any) -> None: ...  # hardware configured and read, drives disabled
+
+    async def go_live(self) -> None: ...  # drives enabled and cycling
+
+    def serving(self) -> None: ...  # the API is up
+
+    def describe(self) -> str: ...  # for the "running" log line
+
+    def gone(self) -> tuple[int, str | None] | None: ...  # (exit code, why) once the daemon must end, else None
+
+    async def stop(self, timeout: float) -> bool: ...  # True if the cycle stopped (or is not ours to stop)
+
+    def refused(self) -> None: ...  # the API did not come up: release what was brought up
+
+    def close(self) -> None: ...

@@ -19,6 +19,7 @@ from typing import NoReturn
 from hild.cli import setup_logging
 from hild.cycle.realtime import thaw_heap
 from hild.daemon.daemon import Daemon, serve
+from hild.daemon.remote import AttachedCycle
 from hild.main.process import ClientSpec
 
 
@@ -27,7 +28,7 @@ def main() -> NoReturn:
     spec: ClientSpec = pickle.load(sys.stdin.buffer)
     sys.stdin.close()
     setup_logging(spec.log_level)
-    code = serve(Daemon(spec.loaded, spec.listen, spec.attachment))
+    code = serve(Daemon(spec.loaded, spec.listen, AttachedCycle(spec.loaded, spec.attachment)))
     thaw_heap()
     # Everything is closed (the API, telemetry). Zenoh drops the callbacks of undeclared subscribers on its own
     # threads, so at the interpreter's teardown a controller's API half may still be held there, and nanobind

@@ -4,7 +4,11 @@
 shared region's queue (a full queue refuses at once, as the engine's own does), e-stops through their own counter
 (never queued behind anything), and replies, events and snapshots come back when the cycle wakes this process and
 the loop calls :meth:`RemoteCycle.take`. The controllers' API halves are built here first: building them carves
-the region the cycle process then finds.
+their doors in the region the cycle process then finds.
+
+Who started the cycle process is the one thing that differs, and each case is a class of its own, so the daemon
+never asks: :class:`AttachedCycle` under ``hild run`` (the main process started it and speaks for the unit), and
+:class:`SpawnedCycle` when this process started it itself (embedding, ``hild bench``, tests).
 """
 
 from __future__ import annotations
@@ -14,25 +18,28 @@ import concurrent.futures
 import contextlib
 import itertools
 import os
-import pickle
+import signal
 import subprocess
-import sys
 import threading
-from dataclasses import dataclass
+import time
+from collections.abc import Callable
 from typing import Any
 
 from hild.config.loader import LoadedConfig
-from hild.crossing.cells import REGION_BYTES, REQUESTS, Ask, EngineCells, Phase, Vital
+from hild.crossing.attach import Attachment, Crossing
+from hild.crossing.cells import REQUESTS, Ask, ClientPhase, ClientVital, Phase, Vital
 from hild.crossing.events import Event, EventLog
-from hild.crossing.mailboxes import Shared
-from hild.crossing.region import Region
 from hild.crossing.requests import Estop, Refused, Request
 from hild.crossing.snapshot import Snapshot
 from hild.crossing.status import loop_status, render_status
-from hild.cycle.process import CycleSpec, TelemetryRing
+from hild.crossing.telemetry import TelemetryRing
+from hild.cycle.process import spawn
+from hild.daemon.halves import api_halves
+from hild.main.notify import ServiceReport, SilentReport, SystemdNotifier
 
-GO_TIMEOUT = 120.0  # s: a cycle process brought up but never told to go releases the hardware and exits
 PHASE_POLL = 0.005  # s
+STOP_JOIN_TIMEOUT = 5.0  # s: a cycle process told to stop before it went live releases the hardware by then
+LOSS_ACK_TIMEOUT = 5.0  # s: a restarted client domain waits this long for the cycle to end its predecessor's goals
 SNAPSHOT_TRIES = 1000  # copies of a snapshot the cycle overtook, taken again at once (it writes one in µs)
 
 
@@ -40,64 +47,13 @@ class CycleProcessError(RuntimeError):
     """The cycle process failed to start, or ended."""
 
 
-@dataclass(frozen=True)
-class Attachment:
-    """How a client domain started by the daemon's main process finds the crossing it carved."""
-
-    region_fd: int
-    region_size: int
-    wakeup_fd: int
-    parent_pid: int  # the main process: when it is gone, so is the unit
-    restarted_after: str | None = None  # why the previous client domain ended; None for the first
-
-
-class Crossing:
-    """The shared region with the engine's cells and the controllers' API halves, and the wake-up eventfd: all a client
-    domain needs to reach a cycle process. Carved once (:meth:`carve`: building the halves lays the region out);
-    a client domain started later finds the same cells (:meth:`attach`)."""
-
-    def __init__(self, loaded: LoadedConfig, region: Region, wakeup_fd: int, *, create: bool) -> None:
-        from hild.daemon.halves import api_halves  # builds every controller plugin: only when the cycle is elsewhere
-
-        self.region = region
-        self.wakeup_fd = wakeup_fd
-        self.events = EventLog()  # the API halves' events (refused goals …): the client domain's own
-        self.halves = api_halves(loaded, Shared(region, create=create), self.events.emit)
-        self.cells = EngineCells(region, len(loaded.config.joints), create=create)
-
-    @classmethod
-    def carve(cls, loaded: LoadedConfig) -> Crossing:
-        wakeup = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
-        return cls(loaded, Region(REGION_BYTES), wakeup, create=True)
-
-    @classmethod
-    def attach(cls, loaded: LoadedConfig, at: Attachment) -> Crossing:
-        return cls(loaded, Region.attach(at.region_fd, at.region_size), at.wakeup_fd, create=False)
-
-    def attachment(self, parent_pid: int, restarted_after: str | None = None) -> Attachment:
-        return Attachment(self.region.fd, self.region.size, self.wakeup_fd, parent_pid, restarted_after)
-
-    def spawn_cycle(self, loaded: LoadedConfig, telemetry: TelemetryRing | None = None) -> subprocess.Popen[bytes]:
-        """Start the cycle process as a child of this process (which it watches: it stops when this one is
-        gone)."""
-        spec = CycleSpec(loaded, self.region.fd, self.region.size, self.wakeup_fd, os.getpid(), GO_TIMEOUT, telemetry)
-        process = subprocess.Popen(
-            [sys.executable, "-m", "hild.cycle.process"],
-            stdin=subprocess.PIPE,
-            pass_fds=(self.region.fd, self.wakeup_fd),
-        )
-        assert process.stdin is not None
-        with process.stdin as stdin:
-            stdin.write(pickle.dumps(spec, pickle.HIGHEST_PROTOCOL))
-        return process
-
-
 class RemoteCycle:
-    inputs_on_arrival = True  # nothing for the cycle to take: inputs are validated and handed over as they arrive
+    """The cycle process as the client domain (or the main process, which only reads it) reaches it."""
 
-    def __init__(self, loaded: LoadedConfig, crossing: Crossing | None = None) -> None:
-        """With ``crossing`` None, this process carves the region and starts the cycle process itself
-        (:meth:`spawn`); else the cycle process another process started is reached through it."""
+    inputs_on_arrival = True  # nothing for the cycle to take: inputs are validated and handed over as they arrive
+    restarted_after: str | None = None
+
+    def __init__(self, loaded: LoadedConfig, crossing: Crossing) -> None:
         cfg = loaded.config
         self.loaded = loaded
         self.robot = cfg.robot.name
@@ -106,16 +62,16 @@ class RemoteCycle:
         self.stop_descent = cfg.safety.stop_descent
         self.max_consecutive_overruns = cfg.safety.max_consecutive_overruns
         self.take_inputs = None
-        self.crossing = crossing or Crossing.carve(loaded)
-        self.events = self.crossing.events  # the client domain's own events, stamped with the cycle clock
+        self.crossing = crossing
+        self.events = EventLog()  # the client domain's own (the API halves' refused goals …), on the cycle clock
         self.events.now = lambda: self.t
-        self.owns_cycle = crossing is None
-        self.region = self.crossing.region
-        self._halves = self.crossing.halves
-        self.cells = self.crossing.cells
+        self.region = crossing.region
+        self._halves = api_halves(loaded, crossing.doors, self.events.emit)
+        self.cells = crossing.cells
         self.stats = self.cells.stats
         self.wakeup_fd = self.crossing.wakeup_fd
         self.process: subprocess.Popen[bytes] | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
         self._lock = threading.Lock()  # request ids, futures, the snapshot cache: several client threads
         # Ids unique across client domains: replies to a dead one's requests may still be in the queue.
         self._ids = itertools.count((os.getpid() << 32) + 1)
@@ -126,19 +82,11 @@ class RemoteCycle:
         self.realtime_report: dict[str, str] = {}  # what the client domain set up (its CPUs, the DMA latency hold)
         self._events_lost = int(self.cells.vitals[Vital.EVENTS_LOST])  # as last reported (by a predecessor too)
 
-    @classmethod
-    def attach(cls, loaded: LoadedConfig, at: Attachment) -> RemoteCycle:
-        """Reach the cycle process the daemon's main process started, through the crossing it carved."""
-        return cls(loaded, Crossing.attach(loaded, at))
-
     @property
     def cycle_pid(self) -> int:
         return int(self.cells.vitals[Vital.PID])
 
     # ---- the process --------------------------------------------------------------------------------------
-    def spawn(self, telemetry: TelemetryRing | None = None) -> None:
-        self.process = self.crossing.spawn_cycle(self.loaded, telemetry)
-
     @property
     def phase(self) -> Phase:
         return Phase(int(self.cells.vitals[Vital.PHASE]))
@@ -168,7 +116,7 @@ class RemoteCycle:
         code = None if self.process is None else self.process.poll()
         return f"the cycle process ended (exit code {code})" if code is not None else "the cycle process is stuck"
 
-    def stop(self) -> None:
+    def ask_stop(self) -> None:
         """Ask the cycle to stop (it descends if configured, holds, releases the hardware, exits)."""
         self.cells.asks[Ask.STOP] = 1
 
@@ -188,18 +136,15 @@ class RemoteCycle:
             self.process.wait()
 
     def alive(self) -> bool:
-        """Started by this process: whether it runs. Started by the main process (which ends this one when the
-        cycle process dies): whether it has not failed or stopped."""
+        """Started by this process: whether it runs. Started by another (which ends this one when the cycle
+        process dies): whether it has not failed or stopped."""
         if self.process is not None:
             return self.process.poll() is None
-        return not self.owns_cycle and self.phase not in (Phase.FAILED, Phase.STOPPED)
+        return self.phase not in (Phase.FAILED, Phase.STOPPED)
 
     @property
     def exit_code(self) -> int | None:
         return None if self.process is None else self.process.poll()
-
-    def close(self) -> None:
-        os.close(self.wakeup_fd)
 
     # ---- reading back -------------------------------------------------------------------------------------------
     @property
@@ -247,10 +192,11 @@ class RemoteCycle:
         pid = self.cycle_pid
         if pid:
             status["realtime"]["cycle_process"] = f"pid {pid}, {self.python_threads} Python thread(s)"
-        if not self.owns_cycle:  # this client domain was started by the main process, maybe after another
-            restarts = int(self.cells.asks[Ask.CLIENT_LOST])
-            status["realtime"]["client_process"] = f"pid {os.getpid()}, {restarts} restart(s)"
+        status["realtime"].update(self._process_report())
         return status
+
+    def _process_report(self) -> dict[str, str]:
+        return {}
 
     def controllers(self) -> dict[str, Any]:
         return dict(self._halves)
@@ -328,3 +274,139 @@ class RemoteCycle:
         for future in waiting:
             if not future.done():
                 future.set_exception(Refused(reason))
+
+    # ---- the daemon's lifecycle (hild.daemon.link.CycleHost) -------------------------------------------------
+    def watch(self, loop: asyncio.AbstractEventLoop, on_wake: Callable[[], None]) -> None:
+        """Call ``on_wake`` on ``loop`` whenever the cycle rings (its eventfd)."""
+        self._loop = loop
+        loop.add_reader(self.wakeup_fd, on_wake)
+
+    def close(self) -> None:
+        """The daemon stops: no more wake-ups, and whatever still waits for a reply is answered."""
+        if self._loop is not None:
+            self._loop.remove_reader(self.wakeup_fd)
+            self._loop = None
+        self.abandon("the daemon stopped")
+
+    @property
+    def telemetry_stats(self) -> None:
+        return None  # the cycle process records its loop statistics into the ring itself
+
+    def describe(self) -> str:
+        return f", the cycle in process {self.cycle_pid}"
+
+    def serving(self) -> None:
+        """The API is up (nothing to tell when nobody else watches this process)."""
+
+
+class SpawnedCycle(RemoteCycle):
+    """A cycle process this process carves the region for, starts, stops and speaks for (embedding, the bench,
+    tests; and ``hild run`` before [layout]): the daemon is the unit's top process."""
+
+    signals = (signal.SIGINT, signal.SIGTERM)
+    signal_meaning = "holding every joint, then stopping"
+
+    def __init__(self, loaded: LoadedConfig) -> None:
+        super().__init__(loaded, Crossing.carve(len(loaded.config.joints)))
+
+    def service_report(self, notifier: SystemdNotifier) -> ServiceReport:
+        return ServiceReport(notifier, self.max_consecutive_overruns)
+
+    async def bring_up(self, telemetry: Any) -> None:
+        """Start the cycle process, and wait until it has configured and read the hardware (drives disabled)."""
+        self.process = spawn(self.loaded, self.crossing, TelemetryRing(*telemetry.ring_layout) if telemetry else None)
+        try:
+            await self.brought_up()
+        except CycleProcessError:
+            await asyncio.to_thread(self.join, STOP_JOIN_TIMEOUT)
+            raise
+
+    async def go_live(self) -> None:
+        await self.live()
+
+    def gone(self) -> tuple[int, str | None] | None:
+        if self.alive():
+            return None
+        return 1, f"the cycle process ended unexpectedly (exit code {self.exit_code})"
+
+    async def stop(self, timeout: float) -> bool:
+        """Ask the cycle to stop (descent, hold, release) and wait; a cycle that does not is killed (the drives'
+        own watchdogs take over, as on any crash). True if it stopped in time."""
+        self.ask_stop()
+        stopped = await asyncio.to_thread(self.join, timeout)
+        if not stopped:
+            self.kill()
+        return stopped
+
+    def refused(self) -> None:
+        """The API did not come up: brought up or not, the cycle process releases the hardware and exits."""
+        self.ask_stop()
+        self.join(STOP_JOIN_TIMEOUT)
+
+
+class AttachedCycle(RemoteCycle):
+    """Under ``hild run``: the cycle process the daemon's main process started, reached through the crossing it
+    carved. The main process speaks for the unit to systemd, takes SIGINT (a terminal's Ctrl-C reaches every
+    process) and stops the cycle; this client domain only serves, and may be one restarted after another."""
+
+    signals = (signal.SIGTERM,)
+    signal_meaning = "the client domain stops"
+
+    def __init__(self, loaded: LoadedConfig, at: Attachment) -> None:
+        super().__init__(loaded, Crossing.attach(len(loaded.config.joints), at))
+        self.parent_pid = at.parent_pid
+        self.restarted_after = at.restarted_after
+
+    def service_report(self, notifier: SystemdNotifier) -> SilentReport:
+        return SilentReport()
+
+    async def bring_up(self, telemetry: Any) -> None:
+        """Say that the cycle process may be started (the main process does it), and wait until it has brought the
+        hardware up. A restarted client domain finds it live, and first waits until the cycle has ended what its
+        predecessor ran (so no goal of the dead domain starts after this one answers)."""
+        self.cells.telemetry.put(TelemetryRing(*telemetry.ring_layout) if telemetry else None)
+        self.cells.client[ClientVital.PID] = os.getpid()
+        self.cells.client[ClientVital.PHASE] = ClientPhase.OPEN
+        if self.restarted_after is None:
+            await self.brought_up()
+            return
+        deadline = time.monotonic() + LOSS_ACK_TIMEOUT
+        while self.cells.vitals[Vital.CLIENT_LOST_SEEN] != self.cells.asks[Ask.CLIENT_LOST]:
+            if not self.alive() or time.monotonic() > deadline:
+                raise CycleProcessError("it did not take over from the lost client domain")
+            await asyncio.sleep(PHASE_POLL)
+        self.events.emit(
+            "warning",
+            "daemon",
+            f"the client domain was restarted ({self.restarted_after}); clients may reconnect and resend",
+        )
+
+    async def go_live(self) -> None:
+        if self.phase is not Phase.LIVE:  # a restarted client domain finds it running
+            await self.live()
+
+    def serving(self) -> None:
+        self.cells.client[ClientVital.PHASE] = ClientPhase.SERVING
+
+    def gone(self) -> tuple[int, str | None] | None:
+        if os.getppid() != self.parent_pid:
+            return 1, "the daemon's main process is gone: stopping"
+        if self.alive():
+            return None
+        if self.cells.asks[Ask.STOP]:
+            return 0, None  # the main process stopped it: ours is next
+        return 1, f"the cycle process ended unexpectedly (phase {self.phase.name.lower()})"
+
+    async def stop(self, timeout: float) -> bool:
+        return True  # the main process stops the cycle process (it did already, unless this domain alone stops)
+
+    def refused(self) -> None:
+        """Nothing to release here: the main process stops the cycle process when this domain ends."""
+
+    def close(self) -> None:
+        super().close()
+        self.cells.client[ClientVital.PHASE] = ClientPhase.STOPPED
+
+    def _process_report(self) -> dict[str, str]:
+        restarts = int(self.cells.asks[Ask.CLIENT_LOST])
+        return {"client_process": f"pid {os.getpid()}, {restarts} restart(s)"}

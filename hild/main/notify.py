@@ -241,3 +241,14 @@ class ServiceReport:
     @staticmethod
     def _status_text(cycle: CycleFigures, mode: str) -> str:
         return status_line(mode, cycle.update_rate, cycle.stats.summary(STATS_MAX_AGE))
+
+
+class SilentReport:
+    """A client domain under the main process: the main process speaks for the unit (it alone has
+    ``$NOTIFY_SOCKET``), so this one reports nothing and never counts itself ready."""
+
+    ready = False
+    watchdog = None
+
+    def tick(self, now: float, cycle: CycleFigures, cycle_alive: bool) -> None:
+        pass

@@ -29,8 +29,10 @@ import time
 from dataclasses import dataclass
 
 from hild.config.loader import LoadedConfig
+from hild.crossing.attach import Attachment, Crossing
 from hild.crossing.cells import Ask, ClientPhase, ClientVital, Phase
-from hild.daemon.remote import Attachment, Crossing, RemoteCycle
+from hild.cycle.process import spawn
+from hild.daemon.remote import RemoteCycle
 from hild.main.notify import ServiceReport, SystemdNotifier
 
 log = logging.getLogger("hild.daemon")
@@ -57,7 +59,7 @@ class MainProcess:
     def __init__(self, loaded: LoadedConfig, listen: list[str] | None = None) -> None:
         self.loaded = loaded
         self.listen = listen
-        self.crossing = Crossing.carve(loaded)
+        self.crossing = Crossing.carve(len(loaded.config.joints))
         self.cells = self.crossing.cells
         self.cycle = RemoteCycle(loaded, self.crossing)  # only read here: the client domain drains and requests
         self.client: subprocess.Popen[bytes] | None = None
@@ -133,7 +135,7 @@ class MainProcess:
                 return self._start_failed()
             await asyncio.sleep(TICK / 10)
         self.notifier.status("bringing up the hardware")
-        self.cycle.process = self.crossing.spawn_cycle(self.loaded, self.cells.telemetry.take())  # type: ignore[arg-type]
+        self.cycle.process = spawn(self.loaded, self.crossing, self.cells.telemetry.take())  # type: ignore[arg-type]
         while self.client_phase is not ClientPhase.SERVING or self.cycle.phase is not Phase.LIVE:
             if not (self._client_alive() and self.cycle.alive()) or self._stopping.is_set():
                 return self._start_failed()

@@ -1,4 +1,4 @@
-"""Both sides of the crossing in this process, in lockstep: the client domain's RemoteCycle, and the cycle side's
+"""Both sides of the crossing in this process, in lockstep: the client domain's SpawnedCycle, and the cycle side's
 engine and CrossingCycle attached to the same shared region. No process, no clock: each step is one cycle."""
 
 from __future__ import annotations
@@ -17,13 +17,13 @@ from hild.crossing.region import Region
 from hild.crossing.requests import Refused, Reset, SetZero, Switch
 from hild.cycle.engine import Engine
 from hild.cycle.process import ClientWakeup, CrossingCycle, Outbox
-from hild.daemon.remote import RemoteCycle
+from hild.daemon.remote import SpawnedCycle
 from tests.conftest import mock_robot
 
 
 @dataclass
 class Lockstep:
-    remote: RemoteCycle
+    remote: SpawnedCycle
     engine: Engine
     cycle: CrossingCycle
 
@@ -35,7 +35,7 @@ class Lockstep:
 @pytest.fixture
 def lockstep(write_config: Callable[..., Path]) -> Iterator[Lockstep]:
     loaded = load_config(write_config(mock_robot()))
-    remote = RemoteCycle(loaded)
+    remote = SpawnedCycle(loaded)
     region = Region.attach(remote.region.fd, remote.region.size)
     cells = EngineCells(region, len(remote.joints), create=False)
     outbox = Outbox(cells, ClientWakeup(remote.wakeup_fd))
@@ -80,6 +80,6 @@ def test_a_stop_asked_by_the_client_domain_stops_the_cycle(lockstep: Lockstep) -
     remote, cycle = lockstep.remote, lockstep.cycle
     lockstep.step()
     assert not cycle._stop_requested.is_set()
-    remote.stop()
+    remote.ask_stop()
     lockstep.step()
     assert cycle._stop_requested.is_set()

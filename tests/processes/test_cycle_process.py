@@ -23,6 +23,7 @@ from hild.api.client import HildClient
 from hild.config import load_config
 from hild.crossing.cells import ClientPhase, Phase
 from hild.daemon.daemon import Daemon, StartupError
+from hild.daemon.remote import SpawnedCycle
 from hild.main.process import MainProcess
 from tests.conftest import Systemd, merge, mock_robot
 from tests.helpers import HildRun, free_endpoint
@@ -72,8 +73,8 @@ def test_a_client_drives_the_arm_through_the_cycle_process(write_config: Callabl
     seen: dict[str, Any] = {}
 
     async def scenario(daemon: Daemon, client: HildClient) -> None:
-        remote = daemon.remote
-        assert remote is not None and remote.process is not None and daemon.engine is None
+        remote = daemon.link
+        assert isinstance(remote, SpawnedCycle) and remote.process is not None
         assert remote.process.pid != os.getpid()
         status = await asyncio.to_thread(client.status)
         assert status["mode"] == "hold" and [j["name"] for j in status["joints"]] == ["a", "b", "c"]
@@ -105,8 +106,8 @@ def test_a_client_drives_the_arm_through_the_cycle_process(write_config: Callabl
     assert seen["realtime"]["cycle_process"] == f"pid {seen['pid']}, 1 Python thread(s)"
     assert seen["realtime"]["priority"] == "normal (SCHED_OTHER)"  # the cycle's own settings, reported from there
     assert {c["name"]: c["state"] for c in seen["controllers"]} == {"jsb": "active", "fwd": "inactive"}
-    assert daemon.remote is not None and daemon.remote.exit_code == 0
-    assert daemon.remote.phase is Phase.STOPPED
+    assert isinstance(daemon.link, SpawnedCycle) and daemon.link.exit_code == 0
+    assert daemon.link.phase is Phase.STOPPED
 
 
 def test_a_refused_request_answers_as_before(write_config: Callable[..., Path]) -> None:
@@ -137,16 +138,16 @@ def test_a_cycle_process_that_cannot_build_its_hardware_is_a_start_up_error(
     daemon = Daemon(load_config(write_config(split_robot(patch))), [free_endpoint()])
     with pytest.raises(StartupError, match="initial_positions names unknown joints"):
         asyncio.run(daemon.run())
-    assert daemon.remote is not None and daemon.remote.exit_code == 1
+    assert isinstance(daemon.link, SpawnedCycle) and daemon.link.exit_code == 1
 
 
 def test_a_killed_cycle_process_ends_the_daemon_with_the_reason(
     write_config: Callable[..., Path], caplog: pytest.LogCaptureFixture
 ) -> None:
     async def scenario(daemon: Daemon, client: HildClient) -> None:
-        assert daemon.remote is not None and daemon.remote.process is not None
-        daemon.remote.process.send_signal(signal.SIGKILL)
-        await until(lambda: not daemon.remote.alive(), "the cycle process to die")  # type: ignore[union-attr]
+        assert isinstance(daemon.link, SpawnedCycle) and daemon.link.process is not None
+        daemon.link.process.send_signal(signal.SIGKILL)
+        await until(lambda: not daemon.link.alive(), "the cycle process to die")  # type: ignore[union-attr]
         await asyncio.sleep(0.5)  # the daemon's next housekeeping tick sees it
 
     _, code = run_split(write_config, scenario)

@@ -1,0 +1,46 @@
+"""The crossing of one running robot: the shared region with the engine's cells, and the wake-up eventfd.
+
+Carved once by the process that starts the cycle process (:meth:`Crossing.carve`); a client domain started later
+(a restart) finds the same cells through an :class:`Attachment`, the numbers it is handed on its standard input.
+The controllers' doors are carved from :attr:`Crossing.doors` by whoever builds their API halves.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+from hild.crossing.cells import REGION_BYTES, EngineCells
+from hild.crossing.mailboxes import Shared
+from hild.crossing.region import Region
+
+
+@dataclass(frozen=True)
+class Attachment:
+    """How a client domain started by the daemon's main process finds the crossing it carved."""
+
+    region_fd: int
+    region_size: int
+    wakeup_fd: int
+    parent_pid: int  # the main process: when it is gone, so is the unit
+    restarted_after: str | None = None  # why the previous client domain ended; None for the first
+
+
+class Crossing:
+    def __init__(self, region: Region, wakeup_fd: int, joints: int, *, create: bool) -> None:
+        self.region = region
+        self.wakeup_fd = wakeup_fd
+        self.doors = Shared(region, create=create)  # the controllers' doors: carved or found by name
+        self.cells = EngineCells(region, joints, create=create)
+
+    @classmethod
+    def carve(cls, joints: int) -> Crossing:
+        wakeup = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
+        return cls(Region(REGION_BYTES), wakeup, joints, create=True)
+
+    @classmethod
+    def attach(cls, joints: int, at: Attachment) -> Crossing:
+        return cls(Region.attach(at.region_fd, at.region_size), at.wakeup_fd, joints, create=False)
+
+    def attachment(self, parent_pid: int, restarted_after: str | None = None) -> Attachment:
+        return Attachment(self.region.fd, self.region.size, self.wakeup_fd, parent_pid, restarted_after)
