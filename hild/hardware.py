@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import abc
 import enum
-import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,12 +20,6 @@ from hild.arrays import JointState, ServoCommand
 from hild.config.params import Params
 
 ALL_COMMAND_FIELDS: frozenset[str] = frozenset({"position", "velocity", "effort", "kp", "kd"})
-_RENAMED_HOOKS = {
-    "configure": "on_configure",
-    "activate": "on_activate",
-    "deactivate": "on_deactivate",
-    "cleanup": "on_cleanup",
-}
 
 
 class Lifecycle(enum.StrEnum):
@@ -102,20 +95,6 @@ class HardwareComponent(abc.ABC):
     def __init__(self, context: HardwareContext, params: Params) -> None:
         self.context = context
         self.params = params
-
-    def __init_subclass__(cls, **kwargs: object) -> None:
-        """A driver written for the hooks' earlier names (``configure`` …) keeps working, with a warning."""
-        super().__init_subclass__(**kwargs)
-        renamed = {old: new for old, new in _RENAMED_HOOKS.items() if old in cls.__dict__ and new not in cls.__dict__}
-        for old, new in renamed.items():
-            setattr(cls, new, cls.__dict__[old])
-        if renamed:
-            names = ", ".join(f"{old} → {new}" for old, new in renamed.items())
-            warnings.warn(
-                f"{cls.__qualname__}: hardware lifecycle hooks are named as controllers' are now ({names})",
-                DeprecationWarning,
-                stacklevel=2,
-            )
 
     @property
     def joints(self) -> tuple[str, ...]:

@@ -111,6 +111,8 @@ def test_async_client(daemon: HildRun) -> None:
             await arm.switch(["joint_trajectory"])
             state = await arm.next_message("joint_states", 10.0)
             result = await arm.move_to("joint_trajectory", [p + 0.05 for p in state["position"]], timeout=20.0)
-            return str(result["status"])
+            handle = await arm.send_goal("joint_trajectory", {"positions": state["position"]})
+            sent = await arm.wait_result(handle, timeout=20.0)  # send_goal's handle, awaited without a thread of ours
+            return f"{result['status']} {sent['status']}"
 
-    assert asyncio.run(main()) == "succeeded"
+    assert asyncio.run(main()) == "succeeded succeeded"

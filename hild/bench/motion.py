@@ -1,8 +1,8 @@
 """The motion paths measured: trajectory tracking on the lockstep twin, goal acceptance and servo latency over Zenoh.
 
     hild bench --only motion                           # defaults (--quick: fewer goals and steps)
-    python tools/motion_bench.py                       # arm6 + rrbot tracking at 500 Hz, then the daemon parts
-    python tools/motion_bench.py --rate 1000 --json bench.json
+    python -m hild.bench.motion                       # arm6 + rrbot tracking at 500 Hz, then the daemon parts
+    python -m hild.bench.motion --rate 1000 --json bench.json
 
 1. **Tracking** (deterministic, no daemon): each ``--tracking`` config on the sim clock (lockstep), the standard
    trajectory (``hild.motion.reference``) submitted to ``joint_trajectory``; per joint the RMS and max of
@@ -435,7 +435,7 @@ def format_daemon(config_name: str, goals: dict[str, Any], servo: dict[str, Any]
 # ---- the run ----------------------------------------------------------------------------------------------------
 @dataclass
 class MotionSettings:
-    """What to measure and how much (``tools/motion_bench.py``'s flags; ``hild bench --only motion`` takes these
+    """What to measure and how much (``python -m hild.bench.motion``'s flags; ``hild bench --only motion`` takes these
     defaults, ``--quick`` fewer goals and steps)."""
 
     tracking: list[Path] = field(default_factory=lambda: [CONFIGS / "arm6_twin.yaml", CONFIGS / "rrbot_twin.yaml"])
@@ -550,3 +550,7 @@ def main(argv: list[str] | None = None) -> int:
         args.json.write_text(json.dumps(report, indent=2))
         print(f"\n(JSON written to {args.json})")
     return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -33,6 +33,7 @@ import math
 import random
 import signal
 import subprocess
+import sys
 import tempfile
 import threading
 import time
@@ -472,3 +473,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         args.json.write_text(json.dumps(report.as_dict(), indent=2))
     return 0 if report.passed else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

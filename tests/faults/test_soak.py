@@ -1,5 +1,5 @@
 """The soak in CI: ~20 s of a real daemon at 1 kHz under random goals, servo streams, e-stops and vanishing clients
-(``hild bench --only soak`` and tools/soak.py run the long version)."""
+(``hild bench --only soak`` and ``python -m hild.bench.soak`` run the long version)."""
 
 from __future__ import annotations
 
