@@ -32,6 +32,18 @@ from typing import Any, Generic, TypeVar
 from hild.crossing.mailboxes import InProcess, Latest, Mailboxes, Queue
 from hild.crossing.ring import RingReader
 
+__all__ = [
+    "ActionServer",
+    "CancelRequest",
+    "ClientLost",
+    "ErrorCode",
+    "GoalRejected",
+    "GoalRequest",
+    "GoalResult",
+    "GoalStatus",
+    "split_client",
+]
+
 G = TypeVar("G")
 
 PENDING_GOALS = 16  # goals accepted but not yet adopted by the cycle; more are refused ("busy")

@@ -10,6 +10,16 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+__all__ = [
+    "COMMAND_FIELDS",
+    "STATE_FIELDS",
+    "JointState",
+    "ServoCommand",
+    "contiguous_slice",
+    "gather_command",
+    "scatter_state",
+]
+
 FloatArray = np.ndarray
 
 

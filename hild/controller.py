@@ -33,6 +33,15 @@ from hild.config.params import Params
 from hild.crossing.mailboxes import InProcess, Mailboxes
 from hild.crossing.ring import SampleRing
 
+__all__ = [
+    "Controller",
+    "ControllerContext",
+    "ControllerState",
+    "JointLimitArrays",
+    "and_more",
+    "unknown_keys",
+]
+
 SHOWN_KEYS = 3  # unknown keys a refusal names; the rest are counted
 
 

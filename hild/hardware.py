@@ -19,6 +19,18 @@ from typing import ClassVar
 from hild.arrays import JointState, ServoCommand
 from hild.config.params import Params
 
+__all__ = [
+    "ALL_COMMAND_FIELDS",
+    "BusUsage",
+    "Finding",
+    "GainRange",
+    "HardwareComponent",
+    "HardwareContext",
+    "HardwareError",
+    "Lifecycle",
+    "joint_index",
+]
+
 ALL_COMMAND_FIELDS: frozenset[str] = frozenset({"position", "velocity", "effort", "kp", "kd"})
 
 

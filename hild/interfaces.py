@@ -12,6 +12,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
+__all__ = [
+    "FIELDS",
+    "ClaimError",
+    "ClaimMasks",
+    "build_masks",
+    "check_claims",
+    "interface_name",
+    "parse_interface",
+]
+
 FIELDS = ("position", "velocity", "effort", "kp", "kd")
 
 

@@ -4,6 +4,11 @@ from __future__ import annotations
 
 import enum
 
+__all__ = [
+    "MODE_NAMES",
+    "JointMode",
+]
+
 
 class JointMode(enum.IntEnum):
     HOLD = 0  # no controller commands it: held at its latched position

@@ -10,6 +10,16 @@ from functools import cache
 from importlib.metadata import entry_points
 from typing import Any
 
+__all__ = [
+    "COMMANDS",
+    "CONTROLLERS",
+    "DRIVERS",
+    "PluginError",
+    "available",
+    "commands",
+    "load",
+]
+
 DRIVERS = "hild.drivers"
 CONTROLLERS = "hild.controllers"
 COMMANDS = "hild.commands"  # extra `hild` sub-commands: a function ``register(subparsers)``

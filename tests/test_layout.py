@@ -176,3 +176,26 @@ def test_importing_the_cycle_process_loads_no_client_library() -> None:
     )
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=REPO)
     assert result.returncode == 0, result.stdout + result.stderr
+
+
+PUBLIC = ("hild", "hild.client", "hild.hardware", "hild.controller", "hild.interfaces", "hild.arrays", "hild.modes")
+PUBLIC += ("hild.action", "hild.plugins")
+
+
+def test_the_public_surface_is_explicit_and_every_name_in_it_exists() -> None:
+    import importlib
+
+    missing = {}
+    for name in PUBLIC:
+        module = importlib.import_module(name)
+        exported = getattr(module, "__all__", None)
+        assert exported, f"{name} has no __all__"
+        missing[name] = [attr for attr in exported if not hasattr(module, attr)]
+    assert {k: v for k, v in missing.items() if v} == {}
+
+
+def test_the_top_of_the_package_is_the_contracts_the_cli_and_the_client() -> None:
+    """At most 10 modules at hild/'s top level: everything else lives in the room of the process it runs in."""
+    top = sorted(p.name for p in (REPO / "hild").glob("*.py"))
+    assert len(top) <= 10, top
+    assert {f"{m.rpartition('.')[2]}.py" for m in PUBLIC if m != "hild"} <= set(top)
