@@ -171,7 +171,8 @@ class Controller:
         return {}
 
     def action_server(self) -> ActionServer[Any] | None:
-        """The goal endpoint (``goal``/``cancel``/``result``/``feedback`` keys) of controllers that run goals."""
+        """The cycle half of the goals of a controller that runs goals; the API builds their client half
+        (:class:`hild.api.goals.GoalEndpoint`) and its ``goal``/``cancel``/``result``/``feedback`` keys from it."""
         return None
 
     def outputs(self) -> Mapping[str, SampleRing]:

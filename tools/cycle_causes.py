@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hild.api.goals import GoalEndpoint
 from hild.bench.measure import lockstep_engine
 from hild.crossing.stats import percentiles
 from hild.cycle.engine import Engine
@@ -52,7 +53,7 @@ def wake_costs(engine: Engine, cycles: int) -> list[tuple[str, float, float]]:
     home = engine.state.position.copy()
     rows = []
     for label, sleep, spin in CONDITIONS:
-        reply = jtc.action.submit(standard_trajectory(engine.joints, home))
+        reply = GoalEndpoint.of(jtc.action).submit(standard_trajectory(engine.joints, home))
         if not reply["ok"]:
             raise SystemExit(f"goal rejected: {reply['error']}")
         took = np.empty(cycles)
@@ -122,7 +123,7 @@ def neighbour_costs(engine: Engine, rate: float, rounds: int, block: int) -> lis
     home = engine.state.position.copy()
     took: dict[str, list[np.ndarray]] = {"none": [], "thread (same GIL)": [], "process (own GIL)": []}
     for _ in range(rounds):
-        reply = jtc.action.submit(standard_trajectory(engine.joints, home))
+        reply = GoalEndpoint.of(jtc.action).submit(standard_trajectory(engine.joints, home))
         if not reply["ok"]:
             raise SystemExit(f"goal rejected: {reply['error']}")
         engine.run_cycles(5)

@@ -36,6 +36,7 @@ import zenoh
 
 from hild.action import ActionServer
 from hild.api.codec import FAST_DECODE, GOAL_LIMITS, MAX_PAYLOAD, REQUEST_LIMITS, Limits, PayloadError, decode, encode
+from hild.api.goals import GoalEndpoint
 from hild.api.keys import RESERVED, Keys, check_chunk
 from hild.api.queries import SHUTTING_DOWN, Admitted, LargePayloadWorker, QueryAdmission, clip, drop, reply_json
 from hild.api.session import declare_json_publisher
@@ -156,7 +157,7 @@ class OutputPort:
 class ActionPort:
     """A controller's goal endpoint: queryables goal/cancel/result, publishers feedback/result."""
 
-    server: ActionServer[Any]
+    server: GoalEndpoint[Any]
     feedback: zenoh.Publisher
     result: zenoh.Publisher
     queryables: list[zenoh.Queryable[Any]] = field(default_factory=list)
@@ -286,7 +287,8 @@ class ControllerPorts:
             self.engine.events.emit("error", "api", f"controller {name}: goals not exposed: {exc}")
         return endpoints
 
-    def _declare_action(self, name: str, server: ActionServer[Any]) -> ActionPort:
+    def _declare_action(self, name: str, action: ActionServer[Any]) -> ActionPort:
+        server = GoalEndpoint.of(action)
         key = functools.partial(self.keys.input, name)
         port = ActionPort(
             server,

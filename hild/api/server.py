@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING, Any
 import zenoh
 
 from hild.api.goal_senders import watch_clients
+from hild.api.goals import GoalEndpoint
 from hild.api.keys import SERVICES, Keys
 from hild.api.ports import ControllerPorts, Counters
 from hild.api.queries import SHUTTING_DOWN, Admitted, LargePayloadWorker, QueryAdmission, drop, reply_json
@@ -326,7 +327,7 @@ class ApiServer:
             try:
                 server = instance.action_server()
                 if server is not None:
-                    told += server.client_lost(client)
+                    told += GoalEndpoint.of(server).client_lost(client)
             except Exception:  # a plugin's bug must not keep the other controllers from being told
                 log.exception("telling %s that client %s is gone failed", type(instance).__name__, client)
         if told:

@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 
 from hild.api.client import HildClient, HildError, ServoStream
+from hild.api.goals import GoalEndpoint
 from hild.bench.children import free_endpoint, wait_for
 from hild.bench.daemon import CONFIGS, HildRun
 from hild.bench.measure import RateRefused, lockstep_engine
@@ -68,7 +69,7 @@ def measure_tracking(config: Path, rate: float | None) -> dict[str, Any]:
         switched = engine.switch([JTC], [])
         if not switched.ok:
             return {"config": config.name, "rate_hz": engine.update_rate, "skipped": f"cannot activate: {switched}"}
-        action = engine.manager.records[JTC].instance.action
+        action = GoalEndpoint.of(engine.manager.records[JTC].instance.action)
         home = engine.state.position.copy()
         goal = standard_trajectory(engine.joints, home)
         reply = action.submit(goal)

@@ -8,7 +8,8 @@ ends while still moving gets a stop appended.
 Joints are driven by *tracks*: a trajectory, its start time and the joints it still owns. A full goal replaces
 every track; a partial goal (``allow_partial_joints_goal``) takes its joints and leaves the others to their
 current motion (``continue``) or brings them to a stop (``stop``). Joints without a track hold their desired
-position. Goal bookkeeping lives in :class:`~hild.action.ActionServer`; this module only executes.
+position. It runs the cycle half of its goals (:class:`~hild.action.ActionServer`); the client half, in the client
+domain, does the bookkeeping (:class:`hild.api.goals.GoalEndpoint`). This module only executes.
 
 A goal whose sender disappears (its Zenoh liveliness token goes away) is stopped by default: decelerated
 jerk-limited to rest and aborted (``on_client_lost: stop``). A robot should not keep executing for someone who is

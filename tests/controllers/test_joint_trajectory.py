@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from hild.action import ErrorCode, GoalResult
+from hild.api.goals import GoalEndpoint
 from hild.controllers.joint_trajectory import JointTrajectoryController
 from hild.cycle.engine import Engine
 from hild.cycle.supervisor import Fault
@@ -48,13 +49,13 @@ def started(name: str = "arm6_twin.yaml") -> Engine:
 
 
 def submit(engine: Engine, goal: dict[str, Any]) -> str:
-    reply = controller(engine).action.submit(goal)
+    reply = GoalEndpoint.of(controller(engine).action).submit(goal)
     assert reply["ok"], reply["error"]
     return str(reply["goal_id"])
 
 
 def run_until_result(recorder: Recorder, goal_id: str, limit_s: float = 20.0) -> GoalResult:
-    action = controller(recorder.engine).action
+    action = GoalEndpoint.of(controller(recorder.engine).action)
     for _ in range(int(limit_s * recorder.engine.update_rate)):
         recorder.run(1)
         for result in action.collect():
@@ -64,7 +65,7 @@ def run_until_result(recorder: Recorder, goal_id: str, limit_s: float = 20.0) ->
 
 
 def results_of(engine: Engine) -> dict[str, GoalResult]:
-    return {r.goal_id: r for r in controller(engine).action.collect()}
+    return {r.goal_id: r for r in GoalEndpoint.of(controller(engine).action).collect()}
 
 
 def test_standard_trajectory_is_tracked_within_tolerance_and_succeeds() -> None:
@@ -127,7 +128,7 @@ def test_cancel_decelerates_jerk_limited_then_holds() -> None:
     rec = Recorder(engine)
     goal_id = submit(engine, {"positions": (home + 1.0).tolist()})
     rec.run(100)
-    assert controller(engine).action.cancel({"goal_id": goal_id})["ok"]
+    assert GoalEndpoint.of(controller(engine).action).cancel({"goal_id": goal_id})["ok"]
     result = run_until_result(rec, goal_id, 5.0)
     assert result.status == "canceled"
     stopped_at = engine.final.position.copy()
@@ -142,7 +143,7 @@ def test_cancel_decelerates_jerk_limited_then_holds() -> None:
 
 def test_cancel_of_an_unknown_or_finished_goal_is_refused() -> None:
     engine = started()
-    action = controller(engine).action
+    action = GoalEndpoint.of(controller(engine).action)
     reply = action.cancel({"goal_id": "nope"})
     assert not reply["ok"] and "unknown" in reply["error"]
     goal_id = submit(engine, {"positions": (engine.state.position + 0.01).tolist()})
@@ -235,7 +236,7 @@ def test_partial_goal_lets_the_other_joints_continue() -> None:
     rec.run(1500)
     np.testing.assert_allclose(engine.final.position[:5], home[:5] + 0.6, atol=1e-9)  # kept their motion
     assert abs(engine.final.position[5] - (home[5] - 0.2)) < 1e-9
-    assert controller(engine).action.result({"goal_id": first})["status"] == "preempted"
+    assert GoalEndpoint.of(controller(engine).action).result({"goal_id": first})["status"] == "preempted"
 
 
 def test_deactivation_aborts_the_running_goal_and_the_joints_are_held() -> None:
@@ -247,7 +248,7 @@ def test_deactivation_aborts_the_running_goal_and_the_joints_are_held() -> None:
     rec.run(5)
     result = results_of(engine)[goal_id]
     assert result.status == "aborted" and "deactivated" in result.error_string
-    reply = controller(engine).action.submit({"positions": engine.state.position.tolist()})
+    reply = GoalEndpoint.of(controller(engine).action).submit({"positions": engine.state.position.tolist()})
     assert not reply["ok"] and "not active" in reply["error"]
 
 
@@ -255,7 +256,7 @@ def test_feedback_reports_desired_actual_and_error_for_the_goal() -> None:
     engine = started()
     goal_id = submit(engine, {"positions": (engine.state.position + 0.3).tolist()})
     engine.run_cycles(100)
-    messages = controller(engine).action.feedback_messages()
+    messages = GoalEndpoint.of(controller(engine).action).feedback_messages()
     assert 4 <= len(messages) <= 6  # 25 Hz over 0.2 s
     last = messages[-1]
     assert last["goal_id"] == goal_id and last["joint_names"] == list(engine.joints)
@@ -369,7 +370,7 @@ BAD_GOALS = [
 def test_bad_goals_are_rejected_with_their_reason_and_nothing_moves(goal: Any, reason: str) -> None:
     engine = started()
     before = engine.final.position.copy()
-    reply = controller(engine).action.submit(goal)
+    reply = GoalEndpoint.of(controller(engine).action).submit(goal)
     assert not reply["ok"]
     assert reason in reply["error"], reply["error"]
     assert len(controller(engine).action.requests) == 0
@@ -401,10 +402,10 @@ def test_oversized_goals_are_refused_before_planning() -> None:
     engine = started()
     names = list(engine.joints)
     untimed = [{"positions": HOME} for _ in range(251)]
-    reply = controller(engine).action.submit({"trajectory": {"joint_names": names, "points": untimed}})
+    reply = GoalEndpoint.of(controller(engine).action).submit({"trajectory": {"joint_names": names, "points": untimed}})
     assert not reply["ok"] and "at most 250 waypoints" in reply["error"]
     timed = [{"positions": HOME, "time_from_start": 1.0 + k} for k in range(10_001)]
-    reply = controller(engine).action.submit({"trajectory": {"joint_names": names, "points": timed}})
+    reply = GoalEndpoint.of(controller(engine).action).submit({"trajectory": {"joint_names": names, "points": timed}})
     assert not reply["ok"] and "at most 10000 are accepted" in reply["error"]
 
 

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from hild.action import GoalStatus
+from hild.api.goals import GoalEndpoint
 from hild.config import LoadedConfig, load_config
 from hild.controller import Controller
 from hild.crossing.mailboxes import Shared
@@ -51,7 +52,7 @@ class Split:
     def result(self, name: str, goal_id: str, seconds: float = 20.0) -> Any:
         for _ in range(int(seconds * self.engine.update_rate)):
             self.engine.run_cycles(1)
-            for result in self.half(name).action.collect():
+            for result in GoalEndpoint.of(self.half(name).action).collect():
                 if result.goal_id == goal_id:
                     return result
         raise AssertionError(f"no result for {goal_id} in {seconds} s")
@@ -92,16 +93,16 @@ def test_a_goal_planned_by_the_api_half_is_executed_by_the_cycle_half(split: Spl
     half = split.half("joint_trajectory")
     start = split.engine.state.position.copy()
     target = start + np.array([0.3, -0.2, 0.2, 0.0, 0.1, -0.1])
-    move = half.action.submit({"positions": target.tolist()})
+    move = GoalEndpoint.of(half.action).submit({"positions": target.tolist()})
     assert move["ok"], move
     split.engine.run_cycles(50)
-    feedback = half.action.feedback_messages()  # the cycle half wrote them into a shared ring
+    feedback = GoalEndpoint.of(half.action).feedback_messages()  # the cycle half wrote them into a shared ring
     assert feedback and {m["goal_id"] for m in feedback} == {move["goal_id"]}
     assert split.result("joint_trajectory", move["goal_id"]).status is GoalStatus.SUCCEEDED
     np.testing.assert_allclose(split.engine.state.position, target, atol=0.01)
 
     waypoints = [(start + k * np.array([0.05, 0.05, -0.05, 0.0, 0.0, 0.0])).tolist() for k in (1, 2, 3)]
-    untimed = half.action.submit(
+    untimed = GoalEndpoint.of(half.action).submit(
         {"trajectory": {"joint_names": list(split.engine.joints), "points": [{"positions": w} for w in waypoints]}}
     )
     assert untimed["ok"], untimed
@@ -163,7 +164,9 @@ def test_a_long_timed_goal_crosses_as_a_segment_table_and_is_executed(split: Spl
     points = [
         {"positions": (start + d).tolist(), "time_from_start": float(t)} for d, t in zip(offsets, times, strict=True)
     ]
-    goal = half.action.submit({"trajectory": {"joint_names": list(split.engine.joints), "points": points}})
+    goal = GoalEndpoint.of(half.action).submit(
+        {"trajectory": {"joint_names": list(split.engine.joints), "points": points}}
+    )
     assert goal["ok"], goal
     split.engine.run_cycles(2)
     track = split.cycle_half("joint_trajectory").goal_track

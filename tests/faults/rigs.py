@@ -36,6 +36,7 @@ from drivers.can.emulator.runtime import BrakedPlant, build_firmware
 from drivers.can.params import MitCanParams, ODriveCanParams
 from hild.action import GoalResult
 from hild.api.client import HildClient
+from hild.api.goals import GoalEndpoint
 from hild.api.server import ApiServer
 from hild.config import load_config
 from hild.config.loader import LoadedConfig
@@ -178,14 +179,14 @@ class Lockstep:
     def move(self, offset: float | list[float], **goal: Any) -> str:
         """A move_to goal ``offset`` (rad) away from where the joints are now; returns its id."""
         target = self.engine.state.position + np.asarray(offset, dtype=float)
-        reply = self.jtc.action.submit({"positions": target.tolist(), **goal})
+        reply = GoalEndpoint.of(self.jtc.action).submit({"positions": target.tolist(), **goal})
         assert reply["ok"], reply["error"]
         return str(reply["goal_id"])
 
     def result(self, goal_id: str) -> GoalResult | None:
         """The goal's result if it has one (results are kept: asking twice is fine)."""
-        self.jtc.action.collect()
-        reply = self.jtc.action.result({"goal_id": goal_id})
+        GoalEndpoint.of(self.jtc.action).collect()
+        reply = GoalEndpoint.of(self.jtc.action).result({"goal_id": goal_id})
         if reply.get("status") in (None, "executing"):
             return None
         return GoalResult(goal_id, reply["status"], reply["error_code"], reply["error_string"])

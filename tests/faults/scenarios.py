@@ -34,6 +34,7 @@ from drivers.can.protocol.flavours import DAMIAO, TMOTOR
 from drivers.can.protocol.models import MODELS
 from drivers.can.protocol.odrive import ODriveError
 from hild.api.client import HildError
+from hild.api.goals import GoalEndpoint
 from hild.arrays import JointState, ServoCommand
 from hild.bench.daemon import CanProcesses
 from hild.config import load_config
@@ -426,7 +427,7 @@ def _controller_exception() -> tuple[str, str, str, str]:
         faulty = RaisingTrajectory(engine.controller_context("faulty"), jtc.instance.params)
         engine.add_controller("faulty", "joint_trajectory", faulty, [JTC])
         rig.switch(["faulty"])
-        reply = faulty.action.submit({"positions": (engine.state.position + 0.3).tolist()})
+        reply = GoalEndpoint.of(faulty.action).submit({"positions": (engine.state.position + 0.3).tolist()})
         assert reply["ok"], reply
         rig.seconds(0.3)
         since = rig.cycles
@@ -434,8 +435,8 @@ def _controller_exception() -> tuple[str, str, str, str]:
         detected = rig.until(lambda: engine.manager.records["faulty"].state == "failed", 0.1, "failure")
         assert engine.manager.records[JTC].state == "active"  # the fallback
         moved = watch(rig, OBSERVE)
-        faulty.action.collect()
-        result = faulty.action.result({"goal_id": reply["goal_id"]})
+        GoalEndpoint.of(faulty.action).collect()
+        result = GoalEndpoint.of(faulty.action).result({"goal_id": reply["goal_id"]})
         joints = f"all: hold, then `{JTC}` (fallback) holds them; its goal {result['status']}"
         joints += f"; moved ≤ {moved * 1000:.0f} mrad once caught"
         assert not rig.any_fault()  # a controller's bug is not a fault of the joints: nothing to reset

@@ -9,8 +9,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from hild.action import PENDING_GOALS, ActionServer, ClientLost, GoalRejected, GoalRequest, GoalStatus, split_client
+from hild.action import PENDING_GOALS, ActionServer, ClientLost, GoalRejected, GoalRequest, GoalStatus
 from hild.api.goal_senders import client_of_key, client_token_key
+from hild.api.goals import GoalEndpoint, split_client
 from tests.faults.rigs import JTC, ApiRig, TwinRig
 
 
@@ -25,7 +26,7 @@ def test_a_goal_names_its_client_and_the_body_goes_on_without_it() -> None:
     for bad in ("", "a/b", "*", "x" * 65, 7, None):
         with pytest.raises(GoalRejected, match="liveliness id"):
             split_client({"positions": [1.0], "client": bad})
-    assert server().submit({"positions": [1.0], "client": "a/b"})["ok"] is False
+    assert GoalEndpoint.of(server()).submit({"positions": [1.0], "client": "a/b"})["ok"] is False
 
 
 def test_client_token_keys_round_trip() -> None:
@@ -39,13 +40,13 @@ def test_client_token_keys_round_trip() -> None:
 
 def test_only_the_lost_clients_running_goals_are_told() -> None:
     action = server()
-    mine = action.submit({"n": 1, "client": "gone"})["goal_id"]
-    other = action.submit({"n": 2, "client": "here"})["goal_id"]
-    anonymous = action.submit({"n": 3})["goal_id"]
-    done = action.submit({"n": 4, "client": "gone"})["goal_id"]
+    mine = GoalEndpoint.of(action).submit({"n": 1, "client": "gone"})["goal_id"]
+    other = GoalEndpoint.of(action).submit({"n": 2, "client": "here"})["goal_id"]
+    anonymous = GoalEndpoint.of(action).submit({"n": 3})["goal_id"]
+    done = GoalEndpoint.of(action).submit({"n": 4, "client": "gone"})["goal_id"]
     action.finish(done, GoalStatus.SUCCEEDED)
-    assert action.client_lost("gone") == [mine]
-    assert action.client_lost("nobody") == []
+    assert GoalEndpoint.of(action).client_lost("gone") == [mine]
+    assert GoalEndpoint.of(action).client_lost("nobody") == []
     requests = []
     while (request := action.requests.poll()) is not None:
         requests.append(request)
@@ -56,11 +57,11 @@ def test_only_the_lost_clients_running_goals_are_told() -> None:
 
 def test_a_notice_that_finds_the_queue_full_is_offered_at_the_next_collect() -> None:
     action = server()
-    ids = [action.submit({"n": k, "client": "gone"})["goal_id"] for k in range(PENDING_GOALS)]
-    assert action.client_lost("gone") == ids
+    ids = [GoalEndpoint.of(action).submit({"n": k, "client": "gone"})["goal_id"] for k in range(PENDING_GOALS)]
+    assert GoalEndpoint.of(action).client_lost("gone") == ids
     assert len(action.requests) == PENDING_GOALS  # full of goals: no notice got in
     action.requests.poll()  # the cycle takes a goal…
-    action.collect()  # …and the next collect offers the first notice
+    GoalEndpoint.of(action).collect()  # …and the next collect offers the first notice
     assert isinstance(action.requests.poll(), GoalRequest)
     *_, last = [action.requests.poll() for _ in range(PENDING_GOALS - 1)]
     assert isinstance(last, ClientLost) and last.goal_id == ids[0]
@@ -69,11 +70,11 @@ def test_a_notice_that_finds_the_queue_full_is_offered_at_the_next_collect() -> 
 def test_a_result_a_query_stored_first_is_still_published() -> None:
     """collect() returns every result once, even one a result or cancel query moved into the store first."""
     action = server()
-    goal = action.submit({"n": 1})["goal_id"]
+    goal = GoalEndpoint.of(action).submit({"n": 1})["goal_id"]
     action.finish(goal, GoalStatus.CANCELED)
-    assert action.result({"goal_id": goal})["status"] == "canceled"  # the query took it in
-    assert [r.goal_id for r in action.collect()] == [goal]  # the publisher still gets it
-    assert action.collect() == []
+    assert GoalEndpoint.of(action).result({"goal_id": goal})["status"] == "canceled"  # the query took it in
+    assert [r.goal_id for r in GoalEndpoint.of(action).collect()] == [goal]  # the publisher still gets it
+    assert GoalEndpoint.of(action).collect() == []
 
 
 @pytest.mark.parametrize("setting", ["stop", "continue"])
@@ -82,10 +83,10 @@ def test_joint_trajectory_applies_on_client_lost(setting: str) -> None:
     try:
         rig.switch([JTC])
         target = rig.engine.state.position + 0.4
-        reply = rig.jtc.action.submit({"positions": target.tolist(), "client": "c1"})
+        reply = GoalEndpoint.of(rig.jtc.action).submit({"positions": target.tolist(), "client": "c1"})
         goal = reply["goal_id"]
         rig.seconds(0.3)
-        assert rig.jtc.action.client_lost("c1") == [goal]
+        assert GoalEndpoint.of(rig.jtc.action).client_lost("c1") == [goal]
         rig.cycle()
         if setting == "stop":
             result = rig.result(goal)
@@ -110,7 +111,7 @@ def test_over_zenoh_an_unwatched_goal_outlives_its_client_and_a_watched_one_does
         with rig.client() as sender, rig.client() as watcher:
             free = sender.send_goal(JTC, {"positions": (rig.engine.state.position + 0.2).tolist()}, watched=False)
             free.close()
-            assert rig.jtc.action.client_lost(sender.client_id) == []  # it named no client
+            assert GoalEndpoint.of(rig.jtc.action).client_lost(sender.client_id) == []  # it named no client
             rig.finish(free.goal_id)
             watched = sender.send_goal(JTC, {"positions": (rig.engine.state.position - 0.2).tolist()})
             watched.close()

@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from hild.action import GoalResult
+from hild.api.goals import GoalEndpoint
 from hild.config import load_config
 from hild.cycle.engine import Engine
 from hild.importers.ros2_control.importer import ImportRequest, ImportResult, import_ros2_control
@@ -45,7 +46,7 @@ def lockstep(config: Path) -> Engine:
 def run_goal(engine: Engine, controller: str, goal: dict[str, Any], limit_s: float = 15.0) -> GoalResult:
     """Activate ``controller``, submit ``goal`` and run cycles until its result."""
     assert engine.switch([controller], []).ok
-    action = engine.manager.records[controller].instance.action
+    action = GoalEndpoint.of(engine.manager.records[controller].instance.action)
     reply = action.submit(goal)
     assert reply["ok"], reply["error"]
     for _ in range(int(limit_s * engine.update_rate)):

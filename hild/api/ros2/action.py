@@ -3,10 +3,11 @@ and its ``joint_trajectory`` topic, as JTC has them.
 
 An action is not an RMW concept: it is three services (``_action/send_goal``, ``get_result``, ``cancel_goal``) and
 two topics (``_action/feedback``; ``_action/status``, kept for late joiners). Each maps onto the controller's own
-:class:`hild.action.ActionServer`, as the JSON API's goal endpoint does: a goal is converted to hild's JSON goal
-body and goes through ``submit`` (the same parsing, limits and planning; a refusal is ``accepted = false`` and a
-warning event), a cancel through ``cancel``, and results are read with ``result`` (so the JSON API still
-publishes each one). Statuses and error codes are ROS's: hild's come from FollowJointTrajectory.
+:class:`hild.api.goals.GoalEndpoint` (the client half of its goals), as the JSON API's goal endpoint does: a goal
+is converted to hild's JSON goal body and goes through ``submit`` (the same parsing, limits and planning; a
+refusal is ``accepted = false`` and a warning event), a cancel through ``cancel``, and results are read with
+``result`` (so the JSON API still publishes each one). Statuses and error codes are ROS's: hild's come from
+FollowJointTrajectory.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from hild.action import ActionServer
+from hild.api.goals import GoalEndpoint
 from hild.api.ros2 import types
 from hild.api.ros2.clock import ros_time
 from hild.api.ros2.trajectory import trajectory_body
@@ -106,11 +108,11 @@ class TrajectoryAction:
 
     def __init__(self, face: RosFace, controller: str, server: ActionServer[Any]) -> None:
         self.face = face
-        self.server = server
+        self.server = GoalEndpoint.of(server)
         base = f"{controller}/follow_joint_trajectory/_action"
         self.name = face.name(f"{controller}/follow_joint_trajectory")
         self._goals: OrderedDict[bytes, Goal] = OrderedDict()
-        self._reader = server.feedback_reader()
+        self._reader = self.server.feedback_reader()
         self._feedback: Writer = face.writer(face.name(f"{base}/feedback"), f"{ACTION}_FeedbackMessage")
         self._status: Writer = face.writer(face.name(f"{base}/status"), STATUS_ARRAY, latched=True)
         face.declare_service(f"{base}/send_goal", f"{ACTION}_SendGoal", self._send_goal)

@@ -25,6 +25,7 @@ from drivers.can.protocol import damiao_registers as reg
 from drivers.can.protocol.mit import MitRanges
 from drivers.can.protocol.models import MODELS
 from drivers.mujoco.plant import TwinPlant
+from hild.api.goals import GoalEndpoint
 from hild.cli import build_parser, main
 from hild.config import load_config
 from hild.controllers.joint_trajectory import JointTrajectoryController
@@ -313,13 +314,13 @@ def run_standard_trajectory(engine: Engine, cycle: Callable[[], None], truth: Ca
     assert engine.switch(["joint_trajectory"], []).ok
     jtc = engine.manager.records["joint_trajectory"].instance
     assert isinstance(jtc, JointTrajectoryController)
-    reply = jtc.action.submit(standard_trajectory(engine.joints, engine.state.position.tolist()))
+    reply = GoalEndpoint.of(jtc.action).submit(standard_trajectory(engine.joints, engine.state.position.tolist()))
     assert reply["ok"], reply
     rows = []
     for _ in range(3000):
         cycle()
         rows.append(truth())
-        results = {r.goal_id: r for r in jtc.action.collect()}
+        results = {r.goal_id: r for r in GoalEndpoint.of(jtc.action).collect()}
         if reply["goal_id"] in results:
             assert results[reply["goal_id"]].status == "succeeded", results[reply["goal_id"]]
             return np.array(rows)
