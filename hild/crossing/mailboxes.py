@@ -166,9 +166,10 @@ class SharedQueue(Generic[T]):
 
 
 class Shared:
-    """Cells of a shared region, named ``<prefix><name>``: the daemon carves them (``create``), the cycle process
-    finds them. Each end may be used by several threads of the client domain, so each cell gets a process-local
-    lock for its writers and one for its readers; in the single-threaded cycle process they are never contended."""
+    """Cells of a shared region, named ``<prefix><name>``: the region's creator carves them (``create``), the cycle
+    process and the client domain find them. Each end may be used by several threads of the client domain, so each
+    cell gets a process-local lock for its writers and one for its readers; in the single-threaded cycle process
+    they are never contended."""
 
     def __init__(self, region: Region, *, create: bool, prefix: str = "") -> None:
         self.region = region
