@@ -251,7 +251,8 @@ class SharedRing:
 
 @dataclass(frozen=True)
 class TelemetryRing:
-    """The telemetry recorder's shared ring (POSIX shared memory the daemon created): the cycle records into it."""
+    """The telemetry recorder's shared ring (POSIX shared memory the client domain created): the cycle records into
+    it."""
 
     name: str
     joints: int
