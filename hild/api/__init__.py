@@ -12,6 +12,7 @@ The server side, run by the client domain (``hild.daemon``), which reaches the c
 
 - ``server``        ``ApiServer``: declares everything, publishes status, events and outputs, answers services
 - ``ports``         controller inputs (subscribers), outputs (publishers of sample rings) and goal endpoints
+- ``goals``         ``GoalEndpoint``: a controller's goals, client half (accept, cancel, results, feedback)
 - ``services``      the control-plane services, independent of Zenoh (bytes in, reply dict out)
 - ``queries``       admitting and answering queries: size and in-flight caps, the large-payload worker
 - ``unique``        one robot name, one daemon: refuse to start beside another, report one that appears

@@ -15,8 +15,8 @@ Other queries (switch, e-stop, goals …) call our handlers on Zenoh's threads, 
 loop, where they run. Every publisher uses congestion control DROP: a slow subscriber loses samples, it never stalls
 the loop or the cycle.
 
-Goal senders' liveliness tokens are watched (hild/api/goal_senders.py): when one goes away, the sender's running goals
-are handed to their controllers (``_client_gone``).
+Goal senders' liveliness tokens are watched (hild/api/goal_senders.py): when one goes away, each controller's goal
+endpoint hands the sender's running goals to the cycle (``_client_gone``).
 """
 
 from __future__ import annotations
