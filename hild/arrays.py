@@ -63,7 +63,9 @@ class JointState:
 
 @dataclass(slots=True)
 class ServoCommand:
-    """The servo command of DESIGN.md §2: ``τ = kp·(position − q) + kd·(velocity − q̇) + effort``.
+    """The servo command: the drive computes ``τ = kp·(position − q) + kd·(velocity − q̇) + effort``.
+
+    docs/architecture.md, "The servo command", has why every backend takes this one command.
 
     ``written`` is only meaningful on the controllers' side of the supervisor: a controller sets it for each
     joint it commanded in this cycle. A joint nobody wrote goes to hold, so silence is always safe.

@@ -1,10 +1,11 @@
 """``mit_can``: MIT-protocol CAN servos — Damiao DM-J, T-Motor/CubeMars AK (MIT mode), MyActuator motion mode.
 
-One component owns one bus. Every cycle ``write`` sends one MIT command frame per motor (the servo command of
-DESIGN.md §2 is the drive's native command, quantised with the motor's ranges) and ``read`` drains the replies
-without blocking: newest reply per motor wins, a motor without a reply this cycle is reported ``fresh = False``
-(the supervisor turns that into a stale-feedback fault after ``safety.stale_feedback_cycles``), drive faults become
-fault codes, and frames that fit nothing are counted and summarised in rate-limited events.
+One component owns one bus. Every cycle ``write`` sends one MIT command frame per motor (hild's servo command is
+the drive's native command, quantised with the motor's ranges: docs/architecture.md, "The servo command") and
+``read`` drains the replies without blocking: newest reply per motor wins, a motor without a reply this cycle is
+reported ``fresh = False`` (the supervisor turns that into a stale-feedback fault after
+``safety.stale_feedback_cycles``), drive faults become fault codes, and frames that fit nothing are counted and
+summarised in rate-limited events.
 
 Start-up never moves the arm:
 * configure opens the bus; on Damiao it reads PMAX/VMAX/TMAX and CTRL_MODE of every motor and refuses to start on

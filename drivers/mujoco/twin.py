@@ -1,6 +1,6 @@
 """The MuJoCo digital twin: a simulated arm behind the same hardware contract as the CAN servos.
 
-Each joint behaves like an MIT-mode servo drive (DESIGN.md §2). The drive law
+Each joint behaves like an MIT-mode servo drive (docs/architecture.md, "The servo command"). The drive law
 ``τ = kp·(position − q) + kd·(velocity − q̇) + effort`` is evaluated inside the physics, once per physics step
 (``substeps`` per cycle), from the simulated ``q, q̇`` of that step — as a real drive runs its own inner loop faster
 than the bus. The torque is saturated to the joint's torque limit and applied as a generalized force on the joint's
@@ -8,7 +8,7 @@ degree of freedom (``qfrc_applied``); the model needs no ``<actuator>`` elements
 
 Timing: ``write`` advances the physics by exactly one cycle period (``substeps`` steps of ``period / substeps``), so
 the simulation time is locked to the cycle clock whatever paces the cycle (wall clock for a real-time twin, the sim
-clock for lockstep tests; DESIGN.md §4). ``read`` returns the state at the end of the last ``write``.
+clock for lockstep tests; docs/architecture.md, "Clocks"). ``read`` returns the state at the end of the last ``write``.
 
 Lifecycle: like a real drive, the twin applies zero torque until ``on_activate`` and again after ``on_deactivate``; the
 physics keeps running (the arm falls under gravity while disabled, as a real unbraked arm would).

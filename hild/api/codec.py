@@ -6,13 +6,14 @@ never reach a controller). Integers a double cannot hold (``1`` followed by 400 
 conversion downstream survives them. ``1e999`` still decodes to ``inf``, which every consumer refuses as
 non-finite. Outgoing messages never contain non-finite numbers: a non-finite float becomes ``null``.
 
-json's C scanner holds the GIL for its whole run (about 0.1 ms per KiB of small containers), which would stop the
-cycle thread for 100 ms on a 1 MiB payload. Payloads above ``FAST_DECODE`` bytes are therefore parsed by the
-pure-Python scanner: slower, but it lets the cycle thread in every switch interval. Callers decode those off the
-event loop. That scanner counts as it goes and stops at the first container, element or level beyond the
-caller's :class:`Limits` (a 1 MiB array of 524 000 numbers took it 0.6 s to build in full; it now stops at the
-4 097th). Below ``FAST_DECODE`` a payload cannot hold enough elements or containers to matter; its depth is
-checked after the C scanner, so both scanners refuse the same nesting with the same words.
+json's C scanner holds the GIL for its whole run (about 0.1 ms per KiB of small containers): 100 ms on a 1 MiB
+payload, during which no other thread of the process runs (Zenoh's callbacks, the asyncio loop, and in the
+in-process case the cycle thread). Payloads above ``FAST_DECODE`` bytes are therefore parsed by the pure-Python
+scanner: slower, but it lets other threads in every switch interval. Callers decode those off the event loop.
+That scanner counts as it goes and stops at the first container, element or level beyond the caller's
+:class:`Limits` (a 1 MiB array of 524 000 numbers took it 0.6 s to build in full; it now stops at the 4 097th).
+Below ``FAST_DECODE`` a payload cannot hold enough elements or containers to matter; its depth is checked after the
+C scanner, so both scanners refuse the same nesting with the same words.
 """
 
 from __future__ import annotations

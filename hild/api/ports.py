@@ -1,19 +1,26 @@
 """Controller inputs and outputs on Zenoh: one subscriber per input, one publisher per output ring.
 
-Inputs are queued by Zenoh in a small ring per input (``RingChannel``: no Python runs when a sample arrives) and taken
-by the cycle thread itself at the start of each cycle (:meth:`ControllerPorts.take_inputs`): the newest sample is
-decoded and given to the controller's input callable (which validates it and swaps it into a mailbox), older ones are
-superseded, like the controllers' own latest-value mailboxes. This is a deliberate exception to "parse on the producer's
-side": a callback per sample on another thread costs the cycle more than the decode and validation themselves, because
-every time another thread takes the GIL the cycle may have to wait for it and be woken again (measured:
-``tools/cycle_causes.py`` part 3, docs/performance.md). That work is bounded: one decode of at most ``CYCLE_DECODE``
-bytes and one validation per input per cycle; larger samples are decoded on the asyncio loop by the large-payload worker
-and handed over only if nothing newer was. Of those, each input keeps at most one waiting (a newer one replaces it
-undecoded) and one being decoded: 200 puts of 1 MiB once became 200 tasks, each holding its payload until decoded, and
-decoded before they were found superseded (the daemon grew by 400 MiB and its cycle overran for a minute after the
-flood). Samples for an inactive controller are refused unread. Anything wrong drops that sample and emits a warning
-event: nothing moves on bad input. Warnings are rate-limited per key so a client streaming garbage at 1 kHz cannot flood
-the event log.
+An input sample is decoded and given to the controller's input callable (its API half, which validates it and puts
+it into a door), at one of two places, chosen by the link's ``inputs_on_arrival``:
+
+- **With the cycle in its own process** (the default), on the Zenoh thread the sample arrives on
+  (:meth:`ControllerPorts._arrival_handler`): that GIL is the client domain's alone, and the validated value crosses
+  into the cycle process through a cell of the shared region, so no cycle period is added to its way to the drive.
+- **With the cycle a thread of this process** (the in-process case), Zenoh queues the samples in a small ring per
+  input (``RingChannel``: no Python runs when a sample arrives) and the cycle takes them itself at the start of each
+  cycle (:meth:`ControllerPorts.take_inputs`): the newest is decoded and handed over, older ones are superseded, like
+  the controllers' own latest-value doors. A callback per sample on another thread would cost that cycle more than
+  the decode and validation themselves, because every time another thread takes the GIL the cycle may have to wait
+  for it and be woken again (measured: ``tools/cycle_causes.py`` part 3, docs/performance.md): a deliberate
+  exception to parsing on the producer's side.
+
+Either way the work per sample is bounded: one decode of at most ``CYCLE_DECODE`` bytes and one validation; larger
+samples are decoded on the asyncio loop by the large-payload worker and handed over only if nothing newer was. Of
+those, each input keeps at most one waiting (a newer one replaces it undecoded) and one being decoded: 200 puts of
+1 MiB once became 200 tasks, each holding its payload until decoded, and decoded before they were found superseded
+(the daemon grew by 400 MiB and its cycle overran for a minute after the flood). Samples for an inactive controller
+are refused unread. Anything wrong drops that sample and emits a warning event: nothing moves on bad input. Warnings
+are rate-limited per key so a client streaming garbage at 1 kHz cannot flood the event log.
 
 Outputs are read from each controller's :class:`~hild.crossing.ring.SampleRing` through a private reader and
 published with congestion control DROP: under back-pressure old samples are lost, the loop is never held."""
@@ -46,7 +53,7 @@ from hild.daemon.link import CycleLink
 log = logging.getLogger("hild.api")
 
 INTAKE_CAPACITY = 64  # samples one input queues between two cycles; beyond that Zenoh drops the oldest, uncounted
-CYCLE_DECODE = FAST_DECODE  # bytes: a sample up to this size is decoded by the cycle's take_inputs, larger by the loop
+CYCLE_DECODE = FAST_DECODE  # bytes: a sample up to this size is decoded where it is handed over, larger by the loop
 GOAL_ID_REQUEST = 1024  # bytes: a cancel or result request is {"goal_id": "<32 hex digits>"}
 VERBS = {  # a goal endpoint's queries: size limit in bytes (refused larger before copying), decoding caps
     "goal": (MAX_PAYLOAD, GOAL_LIMITS),
@@ -59,7 +66,9 @@ REPORT_WINDOW = 1.0  # s
 
 @dataclass
 class InputCounts:
-    """Input samples as one thread counted them: one writer per tally, so the cycle never takes a lock."""
+    """Input samples as one side counted them, without a lock: in the in-process case ``cycle`` has one writer (the
+    cycle's ``take_inputs``), so the cycle never takes a lock; on arrival, Zenoh threads write it under each input's
+    own lock, none across inputs, so two inputs counted at the same instant may lose a count."""
 
     commands: int = 0  # samples received
     accepted: int = 0
@@ -71,8 +80,9 @@ class InputCounts:
 class Counters:
     """What the API has seen; cheap integers, read by tests and diagnostics.
 
-    Input samples are counted by the cycle's ``take_inputs`` (``cycle``) and, for large ones, the asyncio loop
-    (``loop``); queries are counted on Zenoh threads under ``lock``; publications on the loop."""
+    Input samples are counted where they are handed over (``cycle``: the cycle's ``take_inputs`` in the in-process
+    case, Zenoh's threads on arrival) and, for large ones, on the asyncio loop (``loop``); queries are counted on
+    Zenoh threads under ``lock``; publications on the loop."""
 
     lock: threading.Lock = field(default_factory=threading.Lock, repr=False, compare=False)
     cycle: InputCounts = field(default_factory=InputCounts)
@@ -91,7 +101,7 @@ class Counters:
 
     @property
     def commands(self) -> int:
-        return self.cycle.commands  # take_inputs sees every sample first
+        return self.cycle.commands  # the hand-over sees every sample first
 
     @property
     def accepted(self) -> int:
@@ -117,7 +127,7 @@ class DropReporter:
     def __init__(self, emit: Callable[[str, str, str], None]) -> None:
         self._emit = emit
         self._windows: dict[str, tuple[float, int, int]] = {}  # key → (window start, reported, suppressed)
-        self._lock = threading.Lock()  # reports come from the cycle's ``take_inputs`` and the loop (bad input only)
+        self._lock = threading.Lock()  # reports come from the hand-over and the loop (bad input only)
 
     def report(self, source: str, key: str, reason: str) -> None:
         now = time.monotonic()
@@ -175,21 +185,22 @@ def _activity(instance: Any) -> Callable[[], bool]:
 
 @dataclass
 class InputSlot:
-    """One controller input: Zenoh queues its samples in a ring, the cycle's ``take_inputs`` takes the newest.
+    """One controller input, handed over on arrival (a Zenoh thread) or, in the in-process case, queued by Zenoh in a
+    ring for the cycle's ``take_inputs`` to take the newest.
 
     A large sample waits in ``pending`` (one place: a newer one replaces it, undecoded) for the input's one
-    delivery task on the loop. ``take_inputs`` (on the cycle) writes ``taken``, ``large`` and ``pending``; the loop pops
-    ``pending`` and owns ``delivered``, ``kicked`` (cleared) and ``delivery``: no lock, nothing the cycle waits on.
+    delivery task on the loop. The hand-over writes ``taken``, ``large`` and ``pending``; the loop pops ``pending``
+    and owns ``delivered``, ``kicked`` (cleared) and ``delivery``: no lock, nothing the cycle waits on.
     """
 
     key: str
     controller: str
     accept: Callable[[Any], None]
     subscriber: Any = None  # zenoh.Subscriber on a RingChannel, once declared
-    active: Callable[[], bool] = _always  # whether the controller is active (read by the cycle's ``take_inputs``)
-    taken: int = 0  # samples handed over so far (cycle thread); a large one on the loop checks it is still newest
+    active: Callable[[], bool] = _always  # whether the controller is active (read at each hand-over)
+    taken: int = 0  # samples handed over so far (hand-over); a large one on the loop checks it is still newest
     pending: deque[tuple[Any, int, int]] = field(default_factory=lambda: deque(maxlen=1))  # (payload, taken, large)
-    large: int = 0  # large samples put in ``pending`` so far (cycle thread)
+    large: int = 0  # large samples put in ``pending`` so far (hand-over)
     delivered: int = 0  # the last of those the loop took (loop thread): the gap was superseded undecoded
     kicked: bool = False  # the loop has been asked to look at ``pending`` and has not yet
     delivery: asyncio.Task[None] | None = None  # the one task decoding this input's large samples (loop thread)
@@ -383,7 +394,7 @@ class ControllerPorts:
         self, key: str, query: zenoh.Query, handle: Callable[[Any], dict[str, Any]], raw: bytes, limits: Limits
     ) -> None:
         """Goals are decoded, parsed and planned in a worker thread (large ones by the large-payload worker, one at
-        a time): a long trajectory must stall neither the loop nor, with others, the cycle."""
+        a time): a long trajectory must stall neither the loop nor, with others, a cycle thread in this process."""
 
         def work() -> dict[str, Any]:
             return handle(decode(raw, limits))
@@ -398,10 +409,11 @@ class ControllerPorts:
             reply = {"ok": False, "error": reason or type(exc).__name__}
         reply_json(query, key, reply)
 
-    # ---- inputs (taken by the cycle) ---------------------------------------------------------------------------
+    # ---- inputs (handed over) ----------------------------------------------------------------------------------
     def take_inputs(self) -> None:
-        """At the start of each cycle, on the cycle thread: per input, take every queued sample and hand the newest
-        to its controller, which validates it and swaps it into its mailbox; the rest are superseded.
+        """In the in-process case, at the start of each cycle, on the cycle thread: per input, take every queued
+        sample and hand the newest to its controller, which validates it and swaps it into its mailbox; the rest
+        are superseded.
 
         Bounded work: per input a few ``try_recv`` calls (Zenoh queued the samples without Python), and for the
         newest one decode of at most ``CYCLE_DECODE`` bytes and one validation. A larger sample replaces the one
@@ -462,7 +474,7 @@ class ControllerPorts:
             tally.accepted += 1
 
     def _start_delivery(self, slot: InputSlot) -> None:
-        """``take_inputs`` put a large sample in ``slot.pending``: start the input's delivery task unless it runs."""
+        """The hand-over put a large sample in ``slot.pending``: start the input's delivery task unless it runs."""
         slot.kicked = False  # before looking: a sample put after this line kicks again
         if self.closing:
             slot.pending.clear()
@@ -478,7 +490,7 @@ class ControllerPorts:
 
     async def _deliver(self, slot: InputSlot) -> None:
         """Large samples of one input, the newest pending each time, decoded by the large-payload worker one at a
-        time; each handed over only if the cycle took nothing newer meanwhile (checked before decoding, and after)."""
+        time; each handed over only if nothing newer was handed over meanwhile (checked before decoding, and after)."""
         tally = self.counters.loop
         while not self.closing:
             try:
@@ -487,7 +499,7 @@ class ControllerPorts:
                 return
             tally.superseded += index - slot.delivered - 1  # replaced while waiting, never decoded
             slot.delivered = index
-            if slot.taken != seq:  # a newer, small one was handed over by ``take_inputs`` meanwhile
+            if slot.taken != seq:  # a newer, small one was handed over meanwhile
                 tally.superseded += 1
                 continue
             try:

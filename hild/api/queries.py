@@ -9,9 +9,10 @@ querier that went away costs a debug line, never an exception. Error texts are c
 request must not send it back, nor put it in the log.
 
 Large payloads (over ``FAST_DECODE``) are decoded, and goals parsed, in the :class:`LargePayloadWorker`: one at a time,
-in a worker thread. Python work on the asyncio side shares the GIL with the cycle thread; several threads chewing on
-megabytes at once starve it into consecutive overruns (measured: eight clients sending 1 MiB payloads faulted a 500 Hz
-daemon within seconds). One at a time, the cycle gets the GIL back within a switch interval."""
+in a worker thread. Python work in the client domain shares its GIL with Zenoh's threads and the loop, and in the
+in-process case with the cycle thread; several threads chewing on megabytes at once starved that cycle into
+consecutive overruns (measured: eight clients sending 1 MiB payloads faulted a 500 Hz daemon within seconds). One at a
+time, every other thread gets the GIL back within a switch interval."""
 
 from __future__ import annotations
 
@@ -44,7 +45,7 @@ class InFlight:
         self.capacity = capacity
         self.refused = 0  # queries answered "busy"
         self._count = 0
-        self._lock = threading.Lock()  # Zenoh threads and the loop only; the cycle thread never takes it
+        self._lock = threading.Lock()  # Zenoh threads and the loop only; the cycle never takes it
 
     def admit(self) -> bool:
         with self._lock:
@@ -118,7 +119,7 @@ class LargePayloadWorker:
 
     @staticmethod
     def needed(raw: bytes) -> bool:
-        """Whether ``raw`` is large enough to take the lane (else decode it where you are)."""
+        """Whether ``raw`` is large enough for this worker (else decode it where you are)."""
         return len(raw) > FAST_DECODE
 
 

@@ -1,17 +1,22 @@
 """The daemon's Zenoh face: state out, services and commands in (docs/protocol.md has the wire format).
 
-Threads: no thread of the daemon takes the GIL per streamed sample or per poll (docs/performance.md, "A busy
-neighbour"). Controller input samples are queued by Zenoh without Python and taken by the cycle itself at the
-start of each cycle (``ControllerPorts.take_inputs``). Read-only queries (status, list_*) are queued the same way
+It runs in the client domain and reaches the cycle only through a ``CycleLink`` (``self.engine``): requests through
+``request`` and ``request_estop``, read back through ``status()``, ``snapshot()``, ``change_seq`` and the
+controllers' output rings, so the API shares no lock with the cycle (docs/architecture.md, "Three processes").
+
+Threads: no thread takes the GIL per poll. Controller input samples, with the cycle in its own process (the default:
+``inputs_on_arrival``), are decoded and validated on the Zenoh thread they arrive on, whose GIL is the client
+domain's alone, and go into the controller's cell of the shared region. In the in-process case (the cycle a thread
+of this process) Zenoh queues them without Python and the cycle takes them at the start of each cycle
+(``ControllerPorts.take_inputs``, handed to the engine as its ``take_inputs``): one GIL hand-over per cycle, not per
+sample (docs/performance.md, "Where the time goes"). Read-only queries (status, list_*) are queued by Zenoh as well
 and answered in batches on the asyncio loop when it wakes anyway, or every ``READ_PERIOD``, from a recent reply.
 Other queries (switch, e-stop, goals …) call our handlers on Zenoh's threads, which copy them out and hop to the
-loop, where they run. The cycle thread is
-reached only through ``engine.submit`` and ``engine.take_inputs``, and read back through ring readers and
-``engine.status()``, so the API shares no lock with it. Every publisher uses congestion control DROP: a slow
-subscriber loses samples, it never stalls the loop or the cycle.
+loop, where they run. Every publisher uses congestion control DROP: a slow subscriber loses samples, it never stalls
+the loop or the cycle.
 
-Goal senders' liveliness tokens are watched (hild/api/goal_senders.py): when one goes away, the sender's running goals
-are handed to their controllers (``_client_gone``).
+Goal senders' liveliness tokens are watched (hild/api/goal_senders.py): when one goes away, each controller's goal
+endpoint hands the sender's running goals to the cycle (``_client_gone``).
 """
 
 from __future__ import annotations
@@ -239,8 +244,8 @@ class ApiServer:
     # ---- read-only services, in batches (asyncio thread) -------------------------------------------------------
     def answer_reads(self) -> None:
         """Answer every queued status/list_* query. Zenoh queued them without Python; answering them here, when
-        the loop wakes anyway (publishing) or every ``READ_PERIOD``, costs the cycle no GIL hand-over per query
-        (docs/performance.md, "A busy neighbour")."""
+        the loop wakes anyway (publishing) or every ``READ_PERIOD``, costs no GIL hand-over per query (which a
+        cycle thread in this process would pay: docs/performance.md, "Where the time goes")."""
         if self._closing:
             return
         for service, queue in self._read_queues:

@@ -2,11 +2,15 @@
 
 Every reply carries ``ok`` and ``error`` (null when ok); nothing a client sends can raise out of
 :meth:`Services.handle` or :meth:`Services.read`.
-Read-only services read the engine directly (its read-back methods are safe from any thread), so they keep
-answering even when the cycle is stuck, which is when an operator needs them most; :meth:`Services.read` answers
-them synchronously from a recent reply, so the API can answer a batch of polls in one go. Services that change
-state run on the cycle thread through ``engine.submit``, between two cycles, awaited on the asyncio thread
-(:meth:`Services.handle`), and give up after ``timeout``.
+
+The cycle is reached through the ``CycleLink`` (``self.engine``), wherever it runs. Read-only services read it back
+(``status()``, ``snapshot()``: the cycle process's snapshot and numeric cells, or the in-process engine's read-back
+methods; safe from any thread either way) and need nothing of the cycle, so they keep answering even when the
+cycle is stuck, which is when an operator needs them most; :meth:`Services.read` answers them synchronously from a
+recent reply, so the API can answer a batch of polls in one go. Services that change state send a typed request
+(:mod:`hild.crossing.requests`) through ``request`` (an e-stop through ``request_estop``, never queued): the engine
+applies it between two cycles, in the cycle process or on the in-process cycle thread. :meth:`Services.handle`
+awaits the reply on the asyncio thread and gives up after ``timeout``.
 """
 
 from __future__ import annotations
@@ -215,11 +219,13 @@ class Services:
         return await self.wait_cycle(self.engine.request(request))
 
     async def wait_cycle(self, future: concurrent.futures.Future[Any]) -> Any:
-        """Await a request the cycle will apply; withdraw it if the cycle does not get to it in time."""
+        """Await a request the cycle will apply; withdraw it if the cycle does not get to it in time and it can
+        still be withdrawn (only in the in-process case: a request in the shared region's queue cannot)."""
         try:
             return await asyncio.wait_for(asyncio.wrap_future(future), self.timeout)
         except TimeoutError:
-            # wait_for's cancellation reaches the engine's future: if it was still queued it is withdrawn.
+            # wait_for's cancellation reaches the request's future: the in-process engine withdraws it if it is
+            # still queued; RemoteCycle marks its futures running once queued, so those may still apply.
             if not (future.cancel() or future.cancelled()):
                 raise RequestError(
                     f"the cycle took more than {self.timeout:g} s to apply the request; it may still apply"

@@ -1,4 +1,5 @@
-"""What crosses between the client domain and the cycle process (DESIGN.md §1, amended by [rt-split]).
+"""What crosses between the processes: the client domain, the cycle process and the main process
+(docs/architecture.md, "What crosses").
 
 One shared-memory region (:mod:`.region`), carved into fixed-size cells: single-producer queues of records
 (:mod:`.queue`), latest-value cells (:mod:`.latest`), sample rings and flags, handed to controllers and the engine

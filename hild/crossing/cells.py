@@ -1,10 +1,12 @@
-"""The engine's cells in the shared region: carved by the client domain, found by the cycle process.
+"""The engine's cells in the shared region: carved by the main process (embedded: by the client domain's link),
+found by the cycle process and by each client domain (docs/architecture.md, "What crosses").
 
-Who writes what (one writer per cell, so nobody waits on anybody):
+Who writes what (one writer per cell, or per number of ``asks``, so nobody waits on anybody):
 
-- client domain → cycle: ``asks`` (go, the e-stop counter) and the ``requests`` queue; the daemon's main process
-  → cycle: ``asks`` (stop, the client-domain-lost counter);
-- client domain → main process: ``client`` (its phase and pid) and the telemetry ring it recorded into;
+- client domain → cycle: ``asks`` (go, the e-stop counter) and the ``requests`` queue; the main process → cycle:
+  ``asks`` (stop, the client-domain-lost counter);
+- client domain → main process: ``client`` (its phase and pid); ``telemetry``, the ring its recorder reads (taken
+  by the main process at the first start, by the cycle after a client domain's restart);
 - cycle → client domain: ``replies`` and ``events`` queues, the ``snapshot`` (written when ``change_seq`` moves),
   the e-stop reply, the start-up ``failure``, ``vitals`` (phase, cycle count, change_seq …), ``clock`` (the cycle
   clock and each joint's longest silence) and the loop statistics.

@@ -1,8 +1,9 @@
 """Events: mode changes, faults, switches — one record each, never one per cycle.
 
-The cycle thread appends to a bounded deque (atomic under the GIL) and wakes the client domain (``on_emit``); the
-asyncio side drains it, logs each event once and publishes it. If nobody drains, the oldest events are dropped,
-never the cycle.
+The cycle appends to a bounded deque (atomic under the GIL) and wakes the client domain (``on_emit``). In the
+cycle process its outbox moves them into the shared region's events queue, where a full queue counts them lost; in
+the in-process case the asyncio loop drains the deque itself. The client domain logs each event once and publishes
+it. If nobody drains, the oldest events are dropped, never the cycle.
 """
 
 from __future__ import annotations

@@ -1,5 +1,7 @@
-"""The only doors between the asyncio side and the cycle thread.
+"""The in-process doors: between the asyncio loop and a cycle thread of the same process.
 
+Used when the cycle runs in the daemon's own process (``realtime.cycle_process: false``, lockstep tests,
+embedding); across processes the doors are cells of the shared region (:class:`hild.crossing.mailboxes.Shared`).
 Both are lock-free under the GIL: a reference swap or a ``deque`` append/popleft is atomic, so the cycle thread
 never waits on a lock held by the I/O side. Anything that allocates (parsing, validating, copying into a fresh
 array) happens on the producer's side before the swap.

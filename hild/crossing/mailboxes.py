@@ -1,13 +1,14 @@
 """Mailboxes: how a controller (or the engine) gets the doors between its two halves.
 
-A controller has an API half (``inputs()``, its action server's ``submit``: validation and planning) and a cycle
-half (``update``). In one process both halves share an instance and the doors are plain objects
-(:class:`InProcess`). With the cycle in a process of its own, each process builds the controller and the doors
-are cells of the shared region (:class:`Shared`): what one half puts in, the other half's instance takes out.
-Nothing crosses as client bytes: the client's JSON is decoded and validated before anything crosses. Streamed
-inputs the cycle takes every cycle cross as fixed-size float64 records (``latest_numbers``: a copy into an array
-the door owns: no allocation, no unpickling). Requests, goals, replies and the status snapshot cross as pickles of
-what their writer prepared (numpy arrays, dataclasses of them, segment tables), unpickled only when one arrives.
+A controller has an API half (``inputs()``, and its goals' client half ``hild.api.goals.GoalEndpoint``: validation and
+planning) and a cycle half (``update``, and the ``hild.action.ActionServer`` it declares). In one process both halves
+share an instance and the doors are plain objects (:class:`InProcess`). With the cycle in a process of its own, each
+process builds the controller and the doors are cells of the shared region (:class:`Shared`): what one half puts in, the
+other half's instance takes out. Nothing crosses as client bytes: the client's JSON is decoded and validated before
+anything crosses. Streamed inputs the cycle takes every cycle cross as fixed-size float64 records (``latest_numbers``: a
+copy into an array the door owns: no allocation, no unpickling). Requests, goals, replies and the status snapshot cross
+as pickles of what their writer prepared (numpy arrays, dataclasses of them, segment tables), unpickled only when one
+arrives.
 
 The interfaces are those of :mod:`hild.crossing.inprocess` and :mod:`hild.crossing.ring`, so controller code is the
 same either way.
@@ -166,9 +167,10 @@ class SharedQueue(Generic[T]):
 
 
 class Shared:
-    """Cells of a shared region, named ``<prefix><name>``: the daemon carves them (``create``), the cycle process
-    finds them. Each end may be used by several threads of the client domain, so each cell gets a process-local
-    lock for its writers and one for its readers; in the single-threaded cycle process they are never contended."""
+    """Cells of a shared region, named ``<prefix><name>``: the region's creator carves them (``create``), the cycle
+    process and the client domain find them. Each end may be used by several threads of the client domain, so each
+    cell gets a process-local lock for its writers and one for its readers; in the single-threaded cycle process
+    they are never contended."""
 
     def __init__(self, region: Region, *, create: bool, prefix: str = "") -> None:
         self.region = region

@@ -1,13 +1,14 @@
-"""One block of shared memory both domains map, carved into named cells.
+"""One block of shared memory every hild process maps, carved into named cells.
 
-The block is an anonymous ``memfd``: the daemon creates it and hands the file descriptor to the cycle process it
-spawns, so there is no name in ``/dev/shm`` to collide with another daemon or to leak when either process dies.
+The block is an anonymous ``memfd``: the main process (embedded, the client domain's link) creates it and hands the
+file descriptor to the processes it starts, so there is no name in ``/dev/shm`` to collide with another daemon or
+to leak when a process dies.
 A memfd reads as zeros until written, and zero is every cell's empty state, so nothing needs initialising; pages
 are only backed once touched, so the region can be sized generously.
 
-The daemon carves every cell (:meth:`Region.carve`) before the cycle process starts; the cycle process finds
-them by name (:meth:`Region.find`), and a size that differs between the two (different code or config on each
-side) is refused at start-up, never discovered as a torn record later.
+Its creator carves every cell (:meth:`Region.carve`) before the cycle process starts; the cycle process and a
+client domain find them by name (:meth:`Region.find`), and a size that differs between the two (different code or
+config on each side) is refused at start-up, never discovered as a torn record later.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ _MAGIC = 0x68696C6478310001  # "hildx1" + layout version
 
 
 class RegionError(RuntimeError):
-    """The two domains disagree on the region's layout, or it is full."""
+    """Two processes disagree on the region's layout, or it is full."""
 
 
 def _align(n: int) -> int:
@@ -57,11 +58,11 @@ class Region:
 
     @classmethod
     def attach(cls, fd: int, size: int) -> Region:
-        """Map a region the other domain created (the cycle process, from the fd it was handed)."""
+        """Map a region another process created (the cycle process or a client domain, from the fd it was handed)."""
         return cls(size, fd)
 
     def carve(self, name: str, nbytes: int) -> memoryview:
-        """A new zeroed cell of ``nbytes`` (the daemon, before the cycle process starts)."""
+        """A new zeroed cell of ``nbytes`` (the region's creator, before the cycle process starts)."""
         encoded = name.encode()
         if len(encoded) > NAME_BYTES:
             raise RegionError(f"cell name {name!r} is longer than {NAME_BYTES} bytes")
@@ -79,7 +80,7 @@ class Region:
         return self.buffer[offset : offset + nbytes]
 
     def find(self, name: str, nbytes: int) -> memoryview:
-        """The cell the other domain carved as ``name``; its size must be ``nbytes``."""
+        """The cell the region's creator carved as ``name``; its size must be ``nbytes``."""
         for cell, offset, size in self.cells():
             if cell == name:
                 if size != nbytes:

@@ -1,7 +1,7 @@
 """Cheap rolling loop statistics.
 
-The cycle thread only stores integers into preallocated windows and bumps counters; percentiles are computed on
-demand by whoever asks (status, bench) on the asyncio side, from a copy of the window. Windows and counters can
+The cycle only stores integers into preallocated windows and bumps counters; percentiles are computed on demand
+by whoever asks (status, the service report, the bench), from a copy of the window. Windows and counters can
 live in a given buffer (a cell of the shared region): the cycle process records, the client domain reads.
 """
 

@@ -1,8 +1,9 @@
-"""The telemetry tap: what the cycle thread writes each cycle, and the only telemetry code that runs there.
+"""The telemetry tap: what the cycle writes each cycle, and the only telemetry code that runs on the cycle.
 
 ``TelemetryTap.record`` copies the cycle's numbers into preallocated rows of a ring (a few in-place numpy
 assignments, no rerun, no allocation that outlives the call). The ring can live in shared memory
-(``SharedRing``): the daemon's cycle thread writes it, the recorder process reads it with ``take``.
+(``SharedRing``): the cycle writes it (in the cycle process, or on a cycle thread of a single daemon process), the
+recorder process reads it with ``take``.
 
 Protocol (single producer, single consumer): the producer fills a row, then publishes it by advancing ``head``
 (an int64 cell at the start of the buffer; aligned 8-byte stores are atomic, and x86-64 keeps stores in order).
@@ -149,7 +150,7 @@ class TelemetryTap:
         period: float,
         duration: float | None = None,
     ) -> None:
-        """Copy one cycle into the ring (cycle thread). ``duration``: the last completed cycle's, in seconds;
+        """Copy one cycle into the ring (on the cycle). ``duration``: the last completed cycle's, in seconds;
         None reads it from ``stats`` (0 when there is none yet)."""
         if tick % self.every:
             return
@@ -206,9 +207,10 @@ class TelemetryTap:
 class SharedRing:
     """A ``TelemetryTap`` in POSIX shared memory (``/dev/shm/hild-telemetry-<pid>-<random>``).
 
-    The daemon creates it (``SharedRing.create``) and owns the name: ``release`` unlinks it. The recorder process
-    attaches by name (``SharedRing.attach``). If the daemon is killed outright, multiprocessing's resource tracker
-    unlinks the segment.
+    The client domain creates it (``SharedRing.create``, through ``Telemetry``) and owns the name: ``release``
+    unlinks it. The recorder process attaches by name (``SharedRing.attach``); the cycle process maps it by name too
+    (``hild.cycle.process``). If the client domain is killed outright, multiprocessing's resource tracker unlinks
+    the segment.
     """
 
     def __init__(self, shm: shared_memory.SharedMemory, tap: TelemetryTap, owner: bool) -> None:
@@ -249,7 +251,8 @@ class SharedRing:
 
 @dataclass(frozen=True)
 class TelemetryRing:
-    """The telemetry recorder's shared ring (POSIX shared memory the daemon created): the cycle records into it."""
+    """The telemetry recorder's shared ring (POSIX shared memory the client domain created): the cycle records into
+    it."""
 
     name: str
     joints: int

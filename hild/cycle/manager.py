@@ -1,6 +1,6 @@
 """The controller manager: lifecycle, exclusive claims, atomic switches, failure handling.
 
-Every method that changes which controllers run is called on the cycle thread between two cycles (the engine
+Every method that changes which controllers run is called on the cycle, between two cycles (the engine
 applies queued requests at the start of a cycle), so a switch is atomic: no cycle ever sees half of it.
 A switch is validated in full before anything changes; in strict mode any problem refuses the whole switch,
 in best-effort mode the failing controllers are dropped. If an ``on_activate`` raises mid-switch, everything the

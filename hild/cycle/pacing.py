@@ -1,11 +1,14 @@
-"""The cycle thread: paces ``engine.step`` at ``update_rate`` on the wall clock or the sim clock (DESIGN.md §1, §4).
+"""The paced loop: calls ``engine.step`` at ``update_rate`` on the wall clock or the sim clock (docs/architecture.md,
+"The cycle" and "Clocks").
 
-asyncio cannot pace below 1 ms (its epoll wait rounds up to whole milliseconds), so the cycle has its own thread.
-It sleeps to an absolute deadline minus a short spin, then busy-waits the rest: deadlines never drift, and the
-wake-up is accurate to microseconds instead of the kernel's timer slack. A cycle that overruns its period skips
-the missed periods (no burst to catch up) and counts them. The duration recorded is wake-up → hardware writes
-done (``engine.write_done_ns``): what can delay a command. Work after the write (the telemetry tap) counts toward
-overruns, not toward the duration.
+``CycleThread`` is a thread of the daemon when the cycle runs in the daemon's own process
+(``realtime.cycle_process: false``, embedding); the cycle process runs the same loop on its main thread
+(``hild.cycle.process.CrossingCycle`` calls ``run`` itself). Either way the loop paces itself, because asyncio
+cannot pace below 1 ms (its epoll wait rounds up to whole milliseconds). It sleeps to an absolute deadline minus a
+short spin, then busy-waits the rest: deadlines never drift, and the wake-up is accurate to microseconds instead of
+the kernel's timer slack. A cycle that overruns its period skips the missed periods (no burst to catch up) and
+counts them. The duration recorded is wake-up → hardware writes done (``engine.write_done_ns``): what can delay a
+command. Work after the write (the telemetry tap) counts toward overruns, not toward the duration.
 
 Clocks: ``wall`` gives controllers the measured time since start; ``sim`` gives ``t = k · period`` exactly, paced
 at ``real_time_factor`` × real time, or as fast as possible when it is 0 (lockstep twin).

@@ -1,8 +1,11 @@
-"""Optional real-time settings, applied when permitted and reported either way (DESIGN.md §1).
+"""Optional real-time settings, applied when permitted and reported either way (docs/architecture.md, "The cycle").
 
-Per-thread settings (SCHED_FIFO, CPU affinity, timer slack) are applied from inside the cycle thread, so the
-asyncio side and Zenoh's threads keep normal scheduling. ``mlockall`` always carries ``MCL_ONFAULT``: without it,
-locking a process that loaded rerun and MuJoCo balloons its resident memory by gigabytes and stalls for seconds.
+Per-thread settings (SCHED_FIFO, CPU affinity, timer slack) are applied from inside the thread that runs the cycle
+(the cycle process's main thread, or the cycle thread of a single daemon process), so the asyncio loop and Zenoh's
+threads keep normal scheduling. Process settings (switch interval, locked memory) and the heap freeze go to the
+process that runs the cycle; the client domain sets only its CPUs (``apply_client_settings``) and holds the CPU
+DMA latency request. ``mlockall`` always carries ``MCL_ONFAULT``: without it, locking a process that loaded rerun
+and MuJoCo balloons its resident memory by gigabytes and stalls for seconds.
 """
 
 from __future__ import annotations
@@ -42,7 +45,7 @@ def apply_process_settings(settings: RealtimeSection) -> dict[str, str]:
 
 
 class CpuLatencyRequest:
-    """A PM QoS request on ``/dev/cpu_dma_latency``, held while the daemon runs.
+    """A PM QoS request on ``/dev/cpu_dma_latency``, held by the client domain while it runs.
 
     While the file stays open with a value written, no CPU enters an idle state that takes longer than that to
     leave; closing it withdraws the request (the kernel's contract, also what cyclictest does). A cycle that
@@ -98,7 +101,7 @@ def thaw_heap() -> None:
 
 
 def apply_client_settings(settings: RealtimeSection) -> dict[str, str]:
-    """The client domain's CPUs, set on the daemon's main thread before Zenoh starts its threads (they inherit)."""
+    """The client domain's CPUs, set on its main thread before Zenoh starts its threads (they inherit them)."""
     if not settings.client_cpu_affinity:
         return {"client_cpu_affinity": "any"}
     try:
@@ -109,7 +112,7 @@ def apply_client_settings(settings: RealtimeSection) -> dict[str, str]:
 
 
 def apply_thread_settings(settings: RealtimeSection) -> dict[str, str]:
-    """Settings for the calling thread (the cycle thread)."""
+    """Settings for the calling thread: the one that runs the cycle."""
     report = {}
     if settings.priority > 0:
         try:

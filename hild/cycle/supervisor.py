@@ -1,4 +1,4 @@
-"""The safety layer between controllers and hardware (DESIGN.md §3).
+"""The safety layer between controllers and hardware (docs/architecture.md, "Safety"; docs/safety.md).
 
 Every cycle, whatever the controllers do:
 

@@ -1,4 +1,4 @@
-"""Transmissions: the one place joint space and actuator space meet (DESIGN.md §2).
+"""Transmissions: the one place joint space and actuator space meet (docs/architecture.md, "The servo command").
 
 ``q_joint = direction · q_actuator / reduction + offset``; velocities scale like positions, efforts inversely,
 and gains by ``1 / reduction²`` so the drive's torque law gives the same joint torque. Drivers only ever see

@@ -1,5 +1,5 @@
 """The arm model through MuJoCo, outside the twin: the one room besides ``drivers/mujoco`` that imports mujoco
-(DESIGN.md §5). One module per use:
+(docs/architecture.md, "Rules"). One module per use:
 
 - :mod:`hild.dynamics.model`       loading a model (MJCF or URDF, MuJoCo's own loader) and finding its joints:
   what the twin, the emulator's plant and everything below share, so they always agree on the same file;

@@ -1,4 +1,5 @@
-"""rerun telemetry: the cycle writes a ring in shared memory, a recorder process sends it to rerun.
+"""rerun telemetry: the cycle writes a ring in shared memory, a recorder process sends it to rerun
+(docs/architecture.md, "Three processes").
 
 rerun-sdk is imported only in this package, and only in the recorder process (``worker``, ``outlets``, ``arm3d``,
 ``layout``, ``replay``). The ring and the tap that writes it each cycle are in :mod:`hild.crossing.telemetry`;

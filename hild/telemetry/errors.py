@@ -1,4 +1,4 @@
-"""The one telemetry exception, in a module of its own so the daemon side can raise it without loading rerun."""
+"""The one telemetry exception, in a module of its own so the client domain can raise it without loading rerun."""
 
 from __future__ import annotations
 

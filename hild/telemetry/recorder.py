@@ -1,11 +1,12 @@
-"""Telemetry, daemon side: a shared-memory ring for the cycle, and a recorder process that does all of rerun.
+"""Telemetry, client-domain side: a shared-memory ring for the cycle, and a recorder process that does all of rerun.
 
-The cycle thread only calls ``tap.record`` (hild/crossing/telemetry.py), which writes plain numpy rows into a ring in
+The cycle only calls ``tap.record`` (hild/crossing/telemetry.py), which writes plain numpy rows into a ring in
 shared memory. Everything rerun does (building columns, ``send_columns``, 3D poses, file rotation) runs in a
 child process (hild/telemetry/worker.py), started with "spawn" so it inherits none of the daemon's threads, at a
-low priority. Why a process: a flush is 5–9 ms of Python-side work; in-process (a task or a thread) it holds the
-GIL that long and the cycle waits for it. Events go to the child on a bounded queue (full → dropped and counted);
-flush/close are commands on a pipe, each acknowledged. This module does not import rerun: the daemon never loads it.
+low priority. Why a process: a flush is 5–9 ms of Python-side work; inside the daemon (a task or a thread) it holds
+the GIL that long, and the API, or a cycle thread of the same process, waits for it. Events go to the child on a
+bounded queue (full → dropped and counted); flush/close are commands on a pipe, each acknowledged. This module does
+not import rerun: the client domain never loads it.
 """
 
 from __future__ import annotations

@@ -1,4 +1,5 @@
-"""The recorder process: everything rerun does, in a child of the daemon, so it never holds the daemon's GIL.
+"""The recorder process: everything rerun does, in a child of the client domain, so it never holds a GIL the cycle
+or the API needs.
 
 Started by ``hild.telemetry.recorder.Telemetry`` with the "spawn" start method (a fresh interpreter that inherits
 none of the daemon's threads), at a lower priority (``NICE``) and off the cycle thread's CPUs. It reads the
