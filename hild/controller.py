@@ -90,7 +90,7 @@ class ControllerContext:
     limits: JointLimitArrays
     update_rate: float
     emit_event: Callable[[str, str], None]  # (level, message); events only, never per cycle
-    notify: Callable[[], None]  # rings the asyncio side after writing an output
+    notify: Callable[[], None]  # wakes the client domain after writing an output
     joint_modes: np.ndarray | None = None  # the supervisor's live JointMode per robot joint (read-only)
     # The doors between the controller's API half and its cycle half: plain objects in one process, cells of the
     # shared region when the cycle runs in a process of its own (hild.crossing.mailboxes).

@@ -1,9 +1,9 @@
 """Soak: a real daemon for N minutes at 1 kHz under random trajectories, servo streams and injected faults.
 
     hild bench --only soak                                # arm6 twin at 1 kHz for 3 min (--quick 20 s, --seconds S)
-    python tools/soak.py --minutes 3                      # arm6 twin at 1 kHz, seed 1
-    python tools/soak.py --minutes 30 --seed 7 --json soak.json
-    python tools/soak.py --minutes 3 --backend can        # Damiao drives emulated in their own process (500 Hz)
+    python -m hild.bench.soak --minutes 3                 # arm6 twin at 1 kHz, seed 1
+    python -m hild.bench.soak --minutes 30 --seed 7 --json soak.json
+    python -m hild.bench.soak --minutes 3 --backend can   # Damiao drives emulated in their own process (500 Hz)
 
 ``twin``: ``hild run`` on configs/arm6_twin.yaml at ``--rate`` (1 ms physics steps) on the wall clock. ``can``:
 ``hild emulate`` + ``hild run`` on configs/arm6_can_loopback.yaml (one bus of six motors carries 500 Hz at most),

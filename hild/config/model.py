@@ -316,7 +316,7 @@ class RealtimeSection(Params):
         default=True,
         description="Run the cycle in a process of its own (hardware, supervisor, controllers' update), apart from "
         "everything done for clients (Zenoh, decoding, planning, status, telemetry), so no client can reach its "
-        'interpreter lock (docs/architecture.md, "Two domains").',
+        'interpreter lock (docs/architecture.md, "Three processes").',
     )
     switch_interval: float = Field(
         default=0.0005, gt=0.0, le=0.1, description="sys.setswitchinterval: how long another thread may hold the GIL."

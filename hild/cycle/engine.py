@@ -1,14 +1,15 @@
 """The engine: one robot's hardware, supervisor and controllers, advanced one cycle per ``step(t, dt)``.
 
-``step`` is the whole real-time cycle of DESIGN.md §1:
+``step`` is the whole real-time cycle (docs/architecture.md, "The cycle"):
 
     apply queued requests → read → transmissions → supervisor.check → controllers → supervisor.command
     → transmissions → write
 
-It is driven by the cycle thread (``hild.cycle.pacing``) in the daemon, or called directly by tests in lockstep, which
-makes control tests deterministic. Everything else talks to the engine through ``submit`` (requests applied at
-the start of the next cycle, answered through a ``concurrent.futures.Future``) and reads it back through
-``status()`` and the controllers' output rings.
+It is paced by ``hild.cycle.pacing.CycleThread``, on the cycle process's main thread or on a thread of a single
+daemon process, or called directly by tests in lockstep, which makes control tests deterministic. Everything else
+reaches the engine through typed requests (``request``, ``request_estop``: applied at the start of the next cycle,
+answered through a ``concurrent.futures.Future``) and reads it back through ``snapshot()``, ``status()`` and the
+controllers' output rings.
 """
 
 from __future__ import annotations
@@ -103,7 +104,7 @@ class Engine:
         self.events.now = lambda: self.t
         self.wake_client: Callable[[], None] = wake_client or (lambda: None)
         # Set by the API: takes streamed commands at the start of each cycle, so no other thread takes the GIL
-        # per sample (docs/performance.md, "A busy neighbour").
+        # per sample (docs/performance.md, "Where the time goes").
         self.take_inputs: Callable[[], None] | None = None
         self.inputs_on_arrival = False  # take_inputs above takes them: one GIL handover per cycle, not per sample
         self.write_done_ns = 0  # perf_counter_ns when the last cycle's hardware writes were done

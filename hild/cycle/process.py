@@ -1,6 +1,7 @@
 """The cycle process: the engine alone, paced on its main thread, reached only through the shared region.
 
-Started by the client domain (:class:`hild.daemon.remote.RemoteCycle`) as ``python -m hild.cycle.process``
+Started by the main process (embedded: by the client domain's :class:`hild.daemon.remote.SpawnedCycle`) as
+``python -m hild.cycle.process``
 with a pickled :class:`CycleSpec` on its standard input and two inherited file descriptors: the shared region and
 the wake-up eventfd (the client domain's loop waits on it). It runs no Zenoh, no asyncio and, once live, no Python
 thread but the cycle: nothing a client does can take its interpreter's lock.
@@ -8,7 +9,8 @@ thread but the cycle: nothing a client does can take its interpreter's lock.
 Around each ``engine.step`` (:class:`CrossingCycle`): before, it takes what the client domain asked (stop, e-stop,
 queued requests); after, it hands out what changed (vitals, the snapshot when ``change_seq`` moved, events,
 replies) and wakes the client domain at most once. It stops when asked, on SIGTERM, or when its parent is gone (the
-arm is then held and released as on any stop); SIGINT is left to the daemon, which asks for the stop itself.
+arm is then held and released as on any stop); SIGINT is left to the main process (embedded: the daemon), which
+asks for the stop itself.
 """
 
 from __future__ import annotations
@@ -220,7 +222,7 @@ def run(spec: CycleSpec) -> int:
             cycle.terminated = True
 
     signal.signal(signal.SIGTERM, on_term)
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # a terminal's Ctrl-C reaches both: the daemon asks the stop
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches every process: the main process asks the stop
     scratch = EventLog()
     try:
         engine = Engine(spec.loaded, Shared(region, create=False), stats=cells.stats, wake_client=outbox.wakeup.mark)

@@ -1,4 +1,4 @@
-"""The daemon: the client domain (one asyncio main thread) around the cycle (DESIGN.md §1, docs/architecture.md).
+"""The daemon: the client domain (one asyncio main thread) around the cycle (docs/architecture.md, "Three processes").
 
 The daemon reaches the cycle only through a :class:`~hild.daemon.link.CycleHost` and never asks which one it has:
 under ``hild run`` the cycle process the main process started (:class:`~hild.daemon.remote.AttachedCycle`);
@@ -8,7 +8,7 @@ process (:class:`~hild.daemon.local.LocalCycle`, ``realtime.cycle_process: false
 Start-up order matters for safety: the Zenoh session opens first and refuses to go on if another daemon of this
 robot is on the network (it may drive this very arm: its bus must not even be opened); the engine configures the
 hardware and reads it once, so hold starts where the arm is; the API declares its keys; the heap is frozen; the
-drives are enabled last, right before the cycle thread starts.
+drives are enabled last, right before the cycle starts.
 Shutdown runs the other way: stop accepting commands, hold, release hardware, close.
 
 Under systemd (``Type=notify``) the daemon says READY=1 only once the drives are live and the cycle has run a few

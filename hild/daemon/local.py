@@ -1,7 +1,7 @@
 """The cycle on a thread of the daemon's own process: the engine in this process behind the same seam.
 
 For lockstep tests, embedding and ``realtime.cycle_process: false``. The cycle thread shares this interpreter with
-Zenoh and the asyncio loop (docs/performance.md, "A busy neighbour"): streamed inputs are taken by the cycle itself
+Zenoh and the asyncio loop (docs/performance.md, "Where the time goes"): streamed inputs are taken by the cycle itself
 at the start of each cycle (``take_inputs``), so no other thread takes the interpreter's lock per sample.
 """
 

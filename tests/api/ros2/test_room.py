@@ -1,6 +1,6 @@
-"""DESIGN.md §5: each third-party library lives in one room. ROS 2's libraries (rosbags: CDR and type hashes;
-xxhash: rmw_zenoh's GIDs) are imported only in hild/api/ros2, and a daemon without a ``ros2:`` section never
-loads them."""
+"""docs/architecture.md, "Rules": each third-party library lives in one room. ROS 2's libraries (rosbags: CDR and
+type hashes; xxhash: rmw_zenoh's GIDs) are imported only in hild/api/ros2, and a daemon without a ``ros2:`` section
+never loads them."""
 
 from __future__ import annotations
 
