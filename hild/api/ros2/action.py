@@ -15,7 +15,7 @@ from __future__ import annotations
 import asyncio
 from collections import OrderedDict
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
@@ -23,10 +23,8 @@ from hild.action import ActionServer
 from hild.api.goals import GoalEndpoint
 from hild.api.ros2 import types
 from hild.api.ros2.clock import ros_time
+from hild.api.ros2.node import RosNode, Writer
 from hild.api.ros2.trajectory import trajectory_body
-
-if TYPE_CHECKING:
-    from hild.api.ros2.face import RosFace, Writer
 
 ACTION = "control_msgs/action/FollowJointTrajectory"
 CANCEL_GOAL = "action_msgs/srv/CancelGoal"
@@ -106,7 +104,7 @@ def _multi_point() -> Any:
 class TrajectoryAction:
     """One controller's action: declared on the face's session, flushed when the face is."""
 
-    def __init__(self, face: RosFace, controller: str, server: ActionServer[Any]) -> None:
+    def __init__(self, face: RosNode, controller: str, server: ActionServer[Any]) -> None:
         self.face = face
         self.server = GoalEndpoint.of(server)
         base = f"{controller}/follow_joint_trajectory/_action"

@@ -10,13 +10,11 @@ trajectory's header stamp is read against it.
 from __future__ import annotations
 
 import time
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from hild.api.ros2 import types
+from hild.api.ros2.node import Writer
 from hild.daemon.link import CycleLink
-
-if TYPE_CHECKING:
-    from hild.api.ros2.face import Writer
 
 CLOCK = "rosgraph_msgs/msg/Clock"
 CLOCK_TOPIC = "/clock"  # global, whatever the node's namespace, as ROS's time source subscribes to it

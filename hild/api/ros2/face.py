@@ -37,6 +37,7 @@ from hild.api.ros2 import types
 from hild.api.ros2.action import TrajectoryAction
 from hild.api.ros2.clock import CLOCK, CLOCK_TOPIC, RosClock, ros_time
 from hild.api.ros2.manager import ControllerManager
+from hild.api.ros2.node import Writer
 from hild.api.ros2.wire import (
     DEFAULT_QOS,
     LATCHED_QOS,
@@ -62,19 +63,6 @@ JOINT_STATE = "sensor_msgs/msg/JointState"
 STRING = "std_msgs/msg/String"
 FLOAT64_ARRAY = "std_msgs/msg/Float64MultiArray"
 SOURCE = "ros2"  # the source of hild events this face emits
-
-
-@dataclass
-class Writer:
-    """One ROS publisher: its key, GID and sequence number."""
-
-    publisher: Any
-    gid: bytes
-    sequence: int = 0
-
-    def put(self, payload: bytes) -> None:
-        self.sequence += 1
-        self.publisher.put(payload, attachment=attachment(self.sequence, self.gid))
 
 
 @dataclass

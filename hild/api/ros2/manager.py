@@ -6,14 +6,12 @@ request it is, through ``Services.handle`` (the same checks, the same cycle hop,
 from __future__ import annotations
 
 import json
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from hild.api.ros2 import types
 from hild.api.ros2.definitions import STRICT
+from hild.api.ros2.node import RosNode
 from hild.api.services import Services
-
-if TYPE_CHECKING:
-    from hild.api.ros2.face import RosFace
 
 LIST_CONTROLLERS = "controller_manager_msgs/srv/ListControllers"
 SWITCH_CONTROLLER = "controller_manager_msgs/srv/SwitchController"
@@ -28,7 +26,7 @@ PLUGIN_NAMES = {
 class ControllerManager:
     """The two services, declared under the node's name as ros2_control's controller manager has them."""
 
-    def __init__(self, face: RosFace, services: Services, node: str) -> None:
+    def __init__(self, face: RosNode, services: Services, node: str) -> None:
         self.face = face
         self.services = services
         self.switch_name = face.name(f"{node}/switch_controller")
