@@ -78,7 +78,11 @@ class Daemon:
 
     # ---- the cycle wakes the asyncio side --------------------------------------------------------------------
     def _on_wake(self) -> None:
-        events = self._take_events()
+        """Drain what the cycle said (at start, at the end, once it is gone)."""
+        self._publish(self._take_events())
+
+    def _publish(self, events: list[Event]) -> None:
+        """The cycle's events, whenever it rang: logged once, published, recorded."""
         for event in events:
             log_event(event)
         if self.api is not None:
@@ -87,7 +91,7 @@ class Daemon:
             self.telemetry.log_events(events)
 
     def _take_events(self) -> list[Event]:
-        return self.link.take()  # a cycle process's replies are answered on the way
+        return self.link.take()  # replies to requests are answered on the way, by the link
 
     # ---- signals ---------------------------------------------------------------------------------------------
     def _on_signal(self, signum: int) -> None:
@@ -160,7 +164,7 @@ class Daemon:
         realtime = self.loaded.config.realtime
         self.link.realtime_report.update(self.client_report)
         self.link.realtime_report["cpu_dma_latency"] = self.cpu_latency.hold(realtime.cpu_dma_latency_us)
-        self.link.watch(self._loop, self._on_wake)
+        self.link.watch(self._loop, self._publish)
         try:
             await self.link.bring_up(self.telemetry)
         except CycleProcessError as exc:

@@ -74,9 +74,11 @@ class CycleHost(CycleLink, Protocol):
 
     def service_report(self, notifier: SystemdNotifier) -> ServiceReport | SilentReport: ...
 
-    def watch(self, loop: asyncio.AbstractEventLoop, on_wake: Callable[[], None]) -> None: ...
+    def watch(self, loop: asyncio.AbstractEventLoop, on_events: Callable[[list[Event]], None]) -> None:
+        """Whenever the cycle rings: answer the replies it sent (the request's own way back), then hand its events
+        to ``on_events``, on ``loop``."""
 
-    def take(self) -> list[Event]: ...  # on the loop, when woken: the cycle's events (and replies answered)
+    def take(self) -> list[Event]: ...  # the same, called: replies answered, events returned
 
     async def bring_up(self, telemetry: Any) -> None: ...  # hardware configured and read, drives disabled
 

@@ -43,7 +43,7 @@ class LocalCycle:
         self.thread: CycleThread | None = None
         self._clock = (cfg.clock.source, cfg.clock.real_time_factor)
         self._loop: asyncio.AbstractEventLoop | None = None
-        self._on_wake: Callable[[], None] = lambda: None
+        self._on_events: Callable[[list[Event]], None] = lambda events: None
         self._wake_pending = False
         self._telemetry: Any = None
 
@@ -94,8 +94,8 @@ class LocalCycle:
     def service_report(self, notifier: SystemdNotifier) -> ServiceReport:
         return ServiceReport(notifier, self.engine.max_consecutive_overruns)
 
-    def watch(self, loop: asyncio.AbstractEventLoop, on_wake: Callable[[], None]) -> None:
-        self._loop, self._on_wake = loop, on_wake
+    def watch(self, loop: asyncio.AbstractEventLoop, on_events: Callable[[list[Event]], None]) -> None:
+        self._loop, self._on_events = loop, on_events
         self.engine.wake_client = self._wake_from_cycle
 
     def _wake_from_cycle(self) -> None:
@@ -106,7 +106,7 @@ class LocalCycle:
 
     def _woken(self) -> None:
         self._wake_pending = False
-        self._on_wake()
+        self._on_events(self.take())
 
     def take(self) -> list[Event]:
         return self.engine.events.drain()

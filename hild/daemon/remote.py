@@ -276,10 +276,10 @@ class RemoteCycle:
                 future.set_exception(Refused(reason))
 
     # ---- the daemon's lifecycle (hild.daemon.link.CycleHost) -------------------------------------------------
-    def watch(self, loop: asyncio.AbstractEventLoop, on_wake: Callable[[], None]) -> None:
-        """Call ``on_wake`` on ``loop`` whenever the cycle rings (its eventfd)."""
+    def watch(self, loop: asyncio.AbstractEventLoop, on_events: Callable[[list[Event]], None]) -> None:
+        """Whenever the cycle rings (its eventfd): answer its replies, hand its events to ``on_events``."""
         self._loop = loop
-        loop.add_reader(self.wakeup_fd, on_wake)
+        loop.add_reader(self.wakeup_fd, lambda: on_events(self.take()))
 
     def close(self) -> None:
         """The daemon stops: no more wake-ups, and whatever still waits for a reply is answered."""
