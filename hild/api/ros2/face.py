@@ -34,9 +34,9 @@ from hild.api.codec import FAST_DECODE, MAX_PAYLOAD
 from hild.api.ports import DropReporter
 from hild.api.queries import clip, drop
 from hild.api.ros2 import types
-from hild.api.ros2.action import TrajectoryAction
 from hild.api.ros2.clock import CLOCK, CLOCK_TOPIC, RosClock, ros_time
-from hild.api.ros2.manager import ControllerManager
+from hild.api.ros2.controller_manager import ControllerManager
+from hild.api.ros2.follow_joint_trajectory import TrajectoryAction
 from hild.api.ros2.node import Writer
 from hild.api.ros2.wire import (
     DEFAULT_QOS,
