@@ -128,7 +128,9 @@ class MainProcess:
         self._stopping.set()
 
     async def _start(self) -> int:
-        """The client domain opens Zenoh; then the cycle process brings the hardware up and goes live."""
+        """The client domain opens Zenoh; then the cycle process brings the hardware up and goes live. Start-up
+        ends when the cycle is live (the client domain told it to go): a client domain lost after that, even before
+        it says it serves, is replaced by :meth:`_keep` like any other, and the arm holds meanwhile."""
         deadline = time.monotonic() + START_TIMEOUT
         while self.client_phase is ClientPhase.STARTING:
             if not self._client_alive() or self._stopping.is_set() or time.monotonic() > deadline:
@@ -136,7 +138,7 @@ class MainProcess:
             await asyncio.sleep(TICK / 10)
         self.notifier.status("bringing up the hardware")
         self.cycle.process = spawn(self.loaded, self.crossing, self.cells.telemetry.take())  # type: ignore[arg-type]
-        while self.client_phase is not ClientPhase.SERVING or self.cycle.phase is not Phase.LIVE:
+        while self.cycle.phase is not Phase.LIVE:
             if not (self._client_alive() and self.cycle.alive()) or self._stopping.is_set():
                 return self._start_failed()
             if time.monotonic() > deadline:

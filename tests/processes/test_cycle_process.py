@@ -235,3 +235,31 @@ def test_a_stalled_client_domain_leaves_the_cycle_holding(write_config: Callable
         assert run.client_process() == stalled
         assert run.stop() == 0
     assert "stopped: hardware released" in run.log
+
+
+def test_a_client_domain_lost_once_the_cycle_is_live_is_replaced_even_before_it_said_it_serves(
+    write_config: Callable[..., Path], caplog: pytest.LogCaptureFixture
+) -> None:
+    """The cycle went live (the client domain told it to): from then on the arm is driven, and a client domain that
+    dies, even in the few ms before it says it serves, is replaced like any later one. It used to end the unit as a
+    failed start-up (seen under load: a test killed the client domain as soon as its API answered)."""
+    main = MainProcess(load_config(write_config(split_robot())), [free_endpoint()])
+
+    async def scenario() -> tuple[int | None, int]:
+        task = asyncio.create_task(main.run())
+        while main.cycle.phase is not Phase.LIVE:  # as early as possible: before the main process saw it serve
+            assert not task.done(), "the daemon ended before its cycle went live"
+            await asyncio.sleep(0)
+        assert main.client is not None
+        first = main.client.pid
+        os.kill(first, signal.SIGKILL)
+        await until(lambda: (main.client is not None and main.client.pid != first) or task.done(), "another domain")
+        await until(lambda: main.client_phase is ClientPhase.SERVING or task.done(), "the new client domain to serve")
+        code = task.result() if task.done() else None
+        main.request_stop()
+        return code, await task
+
+    with caplog.at_level(logging.INFO):
+        during, code = asyncio.run(scenario())
+    assert (during, code) == (None, 0), caplog.text
+    assert "start-up failed" not in caplog.text
