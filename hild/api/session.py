@@ -1,8 +1,9 @@
 """Zenoh configs for the daemon and for its clients.
 
 Defaults keep hild on loopback: the daemon listens where ``zenoh.listen`` says (``tcp/127.0.0.1:7447``), multicast
-scouting and gossip are off, so nothing is announced on the robot network until the config says so. Order of
-application: ``config_file`` first, then hild's own keys, then the ``config`` passthrough entries, so the
+scouting and gossip are off, so nothing is announced on the robot network until the config says so. The daemon's
+session has Zenoh's shared-memory transport off (``zenoh.shared_memory``): its memory is bounded whoever connects.
+Order of application: ``config_file`` first, then hild's own keys, then the ``config`` passthrough entries, so the
 passthrough always has the last word. Clients take the same two extras, which is where TLS certificates and
 credentials go (configs/secure/, docs/security.md).
 """
@@ -55,6 +56,9 @@ def server_config(
     _insert(config, "connect/endpoints", list(settings.connect))
     _insert(config, "scouting/multicast/enabled", settings.multicast_scouting)
     _insert(config, "scouting/gossip/enabled", False)
+    # Zenoh maps each sending session's shared-memory pool (16 MiB, for payloads of 3 KB and more) and keeps it
+    # after that session has gone: off, a daemon's memory no longer grows with every client that ever sent one.
+    _insert(config, "transport/shared_memory/enabled", settings.shared_memory)
     if timestamping:
         _insert(config, "timestamping/enabled", True)
     _apply_overrides(config, settings.config)

@@ -188,6 +188,11 @@ class ZenohSection(Params):
     listen: list[str] = Field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
     connect: list[str] = Field(default_factory=list)
     multicast_scouting: bool = False
+    shared_memory: bool = Field(
+        default=False,
+        description="Zenoh's shared-memory transport on the daemon's session. Off: a receiving session keeps "
+        "the 16 MiB pool of every sender that ever sent it 3 KB or more, for the life of the daemon.",
+    )
     config_file: str | None = Field(default=None, description="A Zenoh JSON5 config file, applied first.")
     config: dict[str, Any] = Field(
         default_factory=dict, description="Extra Zenoh config keys (dotted paths → values), applied last."

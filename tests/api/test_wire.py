@@ -62,6 +62,19 @@ def test_server_config_defaults_to_loopback_without_scouting() -> None:
     assert get(config, "scouting/gossip/enabled") is False
 
 
+def test_the_daemon_session_has_no_shared_memory_transport(tmp_path: Path) -> None:
+    """Issue [layout] 8.1: Zenoh maps each sender's 16 MiB shared-memory pool (payloads of 3 KB and more) and keeps
+    it after the sender is gone, so every client session grew the daemon by 16 MiB for good. Off by default, even
+    under a config file that turns it on; the passthrough may still turn it on."""
+    assert get(server_config(ZenohSection()), "transport/shared_memory/enabled") is False
+    (tmp_path / "zenoh.json5").write_text("{transport: {shared_memory: {enabled: true}}}")
+    from_file = server_config(ZenohSection(config_file="zenoh.json5"), base_dir=tmp_path)
+    assert get(from_file, "transport/shared_memory/enabled") is False
+    assert get(server_config(ZenohSection(shared_memory=True)), "transport/shared_memory/enabled") is True
+    passthrough = ZenohSection(config={"transport.shared_memory.enabled": True})
+    assert get(server_config(passthrough), "transport/shared_memory/enabled") is True
+
+
 def test_server_config_order_file_then_hild_then_passthrough(tmp_path: Path) -> None:
     (tmp_path / "zenoh.json5").write_text('{mode: "router", transport: {link: {tx: {lease: 3000}}}}')
     settings = ZenohSection(
