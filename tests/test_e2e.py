@@ -161,7 +161,11 @@ def test_taken_port_releases_the_hardware_and_exits_1(tmp_path: Path) -> None:
     assert "start-up failed; the hardware was released" in run.stderr  # refused before the cycle process started
 
 
-def test_a_second_daemon_of_the_same_robot_exits_1_naming_the_first(daemon: HildRun, tmp_path: Path) -> None:
+def test_a_second_daemon_of_the_same_robot_exits_1_naming_the_first_ones_main_process(
+    daemon: HildRun, tmp_path: Path
+) -> None:
+    """Issue [layout] 8.2: the refusal named the first daemon's client domain, whose end only makes its main process
+    start another: the name stays taken. It names the main process, the one systemd and an operator stop."""
     endpoint = daemon.started().endpoint
     config = tmp_path / "second.yaml"
     data = yaml.safe_load((CONFIGS / "arm6_twin.yaml").read_text())
@@ -172,6 +176,7 @@ def test_a_second_daemon_of_the_same_robot_exits_1_naming_the_first(daemon: Hild
     assert run.returncode == 1, run.stderr
     assert "robot 'arm6' already has a daemon on this Zenoh network" in run.stderr
     assert f"listening on {endpoint}" in run.stderr
+    assert f"pid {daemon.pid}," in run.stderr and f"pid {daemon.client_process()}," not in run.stderr
     # Refused before the hardware was touched (the cycle process is started only after the check): nothing enabled.
     assert "start-up failed; the hardware was released" in run.stderr
     assert daemon.process.poll() is None  # the first one runs on

@@ -62,8 +62,12 @@ class ApiServer:
         *,
         request_timeout: float = DEFAULT_TIMEOUT,
         status_period: float = STATUS_PERIOD,
+        pid: int | None = None,
     ) -> None:
+        """``pid``: the process an operator stops to stop this daemon, which a refused second daemon names (under
+        ``hild run``, the main process; default: this one)."""
         self.engine = engine
+        self.pid = pid
         self.settings = settings
         self.listen = listen
         self.keys = Keys(engine.robot)
@@ -106,7 +110,8 @@ class ApiServer:
         try:
             check_unique(self.session, self.keys)  # before anything is declared
             # Claimed at once, so a daemon of this robot starting while our hardware comes up sees us.
-            self._identity = DaemonIdentity(self.session, self.keys, endpoints, self._other_daemon(self._loop))
+            on_other = self._other_daemon(self._loop)
+            self._identity = DaemonIdentity(self.session, self.keys, endpoints, on_other, self.pid)
         except BaseException:
             await self.close()
             raise

@@ -1,7 +1,9 @@
 """One robot name, one daemon: two daemons answering ``hild/<robot>/...`` would both obey every command.
 
 Every daemon declares a liveliness token ``hild/<robot>/daemon/<zid>`` (its Zenoh session id) and answers a query
-on the same key with where it runs (host, pid, listen endpoints). A starting daemon looks for such tokens — and for
+on the same key with where it runs (host, pid, listen endpoints). The pid is the one an operator stops: under
+``hild run``, the main process's (stopping the client domain that answers only makes the main process start
+another, the name still taken). A starting daemon looks for such tokens — and for
 an ``hild/<robot>/alive`` token, which older daemons declare alone — *before* it declares anything or enables a
 drive, and refuses to start naming the other one. Tokens of one key expression are merged by Zenoh, which is why
 each daemon's token carries its own id: a daemon that appears later on the same network is seen by the watch and
@@ -71,11 +73,18 @@ class DaemonIdentity:
     """This daemon's token and its answer of where it runs; watches for another daemon of the same robot."""
 
     def __init__(
-        self, session: zenoh.Session, keys: Keys, listen: Sequence[str], on_other: Callable[[str], None]
+        self,
+        session: zenoh.Session,
+        keys: Keys,
+        listen: Sequence[str],
+        on_other: Callable[[str], None],
+        pid: int | None = None,
     ) -> None:
+        """``pid``: the process to stop to stop this daemon (default: this one)."""
         self.zid = str(session.zid())
         own_key = daemon_key(keys, self.zid)
-        where = json.dumps({"zid": self.zid, "host": socket.gethostname(), "pid": os.getpid(), "listen": list(listen)})
+        pid = os.getpid() if pid is None else pid
+        where = json.dumps({"zid": self.zid, "host": socket.gethostname(), "pid": pid, "listen": list(listen)})
 
         def answer(query: zenoh.Query) -> None:
             query.reply(own_key, where)

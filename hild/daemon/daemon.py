@@ -112,7 +112,7 @@ class Daemon:
         self.client_report = apply_client_settings(cfg.realtime)  # before Zenoh's threads start: they inherit it
         self.notifier.status("bringing up the hardware")
         self._open_telemetry()  # before the hardware: a sink that cannot open is a start-up error, nothing enabled
-        self.api = ApiServer(self.link, cfg.zenoh, self.listen)
+        self.api = ApiServer(self.link, cfg.zenoh, self.listen, pid=self.link.main_pid)
         try:  # one robot name, one daemon: checked before the hardware is touched (the bus may be the other's)
             await self.api.open()
         except RobotNameTaken as exc:

@@ -67,6 +67,7 @@ class CycleHost(CycleLink, Protocol):
     signals: tuple[int, ...]  # the signals this process handles (the top process of the unit takes SIGINT too)
     signal_meaning: str  # what a signal does, for the log
     restarted_after: str | None  # why the previous client domain ended, when this one replaces it
+    main_pid: int  # the process systemd and an operator stop to stop this daemon (a refused second one names it)
     realtime_report: dict[str, str]  # merged into the status reply's ``realtime``
 
     @property

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import concurrent.futures
+import os
 import signal
 from collections.abc import Callable
 from typing import Any
@@ -38,6 +39,7 @@ class LocalCycle:
         self.joints = self.engine.joints
         self.update_rate = self.engine.update_rate
         self.events = self.engine.events
+        self.main_pid = os.getpid()  # the unit's top process
         self.stats = self.engine.stats
         self.realtime_report = self.engine.realtime_report
         self.thread: CycleThread | None = None

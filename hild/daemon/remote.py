@@ -308,6 +308,7 @@ class SpawnedCycle(RemoteCycle):
 
     def __init__(self, loaded: LoadedConfig) -> None:
         super().__init__(loaded, Crossing.carve(len(loaded.config.joints)))
+        self.main_pid = os.getpid()  # the unit's top process
 
     def service_report(self, notifier: SystemdNotifier) -> ServiceReport:
         return ServiceReport(notifier, self.max_consecutive_overruns)
@@ -354,7 +355,7 @@ class AttachedCycle(RemoteCycle):
 
     def __init__(self, loaded: LoadedConfig, at: Attachment) -> None:
         super().__init__(loaded, Crossing.attach(len(loaded.config.joints), at))
-        self.parent_pid = at.parent_pid
+        self.parent_pid = self.main_pid = at.parent_pid  # stopping this process only makes the main one start another
         self.restarted_after = at.restarted_after
 
     def service_report(self, notifier: SystemdNotifier) -> SilentReport:
