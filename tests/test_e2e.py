@@ -146,7 +146,9 @@ def test_bad_config_exits_1_with_its_message(tmp_path: Path) -> None:
     assert "update_rate: expected:" in run.stderr and "found 'fast' (str)" in run.stderr
 
 
-def test_taken_port_releases_the_hardware_and_exits_1(tmp_path: Path) -> None:
+def test_a_taken_port_is_refused_in_one_line_that_says_nothing_was_opened(tmp_path: Path) -> None:
+    """Issue [layout] 8.3: the client domain and the main process both logged "start-up failed; the hardware was
+    released", though the cycle process (the hardware) is started only once Zenoh is open."""
     config = tmp_path / "rrbot.yaml"
     config.write_text(
         (CONFIGS / "rrbot_twin.yaml").read_text().replace("model: rrbot.urdf", f"model: {CONFIGS / 'rrbot.urdf'}")
@@ -157,8 +159,9 @@ def test_taken_port_releases_the_hardware_and_exits_1(tmp_path: Path) -> None:
         port = taken.getsockname()[1]
         run = run_to_exit(config, f"tcp/127.0.0.1:{port}")
     assert run.returncode == 1, run.stderr
-    assert "cannot open the Zenoh API" in run.stderr
-    assert "start-up failed; the hardware was released" in run.stderr  # refused before the cycle process started
+    assert run.stderr.count("start-up failed") == 1, run.stderr
+    assert "start-up failed; nothing was opened: cannot open the Zenoh API" in run.stderr
+    assert "released" not in run.stderr, run.stderr
 
 
 def test_a_second_daemon_of_the_same_robot_exits_1_naming_the_first_ones_main_process(
@@ -178,7 +181,8 @@ def test_a_second_daemon_of_the_same_robot_exits_1_naming_the_first_ones_main_pr
     assert f"listening on {endpoint}" in run.stderr
     assert f"pid {daemon.pid}," in run.stderr and f"pid {daemon.client_process()}," not in run.stderr
     # Refused before the hardware was touched (the cycle process is started only after the check): nothing enabled.
-    assert "start-up failed; the hardware was released" in run.stderr
+    assert run.stderr.count("start-up failed") == 1, run.stderr
+    assert "start-up failed; nothing was opened: robot 'arm6' already has a daemon" in run.stderr
     assert daemon.process.poll() is None  # the first one runs on
 
 

@@ -47,6 +47,7 @@ class Ask(IntEnum):  # written by the client domain (GO, ESTOP) or the main proc
 
 
 class ClientPhase(IntEnum):
+    FAILED = -1  # start-up failed and the client domain has logged why: the main process does not say it again
     STARTING = 0
     OPEN = 1  # Zenoh is open and this robot's name is ours: the cycle process may touch the hardware
     SERVING = 2  # the API answers and the cycle is live

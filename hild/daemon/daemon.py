@@ -29,7 +29,7 @@ from typing import Any
 from hild.config.loader import LoadedConfig
 from hild.crossing.events import Event, log_event
 from hild.cycle.realtime import CpuLatencyRequest, apply_client_settings
-from hild.daemon.link import CycleHost, StartupError
+from hild.daemon.link import CycleHost, StartRefused, StartupError
 from hild.daemon.local import LocalCycle
 from hild.daemon.remote import CycleProcessError, SpawnedCycle
 from hild.hardware import HardwareError
@@ -117,10 +117,10 @@ class Daemon:
             await self.api.open()
         except RobotNameTaken as exc:
             self._refused()
-            raise StartupError(str(exc)) from exc
+            raise StartRefused(str(exc)) from exc
         except Exception as exc:  # e.g. the listen port is taken
             self._refused()
-            raise StartupError(f"cannot open the Zenoh API ({self.listen or cfg.zenoh.listen}): {exc}") from exc
+            raise StartRefused(f"cannot open the Zenoh API ({self.listen or cfg.zenoh.listen}): {exc}") from exc
         try:
             await self._bring_up()  # drives configured and read, still disabled
         except BaseException:
@@ -265,8 +265,14 @@ def serve(daemon: Daemon) -> int:
         asyncio.run(daemon.close_telemetry())
         for event in daemon._take_events():
             log_event(event)
-        log.error("start-up failed; the hardware was released: %s", exc)
+        if isinstance(exc, StartRefused):
+            log.error("start-up failed; nothing was opened: %s", exc)
+        elif daemon.link.releases_hardware:
+            log.error("start-up failed; the hardware was released: %s", exc)
+        else:  # the main process stops the cycle process, and says what became of the hardware
+            log.error("start-up failed: %s", exc)
         daemon.notifier.status(f"start-up failed: {exc}")
+        daemon.link.start_failed()
         return 1
     finally:
         daemon.cpu_latency.release()

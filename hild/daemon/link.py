@@ -27,6 +27,10 @@ class StartupError(RuntimeError):
     """The daemon could not start; the message says why, for the log and systemd's status line."""
 
 
+class StartRefused(StartupError):
+    """Refused before any hardware was opened: the robot's name or the Zenoh port is taken."""
+
+
 class CycleLink(Protocol):
     """What the API reads of the cycle and asks of it."""
 
@@ -68,6 +72,7 @@ class CycleHost(CycleLink, Protocol):
     signal_meaning: str  # what a signal does, for the log
     restarted_after: str | None  # why the previous client domain ended, when this one replaces it
     main_pid: int  # the process systemd and an operator stop to stop this daemon (a refused second one names it)
+    releases_hardware: bool  # this process's stop releases the hardware (else the main process's, which says so)
     realtime_report: dict[str, str]  # merged into the status reply's ``realtime``
 
     @property
@@ -94,5 +99,7 @@ class CycleHost(CycleLink, Protocol):
     async def stop(self, timeout: float) -> bool: ...  # True if the cycle stopped (or is not ours to stop)
 
     def refused(self) -> None: ...  # the API did not come up: release what was brought up
+
+    def start_failed(self) -> None: ...  # a failed start was logged here: the main process must not say it again
 
     def close(self) -> None: ...

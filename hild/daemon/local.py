@@ -30,6 +30,7 @@ class LocalCycle:
     restarted_after = None
     signals = (signal.SIGINT, signal.SIGTERM)
     signal_meaning = "holding every joint, then stopping"
+    releases_hardware = True
 
     def __init__(self, loaded: LoadedConfig) -> None:
         cfg = loaded.config
@@ -150,6 +151,9 @@ class LocalCycle:
 
     def refused(self) -> None:
         self.engine.release()
+
+    def start_failed(self) -> None:
+        """Nobody else to tell: this process is the unit's top process."""
 
     def close(self) -> None:
         self.engine.wake_client = lambda: None

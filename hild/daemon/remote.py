@@ -305,6 +305,7 @@ class SpawnedCycle(RemoteCycle):
 
     signals = (signal.SIGINT, signal.SIGTERM)
     signal_meaning = "holding every joint, then stopping"
+    releases_hardware = True
 
     def __init__(self, loaded: LoadedConfig) -> None:
         super().__init__(loaded, Crossing.carve(len(loaded.config.joints)))
@@ -344,6 +345,9 @@ class SpawnedCycle(RemoteCycle):
         self.ask_stop()
         self.join(STOP_JOIN_TIMEOUT)
 
+    def start_failed(self) -> None:
+        """Nobody else to tell: this process is the unit's top process."""
+
 
 class AttachedCycle(RemoteCycle):
     """Under ``hild run``: the cycle process the daemon's main process started, reached through the crossing it
@@ -352,6 +356,7 @@ class AttachedCycle(RemoteCycle):
 
     signals = (signal.SIGTERM,)
     signal_meaning = "the client domain stops"
+    releases_hardware = False  # the main process stops the cycle process
 
     def __init__(self, loaded: LoadedConfig, at: Attachment) -> None:
         super().__init__(loaded, Crossing.attach(len(loaded.config.joints), at))
@@ -403,6 +408,11 @@ class AttachedCycle(RemoteCycle):
 
     def refused(self) -> None:
         """Nothing to release here: the main process stops the cycle process when this domain ends."""
+
+    def start_failed(self) -> None:
+        """Logged here, with the reason only this domain knows: the main process adds only what became of the
+        hardware."""
+        self.cells.client[ClientVital.PHASE] = ClientPhase.FAILED
 
     def close(self) -> None:
         super().close()

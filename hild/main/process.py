@@ -110,13 +110,16 @@ class MainProcess:
             loop.add_signal_handler(sig, self._on_signal, sig)
         self.notifier.status("starting the client domain")
         self._start_client()
+        failed: str | None = None
         try:
-            code = await self._start()
-            if code == 0:
-                code = await self._keep()
+            failed = await self._start()
+            code = 1 if failed else await self._keep()
         finally:
-            await self._stop_both()
-        self.notifier.status("stopped: hardware released" if self._released() else "stopped")
+            await self._stop_both(quiet=failed is not None)
+        if failed:
+            self._report_failed_start(failed)
+        else:
+            self.notifier.status("stopped: hardware released" if self._released() else "stopped")
         return code
 
     def _on_signal(self, signum: int) -> None:
@@ -127,37 +130,54 @@ class MainProcess:
         log.info("%s: holding every joint, then stopping", signal.Signals(signum).name)
         self._stopping.set()
 
-    async def _start(self) -> int:
+    async def _start(self) -> str | None:
         """The client domain opens Zenoh; then the cycle process brings the hardware up and goes live. Start-up
         ends when the cycle is live (the client domain told it to go): a client domain lost after that, even before
-        it says it serves, is replaced by :meth:`_keep` like any other, and the arm holds meanwhile."""
+        it says it serves, is replaced by :meth:`_keep` like any other, and the arm holds meanwhile. What went
+        wrong, or None (started, or stopped while starting)."""
         deadline = time.monotonic() + START_TIMEOUT
         while self.client_phase is ClientPhase.STARTING:
             if not self._client_alive() or self._stopping.is_set() or time.monotonic() > deadline:
                 return self._start_failed()
             await asyncio.sleep(TICK / 10)
+        if self.client_phase is not ClientPhase.OPEN:  # it refused (name or port taken): the hardware stays shut
+            return self._start_failed()
         self.notifier.status("bringing up the hardware")
         self.cycle.process = spawn(self.loaded, self.crossing, self.cells.telemetry.take())  # type: ignore[arg-type]
         while self.cycle.phase is not Phase.LIVE:
             if not (self._client_alive() and self.cycle.alive()) or self._stopping.is_set():
                 return self._start_failed()
-            if time.monotonic() > deadline:
+            if self.client_phase is ClientPhase.FAILED or time.monotonic() > deadline:
                 return self._start_failed()
             await asyncio.sleep(TICK / 10)
-        return 0
+        return None
 
-    def _start_failed(self) -> int:
+    def _start_failed(self) -> str | None:
+        """What went wrong (None when a signal stopped the start); reported once both children have ended."""
         if self._stopping.is_set():
-            return 0
+            return None
+        if self.client_phase is ClientPhase.FAILED:
+            return "the client domain refused to start"
         if not self._client_alive():
-            what = f"the client domain ended during start-up (exit code {self._client_code()})"
-        elif self.cycle.process is not None and not self.cycle.alive():
-            what = f"the cycle process ended during start-up (exit code {self.cycle.exit_code})"
+            return f"the client domain ended during start-up (exit code {self._client_code()})"
+        if self.cycle.process is not None and not self.cycle.alive():
+            return f"the cycle process ended during start-up (exit code {self.cycle.exit_code})"
+        return f"not started within {START_TIMEOUT:g} s"
+
+    def _report_failed_start(self, what: str) -> None:
+        """Once, and true: the client domain may have logged why (``ClientPhase.FAILED``); then only what became of
+        the hardware is added, and only when the cycle process had opened it."""
+        if self.cycle.process is None:
+            hardware = "nothing was opened"
         else:
-            what = f"not started within {START_TIMEOUT:g} s"
-        log.error("start-up failed; the hardware was released: %s", what)
+            hardware = "the hardware was released" if self._released() else "the cycle process did not stop cleanly"
+        if self.client_phase is ClientPhase.FAILED:
+            if self.cycle.process is not None:
+                log.info("stopped: %s", hardware)
+            self.notifier.status(f"start-up failed ({hardware}); the client domain's log says why")
+            return
+        log.error("start-up failed; %s: %s", hardware, what)
         self.notifier.status(f"start-up failed: {what}")
-        return 1
 
     def _client_code(self) -> int | None:
         return None if self.client is None else self.client.poll()
@@ -197,9 +217,9 @@ class MainProcess:
         self._start_client(reason)
         return True
 
-    async def _stop_both(self) -> None:
+    async def _stop_both(self, quiet: bool = False) -> None:
         """The cycle first (descent, hold, release: the client domain still drains its events), then the client
-        domain; a child that does not stop in time is killed."""
+        domain; a child that does not stop in time is killed. ``quiet``: a failed start, reported after this."""
         descent = self.loaded.config.safety.stop_descent
         words = f"a {descent:g} s damped descent" if descent else "holding every joint"
         self.notifier.stopping(f"stopping: {words}, then releasing the hardware")
@@ -207,6 +227,9 @@ class MainProcess:
         if self.cycle.process is not None and not await asyncio.to_thread(self.cycle.join, STOP_TIMEOUT + descent):
             log.error("the cycle did not stop within %g s", STOP_TIMEOUT + descent)
             self.cycle.kill()  # the drives' own watchdogs take over, as on any crash
+        if quiet and self.client is not None:  # a failed start: the client domain ends once it has said why
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                await asyncio.to_thread(self.client.wait, STOP_TIMEOUT)
         if self.client is not None and self.client.poll() is None:
             self.client.terminate()
             try:
@@ -215,12 +238,15 @@ class MainProcess:
                 log.error("the client domain did not stop within %g s", STOP_TIMEOUT)
                 self.client.kill()
                 self.client.wait()
+        if quiet:
+            return
         if self._released():
             log.info("stopped: hardware released")
         else:
             log.info("stopped")
 
     def _released(self) -> bool:
+        """The cycle process released the hardware and exited cleanly, or there was never one to open it."""
         return self.cycle.process is None or (self.cycle.exit_code == 0 and self.cycle.phase is Phase.STOPPED)
 
 
