@@ -152,16 +152,22 @@ class ApiServer:
         self._start_ros(session, loop)
         self._token = session.liveliness().declare_token(self.keys.alive)
 
+    def withdraw(self) -> None:
+        """Withdraw the ``alive`` token: clients watching it see the robot go at once, though its stop (a descent,
+        the hardware's release) has only begun. The ``daemon/<zid>`` token stays until ``close``: the name is not
+        free for a second daemon of this arm while this one still drives it."""
+        if self._token is not None:
+            with contextlib.suppress(zenoh.ZError):
+                self._token.undeclare()
+            self._token = None
+
     async def close(self) -> None:
         """Withdraw the token first (clients see the daemon go), answer pending requests, then close."""
         self._closing = True
         self.engine.take_inputs = None
         if self._ports is not None:
             self._ports.closing = True
-        if self._token is not None:
-            with contextlib.suppress(zenoh.ZError):
-                self._token.undeclare()
-            self._token = None
+        self.withdraw()
         if self._ros is not None:
             self._ros.close()
             self._ros = None

@@ -186,6 +186,8 @@ class Daemon:
         while not self._stopping.is_set():
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(self._stopping.wait(), timeout=tick if self.ready else READY_POLL)
+            if self.api is not None and self.link.stopping():
+                self.api.withdraw()  # the main process is stopping the cycle: clients see the robot go now
             ended = self.link.gone()
             if ended is not None:
                 code, why = ended
@@ -221,6 +223,8 @@ class Daemon:
             self._telemetry_task = None
 
     async def _shutdown(self) -> None:
+        if self.api is not None:
+            self.api.withdraw()  # first: clients see the robot go while it descends and releases
         descent = self.loaded.config.safety.stop_descent
         words = f"a {descent:g} s damped descent" if descent else "holding every joint"
         self.notifier.stopping(f"stopping: {words}, then releasing the hardware")

@@ -96,6 +96,8 @@ class CycleHost(CycleLink, Protocol):
 
     def gone(self) -> tuple[int, str | None] | None: ...  # (exit code, why) once the daemon must end, else None
 
+    def stopping(self) -> bool: ...  # the daemon's stop has begun elsewhere: the main process is stopping the cycle
+
     async def stop(self, timeout: float) -> bool: ...  # True if the cycle stopped (or is not ours to stop)
 
     def refused(self) -> None: ...  # the API did not come up: release what was brought up

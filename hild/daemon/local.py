@@ -142,6 +142,9 @@ class LocalCycle:
             return None
         return 1, f"the cycle thread ended unexpectedly: {self.thread.error}"
 
+    def stopping(self) -> bool:
+        return False  # a stop begins here (a signal, request_stop)
+
     async def stop(self, timeout: float) -> bool:
         if self.thread is not None:
             self.thread.stop()

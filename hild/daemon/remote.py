@@ -331,6 +331,9 @@ class SpawnedCycle(RemoteCycle):
             return None
         return 1, f"the cycle process ended unexpectedly (exit code {self.exit_code})"
 
+    def stopping(self) -> bool:
+        return False  # a stop begins here (a signal, request_stop)
+
     async def stop(self, timeout: float) -> bool:
         """Ask the cycle to stop (descent, hold, release) and wait; a cycle that does not is killed (the drives'
         own watchdogs take over, as on any crash). True if it stopped in time."""
@@ -402,6 +405,9 @@ class AttachedCycle(RemoteCycle):
         if self.cells.asks[Ask.STOP]:
             return 0, None  # the main process stopped it: ours is next
         return 1, f"the cycle process ended unexpectedly (phase {self.phase.name.lower()})"
+
+    def stopping(self) -> bool:
+        return bool(self.cells.asks[Ask.STOP])  # the main process has asked the cycle to stop: descent, release
 
     async def stop(self, timeout: float) -> bool:
         return True  # the main process stops the cycle process (it did already, unless this domain alone stops)
