@@ -157,7 +157,7 @@ class CrossingCycle(CycleThread):
         if asks[Ask.STOP] or self.terminated:
             self.stop()
         if engine.cycle % self._parent_every == 0:
-            if os.getppid() != self.parent_pid:
+            if not self.outbox.orphaned and os.getppid() != self.parent_pid:  # said once: a descent takes a while
                 self.outbox.orphaned = True
                 engine.events.emit("error", "cycle", "the daemon that started the cycle process is gone: stopping")
                 self.stop()

@@ -3,6 +3,7 @@ engine and CrossingCycle attached to the same shared region. No process, no cloc
 
 from __future__ import annotations
 
+import logging
 import os
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -16,7 +17,7 @@ from hild.crossing.mailboxes import Shared
 from hild.crossing.region import Region
 from hild.crossing.requests import Refused, Reset, SetZero, Switch
 from hild.cycle.engine import Engine
-from hild.cycle.process import ClientWakeup, CrossingCycle, Outbox
+from hild.cycle.process import PARENT_CHECK, ClientWakeup, CrossingCycle, Outbox
 from hild.daemon.remote import SpawnedCycle
 from tests.conftest import mock_robot
 
@@ -83,3 +84,18 @@ def test_a_stop_asked_by_the_client_domain_stops_the_cycle(lockstep: Lockstep) -
     remote.ask_stop()
     lockstep.step()
     assert cycle._stop_requested.is_set()
+
+
+def test_a_lost_parent_is_reported_once_however_long_the_stop_takes(
+    lockstep: Lockstep, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The cycle process whose daemon is gone stops (a descent may take seconds, the parent is looked at every
+    PARENT_CHECK): it says so once, not once per look."""
+    orphan = CrossingCycle(lockstep.engine, lockstep.cycle.cells, lockstep.cycle.outbox, parent_pid=-1)
+    engine = lockstep.engine
+    with caplog.at_level(logging.ERROR, logger="hild.events"):
+        for _ in range(round(5 * PARENT_CHECK * engine.update_rate)):  # five looks at the parent
+            orphan.step(round(engine.t + engine.period, 12), engine.period)
+    assert [r.getMessage() for r in caplog.records].count(
+        "[cycle] the daemon that started the cycle process is gone: stopping"
+    ) == 1, caplog.text
