@@ -301,7 +301,7 @@ class RemoteCycle:
 
 class SpawnedCycle(RemoteCycle):
     """A cycle process this process carves the region for, starts, stops and speaks for (embedding, the bench,
-    tests; and ``hild run`` before [layout]): the daemon is the unit's top process."""
+    tests): the daemon is the unit's top process."""
 
     signals = (signal.SIGINT, signal.SIGTERM)
     signal_meaning = "holding every joint, then stopping"
@@ -310,6 +310,7 @@ class SpawnedCycle(RemoteCycle):
     def __init__(self, loaded: LoadedConfig) -> None:
         super().__init__(loaded, Crossing.carve(len(loaded.config.joints)))
         self.main_pid = os.getpid()  # the unit's top process
+        self._wakeup_closed = False
 
     def service_report(self, notifier: SystemdNotifier) -> ServiceReport:
         return ServiceReport(notifier, self.max_consecutive_overruns)
@@ -350,6 +351,12 @@ class SpawnedCycle(RemoteCycle):
 
     def start_failed(self) -> None:
         """Nobody else to tell: this process is the unit's top process."""
+
+    def close(self) -> None:
+        super().close()
+        if not self._wakeup_closed:  # once: the number may belong to another file afterwards
+            self._wakeup_closed = True
+            os.close(self.wakeup_fd)  # carved here: nobody else holds it once the cycle process has ended
 
 
 class AttachedCycle(RemoteCycle):
