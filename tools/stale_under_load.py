@@ -20,10 +20,8 @@ after the run's time bound.
 from __future__ import annotations
 
 import argparse
-import ctypes
 import os
 import signal
-import subprocess
 import sys
 import tempfile
 import time
@@ -36,11 +34,11 @@ import yaml
 
 from drivers.can.emulator.runtime import request
 from hild.bench.daemon import CanProcesses
+from hild.bench.hogs import start_hogs
 
 MOVE = 0.4  # rad, every joint, back and forth
 POLL = 0.005  # s between status polls while waiting for the silent joint's fault
 DETECT_TIMEOUT = 5.0  # s: a silenced joint not faulted by then counts as not detected
-PR_SET_PDEATHSIG = 1
 
 
 @dataclass
@@ -63,17 +61,6 @@ class Report:
     @property
     def faulted(self) -> bool:
         return any(j["fault"] for j in self.joints)
-
-
-def _die_with_parent() -> None:
-    """In the child: SIGKILL when the tool dies, however it dies."""
-    ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
-
-
-def start_hogs(count: int, seconds: float) -> list[subprocess.Popen[bytes]]:
-    """``count`` busy processes that end by themselves after ``seconds`` (and with this process)."""
-    code = f"import time\nend = time.monotonic() + {seconds}\nwhile time.monotonic() < end: pass"
-    return [subprocess.Popen([sys.executable, "-c", code], preexec_fn=_die_with_parent) for _ in range(count)]
 
 
 def patch_config(path: Path, args: argparse.Namespace) -> None:

@@ -66,6 +66,9 @@ class MitFirmware(MotorFirmware):
         self.command_step = 0.0
         """Largest step of the commanded position since the drive was last enabled (rad, stiff commands only; the
         first one is measured from the shaft): a jump guard on the drive's side of the bus, which outlives hosts."""
+        self.longest_command_gap = 0.0
+        """Longest silence the watchdog saw since the drive was last enabled (s, at the emulator's service times,
+        the watchdog's own resolution): how close the host, and the bus between, came to the timeout."""
 
     @classmethod
     def for_motor(cls, motor: MotorWiring, *, seed: int = 0) -> Self:
@@ -126,8 +129,13 @@ class MitFirmware(MotorFirmware):
             self.zero_offset += reported - _wrap_to_pi(reported)
 
     def _expire(self, now: float) -> None:
+        if not self._enabled:
+            return
+        silence = now - self._last_command_time
+        if silence > self.longest_command_gap:
+            self.longest_command_gap = silence
         timeout = self.timeout
-        if self._enabled and timeout > 0.0 and now - self._last_command_time > timeout:
+        if timeout > 0.0 and silence > timeout:
             self._watchdog_fired()
 
     def _watchdog_fired(self) -> None:
@@ -141,6 +149,7 @@ class MitFirmware(MotorFirmware):
         self._command = _NO_TORQUE  # entering motor mode starts limp, never from a stale command
         self._last_command_time = now
         self.command_step = 0.0
+        self.longest_command_gap = 0.0
 
     def _special(self, kind: str | None, now: float) -> bool:
         """Enable, disable or set zero as every MIT firmware does; False for any other frame (left to the caller)."""

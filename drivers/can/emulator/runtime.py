@@ -23,7 +23,8 @@ every emulated joint.
   ``position``/``velocity`` (joint space, the plant's truth), ``actuator_position``/``actuator_velocity``,
   ``torque`` (actuator space), ``enabled``, ``fault``, ``braked``, ``temperature_rotor``/``temperature_mos``,
   ``command_step`` (MIT drives: the largest step of the commanded position since the drive was enabled, joint
-  space; 0 elsewhere).
+  space; 0 elsewhere), ``longest_command_gap_ms`` (MIT drives: the longest silence their watchdog saw since the
+  drive was enabled; 0 elsewhere).
 * ``{"op": "fault", "joint": J, "code": C}`` — latch a drive fault (Damiao 0x5…0xE, T-Motor 1…6, MyActuator
   flags, ODrive axis error bits); the drive disables itself like the firmware does.
 * ``{"op": "clear", "joint": J?}`` — clear latched faults on the drive side (an operator power-cycling a supply).
@@ -504,6 +505,7 @@ class EmulatorRuntime:
                         "fault": int(fw.fault),
                         "braked": bool(braked[i]),
                         "command_step": float(getattr(fw, "command_step", 0.0)) / joint.reduction,
+                        "longest_command_gap_ms": round(1000.0 * float(getattr(fw, "longest_command_gap", 0.0)), 3),
                         "temperature_rotor": round(float(fw.temperature_rotor), 2),
                         "temperature_mos": round(float(fw.temperature_mos), 2),
                     }

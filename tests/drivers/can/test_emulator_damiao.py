@@ -124,6 +124,21 @@ def test_watchdog_expiry_is_seen_by_a_late_command_before_it_feeds() -> None:
     assert reply.fault == 0xD and not fw.enabled
 
 
+def test_the_drive_keeps_the_longest_silence_its_watchdog_saw_since_enable() -> None:
+    fw = motor(timeout_counts=200)  # 10 ms
+    send(fw, "enable", 0.0)
+    command(fw, 0.002, 1.0, 0.0, 10.0, 0.5, 0.0)
+    fw.tick(0.006)
+    command(fw, 0.009, 1.0, 0.0, 10.0, 0.5, 0.0)  # 7 ms after the last one: the longest so far
+    command(fw, 0.010, 1.0, 0.0, 10.0, 0.5, 0.0)
+    assert fw.longest_command_gap == pytest.approx(0.007)
+    fw.tick(0.0211)  # the silence that fires the watchdog is kept too
+    assert fw.fault == 0xD and fw.longest_command_gap == pytest.approx(0.0111)
+    send(fw, "clear", 0.022)
+    send(fw, "enable", 0.023)
+    assert fw.longest_command_gap == 0.0  # since this enable
+
+
 def test_watchdog_off_when_timeout_is_zero_and_idle_when_disabled() -> None:
     fw = motor()
     send(fw, "enable", 0.0)
