@@ -17,6 +17,7 @@ time, every other thread gets the GIL back within a switch interval."""
 from __future__ import annotations
 
 import asyncio
+import collections
 import contextlib
 import logging
 import threading
@@ -33,9 +34,11 @@ log = logging.getLogger("hild.api")
 MAX_IN_FLIGHT = 32  # concurrent requests per endpoint group; more are refused with "busy"
 MAX_LARGE_IN_FLIGHT = 4  # of those with a payload over FAST_DECODE, under their own cap
 MAX_ERROR_CHARS = 500  # an error text longer than this is clipped
+READ_BACKLOG = 1024  # read-only queries waiting per service for the loop's next batch; more are refused with "busy"
 SHUTTING_DOWN = {"ok": False, "error": "the daemon is shutting down"}
 BUSY = {"ok": False, "error": f"busy: {MAX_IN_FLIGHT} requests in flight; retry"}
 BUSY_LARGE = {"ok": False, "error": f"busy: {MAX_LARGE_IN_FLIGHT} requests over {FAST_DECODE} bytes in flight; retry"}
+BUSY_BACKLOG = {"ok": False, "error": f"busy: {READ_BACKLOG} queries wait for an answer; retry"}
 
 
 class InFlight:
@@ -129,7 +132,41 @@ def too_large(size: int, limit: int = MAX_PAYLOAD) -> dict[str, Any]:
     return {"ok": False, "error": f"payload of {size} bytes exceeds the {shown}-byte limit"}
 
 
-_ENCODED = {id(BUSY): encode(BUSY), id(BUSY_LARGE): encode(BUSY_LARGE)}  # a flood is refused without re-encoding
+class ReadBacklog:
+    """Read-only queries of one service waiting for the loop's next batch (hild/api/server.py), at most ``capacity``.
+
+    Called on the Zenoh thread a query arrives on: it only counts and appends, so a poll costs a few µs of Python
+    and no loop wake-up; a query that does not fit is answered "busy" there and then. Before, Zenoh queued them
+    in a ring that dropped its oldest when the loop came late (a starved process), and a query dropped there was
+    finished without any reply. Appends and ``take`` may run on different threads (``deque`` is safe for that);
+    Zenoh threads racing for the last place may overshoot ``capacity`` by one each, never more."""
+
+    def __init__(self, key: str, capacity: int = READ_BACKLOG) -> None:
+        self.key = key
+        self.capacity = capacity
+        self.refused = 0  # queries answered "busy" for lack of room
+        self._waiting: collections.deque[zenoh.Query] = collections.deque()
+
+    def __call__(self, query: zenoh.Query) -> None:
+        if len(self._waiting) >= self.capacity:
+            self.refused += 1
+            reply_json(query, self.key, BUSY_BACKLOG)
+            return
+        self._waiting.append(query)
+
+    def take(self) -> zenoh.Query | None:
+        """The oldest waiting query, or None."""
+        try:
+            return self._waiting.popleft()
+        except IndexError:
+            return None
+
+    def __len__(self) -> int:
+        return len(self._waiting)
+
+
+_BUSY = (BUSY, BUSY_LARGE, BUSY_BACKLOG)
+_ENCODED = {id(reply): encode(reply) for reply in _BUSY}  # a flood is refused without re-encoding
 
 
 def reply_json(query: zenoh.Query, key: str, message: dict[str, Any] | bytes) -> None:

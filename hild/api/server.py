@@ -34,7 +34,15 @@ from hild.api.goal_senders import watch_clients
 from hild.api.goals import GoalEndpoint
 from hild.api.keys import SERVICES, Keys
 from hild.api.ports import ControllerPorts, Counters
-from hild.api.queries import SHUTTING_DOWN, Admitted, LargePayloadWorker, QueryAdmission, drop, reply_json
+from hild.api.queries import (
+    SHUTTING_DOWN,
+    Admitted,
+    LargePayloadWorker,
+    QueryAdmission,
+    ReadBacklog,
+    drop,
+    reply_json,
+)
 from hild.api.services import DEFAULT_TIMEOUT, Reply, Services
 from hild.api.session import declare_json_publisher, open_session, server_config
 from hild.api.unique import DaemonIdentity, check_unique, describe_other
@@ -50,7 +58,6 @@ log = logging.getLogger("hild.api")
 STATUS_PERIOD = 0.2  # s: status is published at 5 Hz, and at once when modes, faults or controllers change
 PRIORITY_SERVICES = frozenset({"estop"})  # their own gate: a flood of other requests never refuses an e-stop
 READ_PERIOD = 0.01  # s: queued read-only queries wait at most this long when nothing else wakes the loop
-READ_BACKLOG = 1024  # read-only queries Zenoh queues per service between two batches; beyond, the oldest go unanswered
 
 
 class ApiServer:
@@ -85,7 +92,7 @@ class ApiServer:
         self._client_watch: zenoh.Subscriber[Any] | None = None
         self._status_task: asyncio.Task[None] | None = None
         self._reads_task: asyncio.Task[None] | None = None
-        self._read_queues: list[tuple[str, Any]] = []  # (service, queryable on a RingChannel)
+        self._read_queues: list[tuple[str, ReadBacklog]] = []  # each read-only service's waiting queries
         self._requests: set[asyncio.Task[None]] = set()
         self._gate = QueryAdmission()
         self._priority_gate = QueryAdmission()
@@ -141,10 +148,10 @@ class ApiServer:
         self._last_change = self.engine.change_seq
         for service in SERVICES:
             key = self.keys.service(service)
-            if service in self.services.read_only:  # queued by Zenoh, answered in batches on the loop
-                queue = session.declare_queryable(key, zenoh.handlers.RingChannel(READ_BACKLOG), complete=True)
-                self._read_queues.append((service, queue))
-                self._queryables.append(queue)
+            if service in self.services.read_only:  # held as they arrive, answered in batches on the loop
+                backlog = ReadBacklog(key)
+                self._read_queues.append((service, backlog))
+                self._queryables.append(session.declare_queryable(key, backlog, complete=True))
             else:
                 self._queryables.append(session.declare_queryable(key, self._query_handler(service), complete=True))
         self._publish_status()
@@ -192,6 +199,9 @@ class ApiServer:
             self._ports.close()
             self._ports = None
         entities: list[Any] = [*self._queryables, *self._publishers.values()]
+        for service, backlog in self._read_queues:  # what still waits gets its one reply
+            while (query := backlog.take()) is not None:
+                self._reply(service, query, SHUTTING_DOWN)
         self._read_queues.clear()
         self._queryables.clear()
         self._publishers.clear()
@@ -254,17 +264,14 @@ class ApiServer:
 
     # ---- read-only services, in batches (asyncio thread) -------------------------------------------------------
     def answer_reads(self) -> None:
-        """Answer every queued status/list_* query. Zenoh queued them without Python; answering them here, when
-        the loop wakes anyway (publishing) or every ``READ_PERIOD``, costs no GIL hand-over per query (which a
-        cycle thread in this process would pay: docs/performance.md, "Where the time goes")."""
+        """Answer every waiting status/list_* query. They wait in a bounded backlog (``ReadBacklog``: one beyond it
+        is answered "busy" as it arrives); answering them here, when the loop wakes anyway (publishing) or every
+        ``READ_PERIOD``, costs no loop wake-up per query (docs/performance.md, "Where the time goes")."""
         if self._closing:
             return
-        for service, queue in self._read_queues:
-            try:
-                while (query := queue.try_recv()) is not None:
-                    self._answer_read(service, query)
-            except zenoh.ZError:  # undeclared meanwhile (closing)
-                continue
+        for service, backlog in self._read_queues:
+            while (query := backlog.take()) is not None:
+                self._answer_read(service, query)
 
     def _answer_read(self, service: str, query: zenoh.Query) -> None:
         admitted = self._gate.admit(query, self.services.limit(service))
