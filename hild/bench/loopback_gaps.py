@@ -32,7 +32,7 @@ from hild.api.client import HildClient, HildError
 from hild.bench.daemon import CanProcesses
 from hild.bench.hogs import hogs
 
-MOVE = 0.4  # rad, every joint, back and forth
+MOVE = 0.4  # rad, every joint, back and forth (a goal aborted for its tolerance still moved the arm)
 GOAL_TIMEOUT = 30.0  # s for one move's result
 RETRY = 0.2  # s between attempts while the client domain is being replaced
 
@@ -100,11 +100,18 @@ def drive(rigs: CanProcesses, client: HildClient, args: argparse.Namespace, repo
             report.restarts += 1
             next_kill = now + args.restart_every
             rigs.wait(lambda: _answers(client), "the next client domain to answer", timeout=60.0)
-        if args.moves and not report.goals.get("aborted"):  # aborted: a joint faulted, the arm holds
+        if args.moves and not _faulted(client):  # a faulted arm holds: nothing more to move
             one_move(client, start, count % 2 == 0, report.goals)
             count += 1
         else:
             time.sleep(min(0.5, max(0.0, next_kill - now)))
+
+
+def _faulted(client: HildClient) -> bool:
+    try:
+        return bool(client.status()["mode"] == "fault")
+    except HildError:
+        return False
 
 
 def _answers(client: HildClient) -> bool:
@@ -117,7 +124,7 @@ def _answers(client: HildClient) -> bool:
 
 
 def measure(args: argparse.Namespace) -> Report:
-    emulator_args = ["--priority", str(args.emulator_priority)] if args.emulator_priority else []
+    emulator_args = ["--priority", str(args.emulator_priority)]  # default 0: as the README starts it
     with tempfile.TemporaryDirectory(prefix="hild-loopback-") as tmp:
         rigs = CanProcesses(Path(tmp), emulator_args)
         try:
@@ -156,7 +163,8 @@ def render(report: Report) -> str:
     cycle = report.daemon.get("loop", {})
     period_error = cycle.get("period_error_us", {})
     lines.append(
-        f"emulator loop: worst lateness {loop.get('max_late_ms', 0):.1f} ms, {loop.get('overruns', 0)} overruns in "
+        f"emulator loop: worst lateness {loop.get('max_late_ms', 0):.1f} ms, longest between two services "
+        f"{loop.get('max_gap_ms', 0):.1f} ms, {loop.get('overruns', 0)} overruns in "
         f"{loop.get('services', 0)} services; daemon cycle: worst period error {period_error.get('max', 0) / 1000:.1f}"
         f" ms, {cycle.get('overruns', 0)} overruns"
     )

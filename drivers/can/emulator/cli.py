@@ -118,7 +118,7 @@ def run(args: argparse.Namespace) -> int:
     from hild.cli import setup_logging
 
     setup_logging(args.log_level)
-    sys.setswitchinterval(0.0005)  # the remote-bus and control threads must not wait 5 ms for the emulator loop
+    sys.setswitchinterval(0.0005)  # the control and handshake threads must not wait 5 ms for the emulator loop
     if args.rate is not None and not args.rate > 0.0:
         print("--rate must be positive", file=sys.stderr)
         return 2

@@ -50,7 +50,6 @@ import socket
 import socketserver
 import threading
 import time
-import uuid
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Future
 from dataclasses import dataclass, field
@@ -65,6 +64,7 @@ from drivers.can.emulator.core import Emulator
 from drivers.can.emulator.mit_firmware import DamiaoFirmware, MitFirmware, MyActuatorFirmware, TMotorFirmware
 from drivers.can.emulator.odrive_firmware import ODriveFirmware
 from drivers.can.emulator.plant import MotorPlant, Plant
+from drivers.can.emulator.remote_host import RemoteServerBus
 from drivers.can.params import MitCanParams, ODriveCanParams
 from drivers.can.wiring import wire_motors
 from hild.config.loader import LoadedConfig
@@ -209,28 +209,26 @@ class EmulatorRuntime:
         self.joints = [j for rig in rigs for j in rig.joints]
         self.time: float | None = None
         self._requests: queue.SimpleQueue[tuple[dict[str, Any], Future[dict[str, Any]]]] = queue.SimpleQueue()
-        self._remote: Any | None = None
-        self._remote_thread: threading.Thread | None = None
+        self._remote: RemoteServerBus | None = None
         self._control: socketserver.ThreadingTCPServer | None = None
         self._control_thread: threading.Thread | None = None
         self.stop_event = threading.Event()
-        self.loop_stats: dict[str, float] = {"services": 0, "overruns": 0, "max_late_ms": 0.0}
-        """Wall-clock loop (`run`): services, periods overrun, worst lateness of a service against its deadline."""
+        self.loop_stats: dict[str, float] = {"services": 0, "overruns": 0, "max_late_ms": 0.0, "max_gap_ms": 0.0}
+        """Wall-clock loop (`run`): services, periods overrun, worst lateness of a service against its deadline,
+        longest time between the starts of two services."""
 
     # ---- lifecycle ------------------------------------------------------------------------------------------
     def open(self, serve_remote: tuple[str, int] | None = None) -> None:
         """Open every bus and start its emulator; with ``serve_remote`` also host the remote bus on HOST:PORT.
 
-        The served bus is the one whose components use ``interface: remote``: the emulator sits on a private
-        in-process ``virtual`` channel and a python-can-remote server bridges clients onto that channel.
+        The served bus is the one whose components use ``interface: remote``: a python-can-remote server whose
+        frames the emulator loop moves itself (`RemoteServerBus`: no thread per client, no GIL hand-over per frame).
         """
         try:
             served = self._served_rig(serve_remote)
             for rig in self.rigs:
                 if rig is served and serve_remote is not None:
-                    channel = f"hild-emulate-{uuid.uuid4().hex[:12]}"
-                    rig.bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
-                    self._start_remote(serve_remote, channel)
+                    rig.bus = self._remote = RemoteServerBus(*serve_remote)
                 else:
                     rig.bus = open_bus(rig.spec)
                 rig.emulator = Emulator(rig.bus, [j.firmware for j in rig.joints], rig.plant, max_step=self.max_step)
@@ -249,20 +247,12 @@ class EmulatorRuntime:
             raise ValueError(f"--serve-remote serves one bus, the config has several remote buses ({names})")
         return remote[0]
 
-    def _start_remote(self, address: tuple[str, int], channel: str) -> None:
-        from can_remote import RemoteServer
-
-        server = RemoteServer(address[0], address[1], interface="virtual", channel=channel)
-        self._remote = server
-        self._remote_thread = threading.Thread(target=server.serve_forever, name="can-remote", daemon=True)
-        self._remote_thread.start()
-
     @property
     def remote_address(self) -> tuple[str, int] | None:
         """HOST, PORT the remote server listens on (the port is real even when 0 was asked for)."""
         if self._remote is None:
             return None
-        host, port = self._remote.server_address[:2]
+        host, port = self._remote.address
         return str(host), int(port)
 
     def start_control(self, address: tuple[str, int]) -> tuple[str, int]:
@@ -291,11 +281,10 @@ class EmulatorRuntime:
 
     def close(self) -> None:
         """Stop the servers and release the buses (safe to call twice)."""
-        for server in (self._control, self._remote):
-            if server is not None:
-                server.shutdown()
-                server.server_close()
-        self._control = self._remote = None
+        if self._control is not None:
+            self._control.shutdown()
+            self._control.server_close()
+        self._control = self._remote = None  # the remote server is a rig's bus: shut down with it below
         for rig in self.rigs:
             bus, rig.bus = rig.bus, None
             rig.emulator = None
@@ -316,12 +305,15 @@ class EmulatorRuntime:
         """Serve every ``period`` s on ``clock`` until `stop_event` is set (a stop request or a signal)."""
         stop = self.stop_event
         loop = self.loop_stats
-        deadline = clock()
+        deadline = last = clock()
         while not stop.is_set():
             now = clock()
-            late = now - deadline
+            late, last = now - deadline, now - last
             if late > loop["max_late_ms"] / 1000.0:
                 loop["max_late_ms"] = late * 1000.0
+            if last > loop["max_gap_ms"] / 1000.0:  # a service that ran long shows here, not in the lateness
+                loop["max_gap_ms"] = last * 1000.0
+            last = now
             self.service(now)
             loop["services"] += 1
             deadline += period
@@ -514,7 +506,7 @@ class EmulatorRuntime:
             {"bus": rig.spec.name, "motors": len(rig.joints), **(rig.emulator.stats() if rig.emulator else {})}
             for rig in self.rigs
         ]
-        loop = {**self.loop_stats, "max_late_ms": round(self.loop_stats["max_late_ms"], 3)}
+        loop = {**self.loop_stats, **{k: round(self.loop_stats[k], 3) for k in ("max_late_ms", "max_gap_ms")}}
         return {"time": self.time, "plant": self.plant_kind, "loop": loop, "buses": buses, "joints": joints}
 
 
