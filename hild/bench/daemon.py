@@ -144,10 +144,16 @@ class CanProcesses:
     """``hild emulate`` (Damiao drives and the arm6 twin behind them, holding brakes on) and ``hild run`` on
     configs/arm6_can_loopback.yaml with free loopback ports: the emulator at once, daemons on demand
     (``start_daemon``). The emulator outlives a daemon, so one can be killed and restarted against an arm that
-    stayed where it was."""
+    stayed where it was.
+
+    The emulator runs as that config's header says, at ``--priority 50`` (SCHED_FIFO where permitted, reported
+    otherwise; ``emulator_args`` may override it): it stands in for drives that answer from silicon. At normal
+    priority, beside a second checkout's test run, whose daemon cycles run at SCHED_FIFO 40, it went without a
+    core for longer than the drives' 200 ms watchdog (docs/operations.md, "The loopback rig under load")."""
 
     HOST = "127.0.0.1"
     CONFIG = "arm6_can_loopback.yaml"
+    EMULATOR_PRIORITY = 50
 
     def __init__(self, directory: Path, emulator_args: Sequence[str] = ()) -> None:
         self.directory = directory
@@ -158,7 +164,8 @@ class CanProcesses:
         self.run: HildRun | None = None
         bus, control_at = f"{self.HOST}:{remote}", f"{self.HOST}:{control}"
         command = [*HILD, "emulate", str(CONFIGS / self.CONFIG), "--serve-remote", bus, "--control", control_at]
-        self.emulator_child = LoggedChild([*command, *emulator_args], directory / "emulator.log", cwd=directory)
+        command += ["--priority", str(self.EMULATOR_PRIORITY), *emulator_args]
+        self.emulator_child = LoggedChild(command, directory / "emulator.log", cwd=directory)
         self.emulator = self.emulator_child.process
         try:
             self.wait(self._answers, "the emulator's control socket", START_TIMEOUT)
