@@ -37,7 +37,7 @@ import can
 
 log = logging.getLogger("hild.emulate")
 
-MAX_BACKLOG = 1 << 20  # bytes waiting for a client that does not read: beyond, it is dropped
+MAX_BACKLOG = 1 << 20  # bytes waiting for a client that does not read, or from one that sends no frame: dropped
 HANDSHAKE_TIMEOUT = 5.0  # s for a client to send its request and its bus request
 CLOSE_TIMEOUT = 0.5  # s for the clients to answer the close on shutdown
 ACCEPT_POLL = 0.2  # s: how often the handshake thread looks whether the bus was shut down
@@ -247,17 +247,21 @@ class RemoteServerBus(can.BusABC):
 
     def _read(self, client: Client) -> bool:
         """Read what the client sent; False when it closed or broke the protocol."""
-        while True:
+        open_ = True
+        while open_:
             try:
                 data = client.sock.recv(READ_SIZE)
             except BlockingIOError:
                 break
             except OSError:
                 return False
-            if not data:
-                return False
+            open_ = bool(data)  # at its end, what came before it still counts
             client.inbox += data
-        for opcode, payload in parse_frames(client.inbox):
+        frames = parse_frames(client.inbox)
+        if len(client.inbox) > MAX_BACKLOG:  # no frame ends within a megabyte: not a python-can-remote client
+            log.warning("remote client %s sent %d bytes without a whole frame", client.name, len(client.inbox))
+            return False
+        for opcode, payload in frames:
             if opcode == _CLOSE:
                 client.queue(ws_frame(_CLOSE, payload[:2]))
                 client.flush()
@@ -275,7 +279,7 @@ class RemoteServerBus(can.BusABC):
                 self._deliver(event, source=client)
             elif isinstance(event, dict) and str(event.get("type", "")).startswith("periodic"):
                 self._refuse_periodic(client)
-        return True
+        return open_
 
     def _deliver(self, msg: can.Message, source: Client | None) -> None:
         if source is not None:

@@ -185,6 +185,24 @@ def test_a_client_that_stops_reading_is_dropped(served: RemoteServerBus, monkeyp
         websocket.socket.close()
 
 
+def test_a_client_that_sends_no_whole_frame_is_dropped(served: RemoteServerBus) -> None:
+    websocket = WebSocket(f"ws://127.0.0.1:{served.address[1]}/", ["can.binary+json.v1"])
+    try:
+        RemoteClientProtocol({}, websocket)
+        until(lambda: served.clients, "the client", served.pump)
+        websocket.socket.sendall(b"\x82\xff" + (1 << 40).to_bytes(8, "big") + bytes(4))  # a frame of a terabyte
+        chunk = bytes(65536)
+        for _ in range(remote_host.MAX_BACKLOG // len(chunk) + 1):
+            try:
+                websocket.socket.sendall(chunk)
+            except OSError:  # dropped already
+                break
+            served.pump()
+        until(lambda: not served.clients, "the client dropped", served.pump)
+    finally:
+        websocket.socket.close()
+
+
 def test_a_browser_gets_the_trace_page(served: RemoteServerBus) -> None:
     with socket.create_connection(served.address, timeout=WAIT) as sock:
         sock.sendall(b"GET / HTTP/1.1\r\nHost: x\r\n\r\n")
