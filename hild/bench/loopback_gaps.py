@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import os
 import signal
+import sys
 import tempfile
 import time
 from dataclasses import dataclass, field
@@ -192,3 +193,11 @@ def main(argv: list[str] | None = None) -> int:
     report = measure(args)
     print(render(report))
     return 1 if report.faulted or report.longest_gap_ms > args.margin * report.watchdog_ms else 0
+
+
+if __name__ == "__main__":
+    try:
+        sys.exit(main())
+    except KeyboardInterrupt:
+        print("interrupted: every process it started is stopped", file=sys.stderr)
+        sys.exit(130)

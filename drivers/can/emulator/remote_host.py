@@ -4,7 +4,7 @@ python-can-remote's own server (``can_remote.RemoteServer``) gives every client 
 process, a receiving and a sending one, bridged to the drives through an in-process ``virtual`` channel. Beside the
 1 kHz emulation loop they compete for the GIL: each frame from the daemon takes four blocking calls, each a GIL
 hand-over, and on a loaded machine that thread falls behind until every drive's CAN watchdog fires while the loop
-itself is on time (measured with tools/loopback_gaps.py, docs/drivers.md "Emulator"). Here only the handshake has
+itself is on time (measured by hild.bench.loopback_gaps; docs/drivers.md "Emulator"). Here only the handshake has
 a thread; once a client is connected its socket is non-blocking and the loop reads, parses and answers it between
 two services: no GIL hand-over per frame, no copy through a virtual channel.
 
