@@ -8,6 +8,7 @@ Who writes what (one writer per cell, or per number of ``asks``, so nobody waits
 - client domain → main process: ``client`` (its phase and pid); ``telemetry``, the ring its recorder reads (taken
   by the main process at the first start, by the cycle after a client domain's restart);
 - cycle → client domain: ``replies`` and ``events`` queues, the ``snapshot`` (written when ``change_seq`` moves),
+  ``loads`` (how each loaded controller was loaded: a restarted client domain builds their API halves from it),
   the e-stop reply, the start-up ``failure``, ``vitals`` (phase, cycle count, change_seq …), ``clock`` (the cycle
   clock and each joint's longest silence) and the loop statistics.
 """
@@ -28,6 +29,8 @@ RECORD_BYTES = 256 * 1024  # a request or reply record (a request is at most 64 
 EVENTS = 4096  # events in flight; the oldest are counted lost when the client domain does not drain them
 EVENT_BYTES = 512 * 1024
 SNAPSHOT_BYTES = 1 << 20
+LOADS_BYTES = 16 << 20  # every loaded controller's type and params: MAX_CONTROLLERS of at most 64 KiB of JSON each
+MAX_CONTROLLERS = 64  # loaded at once; a load beyond is refused
 STATS_WINDOW = 10_000
 
 
@@ -78,6 +81,7 @@ class EngineCells:
         self.replies: Queue[object] = shared.queue("replies", REQUESTS, RECORD_BYTES)
         self.events: Queue[object] = shared.queue("events", EVENTS, EVENT_BYTES)
         self.snapshot: Latest[object] = shared.latest("snapshot", SNAPSHOT_BYTES)
+        self.loads: Latest[object] = shared.latest("loads", LOADS_BYTES)
         self.estop_reply: Latest[object] = shared.latest("estop_reply", RECORD_BYTES)
         self.failure: Latest[object] = shared.latest("failure", RECORD_BYTES)
         self.asks = shared.numbers("asks", len(Ask))

@@ -207,3 +207,7 @@ class Shared:
 
     def scoped(self, prefix: str) -> Shared:
         return Shared(self.region, create=self.create, prefix=f"{self.prefix}{prefix}/")
+
+    def carving(self) -> Shared:
+        """The same cells, carved rather than found: a client domain's, for a controller loaded while it runs."""
+        return Shared(self.region, create=True, prefix=self.prefix)

@@ -8,7 +8,10 @@ are only backed once touched, so the region can be sized generously.
 
 Its creator carves every cell (:meth:`Region.carve`) before the cycle process starts; the cycle process and a
 client domain find them by name (:meth:`Region.find`), and a size that differs between the two (different code or
-config on each side) is refused at start-up, never discovered as a torn record later.
+config on each side) is refused at start-up, never discovered as a torn record later. A controller loaded while the
+robot runs gets cells the client domain carves then (the only process that carves once the cycle runs, one load
+at a time), before the cycle process is asked to find them; an unloaded one's pages are given back
+(:meth:`Region.release`). The directory is append-only, so a reader never sees an entry change.
 """
 
 from __future__ import annotations
@@ -22,9 +25,10 @@ import numpy as np
 ALIGN = 64  # a cache line: two cells never share one, so their writers do not contend
 NAME_BYTES = 112
 _ENTRY = struct.Struct(f"<{NAME_BYTES}sQQ")  # name, offset, size: 128 bytes
-MAX_CELLS = 512
+MAX_CELLS = 8192  # a controller takes a few; loads while the robot runs take new ones
 _DIRECTORY = ALIGN + MAX_CELLS * _ENTRY.size  # a count, then the entries
-_MAGIC = 0x68696C6478310001  # "hildx1" + layout version
+_MAGIC = 0x68696C6478310002  # "hildx1" + layout version
+PAGE = mmap.PAGESIZE
 
 
 class RegionError(RuntimeError):
@@ -54,6 +58,7 @@ class Region:
             self._header[0] = _MAGIC
         elif int(self._header[0]) != _MAGIC:
             raise RegionError("the shared region was not made by this version of hild")
+        self._known: dict[str, tuple[int, int]] = {}  # the directory's entries read so far: name → offset, size
         self._next = _DIRECTORY if created else self._end()
 
     @classmethod
@@ -62,39 +67,58 @@ class Region:
         return cls(size, fd)
 
     def carve(self, name: str, nbytes: int) -> memoryview:
-        """A new zeroed cell of ``nbytes`` (the region's creator, before the cycle process starts)."""
+        """A new zeroed cell of ``nbytes``: by the region's creator before the cycle process starts, and by the
+        client domain for a controller loaded later (one carver at a time)."""
         encoded = name.encode()
         if len(encoded) > NAME_BYTES:
             raise RegionError(f"cell name {name!r} is longer than {NAME_BYTES} bytes")
         count = int(self._header[1])
         if count >= MAX_CELLS:
             raise RegionError(f"the shared region holds at most {MAX_CELLS} cells")
-        if any(entry[0] == name for entry in self.cells()):
+        if name in self._directory():
             raise RegionError(f"cell {name!r} is carved twice")
-        offset = self._next
+        offset = max(self._next, self._end())
         if offset + nbytes > self.size:
             raise RegionError(f"the shared region ({self.size} bytes) has no room for {name!r} ({nbytes} bytes)")
         _ENTRY.pack_into(self.buffer, ALIGN + count * _ENTRY.size, encoded, offset, nbytes)
-        self._header[1] = count + 1
+        self._header[1] = count + 1  # after the entry: a reader that sees the count finds the entry whole
         self._next = _align(offset + nbytes)
         return self.buffer[offset : offset + nbytes]
 
     def find(self, name: str, nbytes: int) -> memoryview:
         """The cell the region's creator carved as ``name``; its size must be ``nbytes``."""
-        for cell, offset, size in self.cells():
-            if cell == name:
-                if size != nbytes:
-                    raise RegionError(f"cell {name!r} is {size} bytes in the shared region; this side expects {nbytes}")
-                return self.buffer[offset : offset + size]
-        raise RegionError(f"no cell {name!r} in the shared region (the other domain did not carve it)")
+        entry = self._directory().get(name)
+        if entry is None:
+            raise RegionError(f"no cell {name!r} in the shared region (the other domain did not carve it)")
+        offset, size = entry
+        if size != nbytes:
+            raise RegionError(f"cell {name!r} is {size} bytes in the shared region; this side expects {nbytes}")
+        return self.buffer[offset : offset + size]
+
+    def release(self, prefix: str) -> int:
+        """Give back the pages of every cell named ``prefix…`` (an unloaded controller's, nobody uses them any more):
+        they read as zeros again and cost no memory. The whole pages inside each cell; the bytes released."""
+        released = 0
+        for name, (offset, size) in self._directory().items():
+            if not name.startswith(prefix):
+                continue
+            start = -(-offset // PAGE) * PAGE
+            end = (offset + size) // PAGE * PAGE
+            if end > start:
+                self._map.madvise(mmap.MADV_REMOVE, start, end - start)
+                released += end - start
+        return released
 
     def cells(self) -> list[tuple[str, int, int]]:
-        out = []
-        for k in range(int(self._header[1])):
+        return [(name, offset, size) for name, (offset, size) in self._directory().items()]
+
+    def _directory(self) -> dict[str, tuple[int, int]]:
+        """name → (offset, size), reading only the entries added since the last call (the directory only grows)."""
+        known = self._known
+        for k in range(len(known), int(self._header[1])):
             raw, offset, size = _ENTRY.unpack_from(self.buffer, ALIGN + k * _ENTRY.size)
-            out.append((raw.rstrip(b"\0").decode(), offset, size))
-        return out
+            known[raw.rstrip(b"\0").decode()] = (offset, size)
+        return known
 
     def _end(self) -> int:
-        cells = self.cells()
-        return max((_align(offset + size) for _, offset, size in cells), default=_DIRECTORY)
+        return max((_align(offset + size) for offset, size in self._directory().values()), default=_DIRECTORY)

@@ -16,10 +16,10 @@ import pytest
 from hild.crossing.latest import LatestCell, NumbersCell, latest_bytes, numbers_bytes
 from hild.crossing.mailboxes import InProcess, LatestNumbers, Shared
 from hild.crossing.queue import ByteQueue, queue_bytes
-from hild.crossing.region import Region, RegionError
+from hild.crossing.region import PAGE, Region, RegionError
 from hild.crossing.ring import RingReader
 
-SIZE = 1 << 20
+SIZE = 4 << 20  # the directory alone takes 1 MiB (virtual, like the rest)
 
 
 @pytest.fixture
@@ -198,6 +198,34 @@ def test_region_directory_is_found_by_name_and_size_mismatches_are_refused(regio
         other.find("nope", 8)
     with pytest.raises(RegionError, match="twice"):
         region.carve("a/b", 8)
+
+
+def test_a_later_carver_appends_cells_the_first_side_finds(region: Region) -> None:
+    """A client domain carves a loaded controller's cells while the cycle process, which attached earlier, finds
+    them afterwards: the directory only grows, and each side reads the entries added since it last looked."""
+    region.carve("engine/x", 64)
+    cycle_side = Region.attach(region.fd, SIZE)
+    client_side = Region.attach(region.fd, SIZE)
+    client_side.find("engine/x", 64)
+    late = client_side.carve("late@1/active", 8)
+    late[:1] = b"\x01"
+    assert bytes(cycle_side.find("late@1/active", 8)) == b"\x01" + bytes(7)
+    fresh = region.carve("more", 8)  # the creator, carving again, lands after the client's cell: no overlap
+    assert len(fresh) == 8 and _offset(region, "more") >= _offset(region, "late@1/active") + 8
+
+
+def _offset(region: Region, name: str) -> int:
+    return next(offset for cell, offset, _ in region.cells() if cell == name)
+
+
+def test_released_cells_read_as_zeros_and_give_their_pages_back(region: Region) -> None:
+    cell = region.carve("gone@3/queue", 4 * PAGE)
+    kept = region.carve("gone@30/queue", PAGE)  # another prefix that starts alike: not released
+    cell[:] = b"\xff" * len(cell)
+    kept[:] = b"\xee" * len(kept)
+    assert region.release("gone@3/") >= 3 * PAGE  # the whole pages inside the cell
+    assert bytes(cell[PAGE : 3 * PAGE]) == bytes(2 * PAGE)
+    assert bytes(kept) == b"\xee" * PAGE
 
 
 def test_shared_ring_readers_drop_samples_the_producer_overwrote(region: Region) -> None:
