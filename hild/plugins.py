@@ -18,6 +18,7 @@ __all__ = [
     "available",
     "commands",
     "load",
+    "sources",
 ]
 
 DRIVERS = "hild.drivers"
@@ -43,6 +44,11 @@ def load(group: str, name: str) -> Any:
         kind = "driver" if group == DRIVERS else "controller type"
         raise PluginError(f"unknown {kind} {name!r} (known: {known})")
     return matches[0].load()
+
+
+def sources(group: str) -> list[tuple[str, str]]:
+    """Each plugin of ``group`` and where it comes from (``module:Class``), without importing any."""
+    return sorted({(ep.name, ep.value) for ep in entry_points(group=group)})
 
 
 def commands() -> list[Any]:

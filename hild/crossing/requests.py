@@ -7,7 +7,7 @@ closure. Its answer is a reply dict; a request that is refused raises :class:`Re
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 
@@ -47,4 +47,38 @@ class SetZero:
     joint: str
 
 
-Request = Switch | Estop | Reset | Enable | SetZero
+@dataclass(frozen=True, slots=True)
+class Load:
+    """Load a controller, unconfigured (ros2_control's ``load_controller``), from params the client domain validated.
+
+    ``doors``: the prefix of its cells in the shared region, chosen by whoever builds its API half (empty: the name,
+    as for the controllers the config lists). ``replaces``: swap it for the loaded controller of the same name, which
+    must not be active (a reload); the new one is configured if the old one was, and nothing changes if it fails."""
+
+    name: str
+    type: str
+    params: Any  # the controller type's validated ``Params``
+    fallbacks: tuple[str, ...] = ()
+    doors: str = ""
+    replaces: bool = False
+    source: str = field(default="", compare=False)  # where the params came from, for the event: a file, a client
+
+
+@dataclass(frozen=True, slots=True)
+class Configure:
+    """``on_configure``: unconfigured → inactive; an inactive one is cleaned up and configured again."""
+
+    name: str
+
+
+@dataclass(frozen=True, slots=True)
+class Unload:
+    """Clean up (if configured) and forget a controller that is not active."""
+
+    name: str
+
+
+LifecycleRequest = (
+    Load | Configure | Unload
+)  # applied after a cycle's write: a controller's own code never delays a command
+Request = Switch | Estop | Reset | Enable | SetZero | Load | Configure | Unload

@@ -30,15 +30,26 @@ from hild.controller import ControllerContext, JointLimitArrays
 from hild.crossing.events import EventLog
 from hild.crossing.inprocess import BoundedQueue
 from hild.crossing.mailboxes import InProcess, Mailboxes
-from hild.crossing.requests import Enable, Refused, Request, Reset, SetZero, Switch
+from hild.crossing.requests import (
+    Configure,
+    Enable,
+    LifecycleRequest,
+    Load,
+    Refused,
+    Request,
+    Reset,
+    SetZero,
+    Switch,
+    Unload,
+)
 from hild.crossing.snapshot import Snapshot
 from hild.crossing.stats import LoopStats
 from hild.crossing.status import loop_status, render_status
-from hild.cycle.manager import ControllerManager, SwitchResult
+from hild.cycle.manager import ControllerManager, SwitchError, SwitchResult
 from hild.cycle.supervisor import Action, Fault, JointGains, SafetySettings, Supervisor, limit_names
 from hild.cycle.transmission import Transmissions
 from hild.hardware import HardwareComponent, HardwareContext, HardwareError, Lifecycle
-from hild.interfaces import interface_name
+from hild.interfaces import ClaimError, interface_name
 from hild.modes import MODE_NAMES, JointMode
 
 REQUEST_QUEUE = 64
@@ -152,6 +163,13 @@ class Engine:
         self._requests: BoundedQueue[tuple[Callable[[], Any], concurrent.futures.Future[Any], bool]] = BoundedQueue(
             REQUEST_QUEUE
         )
+        # Load, configure, unload: one per cycle, after its write (a controller's constructor and on_configure are
+        # its author's code: they must never delay a command, and a burst of them must not stall one cycle).
+        self._lifecycle: BoundedQueue[tuple[LifecycleRequest, concurrent.futures.Future[Any]]] = BoundedQueue(
+            REQUEST_QUEUE
+        )
+        self.loads: dict[str, Load] = {}  # how each loaded controller was loaded: a new client domain builds its halves
+        self.loads_seq = 0
         self._estop_requested = False
         self.tap: Any = None  # telemetry: an object with record(...) called once per cycle, or None
         self._rearm: dict[int, int] = {}  # joint → cycle by which its drive must confirm an operator enable
@@ -241,7 +259,8 @@ class Engine:
             slots.append(HardwareSlot(name, hw.driver, component, joint_index, state, command, part is not None))
         return slots
 
-    def controller_context(self, name: str) -> ControllerContext:
+    def controller_context(self, name: str, doors: str = "") -> ControllerContext:
+        """``doors``: the prefix of its cells in the shared region (the name, for those the config lists)."""
         return ControllerContext(
             robot=self.robot,
             name=name,
@@ -251,7 +270,7 @@ class Engine:
             emit_event=lambda level, msg: self.events.emit(level, name, msg),
             notify=self._ring,
             joint_modes=self.supervisor.mode,
-            mailboxes=self.mailboxes.scoped(name),
+            mailboxes=self.mailboxes.scoped(doors or name),
         )
 
     def controllers(self) -> dict[str, Any]:
@@ -259,16 +278,59 @@ class Engine:
         return {name: record.instance for name, record in list(self.manager.records.items())}
 
     def load_controller(self, name: str, type_name: str, params: Any, fallbacks: Sequence[str] = ()) -> None:
-        """Load and configure a controller (non real-time; call before start or through ``submit``)."""
-        cls = plugins.load(plugins.CONTROLLERS, type_name)
-        if not isinstance(params, cls.Params):
-            params = cls.Params.model_validate(params)
-        self.add_controller(name, type_name, cls(self.controller_context(name), params), fallbacks)
+        """Load and configure a controller (before start; at runtime a :class:`Load` request does it)."""
+        self._loaded(Load(name, type_name, params, tuple(fallbacks)))
+        self.manager.configure(name)
 
     def add_controller(self, name: str, type_name: str, controller: Any, fallbacks: Sequence[str] = ()) -> None:
-        """Load and configure an already built controller instance."""
+        """Load and configure an already built controller instance (tests and tools that build their own)."""
         self.manager.load(name, type_name, controller, fallbacks)
         self.manager.configure(name)
+
+    def _build(self, load: Load) -> Any:
+        cls = plugins.load(plugins.CONTROLLERS, load.type)
+        params = load.params if isinstance(load.params, cls.Params) else cls.Params.model_validate(load.params)
+        return cls(self.controller_context(load.name, load.doors), params)
+
+    def _loaded(self, load: Load) -> str:
+        """Build ``load``'s controller and adopt it (unconfigured, or replacing the loaded one): its state."""
+        try:
+            controller = self._build(load)
+        except Exception as exc:  # the plugin's constructor: its author's code
+            raise SwitchError(f"{load.name}: building a {load.type} failed: {type(exc).__name__}: {exc}") from None
+        if load.replaces:
+            state = self.manager.replace(load.name, load.type, controller, load.fallbacks)
+        else:
+            self.manager.load(load.name, load.type, controller, load.fallbacks)
+            state = "unconfigured"
+        self.loads[load.name] = load
+        self.loads_seq += 1
+        return state
+
+    def apply_lifecycle(self, request: LifecycleRequest) -> dict[str, Any]:
+        """Load, configure or unload now (between cycles, after a write): the reply, or :class:`Refused`."""
+        name = request.name
+        try:
+            match request:
+                case Load():
+                    state = self._loaded(request)
+                    verb = "reloaded" if request.replaces else "loaded"
+                    source = f" from {request.source}" if request.source else ""
+                    self.events.emit("info", "controller_manager", f"{verb} {name} ({request.type}){source}: {state}")
+                    return {"name": name, "type": request.type, "state": state}
+                case Configure():
+                    self.manager.configure(name)
+                    self.events.emit("info", "controller_manager", f"configured {name}: inactive")
+                    return {"name": name, "state": "inactive"}
+                case Unload():
+                    self.manager.unload(name)
+                    del self.loads[name]
+                    self.loads_seq += 1
+                    self.events.emit("info", "controller_manager", f"unloaded {name}")
+                    return {"name": name}
+        except (SwitchError, ClaimError) as exc:
+            raise Refused(str(exc)) from None
+        raise Refused(f"not a lifecycle request: {request!r}")
 
     def _describe_fault(self, joint: int, code: int) -> str:
         slot = self.hardware[self._joint_slot[joint]]
@@ -413,6 +475,16 @@ class Engine:
         self.write_done_ns = time.perf_counter_ns()  # the cycle's duration ends here: what could delay a command
         if self.tap is not None:  # after the write, so recording never delays a command; rerun runs elsewhere
             self.tap.record(t, self.cycle, self.state, self.final, sup.mode, dt)
+        if (lifecycle := self._lifecycle.poll()) is not None:
+            self._apply_lifecycle(*lifecycle)
+
+    def _apply_lifecycle(self, request: LifecycleRequest, future: concurrent.futures.Future[Any]) -> None:
+        if not future.set_running_or_notify_cancel():
+            return
+        try:
+            future.set_result(self.apply_lifecycle(request))
+        except Exception as exc:
+            future.set_exception(exc)
 
     def _late_cycle(self, dt: float) -> None:
         """A cycle came ``dt`` after the last: past ``safety.max_cycle_gap`` every joint faults (the arm may have
@@ -494,6 +566,11 @@ class Engine:
         """An operator request (:mod:`hild.crossing.requests`), applied at the start of the next cycle. Its future
         holds the reply dict, or raises :class:`~hild.crossing.requests.Refused`; an e-stop takes its own path and is
         never refused."""
+        if isinstance(request, Load | Configure | Unload):
+            future: concurrent.futures.Future[Any] = concurrent.futures.Future()
+            if not self._lifecycle.offer((request, future)):
+                future.set_exception(Refused("too many pending requests; try again"))
+            return future
         if isinstance(request, Switch | Reset | Enable | SetZero):
             return self.submit(lambda: self.apply(request), clears_estop=isinstance(request, Reset))
         return self.request_estop()
@@ -512,6 +589,8 @@ class Engine:
                 return _refused_if_error(self.enable(joints))  # type: ignore[return-value]
             case SetZero(joint):
                 return _refused_if_error(self.set_zero(joint))  # type: ignore[return-value]
+            case Load() | Configure() | Unload():
+                return self.apply_lifecycle(request)
         return self.estop()
 
     def _apply_requests(self, estop_now: bool) -> None:

@@ -94,7 +94,6 @@ class ControllerManager:
             raise SwitchError(f"controller {name!r} is already loaded")
         claims = tuple(controller.claims())
         check_claims(name, claims, self.available)
-        joints = sorted({self._joint_index[parse_interface(c)[0]] for c in claims})
         self.records[name] = ControllerRecord(
             slot=self._slots,
             name=name,
@@ -102,27 +101,86 @@ class ControllerManager:
             instance=controller,
             claims=claims,
             fallbacks=tuple(fallbacks),
-            joint_index=np.array(joints, dtype=np.intp),
+            joint_index=self._joints_of(claims),
         )
         self._slots += 1
         self._changed()
 
     def configure(self, name: str) -> None:
-        rec = self._get(name)
-        if rec.state is not ControllerState.UNCONFIGURED:
-            raise SwitchError(f"controller {name!r} is {rec.state}, not unconfigured")
-        rec.instance.on_configure()
-        rec.state = ControllerState.INACTIVE
-        self._changed()
-
-    def unload(self, name: str) -> None:
+        """unconfigured → inactive. An inactive (or failed) controller is cleaned up and configured again, as
+        ros2_control does; an ``on_configure`` that raises leaves it unconfigured and says why."""
         rec = self._get(name)
         if rec.state is ControllerState.ACTIVE:
             raise SwitchError(f"controller {name!r} is active; deactivate it first")
         if rec.state is not ControllerState.UNCONFIGURED:
-            rec.instance.on_cleanup()
+            self._cleanup(rec)
+            rec.state = ControllerState.UNCONFIGURED
+        try:
+            rec.instance.on_configure()
+        except Exception as exc:  # a plugin's bug must not take the daemon down
+            self._changed()
+            raise SwitchError(
+                f"{name}: on_configure raised {type(exc).__name__}: {exc}; it stays unconfigured"
+            ) from None
+        rec.state = ControllerState.INACTIVE
+        rec.error = ""
+        self._changed()
+
+    def unload(self, name: str) -> None:
+        """Forget a controller that is not active (cleaned up first if it was configured). A controller that is
+        another's fallback stays: the fallback is what takes over when that one fails."""
+        rec = self._get(name)
+        if rec.state is ControllerState.ACTIVE:
+            raise SwitchError(f"controller {name!r} is active; deactivate it first")
+        needing = [r.name for r in self.records.values() if name in r.fallbacks and r.name != name]
+        if needing:
+            raise SwitchError(f"controller {name!r} is the fallback of {needing}; unload those first")
+        if rec.state is not ControllerState.UNCONFIGURED:
+            self._cleanup(rec)
         del self.records[name]
         self._changed()
+
+    def replace(self, name: str, type_name: str, controller: Controller, fallbacks: Sequence[str] = ()) -> str:
+        """Swap a loaded controller that is not active for a new instance (a reload), keeping its place in the
+        update order. The new one is configured if the old one was; if that fails, the old one stays as it was.
+        Returns the new one's state."""
+        old = self._get(name)
+        if old.state is ControllerState.ACTIVE:
+            raise SwitchError(f"controller {name!r} is active; deactivate it before reloading it")
+        claims = tuple(controller.claims())
+        check_claims(name, claims, self.available)
+        configured = old.state is not ControllerState.UNCONFIGURED
+        if configured:
+            try:
+                controller.on_configure()
+            except Exception as exc:
+                raise SwitchError(
+                    f"{name}: the new instance's on_configure raised {type(exc).__name__}: {exc}; the loaded one stays"
+                ) from None
+            self._cleanup(old)
+        self.records[name] = ControllerRecord(
+            slot=old.slot,
+            name=name,
+            type=type_name,
+            instance=controller,
+            claims=claims,
+            fallbacks=tuple(fallbacks),
+            state=ControllerState.INACTIVE if configured else ControllerState.UNCONFIGURED,
+            joint_index=self._joints_of(claims),
+        )
+        self._changed()
+        return str(self.records[name].state)
+
+    def _cleanup(self, rec: ControllerRecord) -> None:
+        try:
+            rec.instance.on_cleanup()
+        except Exception as exc:
+            self.events.emit(
+                "error", "controller_manager", f"{rec.name}: on_cleanup raised {type(exc).__name__}: {exc}"
+            )
+
+    def _joints_of(self, claims: Sequence[str]) -> np.ndarray:
+        return np.array(sorted({self._joint_index[parse_interface(c)[0]] for c in claims}), dtype=np.intp)
 
     # ---- switching --------------------------------------------------------------------------------------------
     def switch(

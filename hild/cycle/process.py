@@ -29,6 +29,7 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
+from hild import plugins
 from hild.config.loader import LoadedConfig
 from hild.crossing.attach import Crossing
 from hild.crossing.cells import Ask, EngineCells, Phase, Vital
@@ -130,6 +131,7 @@ class CrossingCycle(CycleThread):
         self._client_lost_seen = int(cells.asks[Ask.CLIENT_LOST])
         self._next_ident = 0
         self._last_change = -1
+        self._loads_seen = engine.loads_seq
         self._parent_every = max(1, round(PARENT_CHECK * engine.update_rate))
         self._vitals_every = max(1, round(VITALS_EVERY * engine.update_rate))
 
@@ -145,6 +147,9 @@ class CrossingCycle(CycleThread):
             cells.snapshot.put(engine.snapshot())
             vitals[Vital.CHANGE_SEQ] = self._last_change  # after the snapshot: whoever sees it finds the snapshot
             self.outbox.wakeup.mark()
+        if engine.loads_seq != self._loads_seen:  # a controller loaded or unloaded: rare, after the write
+            self._loads_seen = engine.loads_seq
+            hand_over_loads(engine, cells)
         if engine.cycle % self._vitals_every == 0:
             cells.clock[1:] = engine.supervisor.longest_silence
             vitals[Vital.PYTHON_THREADS] = threading.active_count()
@@ -181,6 +186,24 @@ class CrossingCycle(CycleThread):
         self.cells.estop_reply.put((counter, future.result()))
         self.cells.vitals[Vital.ESTOP_DONE] = counter
         self.outbox.wakeup.mark()
+
+
+def hand_over_loads(engine: Engine, cells: EngineCells) -> None:
+    """How each loaded controller was loaded, for a client domain started later to build their API halves."""
+    try:
+        cells.loads.put(tuple(engine.loads.values()))
+    except ValueError as exc:  # more params than the cell holds: the client domain refuses loads before that
+        engine.events.emit("error", "cycle", f"the loaded controllers cannot be handed over: {exc}")
+
+
+def import_controller_types(engine: Engine) -> None:
+    """Import every installed controller type now, at start-up, so that loading one while the robot runs costs the
+    cycle its constructor, never a module import. One that cannot be imported is reported and stays unloadable."""
+    for name in plugins.available(plugins.CONTROLLERS):
+        try:
+            plugins.load(plugins.CONTROLLERS, name)
+        except Exception as exc:
+            engine.events.emit("warning", "cycle", f"controller type {name!r} cannot be imported: {exc}")
 
 
 def _attach_telemetry(ring: TelemetryRing, engine: Engine) -> Any:
@@ -230,6 +253,7 @@ def run(spec: CycleSpec) -> int:
         outbox.failure(f"cannot build {spec.loaded.path}: {exc}", scratch)
         return 1
     engine.realtime_report.update(apply_process_settings(cfg.realtime))
+    import_controller_types(engine)
     try:
         engine.bring_up()
     except Exception as exc:
@@ -241,6 +265,7 @@ def run(spec: CycleSpec) -> int:
     cycle = CrossingCycle(engine, cells, outbox, spec.parent_pid)
     engine.realtime_report["gc"] = freeze_heap(cfg.realtime)
     cells.snapshot.put(engine.snapshot())
+    hand_over_loads(engine, cells)
     cells.vitals[Vital.CHANGE_SEQ] = engine.change_seq
     cells.vitals[Vital.PHASE] = Phase.BROUGHT_UP
     outbox.events(engine.events)
