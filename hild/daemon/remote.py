@@ -29,18 +29,24 @@ from hild.config.loader import LoadedConfig
 from hild.crossing.attach import Attachment, Crossing
 from hild.crossing.cells import REQUESTS, Ask, ClientPhase, ClientVital, Phase, Vital
 from hild.crossing.events import Event, EventLog
-from hild.crossing.requests import Estop, Refused, Request
+from hild.crossing.requests import Estop, Load, Refused, Request, Unload
 from hild.crossing.snapshot import Snapshot
 from hild.crossing.status import loop_status, render_status
 from hild.crossing.telemetry import TelemetryRing
 from hild.cycle.process import spawn
-from hild.daemon.halves import api_halves
+from hild.daemon.halves import ApiHalves, configured_loads
 from hild.main.notify import ServiceReport, SilentReport, SystemdNotifier
 
 PHASE_POLL = 0.005  # s
 STOP_JOIN_TIMEOUT = 5.0  # s: a cycle process told to stop before it went live releases the hardware by then
 LOSS_ACK_TIMEOUT = 5.0  # s: a restarted client domain waits this long for the cycle to end its predecessor's goals
 SNAPSHOT_TRIES = 1000  # copies of a snapshot the cycle overtook, taken again at once (it writes one in µs)
+
+
+def _refused(reason: str) -> concurrent.futures.Future[Any]:
+    future: concurrent.futures.Future[Any] = concurrent.futures.Future()
+    future.set_exception(Refused(reason))
+    return future
 
 
 class CycleProcessError(RuntimeError):
@@ -53,7 +59,9 @@ class RemoteCycle:
     inputs_on_arrival = True  # nothing for the cycle to take: inputs are validated and handed over as they arrive
     restarted_after: str | None = None
 
-    def __init__(self, loaded: LoadedConfig, crossing: Crossing) -> None:
+    def __init__(self, loaded: LoadedConfig, crossing: Crossing, loads: list[Load] | None = None) -> None:
+        """``loads``: the controllers whose API halves to build (default: the config's; a restarted client domain
+        passes the cycle's, which include those loaded while the robot ran)."""
         cfg = loaded.config
         self.loaded = loaded
         self.robot = cfg.robot.name
@@ -66,7 +74,9 @@ class RemoteCycle:
         self.events = EventLog()  # the client domain's own (the API halves' refused goals …), on the cycle clock
         self.events.now = lambda: self.t
         self.region = crossing.region
-        self._halves = api_halves(loaded, crossing.doors, self.events.emit)
+        self.halves = ApiHalves(
+            loaded, configured_loads(loaded) if loads is None else loads, crossing.doors, self.events.emit
+        )
         self.cells = crossing.cells
         self.stats = self.cells.stats
         self.wakeup_fd = self.crossing.wakeup_fd
@@ -157,7 +167,8 @@ class RemoteCycle:
 
     @property
     def change_seq(self) -> int:
-        return int(self.cells.vitals[Vital.CHANGE_SEQ])
+        """The cycle's, plus this side's own changes: a controller's API half comes and goes with its reply."""
+        return int(self.cells.vitals[Vital.CHANGE_SEQ]) + self.halves.seq
 
     @property
     def started(self) -> bool:
@@ -199,12 +210,29 @@ class RemoteCycle:
         return {}
 
     def controllers(self) -> dict[str, Any]:
-        return dict(self._halves)
+        return self.halves.current()
 
     # ---- requests -----------------------------------------------------------------------------------------------
     def request(self, request: Request) -> concurrent.futures.Future[Any]:
-        if isinstance(request, Estop):
-            return self.request_estop()
+        """Into the request queue; a load's API half is built first (its cells carved), an unload's dropped after."""
+        match request:
+            case Estop():
+                return self.request_estop()
+            case Load():
+                try:
+                    load, half = self.halves.prepare(request)
+                except Exception as exc:
+                    return _refused(f"{request.name}: building a {request.type} failed: {type(exc).__name__}: {exc}")
+                future = self._queue(load)
+                future.add_done_callback(lambda f: self.halves.loaded_one(load, half, f))
+                return future
+            case Unload(name):
+                future = self._queue(request)
+                future.add_done_callback(lambda f: self.halves.unloaded(name, f))
+                return future
+        return self._queue(request)
+
+    def _queue(self, request: Request) -> concurrent.futures.Future[Any]:
         future: concurrent.futures.Future[Any] = concurrent.futures.Future()
         with self._lock:
             ident = next(self._ids)
@@ -359,6 +387,16 @@ class SpawnedCycle(RemoteCycle):
             os.close(self.wakeup_fd)  # carved here: nobody else holds it once the cycle process has ended
 
 
+def _cycle_loads(crossing: Crossing) -> list[Load] | None:
+    """The controllers the cycle has loaded, as it handed them over (None if it never did: the config's then)."""
+    cell = crossing.cells.loads
+    for _ in range(SNAPSHOT_TRIES):  # a copy the cycle overtook is taken again at once
+        loads = cell.take()
+        if loads is not None:
+            return list(loads)  # type: ignore[call-overload]
+    return None
+
+
 class AttachedCycle(RemoteCycle):
     """Under ``hild run``: the cycle process the daemon's main process started, reached through the crossing it
     carved. The main process speaks for the unit to systemd, takes SIGINT (a terminal's Ctrl-C reaches every
@@ -369,7 +407,8 @@ class AttachedCycle(RemoteCycle):
     releases_hardware = False  # the main process stops the cycle process
 
     def __init__(self, loaded: LoadedConfig, at: Attachment) -> None:
-        super().__init__(loaded, Crossing.attach(len(loaded.config.joints), at))
+        crossing = Crossing.attach(len(loaded.config.joints), at)
+        super().__init__(loaded, crossing, None if at.restarted_after is None else _cycle_loads(crossing))
         self.parent_pid = self.main_pid = at.parent_pid  # stopping this process only makes the main one start another
         self.restarted_after = at.restarted_after
 

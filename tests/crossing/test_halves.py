@@ -18,7 +18,7 @@ from hild.controller import Controller
 from hild.crossing.mailboxes import Shared
 from hild.crossing.region import Region
 from hild.cycle.engine import Engine
-from hild.daemon.halves import api_halves
+from hild.daemon.halves import api_halves, configured_loads
 from hild.motion.tables import SegmentTable
 from tests.test_engine import events
 from tests.test_twin_engine import CONFIGS
@@ -39,7 +39,9 @@ class Split:
         loaded = lockstep()
         self.region = Region(SIZE)
         self.api_events: list[tuple[str, str, str]] = []
-        self.api = api_halves(loaded, Shared(self.region, create=True), lambda *e: self.api_events.append(e))
+        self.api = api_halves(
+            loaded, configured_loads(loaded), Shared(self.region, create=True), lambda *e: self.api_events.append(e)
+        )
         self.engine = Engine(loaded, Shared(Region.attach(self.region.fd, SIZE), create=False))
         self.engine.start()
 
