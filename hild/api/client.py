@@ -212,6 +212,29 @@ class HildClient:
     def list_interfaces(self) -> list[dict[str, Any]]:
         return list(self.call("list_interfaces")["interfaces"])
 
+    # ---- controllers while the robot runs -----------------------------------------------------------------------
+    def list_controller_types(self) -> list[dict[str, Any]]:
+        return list(self.call("list_controller_types")["types"])
+
+    def load_controller(
+        self, name: str, type: str, params: dict[str, Any] | None = None, fallback_controllers: Iterable[str] = ()
+    ) -> dict[str, Any]:
+        """Load a controller (unconfigured) from params checked as the config's are; configure, then switch it."""
+        request: dict[str, Any] = {"name": name, "type": type, "params": params or {}}
+        if fallback_controllers:
+            request["fallback_controllers"] = list(fallback_controllers)
+        return self.call("load_controller", request)
+
+    def configure_controller(self, name: str) -> dict[str, Any]:
+        return self.call("configure_controller", {"name": name})
+
+    def unload_controller(self, name: str) -> dict[str, Any]:
+        return self.call("unload_controller", {"name": name})
+
+    def reload_controller(self, name: str) -> dict[str, Any]:
+        """Replace a controller that is not active with one built from the daemon's config file as it is now."""
+        return self.call("reload_controller", {"name": name})
+
     def list_hardware(self) -> list[dict[str, Any]]:
         return list(self.call("list_hardware")["hardware"])
 

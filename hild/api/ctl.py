@@ -24,6 +24,7 @@ from hild.api.session import DEFAULT_CONNECT, SessionConfigError, file_endpoints
 from hild.config.documents import DocumentError, load_document
 
 EXIT_OK, EXIT_SERVICE, EXIT_UNREACHABLE = 0, 1, 2
+STATES = ("unconfigured", "inactive", "active")
 ZENOH_CONFIG_ENV = "HILD_ZENOH_CONFIG"
 CLEAR = "\x1b[H\x1b[2J"
 
@@ -70,6 +71,26 @@ def add_ctl_parser(subparsers: Any) -> None:
     switch.add_argument(
         "--best-effort", action="store_true", help="switch what can be switched instead of refusing the whole switch"
     )
+    load = sub.add_parser(
+        "load", parents=[common], help="load a controller while the robot runs (then configure it; --state)"
+    )
+    load.add_argument("name", help="the new controller's name")
+    load.add_argument("--type", required=True, help="its type (hild ctl list-types)")
+    load.add_argument("--params", metavar="FILE", help="YAML/JSON mapping of its params (as under params: in a config)")
+    load.add_argument("--fallback", nargs="+", default=[], metavar="NAME", help="fallback_controllers")
+    load.add_argument(
+        "--state",
+        choices=STATES,
+        default="inactive",
+        help="leave it unconfigured, configured (inactive, the default) or switched on (active)",
+    )
+    for verb, what in (
+        ("configure", "configure a loaded controller (an inactive one is cleaned up and configured again)"),
+        ("unload", "unload a controller that is not active"),
+        ("reload", "replace a controller that is not active with one from the daemon's config file as it is now"),
+    ):
+        sub.add_parser(verb, parents=[common], help=what).add_argument("name")
+    sub.add_parser("list-types", parents=[common], help="controller types this daemon can load")
     sub.add_parser("estop", parents=[common], help="engage the e-stop (only reset leaves it)")
     sub.add_parser("reset", parents=[common], help="clear latched faults and the e-stop")
     enable = sub.add_parser("enable", parents=[common], help="enable drives a fault disabled (after reset)")
@@ -287,6 +308,49 @@ def _run_goal(client: HildClient, args: argparse.Namespace, as_json: bool, goal:
     return EXIT_OK if result.get("status") == "succeeded" else EXIT_SERVICE
 
 
+def _load(client: HildClient, args: argparse.Namespace, as_json: bool) -> int:
+    """``load_controller``, then ``configure_controller`` and ``switch_controllers`` up to ``--state``, as
+    ``ros2 control load_controller --set-state`` does; the first refusal ends it (what was done stays)."""
+    try:
+        params = load_document(args.params) if args.params else {}
+    except DocumentError as exc:
+        return _fail(exc, as_json, EXIT_SERVICE)
+    if not isinstance(params, dict):
+        return _fail(
+            ValueError(f"{args.params}: expected a mapping of params, found {type(params).__name__}"), as_json, 1
+        )
+    steps: list[tuple[str, dict[str, Any], str]] = [
+        (
+            "load_controller",
+            {"name": args.name, "type": args.type, "params": params, "fallback_controllers": args.fallback},
+            "loaded",
+        ),
+    ]
+    if STATES.index(args.state) >= 1:
+        steps.append(("configure_controller", {"name": args.name}, "configured"))
+    if args.state == "active":
+        steps.append(("switch_controllers", {"activate": [args.name]}, "activated"))
+    replies = []
+    for service, request, done in steps:
+        reply = client.call(service, request, check=False)
+        replies.append(reply)
+        if not reply.get("ok"):
+            if as_json:
+                print(json.dumps(replies, indent=2))
+            else:
+                print(f"hild ctl: {service}: {reply.get('error')}", file=sys.stderr)
+            return EXIT_SERVICE
+        if not as_json:
+            print(f"{args.name}: {done}")
+    if as_json:
+        print(json.dumps(replies, indent=2))
+    return EXIT_OK
+
+
+def _named(args: argparse.Namespace) -> dict[str, Any]:
+    return {"name": args.name}
+
+
 def _cancel(client: HildClient, args: argparse.Namespace, as_json: bool) -> int:
     controller = _goal_controller(client, args.controller)
     try:
@@ -313,4 +377,9 @@ COMMANDS: dict[str, Callable[[HildClient, argparse.Namespace, bool], int]] = {
     "enable": _service(
         "enable", lambda r: f"enabled {r.get('enabled') or []}; each holds once its drive confirms", _enable_request
     ),
+    "load": _load,
+    "configure": _service("configure_controller", lambda r: f"{r['name']}: {r['state']}", _named),
+    "unload": _service("unload_controller", lambda r: f"{r['name']}: unloaded", _named),
+    "reload": _service("reload_controller", lambda r: f"{r['name']}: reloaded ({r['state']})", _named),
+    "list-types": _service("list_controller_types", lambda r: render.types_text(r["types"]), _no_request),
 }

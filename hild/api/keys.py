@@ -22,6 +22,11 @@ SERVICES = (
     "reset",
     "set_zero",
     "enable",
+    "list_controller_types",
+    "load_controller",
+    "configure_controller",
+    "unload_controller",
+    "reload_controller",
 )
 # Second-level chunks the API itself uses; a controller output may not take one of these names.
 RESERVED = frozenset(

@@ -56,6 +56,10 @@ def controllers_text(controllers: Sequence[dict[str, Any]]) -> str:
     )
 
 
+def types_text(types: Sequence[dict[str, Any]]) -> str:
+    return table(["TYPE", "CLASS"], [[t["type"], t["class"]] for t in types])
+
+
 def interfaces_text(interfaces: Sequence[dict[str, Any]]) -> str:
     return table(["INTERFACE", "CLAIMED BY"], [[i["name"], i.get("claimed_by")] for i in interfaces])
 

@@ -23,10 +23,14 @@ from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from hild import plugins
 from hild.api.codec import MAX_PAYLOAD, PayloadError, decode, encode
+from hild.api.keys import check_chunk
 from hild.api.queries import LargePayloadWorker, too_large
+from hild.config.loader import ConfigError, check_controller, load_config
 from hild.controller import and_more, unknown_keys
-from hild.crossing.requests import Enable, Refused, Request, Reset, SetZero, Switch
+from hild.crossing.cells import MAX_CONTROLLERS
+from hild.crossing.requests import Configure, Enable, Load, Refused, Request, Reset, SetZero, Switch, Unload
 from hild.daemon.link import CycleLink
 
 log = logging.getLogger("hild.api")
@@ -87,6 +91,26 @@ def joint_name(field: str, value: Any) -> str:
     return value
 
 
+def controller_name(field: str, value: Any) -> str:
+    """A controller's name: it becomes a chunk of its Zenoh keys (``hild/<robot>/ctrl/<name>/…``)."""
+    try:
+        return check_chunk(value, field)
+    except ValueError as exc:
+        raise RequestError(str(exc)) from None
+
+
+def text(field: str, value: Any) -> str:
+    if not isinstance(value, str) or not value:
+        raise RequestError(f"{field} must be a non-empty string, not {value!r}")
+    return value
+
+
+def mapping(field: str, value: Any) -> dict[str, Any]:
+    if not isinstance(value, dict):
+        raise RequestError(f"{field} must be a JSON object, not {type(value).__name__}")
+    return value
+
+
 def request_limit(fields: Mapping[str, Validator]) -> int:
     """The size limit of a request with these fields, in bytes."""
     return FIELDS_REQUEST if fields else EMPTY_REQUEST
@@ -143,6 +167,13 @@ class Services:
             "reset": Service({}, self._reset),
             "set_zero": Service({"joint": joint_name, "confirm": boolean}, self._set_zero),
             "enable": Service({"joints": names}, self._enable),
+            "list_controller_types": Service({}, read=self._list_controller_types),
+            "load_controller": Service(
+                {"name": controller_name, "type": text, "params": mapping, "fallback_controllers": names}, self._load
+            ),
+            "configure_controller": Service({"name": controller_name}, self._configure),
+            "unload_controller": Service({"name": controller_name}, self._unload),
+            "reload_controller": Service({"name": controller_name}, self._reload),
         }
 
     async def handle(self, name: str, raw: bytes) -> Reply:
@@ -277,3 +308,66 @@ class Services:
 
     async def _enable(self, request: dict[str, Any]) -> Reply:
         return dict(await self.on_cycle(Enable(tuple(request.get("joints", ())))))
+
+    # ---- controller lifecycle (docs/protocol.md, "Controllers while the robot runs") -------------------------------
+    def _list_controller_types(self, request: dict[str, Any]) -> Reply:
+        return {"types": [{"type": name, "class": where} for name, where in plugins.sources(plugins.CONTROLLERS)]}
+
+    async def _load(self, request: dict[str, Any]) -> Reply:
+        """Checked here as ``hild check`` checks the config's controllers; built and adopted by the cycle."""
+        name = _required(request, "name")
+        loaded = {c["name"] for c in self.engine.snapshot().controllers}
+        if name in loaded:
+            raise RequestError(f"controller {name!r} is already loaded (reload it, or unload it first)")
+        if len(loaded) >= MAX_CONTROLLERS:
+            raise RequestError(f"{len(loaded)} controllers are loaded: at most {MAX_CONTROLLERS}; unload one first")
+        section = {k: v for k, v in request.items() if k != "name"}
+        if "type" not in section:
+            raise RequestError('give the controller\'s type: {"name": NAME, "type": TYPE, "params": {...}}')
+        checked = self._checked(name, section, loaded, "request")
+        load = Load(name, checked.type, checked.params, checked.fallbacks, source="a client")
+        return dict(await self.on_cycle(load))
+
+    async def _configure(self, request: dict[str, Any]) -> Reply:
+        return dict(await self.on_cycle(Configure(self._loaded(request))))
+
+    async def _unload(self, request: dict[str, Any]) -> Reply:
+        return dict(await self.on_cycle(Unload(self._loaded(request))))
+
+    async def _reload(self, request: dict[str, Any]) -> Reply:
+        """Replace a controller that is not active with a new one built from the config file as it is on disk now
+        (the same file the daemon started from); not loaded, it is loaded."""
+        name = _required(request, "name")
+        path = self.engine.loaded.path
+        try:
+            on_disk = await asyncio.to_thread(load_config, path)
+        except ConfigError as exc:
+            raise RequestError(f"{path} does not load, so nothing was reloaded:\n{exc}") from None
+        section = on_disk.config.controllers.get(name)
+        if section is None:
+            raise RequestError(f"{path} has no controller {name!r}: nothing to reload it from")
+        loaded = {c["name"] for c in self.engine.snapshot().controllers}
+        raw = {"type": section.type, "params": section.params, "fallback_controllers": section.fallback_controllers}
+        checked = self._checked(name, raw, loaded, str(path))
+        load = Load(name, checked.type, checked.params, checked.fallbacks, replaces=name in loaded, source=str(path))
+        return dict(await self.on_cycle(load))
+
+    def _checked(self, name: str, section: dict[str, Any], loaded: set[str], source: str) -> Any:
+        try:
+            return check_controller(self.engine.loaded, name, section, loaded, source)
+        except ConfigError as exc:
+            raise RequestError(f"controller {name!r} was not loaded:\n{exc}") from None
+
+    def _loaded(self, request: dict[str, Any]) -> str:
+        name = _required(request, "name")
+        loaded = {c["name"] for c in self.engine.snapshot().controllers}
+        if name not in loaded:
+            known = ", ".join(sorted(loaded)) or "none"
+            raise RequestError(f"unknown controller {name!r} (loaded: {known})")
+        return name
+
+
+def _required(request: dict[str, Any], field: str) -> Any:
+    if field not in request:
+        raise RequestError(f"give the {field}: {{{field!r}: ...}}".replace("'", '"'))
+    return request[field]

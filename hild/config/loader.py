@@ -22,7 +22,7 @@ import yaml
 from pydantic import BaseModel, ValidationError
 
 from hild import plugins
-from hild.config.model import RobotConfig
+from hild.config.model import ControllerSection, RobotConfig
 from hild.config.params import Params
 from hild.config.safety import review_safety
 from hild.hardware import BusUsage
@@ -363,41 +363,112 @@ def _check_files(loaded: LoadedConfig, report: Report) -> None:
 def _check_controllers(loaded: LoadedConfig, owner: dict[str, str], report: Report) -> None:
     """Controllers name known joints, claim what their joints' drivers offer, and never two autostart one claim."""
     c = loaded.config
-    available = set()
-    for joint, hw_name in owner.items():
-        fields = getattr(loaded.driver_classes.get(hw_name), "COMMAND_FIELDS", FIELDS)
-        available.update(interface_name(joint, f) for f in FIELDS if f in fields)
-    limits = {joint: section.limits for joint, section in c.joints.items()}
-
+    available = _available_claims(loaded, owner)
     autostart_claims: dict[str, str] = {}
     for name, spec in c.controllers.items():
         cls, params = loaded.controller_classes.get(name), loaded.controller_params.get(name)
         if cls is None or params is None:
             continue
-        for i, joint in enumerate(cls.joints_for(params)):
-            if joint not in c.joints:
-                report(("controllers", name, "params", "joints", i), f"unknown joint {joint!r}")
-        for problem in cls.robot_problems(params, limits):
-            report(("controllers", name, "params"), problem)
-        for claim in cls.claims_for(params):
-            try:
-                joint, _ = parse_interface(claim)
-            except ClaimError as exc:
-                report(("controllers", name, "params"), str(exc))
-                continue
-            if joint in c.joints and claim not in available:
-                driver = c.hardware[owner[joint]].driver if joint in owner else "?"
-                report(("controllers", name, "params"), f"claims {claim!r}, which driver {driver!r} does not offer")
-            if spec.autostart:
+        claims = _check_controller(loaded, name, cls, params, available, report)
+        if spec.autostart:
+            for claim in claims:
                 other = autostart_claims.setdefault(claim, name)
                 if other != name:
                     report(("controllers", name, "autostart"), f"claims {claim!r} like {other!r}; both autostart")
-        for i, fallback in enumerate(spec.fallback_controllers):
-            loc = ("controllers", name, "fallback_controllers", i)
-            if fallback not in c.controllers:
-                report(loc, f"unknown controller {fallback!r}")
-            elif fallback == name:
-                report(loc, "a controller cannot be its own fallback")
+        _check_fallbacks(name, spec.fallback_controllers, set(c.controllers), report)
+
+
+def _available_claims(loaded: LoadedConfig, owner: dict[str, str]) -> set[str]:
+    """Every command interface the joints' drivers offer."""
+    available = set()
+    for joint, hw_name in owner.items():
+        fields = getattr(loaded.driver_classes.get(hw_name), "COMMAND_FIELDS", FIELDS)
+        available.update(interface_name(joint, f) for f in FIELDS if f in fields)
+    return available
+
+
+def _check_controller(
+    loaded: LoadedConfig, name: str, cls: Any, params: Params, available: set[str], report: Report
+) -> list[str]:
+    """One controller's joints, limits and claims against the robot; its claims that parse."""
+    c = loaded.config
+    limits = {joint: section.limits for joint, section in c.joints.items()}
+    owner = {joint: hw for hw, section in c.hardware.items() for joint in section.joints}
+    for i, joint in enumerate(cls.joints_for(params)):
+        if joint not in c.joints:
+            report(("controllers", name, "params", "joints", i), f"unknown joint {joint!r}")
+    for problem in cls.robot_problems(params, limits):
+        report(("controllers", name, "params"), problem)
+    claims = []
+    for claim in cls.claims_for(params):
+        try:
+            joint, _ = parse_interface(claim)
+        except ClaimError as exc:
+            report(("controllers", name, "params"), str(exc))
+            continue
+        claims.append(claim)
+        if joint in c.joints and claim not in available:
+            driver = c.hardware[owner[joint]].driver if joint in owner else "?"
+            report(("controllers", name, "params"), f"claims {claim!r}, which driver {driver!r} does not offer")
+    return claims
+
+
+def _check_fallbacks(name: str, fallbacks: list[str], known: set[str], report: Report) -> None:
+    for i, fallback in enumerate(fallbacks):
+        loc = ("controllers", name, "fallback_controllers", i)
+        if fallback not in known:
+            report(loc, f"unknown controller {fallback!r}")
+        elif fallback == name:
+            report(loc, "a controller cannot be its own fallback")
+
+
+@dataclass(frozen=True)
+class CheckedController:
+    """A controller to load while the robot runs, checked as the config's are."""
+
+    name: str
+    type: str
+    params: Params
+    fallbacks: tuple[str, ...]
+
+
+def check_controller(
+    loaded: LoadedConfig, name: str, section: Any, loaded_controllers: set[str], source: str
+) -> CheckedController:
+    """``section`` (a controller's config section: ``type``, ``params``, ``fallback_controllers``) checked against
+    this robot the way ``hild check`` checks the config's controllers: its keys, its type, its params, its joints,
+    limits and claims, and fallbacks among ``loaded_controllers``. Raises :class:`ConfigError` listing every
+    problem, located as ``source: controllers.<name>…``."""
+    issues: list[ConfigIssue] = []
+
+    def report(loc: Loc, message: str) -> None:
+        issues.append(ConfigIssue(source, None, _fmt(loc), message))
+
+    if isinstance(section, dict) and "autostart" in section:
+        report(("controllers", name, "autostart"), "applies when the daemon starts; switch the controller instead")
+        section = {k: v for k, v in section.items() if k != "autostart"}
+    try:
+        spec = ControllerSection.model_validate(section)
+    except ValidationError as exc:
+        raise ConfigError(
+            issues + _pydantic_issues(exc, ControllerSection, ("controllers", name), source, {})
+        ) from None
+    try:
+        cls = plugins.load(plugins.CONTROLLERS, spec.type)
+    except plugins.PluginError as exc:
+        raise ConfigError([*issues, ConfigIssue(source, None, _fmt(("controllers", name, "type")), str(exc))]) from None
+    try:
+        params = cls.Params.model_validate(spec.params)
+    except ValidationError as exc:
+        raise ConfigError(
+            issues + _pydantic_issues(exc, cls.Params, ("controllers", name, "params"), source, {})
+        ) from None
+    owner = {joint: hw for hw, section_ in loaded.config.hardware.items() for joint in section_.joints}
+    _check_controller(loaded, name, cls, params, _available_claims(loaded, owner), report)
+    _check_fallbacks(name, spec.fallback_controllers, loaded_controllers, report)
+    if issues:
+        raise ConfigError(issues)
+    return CheckedController(name, spec.type, params, tuple(spec.fallback_controllers))
 
 
 BUS_LOAD_WARNING = 0.70

@@ -1,0 +1,192 @@
+"""Controllers loaded, configured, reloaded and unloaded while the robot runs (issue [runtime], item 1), over the
+JSON services and the Python client, with the cycle in this process (tests/processes has the three-process case).
+
+The arm never moves because of a lifecycle request: only a switch hands joints to a controller.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import yaml
+
+from hild.api.client import HildClient, HildError
+from hild.crossing.requests import Load
+from hild.cycle.engine import Engine
+from tests.api.conftest import Daemon
+from tests.api.test_services import raw_call
+from tests.helpers import wait_for
+
+FWD_PARAMS = {"joints": ["a", "b"], "interface": "position"}
+
+
+def states(client: HildClient) -> dict[str, str]:
+    return {c["name"]: c["state"] for c in client.list_controllers()}
+
+
+def positions(engine: Engine) -> np.ndarray:
+    return engine.state.position.copy()
+
+
+def test_load_configure_switch_stream_and_unload_a_controller(client: HildClient, daemon: Daemon) -> None:
+    engine = daemon.engine
+    before = positions(engine)
+    reply = client.load_controller("late", "forward_command", FWD_PARAMS)
+    assert reply == {"ok": True, "error": None, "name": "late", "type": "forward_command", "state": "unconfigured"}
+    assert states(client)["late"] == "unconfigured"
+    with pytest.raises(HildError, match="late is not configured"):
+        client.switch(["late"])
+    assert client.configure_controller("late")["state"] == "inactive"
+    np.testing.assert_allclose(positions(engine), before, atol=1e-9)  # loading and configuring moved nothing
+    assert [j["mode"] for j in client.status()["joints"]] == ["hold"] * 3
+
+    client.switch(["late"])
+    target = [0.3, -0.4]
+
+    def followed() -> bool:
+        client.send("late", target)
+        return bool(np.allclose(engine.state.position[:2], target, atol=0.01))
+
+    wait_for(followed, what="the joints at the streamed target")
+    with pytest.raises(HildError, match="'late' is active; deactivate it first"):
+        client.unload_controller("late")
+    client.switch([], ["late"])
+    assert client.unload_controller("late") == {"ok": True, "error": None, "name": "late"}
+    assert "late" not in states(client)
+    wait_for(lambda: daemon.events_with("unloaded late"), what="the unload event")
+    assert daemon.events_with("loaded late (forward_command) from a client: unconfigured")
+
+
+def test_a_loaded_controller_gets_its_zenoh_input_and_loses_it_when_unloaded(client: HildClient) -> None:
+    publisher = client.session.declare_publisher(client.keys.input("late", "commands"))
+    assert not publisher.matching_status.matching
+    client.load_controller("late", "forward_command", FWD_PARAMS)
+    wait_for(lambda: publisher.matching_status.matching, what="the new controller's input declared")
+    client.unload_controller("late")
+    wait_for(lambda: not publisher.matching_status.matching, what="its input withdrawn")
+    publisher.undeclare()
+
+
+@pytest.mark.parametrize(
+    ("request_", "reason"),
+    [
+        ({"name": "x", "type": "no_such_type"}, "unknown controller type 'no_such_type' (known: "),
+        ({"name": "x", "type": "forward_command", "params": {"joints": ["a"], "bogus": 1}}, "bogus: unknown key"),
+        ({"name": "x", "type": "forward_command", "params": {"joints": "a"}}, "controllers.x.params.joints"),
+        ({"name": "x", "type": "forward_command", "params": {"joints": ["z"]}}, "unknown joint 'z'"),
+        ({"name": "x", "type": "forward_command", "params": {"joints": ["a"], "interface": "current"}}, "current"),
+        ({"name": "fwd", "type": "forward_command", "params": FWD_PARAMS}, "'fwd' is already loaded"),
+        ({"name": "a/b", "type": "forward_command", "params": FWD_PARAMS}, "cannot be used in a Zenoh key"),
+        ({"name": "x", "type": "forward_command", "params": FWD_PARAMS, "fallback_controllers": ["nope"]}, "nope"),
+        ({"name": "x", "type": "forward_command", "params": FWD_PARAMS, "autostart": True}, "autostart"),
+        ({"name": "x", "type": "forward_command", "params": [1, 2]}, "params must be a JSON object"),
+        ({"type": "forward_command"}, 'give the name: {"name": ...}'),
+        ({"name": "x"}, "give the controller's type"),
+    ],
+)
+def test_a_load_that_does_not_check_out_is_refused_with_the_reason_and_changes_nothing(
+    client: HildClient, request_: dict[str, Any], reason: str
+) -> None:
+    before = client.list_controllers()
+    reply = client.call("load_controller", request_, check=False)
+    assert reply["ok"] is False and reason in reply["error"], reply["error"]
+    assert client.list_controllers() == before
+
+
+def test_ten_thousand_params_or_a_megabyte_value_are_refused_before_anything_is_built(client: HildClient) -> None:
+    before = client.list_controllers()
+    many = {"name": "x", "type": "forward_command", "params": {f"p{i}": i for i in range(10_000)}}
+    reply = raw_call(client, "load_controller", json.dumps(many).encode())
+    assert reply["ok"] is False and "exceeds the" in reply["error"], reply["error"]
+    huge = {"name": "x", "type": "forward_command", "params": {"joints": ["a"], "interface": "x" * (1 << 20)}}
+    reply = raw_call(client, "load_controller", json.dumps(huge).encode())
+    assert reply["ok"] is False and "exceeds the" in reply["error"], reply["error"]
+    assert client.list_controllers() == before
+
+
+def test_configure_and_unload_name_a_loaded_controller(client: HildClient) -> None:
+    for service in ("configure_controller", "unload_controller", "reload_controller"):
+        reply = client.call(service, {"name": "ghost"}, check=False)
+        assert reply["ok"] is False
+        assert "ghost" in reply["error"], reply["error"]
+    reply = client.call("configure_controller", {"name": "fwd", "extra": 1}, check=False)
+    assert reply["ok"] is False and "unknown field(s) 'extra'" in reply["error"]
+
+
+def test_a_controller_another_falls_back_to_stays_loaded(client: HildClient) -> None:
+    client.load_controller("late", "forward_command", FWD_PARAMS, fallback_controllers=["fwd_a"])
+    with pytest.raises(HildError, match=r"'fwd_a' is the fallback of \['late'\]"):
+        client.unload_controller("fwd_a")
+    client.unload_controller("late")
+    client.unload_controller("fwd_a")
+    assert set(states(client)) == {"jsb", "fwd"}
+
+
+def test_configuring_an_inactive_controller_configures_it_again(client: HildClient) -> None:
+    assert client.configure_controller("fwd")["state"] == "inactive"
+    client.switch(["fwd"])
+    with pytest.raises(HildError, match="'fwd' is active; deactivate it first"):
+        client.configure_controller("fwd")
+
+
+def test_reload_reads_the_config_file_as_it_is_now(client: HildClient, daemon: Daemon) -> None:
+    path = Path(daemon.engine.loaded.path)
+    config = yaml.safe_load(path.read_text())
+    config["controllers"]["fwd_a"]["params"]["joints"] = ["c"]
+    path.write_text(yaml.safe_dump(config, sort_keys=False))
+    reply = client.reload_controller("fwd_a")
+    assert reply["state"] == "inactive"  # it was configured: the new one is too
+    fwd_a = next(c for c in client.list_controllers() if c["name"] == "fwd_a")
+    assert fwd_a["claimed"] == ["c/position"]
+    assert daemon.events_with(f"reloaded fwd_a (forward_command) from {path}")
+
+    client.switch(["fwd_a"])
+    with pytest.raises(HildError, match="deactivate it before reloading it"):
+        client.reload_controller("fwd_a")
+    client.switch([], ["fwd_a"])
+
+    config["controllers"]["fwd_a"]["params"]["joints"] = ["nope"]
+    path.write_text(yaml.safe_dump(config, sort_keys=False))
+    with pytest.raises(HildError, match="does not load, so nothing was reloaded"):
+        client.reload_controller("fwd_a")
+    del config["controllers"]["fwd_a"]
+    path.write_text(yaml.safe_dump(config, sort_keys=False))
+    with pytest.raises(HildError, match="has no controller 'fwd_a'"):
+        client.reload_controller("fwd_a")
+    assert next(c for c in client.list_controllers() if c["name"] == "fwd_a")["claimed"] == ["c/position"]
+
+
+def test_list_controller_types_names_each_installed_type_and_its_class(client: HildClient) -> None:
+    types = {t["type"]: t["class"] for t in client.list_controller_types()}
+    assert types["forward_command"] == "hild.controllers.forward_command:ForwardCommandController"
+    assert {"joint_state_broadcaster", "joint_trajectory"} <= set(types)
+
+
+# ---- on the cycle: after the write, one per cycle -------------------------------------------------------------------
+def test_lifecycle_requests_are_applied_after_the_write_one_per_cycle(engine: Engine) -> None:
+    engine.start()
+    params = engine.loaded.controller_params["fwd"]
+    futures = [engine.request(Load(f"late{k}", "forward_command", params)) for k in range(3)]
+    written = []
+    for _ in range(3):
+        engine.step(round(engine.t + engine.period, 12), engine.period)
+        written.append(sum(f.done() for f in futures))
+    assert written == [1, 2, 3]
+    assert [f.result()["state"] for f in futures] == ["unconfigured"] * 3
+    engine.stop()
+
+
+def test_a_constructor_that_raises_is_refused_and_leaves_nothing_loaded(engine: Engine) -> None:
+    engine.start()
+    bad = engine.request(Load("late", "forward_command", {"joints": ["a"], "interface": "position"}, doors="x"))
+    broken = engine.request(Load("late2", "forward_command", {"joints": ["nope"]}))
+    engine.run_cycles(2)
+    assert bad.result()["state"] == "unconfigured"
+    with pytest.raises(Exception, match="late2: building a forward_command failed"):
+        broken.result()
+    assert "late2" not in engine.manager.records and "late2" not in engine.loads
+    engine.stop()
