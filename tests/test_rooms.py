@@ -22,6 +22,7 @@ LIBRARY_ROOMS = {
     "can": ("drivers/can",),
     "ruckig": ("hild/motion", "hild/controllers"),
     "rerun": ("hild/telemetry",),
+    "simpleeval": ("hild/api/expressions.py",),
 }
 
 
