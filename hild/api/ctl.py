@@ -18,10 +18,10 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from hild.api import pub, render
+from hild.api import render
 from hild.api.client import HildClient, HildError, HildUnreachable
 from hild.api.expressions import parse_all
-from hild.api.pub import MAX_RATE, MIN_RATE, check_rate
+from hild.api.pub import MAX_RATE, MIN_RATE, check_rate, stream
 from hild.api.session import DEFAULT_CONNECT, SessionConfigError, file_endpoints
 from hild.api.stream_inputs import resolve
 from hild.config.documents import DocumentError, load_document
@@ -332,7 +332,7 @@ def _pub(client: HildClient, args: argparse.Namespace, as_json: bool) -> int:
     if not as_json:
         until = f"for {args.duration:g} s" if args.duration is not None else "until Ctrl-C"
         print(f"streaming to {key} at {args.rate:g} Hz {until}", file=sys.stderr)
-    result = pub.stream(client, target, expressions, args.rate, args.duration)
+    result = stream(client, target, expressions, args.rate, args.duration)
     if as_json:
         print(json.dumps({"controller": target.controller, "input": target.input, **result.as_dict()}))
     else:
