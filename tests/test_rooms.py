@@ -1,6 +1,7 @@
 """The measuring room's exemption stays bounded: ``hild/bench`` may import drivers and any library, like the tests,
 because ``hild bench`` measures the product as shipped; nothing else in ``hild`` imports ``drivers`` (drivers depend
-on hild, never the reverse), and no product code imports the measuring room."""
+on hild, never the reverse), and no product code imports the measuring room. Outside it, each third-party library
+is imported only in its room (docs/architecture.md, "Rules")."""
 
 from __future__ import annotations
 
@@ -10,6 +11,19 @@ from pathlib import Path
 from tests.conftest import REPO
 
 MEASURING_ROOM = REPO / "hild" / "bench"
+# top-level module → where product code may import it (a folder, or one file)
+LIBRARY_ROOMS = {
+    "yaml": ("hild/config",),
+    "pydantic": ("hild/config",),
+    "zenoh": ("hild/api",),
+    "rosbags": ("hild/api/ros2",),
+    "xxhash": ("hild/api/ros2",),
+    "mujoco": ("drivers/mujoco", "hild/dynamics"),
+    "can": ("drivers/can",),
+    "ruckig": ("hild/motion", "hild/controllers"),
+    "rerun": ("hild/telemetry",),
+    "simpleeval": ("hild/api/expressions.py",),
+}
 
 
 def imports(path: Path) -> set[str]:
@@ -42,3 +56,15 @@ def test_no_product_module_imports_the_measuring_room() -> None:
         for p in product_modules()
     }
     assert {k: v for k, v in offenders.items() if v} == {}
+
+
+def test_each_library_is_imported_only_in_its_room() -> None:
+    offenders = {}
+    for path in product_modules():
+        where = path.relative_to(REPO)
+        for library, rooms in LIBRARY_ROOMS.items():
+            if any(m.split(".")[0] == library for m in imports(path)) and not any(
+                where == Path(room) or Path(room) in where.parents for room in rooms
+            ):
+                offenders.setdefault(str(where), []).append(library)
+    assert offenders == {}

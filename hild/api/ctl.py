@@ -20,7 +20,10 @@ from typing import Any
 
 from hild.api import render
 from hild.api.client import HildClient, HildError, HildUnreachable
+from hild.api.expressions import parse_all
+from hild.api.pub import MAX_RATE, MIN_RATE, check_rate, stream
 from hild.api.session import DEFAULT_CONNECT, SessionConfigError, file_endpoints
+from hild.api.stream_inputs import resolve
 from hild.config.documents import DocumentError, load_document
 
 EXIT_OK, EXIT_SERVICE, EXIT_UNREACHABLE = 0, 1, 2
@@ -112,9 +115,39 @@ def add_ctl_parser(subparsers: Any) -> None:
     cancel = sub.add_parser("cancel", parents=[common], help="stop a running goal (decelerates, then holds)")
     cancel.add_argument("goal_id")
     cancel.add_argument("--controller", help="default: the robot's only joint_trajectory controller")
+    pub = sub.add_parser(
+        "pub",
+        parents=[common],
+        help="stream values or expressions of t to a controller input (Ctrl-C stops; the joints then hold)",
+        description=PUB_DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    pub.add_argument("controller", help="a forward_command or servo controller, active")
+    pub.add_argument("values", nargs="+", metavar="VALUE", help="one per joint (controller order): number or f(t)")
+    pub.add_argument("--rate", type=float, default=50.0, help=f"samples per second, {MIN_RATE:g}–{MAX_RATE:g} (50)")
+    pub.add_argument("--input", metavar="NAME", help="the controller's input (default: its only streamed one)")
+    pub.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: at Ctrl-C)")
     watch = sub.add_parser("watch", parents=[common], help="live joint table (Ctrl-C to leave)")
     watch.add_argument("--once", action="store_true", help="print one table and exit")
     watch.add_argument("--rate", type=float, default=10.0, help="redraws per second (default 10)")
+
+
+PUB_DESCRIPTION = """\
+Stream one sample per period to a controller's input: forward_command's commands ({"values": [...]}) or
+servo's target ({"positions": [...]}), one VALUE per joint in the controller's order. A VALUE is a number or an
+expression of t, the seconds since the first sample: numbers, t, pi, tau, e, + - * / // % **, < <= > >=,
+'a if cond else b', and sin cos tan asin acos atan atan2 sinh cosh tanh exp log log10 log2 sqrt hypot floor
+ceil fmod copysign degrees radians abs min max sign. Every value is checked at t = 0 before anything is sent.
+Put -- before the values if one starts with '-' and is not a plain number.
+
+Stopping (Ctrl-C or --duration) sends nothing more: after the controller's command_timeout (0.5 s by default,
+cycle clock) forward_command's joints return to hold at the position they had then, and servo brakes to a stop
+and holds. pub stops early, exit code 1, if the daemon reports that it dropped a sample (outside the limits,
+controller deactivated) or a value fails later (1/(t-2) at t = 2).
+
+  hild ctl pub forward_position '0.3*sin(2*pi*0.5*t)' 1.0 -1.6 -0.97 1.57 0 --duration 10
+  hild ctl pub fwd -- '-0.2*(t > 1)' 0 0 --rate 100
+"""
 
 
 def run_ctl(args: argparse.Namespace) -> int:
@@ -351,6 +384,32 @@ def _named(args: argparse.Namespace) -> dict[str, Any]:
     return {"name": args.name}
 
 
+def _pub(client: HildClient, args: argparse.Namespace, as_json: bool) -> int:
+    """Check everything that would make the daemon drop the samples, then stream (hild/api/pub.py)."""
+    try:
+        check_rate(args.rate, args.duration)
+        expressions = parse_all(args.values)
+        target = resolve(client.list_controllers(), args.controller, args.input, len(expressions))
+    except ValueError as exc:  # ExpressionError, StreamInputError and the rate's reason
+        return _fail(HildError(f"pub: {exc}"), as_json, EXIT_SERVICE)
+    key = client.keys.input(target.controller, target.input)
+    if not as_json:
+        until = f"for {args.duration:g} s" if args.duration is not None else "until Ctrl-C"
+        print(f"streaming to {key} at {args.rate:g} Hz {until}", file=sys.stderr)
+    result = stream(client, target, expressions, args.rate, args.duration)
+    if as_json:
+        print(json.dumps({"controller": target.controller, "input": target.input, **result.as_dict()}))
+    else:
+        print(
+            f"sent {result.sent} samples in {result.seconds:.2f} s ({result.stopped}"
+            f"{f', {result.skipped} skipped: late' if result.skipped else ''}); {target.controller}'s joints hold "
+            "after its command_timeout"
+        )
+        if result.error:
+            print(f"hild ctl: pub: {result.error}", file=sys.stderr)
+    return EXIT_OK if result.error is None else EXIT_SERVICE
+
+
 def _cancel(client: HildClient, args: argparse.Namespace, as_json: bool) -> int:
     controller = _goal_controller(client, args.controller)
     try:
@@ -373,6 +432,7 @@ COMMANDS: dict[str, Callable[[HildClient, argparse.Namespace, bool], int]] = {
     "move-to": _move_to,
     "trajectory": _trajectory,
     "cancel": _cancel,
+    "pub": _pub,
     "set-zero": _set_zero,
     "enable": _service(
         "enable", lambda r: f"enabled {r.get('enabled') or []}; each holds once its drive confirms", _enable_request
