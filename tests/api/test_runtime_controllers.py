@@ -15,9 +15,11 @@ import pytest
 import yaml
 
 from hild.api.client import HildClient, HildError
+from hild.api.ctl import EXIT_OK, EXIT_SERVICE
 from hild.crossing.requests import Load
 from hild.cycle.engine import Engine
 from tests.api.conftest import Daemon
+from tests.api.test_ctl import ctl
 from tests.api.test_services import raw_call
 from tests.helpers import wait_for
 
@@ -190,3 +192,38 @@ def test_a_constructor_that_raises_is_refused_and_leaves_nothing_loaded(engine: 
         broken.result()
     assert "late2" not in engine.manager.records and "late2" not in engine.loads
     engine.stop()
+
+
+# ---- hild ctl ------------------------------------------------------------------------------------------------------
+def test_hild_ctl_load_switch_and_unload_as_a_new_user_would(
+    daemon: Daemon, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    params = tmp_path / "fwd.yaml"
+    params.write_text("joints: [a, b]\ninterface: position\n")
+    assert ctl(daemon, "load", "my_fwd", "--type", "forward_command", "--params", str(params)) == EXIT_OK
+    assert capsys.readouterr().out.splitlines() == ["my_fwd: loaded", "my_fwd: configured"]
+    assert ctl(daemon, "switch", "--activate", "my_fwd") == EXIT_OK
+    assert ctl(daemon, "unload", "my_fwd") == EXIT_SERVICE
+    assert "'my_fwd' is active; deactivate it first" in capsys.readouterr().err
+    assert ctl(daemon, "switch", "--deactivate", "my_fwd") == EXIT_OK
+    assert ctl(daemon, "unload", "my_fwd") == EXIT_OK
+    assert capsys.readouterr().out.splitlines()[-1] == "my_fwd: unloaded"
+
+    assert ctl(daemon, "load", "on", "--type", "forward_command", "--params", str(params), "--state", "active") == 0
+    assert capsys.readouterr().out.splitlines() == ["on: loaded", "on: configured", "on: activated"]
+    assert ctl(daemon, "--json", "load", "raw", "--type", "forward_command", "--state", "unconfigured") == EXIT_SERVICE
+    (refusal,) = json.loads(capsys.readouterr().out)
+    assert "controllers.raw.params.joints: missing required key" in refusal["error"]
+    assert ctl(daemon, "list-types") == EXIT_OK
+    assert "hild.controllers.forward_command:ForwardCommandController" in capsys.readouterr().out
+
+
+def test_hild_ctl_load_refuses_a_params_file_that_is_not_a_mapping(
+    daemon: Daemon, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    params = tmp_path / "list.yaml"
+    params.write_text("- a\n- b\n")
+    assert ctl(daemon, "load", "x", "--type", "forward_command", "--params", str(params)) == EXIT_SERVICE
+    assert "expected a mapping of params, found list" in capsys.readouterr().err
+    assert ctl(daemon, "load", "x", "--type", "forward_command", "--params", str(tmp_path / "none.yaml")) == 1
+    assert "none.yaml" in capsys.readouterr().err
