@@ -158,6 +158,17 @@ class Controller:
     def on_cleanup(self) -> None:
         """Release what on_configure took."""
 
+    def set_params(self, params: Params) -> None:
+        """New values of this controller's dynamic parameters (``hild.config.params.dynamic``), already validated:
+        set by the controller manager between two cycles in the cycle half, and in the API half once the cycle has
+        taken them. Both halves then run :meth:`on_params`."""
+        old, self.params = self.params, params
+        self.on_params(old)
+
+    def on_params(self, old: Params) -> None:
+        """Derive what depends on ``self.params`` again, without a step in the command (a gain is ramped, a new
+        tolerance applies to what comes next). Quick and without I/O: it runs between two cycles."""
+
     def on_client_domain_lost(self, t: float, reason: str) -> None:
         """The client domain ended while the cycle ran (cycle thread, before the next ``update``): nobody can
         follow, cancel or receive the results of what this controller runs for clients. End it with ``reason``

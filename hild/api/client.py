@@ -231,6 +231,18 @@ class HildClient:
     def unload_controller(self, name: str) -> dict[str, Any]:
         return self.call("unload_controller", {"name": name})
 
+    def list_parameters(self, controller: str) -> list[dict[str, Any]]:
+        """Each parameter of ``controller``: ``name`` (a dotted path), ``value``, ``dynamic``, ``description``."""
+        return list(self.call("list_parameters", {"controller": controller})["parameters"])
+
+    def get_parameters(self, controller: str, names: Iterable[str] = ()) -> dict[str, Any]:
+        return dict(self.call("get_parameters", {"controller": controller, "names": list(names)})["values"])
+
+    def set_parameters(self, controller: str, values: dict[str, Any]) -> dict[str, Any]:
+        """Set parameters by dotted path (``{"constraints.goal_time": 0.8}``): dynamic ones while the controller is
+        active, any while it is not (it is then rebuilt); all or nothing."""
+        return self.call("set_parameters", {"controller": controller, "values": values})
+
     def reload_controller(self, name: str) -> dict[str, Any]:
         """Replace a controller that is not active with one built from the daemon's config file as it is now."""
         return self.call("reload_controller", {"name": name})

@@ -94,6 +94,17 @@ def add_ctl_parser(subparsers: Any) -> None:
     ):
         sub.add_parser(verb, parents=[common], help=what).add_argument("name")
     sub.add_parser("list-types", parents=[common], help="controller types this daemon can load")
+    param = sub.add_parser("param", parents=[common], help="a controller's parameters: list, get, set")
+    verbs = param.add_subparsers(dest="param_command", metavar="VERB", required=True)
+    verbs.add_parser("list", parents=[common], help="every parameter, its value and whether it may change while active")
+    verbs.add_parser("get", parents=[common], help="values by dotted name").add_argument(
+        "names", nargs="*", metavar="NAME", help="default: all"
+    )
+    setter = verbs.add_parser("set", parents=[common], help="set NAME VALUE pairs, all or nothing")
+    setter.add_argument("pairs", nargs="+", metavar="NAME VALUE", help="VALUE is JSON (0.8, true, [1, 2]) or text")
+    for verb in verbs.choices.values():
+        verb.add_argument("controller", help="the controller's name")
+        verb._actions.insert(1, verb._actions.pop())  # the controller first in the usage line
     sub.add_parser("estop", parents=[common], help="engage the e-stop (only reset leaves it)")
     sub.add_parser("reset", parents=[common], help="clear latched faults and the e-stop")
     enable = sub.add_parser("enable", parents=[common], help="enable drives a fault disabled (after reset)")
@@ -380,6 +391,44 @@ def _load(client: HildClient, args: argparse.Namespace, as_json: bool) -> int:
     return EXIT_OK
 
 
+def _param(client: HildClient, args: argparse.Namespace, as_json: bool) -> int:
+    """``param list|get|set``: one service each, printed as ``_service`` prints."""
+    if args.param_command == "set":
+        if len(args.pairs) % 2:
+            return _fail(ValueError("param set takes NAME VALUE pairs"), as_json, EXIT_SERVICE)
+        values = {name: _value(raw) for name, raw in zip(args.pairs[::2], args.pairs[1::2], strict=True)}
+        request: dict[str, Any] = {"controller": args.controller, "values": values}
+    elif args.param_command == "get":
+        request = {"controller": args.controller, "names": args.names}
+    else:
+        request = {"controller": args.controller}
+    service, text = PARAM_VERBS[args.param_command]
+    return _service(service, text, lambda _: request)(client, args, as_json)
+
+
+def _set_text(reply: dict[str, Any]) -> str:
+    return "\n".join([*reply["changed"], f"{reply['controller']}: {reply['applied']}"])
+
+
+def _values_text(reply: dict[str, Any]) -> str:
+    return "\n".join(f"{name}: {json.dumps(value)}" for name, value in reply["values"].items())
+
+
+PARAM_VERBS: dict[str, tuple[str, Callable[[dict[str, Any]], str]]] = {
+    "list": ("list_parameters", lambda reply: render.parameters_text(reply["parameters"])),
+    "get": ("get_parameters", _values_text),
+    "set": ("set_parameters", _set_text),
+}
+
+
+def _value(raw: str) -> Any:
+    """A value as JSON (``0.8``, ``true``, ``[1, 2]``), else the text itself (``stop``)."""
+    try:
+        return json.loads(raw)
+    except json.JSONDecodeError:
+        return raw
+
+
 def _named(args: argparse.Namespace) -> dict[str, Any]:
     return {"name": args.name}
 
@@ -438,6 +487,7 @@ COMMANDS: dict[str, Callable[[HildClient, argparse.Namespace, bool], int]] = {
         "enable", lambda r: f"enabled {r.get('enabled') or []}; each holds once its drive confirms", _enable_request
     ),
     "load": _load,
+    "param": _param,
     "configure": _service("configure_controller", lambda r: f"{r['name']}: {r['state']}", _named),
     "unload": _service("unload_controller", lambda r: f"{r['name']}: unloaded", _named),
     "reload": _service("reload_controller", lambda r: f"{r['name']}: reloaded ({r['state']})", _named),

@@ -27,6 +27,9 @@ SERVICES = (
     "configure_controller",
     "unload_controller",
     "reload_controller",
+    "list_parameters",
+    "get_parameters",
+    "set_parameters",
 )
 # Second-level chunks the API itself uses; a controller output may not take one of these names.
 RESERVED = frozenset(

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from collections.abc import Sequence
 from typing import Any
 
@@ -52,6 +53,16 @@ def controllers_text(controllers: Sequence[dict[str, Any]]) -> str:
         [
             [c["name"], c["type"], c["state"], ",".join(c.get("claimed") or []) or None, c.get("error") or None]
             for c in controllers
+        ],
+    )
+
+
+def parameters_text(parameters: Sequence[dict[str, Any]]) -> str:
+    return table(
+        ["PARAMETER", "VALUE", "WHILE ACTIVE", "DESCRIPTION"],
+        [
+            [p["name"], json.dumps(p["value"]), "yes" if p["dynamic"] else "no", p.get("description") or ""]
+            for p in parameters
         ],
     )
 

@@ -28,9 +28,21 @@ from hild.api.codec import MAX_PAYLOAD, PayloadError, decode, encode
 from hild.api.keys import check_chunk
 from hild.api.queries import LargePayloadWorker, too_large
 from hild.config.loader import ConfigError, check_controller, load_config
+from hild.config.params import describe, flatten, with_values
 from hild.controller import and_more, unknown_keys
 from hild.crossing.cells import MAX_CONTROLLERS
-from hild.crossing.requests import Configure, Enable, Load, Refused, Request, Reset, SetZero, Switch, Unload
+from hild.crossing.requests import (
+    Configure,
+    Enable,
+    Load,
+    Refused,
+    Request,
+    Reset,
+    SetParams,
+    SetZero,
+    Switch,
+    Unload,
+)
 from hild.daemon.link import CycleLink
 
 log = logging.getLogger("hild.api")
@@ -174,6 +186,9 @@ class Services:
             "configure_controller": Service({"name": controller_name}, self._configure),
             "unload_controller": Service({"name": controller_name}, self._unload),
             "reload_controller": Service({"name": controller_name}, self._reload),
+            "list_parameters": Service({"controller": controller_name}, read=self._list_parameters),
+            "get_parameters": Service({"controller": controller_name, "names": names}, read=self._get_parameters),
+            "set_parameters": Service({"controller": controller_name, "values": mapping}, self._set_parameters),
         }
 
     async def handle(self, name: str, raw: bytes) -> Reply:
@@ -365,6 +380,90 @@ class Services:
             known = ", ".join(sorted(loaded)) or "none"
             raise RequestError(f"unknown controller {name!r} (loaded: {known})")
         return name
+
+    # ---- parameters (docs/protocol.md, "Parameters while the robot runs") --------------------------------------------
+    def _controller(self, request: dict[str, Any]) -> tuple[str, Any]:
+        name = _required(request, "controller")
+        controller = self.engine.controllers().get(name)
+        if controller is None:
+            known = ", ".join(sorted(self.engine.controllers())) or "none"
+            raise RequestError(f"unknown controller {name!r} (loaded: {known})")
+        return name, controller
+
+    def _list_parameters(self, request: dict[str, Any]) -> Reply:
+        name, controller = self._controller(request)
+        model = type(controller.params)
+        parameters = []
+        for path, value in flatten(controller.params).items():
+            dynamic, description = describe(model, path)
+            parameters.append({"name": path, "value": value, "dynamic": dynamic, "description": description})
+        return {"controller": name, "parameters": parameters}
+
+    def _get_parameters(self, request: dict[str, Any]) -> Reply:
+        name, controller = self._controller(request)
+        values = flatten(controller.params)
+        wanted = request.get("names") or list(values)
+        unknown = [path for path in wanted if path not in values]
+        if unknown:
+            raise RequestError(f"{name} has no parameter(s) {', '.join(map(repr, unknown))} (list_parameters)")
+        return {"controller": name, "values": {path: values[path] for path in wanted}}
+
+    async def _set_parameters(self, request: dict[str, Any]) -> Reply:
+        """Validated here against the controller's own schema, whole; applied between two cycles in both halves.
+        A controller that is active takes only dynamic parameters; one that is not takes any, and is then rebuilt
+        (as a reload, from these values: it is configured again if it was)."""
+        name, controller = self._controller(request)
+        values = request.get("values") or {}
+        if not values:
+            raise RequestError('nothing to set: {"controller": NAME, "values": {"path.to.param": value}}')
+        if len(values) > MAX_NAMES:
+            raise RequestError(f"{len(values)} parameters in one request; at most {MAX_NAMES}")
+        model = type(controller.params)
+        try:
+            params = with_values(controller.params, values)
+        except ValueError as exc:
+            raise RequestError(f"{name}: {_validation_text(exc)}; nothing changed") from None
+        changes = _changes(controller.params, params)
+        if not changes:
+            return {"controller": name, "changed": [], "applied": "unchanged"}
+        fixed = sorted({path for path in values if not describe(model, path)[0]})
+        if not fixed:
+            reply = await self.on_cycle(SetParams(name, params, tuple(changes)))
+            return {"controller": name, "changed": reply["changed"], "applied": "now"}
+        if controller.active:
+            raise RequestError(
+                f"{', '.join(fixed)} of {name} cannot change while it is active: deactivate it, set them, "
+                "and it is rebuilt with them (only dynamic parameters change while active: list_parameters)"
+            )
+        spec = next(c for c in self.engine.snapshot().controllers if c["name"] == name)
+        section = {"type": spec["type"], "params": params.model_dump(mode="json")}
+        loaded = {c["name"] for c in self.engine.snapshot().controllers}
+        checked = self._checked(name, section, loaded, "request")
+        load = Load(name, checked.type, checked.params, replaces=True, keeps_fallbacks=True, source="new parameters")
+        reply = await self.on_cycle(load)
+        return {"controller": name, "changed": changes, "applied": f"rebuilt ({reply['state']})"}
+
+
+def _changes(old: Any, new: Any) -> list[str]:
+    """``path: old → new`` for every parameter that differs, in JSON."""
+    before, after = flatten(old), flatten(new)
+    return [
+        f"{path}: {encode(before.get(path)).decode()} → {encode(value).decode()}"
+        for path, value in after.items()
+        if before.get(path) != value
+    ]
+
+
+def _validation_text(exc: ValueError) -> str:
+    """A pydantic error as ``path: what``, one per problem; any other ValueError as it is."""
+    errors = getattr(exc, "errors", None)
+    if not callable(errors):
+        return str(exc)
+    parts = []
+    for err in errors():
+        where = ".".join(str(p) for p in err["loc"]) or "params"
+        parts.append(f"{where}: {err['msg'].removeprefix('Value error, ')} (found {err.get('input')!r:.60})")
+    return "; ".join(parts)
 
 
 def _required(request: dict[str, Any], field: str) -> Any:

@@ -14,7 +14,7 @@ from typing import Any, Literal
 import numpy as np
 
 from hild.arrays import JointState, ServoCommand
-from hild.config.params import Field, Params
+from hild.config.params import Field, Params, dynamic
 from hild.controller import Controller, ControllerContext
 from hild.crossing.mailboxes import LatestNumbers
 from hild.interfaces import interface_name
@@ -23,7 +23,7 @@ from hild.interfaces import interface_name
 class ForwardCommandParams(Params):
     joints: list[str] = Field(min_length=1, description="Joints commanded, in the order of the values.")
     interface: Literal["position", "velocity", "effort"] = "position"
-    command_timeout: float = Field(
+    command_timeout: float = dynamic(
         default=0.5, gt=0.0, description="Seconds of silence after which the joints return to hold."
     )
 

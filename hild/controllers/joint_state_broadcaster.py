@@ -13,7 +13,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from hild.arrays import JointState, ServoCommand
-from hild.config.params import Field, Params
+from hild.config.params import Params, dynamic
 from hild.controller import Controller, ControllerContext
 from hild.crossing.ring import SampleRing
 
@@ -21,7 +21,7 @@ PUBLISHED_FIELDS = ("position", "velocity", "effort", "fresh")
 
 
 class BroadcasterParams(Params):
-    publish_rate: float = Field(default=100.0, gt=0.0, description="Hz; at most the update rate.")
+    publish_rate: float = dynamic(default=100.0, gt=0.0, description="Hz; at most the update rate.")
 
 
 class JointStateBroadcaster(Controller):
@@ -39,6 +39,10 @@ class JointStateBroadcaster(Controller):
 
     def on_activate(self, state: JointState, last_command: ServoCommand) -> None:
         self._next = -np.inf  # publish on the first cycle
+
+    def on_params(self, old: Params) -> None:
+        assert isinstance(self.params, BroadcasterParams)
+        self._interval = 1.0 / min(self.params.publish_rate, self.context.update_rate)  # from the next sample on
 
     def update(self, t: float, dt: float, state: JointState, command: ServoCommand) -> None:
         # Keep the phase (exact rate on a jittery wall clock); resync after a gap instead of bursting.

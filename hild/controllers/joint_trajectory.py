@@ -25,7 +25,7 @@ import numpy as np
 
 from hild.action import ActionServer, CancelRequest, ClientLost, ErrorCode, GoalRejected, GoalRequest, GoalStatus
 from hild.arrays import JointState, ServoCommand
-from hild.config.params import Field, Params, model_validator
+from hild.config.params import Field, Params, dynamic, model_validator
 from hild.controller import Controller, ControllerContext
 from hild.controllers.motion_common import PlansMotion, first_taken_over
 from hild.controllers.trajectory_goals import GoalContext, PreparedGoal, parse_goal
@@ -67,19 +67,23 @@ class JointTrajectoryParams(Params):
         default_factory=lambda: ["position", "velocity"],
         description="[position], [position, velocity] (velocity as feed-forward) or [effort] (PID).",
     )
-    allow_partial_joints_goal: bool = False
-    partial_goal_other_joints: Literal["continue", "stop"] = Field(
+    allow_partial_joints_goal: bool = dynamic(False)
+    partial_goal_other_joints: Literal["continue", "stop"] = dynamic(
         default="continue", description="Joints a partial goal leaves out keep their current motion, or stop."
     )
-    constraints: Constraints = Field(default_factory=Constraints)
+    constraints: Constraints = dynamic(
+        default_factory=Constraints, description="Goals accepted after a change are checked against the new ones."
+    )
     gains: dict[str, PidGains] = Field(default_factory=dict, description="Per joint, for the effort interface.")
-    feedback_rate: float = Field(default=25.0, gt=0.0, description="Hz of the feedback topic while a goal runs.")
-    velocity_scale: float = Field(default=1.0, gt=0.0, le=1.0, description="Of the joints' limits, for planning.")
-    acceleration_scale: float = Field(default=1.0, gt=0.0, le=1.0, description="Jerk scales with it.")
-    start_tolerance: float = Field(
+    feedback_rate: float = dynamic(default=25.0, gt=0.0, description="Hz of the feedback topic while a goal runs.")
+    velocity_scale: float = dynamic(
+        default=1.0, gt=0.0, le=1.0, description="Of the joints' limits, for planning (goals planned after a change)."
+    )
+    acceleration_scale: float = dynamic(default=1.0, gt=0.0, le=1.0, description="Jerk scales with it.")
+    start_tolerance: float = dynamic(
         default=0.01, gt=0.0, description="A first point at time 0 must be this close to the current position."
     )
-    on_client_lost: Literal["continue", "stop"] = Field(
+    on_client_lost: Literal["continue", "stop"] = dynamic(
         default="stop",
         description="A goal whose sender disappeared (Zenoh liveliness): decelerate to a stop and abort it, "
         "or run it to its end.",
@@ -187,6 +191,14 @@ class JointTrajectoryController(PlansMotion, Controller):
             goal_time=params.constraints.goal_time,
             start_tolerance=params.start_tolerance,
         )
+
+    def on_params(self, old: Params) -> None:
+        """Tolerances, scales and options apply to goals accepted from now on (a running goal keeps the plan and
+        the checks it was accepted with: nothing it already does changes under it)."""
+        assert isinstance(self.params, JointTrajectoryParams)
+        self.goal_context = self._goal_context(self.params, self.context)
+        self.limits = self.goal_context.limits
+        self._feedback_interval = 1.0 / min(self.params.feedback_rate, self.context.update_rate)
 
     # ---- contract ----------------------------------------------------------------------------------------------
     def action_server(self) -> ActionServer[PreparedGoal]:

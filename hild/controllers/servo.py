@@ -28,7 +28,7 @@ import numpy as np
 from ruckig import ControlInterface, InputParameter, OutputParameter, Result, Ruckig, RuckigError, Synchronization
 
 from hild.arrays import JointState, ServoCommand
-from hild.config.params import Field, Params, model_validator
+from hild.config.params import Field, Params, dynamic, model_validator
 from hild.controller import Controller, ControllerContext, and_more, unknown_keys
 from hild.controllers.motion_common import PlansMotion, first_taken_over
 from hild.crossing.mailboxes import LatestNumbers
@@ -51,7 +51,7 @@ class ServoParams(Params):
         default_factory=lambda: ["position", "velocity"],
         description="[position, velocity] (planned velocity as feed-forward) or [position].",
     )
-    command_timeout: float = Field(
+    command_timeout: float = dynamic(
         default=0.5, gt=0.0, description="Seconds without a target after which the joints brake to a stop and hold."
     )
     velocity_scale: float = Field(default=1.0, gt=0.0, le=1.0, description="Fraction of the joints' velocity limits.")

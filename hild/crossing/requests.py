@@ -61,6 +61,7 @@ class Load:
     fallbacks: tuple[str, ...] = ()
     doors: str = ""
     replaces: bool = False
+    keeps_fallbacks: bool = False  # a replacement keeps the fallbacks of the one it replaces (new parameters)
     source: str = field(default="", compare=False)  # where the params came from, for the event: a file, a client
 
 
@@ -78,7 +79,17 @@ class Unload:
     name: str
 
 
-LifecycleRequest = (
-    Load | Configure | Unload
-)  # applied after a cycle's write: a controller's own code never delays a command
-Request = Switch | Estop | Reset | Enable | SetZero | Load | Configure | Unload
+@dataclass(frozen=True, slots=True)
+class SetParams:
+    """New values of a controller's dynamic parameters, validated by the client domain: set in both halves between
+    two cycles. ``changes`` (``path: old → new``) and ``by`` are for the event that records who changed what."""
+
+    name: str
+    params: Any  # the controller type's whole, validated ``Params``
+    changes: tuple[str, ...] = ()
+    by: str = "a client"
+
+
+# Applied after a cycle's write, one per cycle: a controller's own code never delays a command.
+LifecycleRequest = Load | Configure | Unload | SetParams
+Request = Switch | Estop | Reset | Enable | SetZero | LifecycleRequest

@@ -15,6 +15,7 @@ controllers' output rings.
 from __future__ import annotations
 
 import concurrent.futures
+import dataclasses
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
@@ -38,6 +39,7 @@ from hild.crossing.requests import (
     Refused,
     Request,
     Reset,
+    SetParams,
     SetZero,
     Switch,
     Unload,
@@ -299,6 +301,8 @@ class Engine:
         except Exception as exc:  # the plugin's constructor: its author's code
             raise SwitchError(f"{load.name}: building a {load.type} failed: {type(exc).__name__}: {exc}") from None
         if load.replaces:
+            if load.keeps_fallbacks and load.name in self.manager.records:
+                load = dataclasses.replace(load, fallbacks=self.manager.records[load.name].fallbacks)
             state = self.manager.replace(load.name, load.type, controller, load.fallbacks)
         else:
             self.manager.load(load.name, load.type, controller, load.fallbacks)
@@ -322,6 +326,8 @@ class Engine:
                     self.manager.configure(name)
                     self.events.emit("info", "controller_manager", f"configured {name}: inactive")
                     return {"name": name, "state": "inactive"}
+                case SetParams():
+                    return self._set_params(request)
                 case Unload():
                     self.manager.unload(name)
                     del self.loads[name]
@@ -478,6 +484,22 @@ class Engine:
         if (lifecycle := self._lifecycle.poll()) is not None:
             self._apply_lifecycle(*lifecycle)
 
+    def _set_params(self, request: SetParams) -> dict[str, Any]:
+        """Hand a controller its new parameters; one whose ``on_params`` raises gets its old ones back."""
+        record = self.manager.records.get(request.name)
+        if record is None:
+            raise Refused(f"unknown controller {request.name!r}")
+        old = record.instance.params
+        try:
+            record.instance.set_params(request.params)
+        except Exception as exc:  # the plugin's code: it must not take the cycle down, nor keep half of a change
+            record.instance.set_params(old)
+            raise Refused(f"{request.name}: on_params raised {type(exc).__name__}: {exc}; nothing changed") from None
+        self.loads[request.name] = dataclasses.replace(self.loads[request.name], params=request.params)
+        self.loads_seq += 1
+        self.events.emit("info", request.name, f"parameters set by {request.by}: {'; '.join(request.changes)}")
+        return {"name": request.name, "changed": list(request.changes)}
+
     def _apply_lifecycle(self, request: LifecycleRequest, future: concurrent.futures.Future[Any]) -> None:
         if not future.set_running_or_notify_cancel():
             return
@@ -566,7 +588,7 @@ class Engine:
         """An operator request (:mod:`hild.crossing.requests`), applied at the start of the next cycle. Its future
         holds the reply dict, or raises :class:`~hild.crossing.requests.Refused`; an e-stop takes its own path and is
         never refused."""
-        if isinstance(request, Load | Configure | Unload):
+        if isinstance(request, Load | Configure | Unload | SetParams):
             future: concurrent.futures.Future[Any] = concurrent.futures.Future()
             if not self._lifecycle.offer((request, future)):
                 future.set_exception(Refused("too many pending requests; try again"))
@@ -589,7 +611,7 @@ class Engine:
                 return _refused_if_error(self.enable(joints))  # type: ignore[return-value]
             case SetZero(joint):
                 return _refused_if_error(self.set_zero(joint))  # type: ignore[return-value]
-            case Load() | Configure() | Unload():
+            case Load() | Configure() | Unload() | SetParams():
                 return self.apply_lifecycle(request)
         return self.estop()
 

@@ -104,6 +104,15 @@ class ApiHalves:
         if replaced is not None:
             self._doors.region.release(f"{replaced}/")
 
+    def params_set(self, name: str, params: Any, future: concurrent.futures.Future[Any]) -> None:
+        """The cycle took new parameters for ``name``: its API half takes them too (it plans and validates)."""
+        if future.cancelled() or future.exception() is not None:
+            return
+        with self._lock:
+            half = self._halves.get(name)
+        if half is not None:
+            half.set_params(params)
+
     def unloaded(self, name: str, future: concurrent.futures.Future[Any]) -> None:
         """The cycle answered an unload of ``name``: if it was unloaded, its half goes and its cells are given back."""
         if future.cancelled() or future.exception() is not None:

@@ -29,7 +29,7 @@ from hild.config.loader import LoadedConfig
 from hild.crossing.attach import Attachment, Crossing
 from hild.crossing.cells import REQUESTS, Ask, ClientPhase, ClientVital, Phase, Vital
 from hild.crossing.events import Event, EventLog
-from hild.crossing.requests import Estop, Load, Refused, Request, Unload
+from hild.crossing.requests import Estop, Load, Refused, Request, SetParams, Unload
 from hild.crossing.snapshot import Snapshot
 from hild.crossing.status import loop_status, render_status
 from hild.crossing.telemetry import TelemetryRing
@@ -229,6 +229,10 @@ class RemoteCycle:
             case Unload(name):
                 future = self._queue(request)
                 future.add_done_callback(lambda f: self.halves.unloaded(name, f))
+                return future
+            case SetParams(name, params):
+                future = self._queue(request)
+                future.add_done_callback(lambda f: self.halves.params_set(name, params, f))
                 return future
         return self._queue(request)
 
