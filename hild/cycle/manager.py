@@ -28,6 +28,7 @@ class ControllerRecord:
     instance: Controller
     claims: tuple[str, ...]
     fallbacks: tuple[str, ...]
+    reads: tuple[str, ...] = ()  # the state interfaces it reads
     state: ControllerState = ControllerState.UNCONFIGURED
     error: str = ""
     joint_index: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.intp))
@@ -43,6 +44,7 @@ class ControllerInfo:
     state: str
     claimed: tuple[str, ...]
     error: str
+    reads: tuple[str, ...] = ()
 
     def as_dict(self) -> dict[str, object]:
         return {
@@ -51,6 +53,7 @@ class ControllerInfo:
             "state": self.state,
             "claimed": list(self.claimed),
             "error": self.error,
+            "state_interfaces": list(self.reads),
         }
 
 
@@ -102,6 +105,7 @@ class ControllerManager:
             instance=controller,
             claims=claims,
             fallbacks=tuple(fallbacks),
+            reads=tuple(controller.state_interfaces()),
             joint_index=np.array(joints, dtype=np.intp),
         )
         self._slots += 1
@@ -309,7 +313,8 @@ class ControllerManager:
 
     def _changed(self) -> None:
         self.snapshot = tuple(
-            ControllerInfo(r.slot, r.name, r.type, str(r.state), r.claims, r.error) for r in self.records.values()
+            ControllerInfo(r.slot, r.name, r.type, str(r.state), r.claims, r.error, r.reads)
+            for r in self.records.values()
         )
         self.change_seq += 1
 
