@@ -132,7 +132,8 @@ class RosFace:
         self._clock = RosClock(self.engine, self.writer(CLOCK_TOPIC, CLOCK) if sim else None)
         self._sync(self._loaded_controllers())
         self._declare_description()
-        ControllerManager(self, self.services, self.settings.node)  # ros2_control's services live under its node
+        # ros2_control's services live under its node
+        ControllerManager(self, self.services, self.settings.node, self.engine.loaded.config.update_rate)
 
     def _loaded_controllers(self) -> dict[str, Any]:
         """The loaded controllers; the copy is retried when the records change while it is taken (start-up)."""
