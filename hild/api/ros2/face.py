@@ -63,6 +63,9 @@ JOINT_STATE = "sensor_msgs/msg/JointState"
 STRING = "std_msgs/msg/String"
 FLOAT64_ARRAY = "std_msgs/msg/Float64MultiArray"
 SOURCE = "ros2"  # the source of hild events this face emits
+# joint_state_broadcaster's frame_id parameter defaults to this (ros2_controllers 4.42.1, jazzy); rviz needs a frame
+# to show the joints' efforts
+JOINT_STATES_FRAME = "base_link"
 
 
 @dataclass
@@ -291,7 +294,9 @@ class RosFace:
                 msg = types.message(
                     JOINT_STATE,
                     header=types.message(
-                        "std_msgs/msg/Header", stamp=ros_time(self._clock.sample_ns(stamp)), frame_id=""
+                        "std_msgs/msg/Header",
+                        stamp=ros_time(self._clock.sample_ns(stamp)),
+                        frame_id=JOINT_STATES_FRAME,
                     ),
                     name=out.names,
                     position=np.asarray(fields["position"], dtype=np.float64),

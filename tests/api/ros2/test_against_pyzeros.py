@@ -281,7 +281,7 @@ def test_pyzeros_subscribes_lists_and_switches(ros_daemon: Daemon, peer: zenoh.S
 
     with pyzeros.auto_context(node="pyzeros_probe", zenoh_session=peer, domain_id=0):
         got = asyncio.run(main())
-    assert list(got["state"].name) == ["a", "b", "c"]
+    assert list(got["state"].name) == ["a", "b", "c"] and got["state"].header.frame_id == "base_link"
     sim_now = ros_daemon.engine.t  # lockstep: ROS time is the sim clock, on /clock and in every stamp
     for stamp in (got["tick"].clock, got["state"].header.stamp):
         assert 0.0 < stamp.sec + stamp.nanosec * 1e-9 <= sim_now + 1e-9  # ns rounding
