@@ -146,6 +146,12 @@ class Controller:
     def claims(self) -> list[str]:
         return self.claims_for(self.params)
 
+    def state_interfaces(self) -> list[str]:
+        """The measured values this controller reads, as ``<joint>/<position|velocity|effort>``: what ros2_control
+        lists as a controller's required state interfaces (``list_controllers`` reports them). None by default:
+        a controller that reads the state says so. Must not change while the controller is loaded."""
+        return []
+
     def on_configure(self) -> None:
         """Allocate what update() needs."""
 

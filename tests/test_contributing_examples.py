@@ -71,6 +71,8 @@ def test_the_example_driver_holds_where_it_is_until_a_controller_commands(engine
 
 
 def test_the_example_controller_sweeps_from_where_the_joints_are_and_takes_its_input(engine: Engine) -> None:
+    (entry,) = engine.snapshot().controllers
+    assert (entry["claimed"], entry["state_interfaces"]) == (["a/position", "b/position"], ["a/position", "b/position"])
     assert engine.switch(["sweep"], []).ok
     sweep = engine.controllers()["sweep"]
     run(engine, 0.25)  # a quarter period at 1 Hz: the crest of the default 0.1 rad

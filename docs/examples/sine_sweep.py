@@ -33,6 +33,7 @@ class SineSweep(Controller):
 
     def __init__(self, context: ControllerContext, params: SineSweepParams) -> None:
         super().__init__(context, params)
+        self._joints = list(params.joints)
         self._index = context.index_of(params.joints)
         self._amplitude_door = context.mailboxes.latest_numbers("amplitude", 1)
         self._amplitude = params.amplitude
@@ -45,6 +46,10 @@ class SineSweep(Controller):
     def claims_for(cls, params: Params) -> list[str]:
         assert isinstance(params, SineSweepParams)
         return [interface_name(joint, "position") for joint in params.joints]
+
+    def state_interfaces(self) -> list[str]:
+        """It reads where its joints are when activated (list_controllers reports it)."""
+        return [interface_name(joint, "position") for joint in self._joints]
 
     # ---- API half: a client's {"amplitude": a} on ctrl/<name>/amplitude -----------------------------------------
     def inputs(self) -> Mapping[str, Callable[[Any], None]]:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import asyncio
 import concurrent.futures
+import contextvars
 import logging
 import time
 from collections.abc import Awaitable, Callable, Mapping
@@ -54,6 +55,9 @@ log = logging.getLogger("hild.api")
 READ_MAX_AGE = 0.2
 EMPTY_REQUESTS = frozenset({b"", b"{}"})
 DEFAULT_TIMEOUT = 1.0  # s; below the client's default 2 s so the client sees our error, not its own timeout
+# A caller's own, shorter limit on waiting for the cycle (ROS' SwitchController.timeout), for the request being
+# handled: a context variable, so the services that hop to the cycle need not all carry it.
+_ASKED_TIMEOUT: contextvars.ContextVar[float | None] = contextvars.ContextVar("asked_timeout", default=None)
 MAX_NAMES = 256
 # Bytes a request may have, refused larger before it is copied or decoded (docs/protocol.md, "Limits"). A request
 # without fields is "", "{}" or a little whitespace; the largest with fields, a switch of 2 x MAX_NAMES names of
@@ -191,8 +195,16 @@ class Services:
             "set_parameters": Service({"controller": controller_name, "values": mapping}, self._set_parameters),
         }
 
-    async def handle(self, name: str, raw: bytes) -> Reply:
-        """Serve one request on the asyncio thread; always returns a reply with ``ok`` and ``error``."""
+    async def handle(self, name: str, raw: bytes, *, timeout: float | None = None) -> Reply:
+        """Serve one request on the asyncio thread; always returns a reply with ``ok`` and ``error``. ``timeout``:
+        wait at most that long for the cycle (never longer than the services' own timeout)."""
+        asked = _ASKED_TIMEOUT.set(timeout)
+        try:
+            return await self._handle(name, raw)
+        finally:
+            _ASKED_TIMEOUT.reset(asked)
+
+    async def _handle(self, name: str, raw: bytes) -> Reply:
         service = self.table.get(name)
         try:
             if service is None:
@@ -267,18 +279,24 @@ class Services:
     async def wait_cycle(self, future: concurrent.futures.Future[Any]) -> Any:
         """Await a request the cycle will apply; withdraw it if the cycle does not get to it in time and it can
         still be withdrawn (only in the in-process case: a request in the shared region's queue cannot)."""
+        timeout = self.wait_limit()
         try:
-            return await asyncio.wait_for(asyncio.wrap_future(future), self.timeout)
+            return await asyncio.wait_for(asyncio.wrap_future(future), timeout)
         except TimeoutError:
             # wait_for's cancellation reaches the request's future: the in-process engine withdraws it if it is
             # still queued; RemoteCycle marks its futures running once queued, so those may still apply.
             if not (future.cancel() or future.cancelled()):
                 raise RequestError(
-                    f"the cycle took more than {self.timeout:g} s to apply the request; it may still apply"
+                    f"the cycle took more than {timeout:g} s to apply the request; it may still apply"
                 ) from None
             raise RequestError(
-                f"cycle not running: the request was not applied within {self.timeout:g} s and was withdrawn"
+                f"cycle not running: the request was not applied within {timeout:g} s and was withdrawn"
             ) from None
+
+    def wait_limit(self) -> float:
+        """How long the request being handled may wait for the cycle: its caller's timeout, at most ours."""
+        asked = _ASKED_TIMEOUT.get()
+        return self.timeout if asked is None else min(asked, self.timeout)
 
     # ---- services ---------------------------------------------------------------------------------------------
     def _status(self, request: dict[str, Any]) -> Reply:

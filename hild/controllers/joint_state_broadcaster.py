@@ -16,8 +16,10 @@ from hild.arrays import JointState, ServoCommand
 from hild.config.params import Params, dynamic
 from hild.controller import Controller, ControllerContext
 from hild.crossing.ring import SampleRing
+from hild.interfaces import interface_name
 
 PUBLISHED_FIELDS = ("position", "velocity", "effort", "fresh")
+STATE_FIELDS = ("position", "velocity", "effort")  # the published fields that are state interfaces
 
 
 class BroadcasterParams(Params):
@@ -36,6 +38,10 @@ class JointStateBroadcaster(Controller):
     @classmethod
     def joints_for(cls, params: Params) -> list[str]:
         return []
+
+    def state_interfaces(self) -> list[str]:
+        """Position, velocity and effort of every joint of the robot: what it publishes."""
+        return [interface_name(j, f) for j in self.context.joints for f in STATE_FIELDS]
 
     def on_activate(self, state: JointState, last_command: ServoCommand) -> None:
         self._next = -np.inf  # publish on the first cycle

@@ -145,6 +145,7 @@ class Track:
 class JointTrajectoryController(PlansMotion, Controller):
     Params = JointTrajectoryParams
     KIND = "joint_trajectory"
+    MEASURED = ("position", "velocity")  # tolerances and feedback compare both
 
     def __init__(self, context: ControllerContext, params: JointTrajectoryParams) -> None:
         super().__init__(context, params)

@@ -21,11 +21,17 @@ class PlansMotion:
     acceleration and jerk limits cannot be planned for (unknown joints are reported elsewhere)."""
 
     KIND: ClassVar[str]  # the controller type, as problems name it
+    MEASURED: ClassVar[tuple[str, ...]]  # the state fields its update reads of each of its joints
+    params: Params
 
     @classmethod
     def claims_for(cls, params: Params) -> list[str]:
         planned = cast(_PlannedParams, params)
         return [interface_name(j, f) for j in planned.joints for f in planned.command_interfaces]
+
+    def state_interfaces(self) -> list[str]:
+        """``MEASURED`` of each of its joints: what it starts from and tracks against."""
+        return [interface_name(j, f) for j in cast(_PlannedParams, self.params).joints for f in self.MEASURED]
 
     @classmethod
     def robot_problems(cls, params: Params, limits: Mapping[str, JointLimits]) -> list[str]:

@@ -191,6 +191,7 @@ def speed_to_stop_within(distance: float, acceleration: float, jerk: float) -> f
 class ServoController(PlansMotion, Controller):
     Params = ServoParams
     KIND = "servo"
+    MEASURED = ("position",)  # starts from and follows the measured position
 
     def __init__(self, context: ControllerContext, params: ServoParams) -> None:
         super().__init__(context, params)

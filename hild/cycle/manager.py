@@ -28,6 +28,7 @@ class ControllerRecord:
     instance: Controller
     claims: tuple[str, ...]
     fallbacks: tuple[str, ...]
+    reads: tuple[str, ...] = ()  # the state interfaces it reads
     state: ControllerState = ControllerState.UNCONFIGURED
     error: str = ""
     joint_index: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.intp))
@@ -43,6 +44,7 @@ class ControllerInfo:
     state: str
     claimed: tuple[str, ...]
     error: str
+    reads: tuple[str, ...] = ()
 
     def as_dict(self) -> dict[str, object]:
         return {
@@ -51,6 +53,7 @@ class ControllerInfo:
             "state": self.state,
             "claimed": list(self.claimed),
             "error": self.error,
+            "state_interfaces": list(self.reads),
         }
 
 
@@ -101,6 +104,7 @@ class ControllerManager:
             instance=controller,
             claims=claims,
             fallbacks=tuple(fallbacks),
+            reads=tuple(controller.state_interfaces()),
             joint_index=self._joints_of(claims),
         )
         self._slots += 1
@@ -166,6 +170,7 @@ class ControllerManager:
             claims=claims,
             fallbacks=tuple(fallbacks),
             state=ControllerState.INACTIVE if configured else ControllerState.UNCONFIGURED,
+            reads=tuple(controller.state_interfaces()),
             joint_index=self._joints_of(claims),
         )
         self._changed()
@@ -367,7 +372,8 @@ class ControllerManager:
 
     def _changed(self) -> None:
         self.snapshot = tuple(
-            ControllerInfo(r.slot, r.name, r.type, str(r.state), r.claims, r.error) for r in self.records.values()
+            ControllerInfo(r.slot, r.name, r.type, str(r.state), r.claims, r.error, r.reads)
+            for r in self.records.values()
         )
         self.change_seq += 1
 

@@ -36,7 +36,7 @@ def test_status_reply_has_modes_joints_controllers_hardware_and_loop(client: Hil
         "fwd": "inactive",
         "fwd_a": "inactive",
     }
-    assert set(status["controllers"][0]) == {"name", "type", "state", "claimed", "error"}
+    assert set(status["controllers"][0]) == {"name", "type", "state", "claimed", "error", "state_interfaces"}
     assert status["hardware"] == [{"name": "bus", "driver": "mock", "state": "active", "fault": None}]
     assert {"update_rate", "clock", "cycles", "overruns", "duration_us", "period_error_us"} <= set(status["loop"])
 
@@ -51,7 +51,10 @@ def test_list_services(client: HildClient) -> None:
         "state": "inactive",
         "claimed": ["a/position", "b/position", "c/position"],
         "error": "",
+        "state_interfaces": [],  # forward_command reads nothing
     }
+    jsb = next(c for c in controllers if c["name"] == "jsb")
+    assert jsb["state_interfaces"] == [f"{j}/{f}" for j in "abc" for f in ("position", "velocity", "effort")]
     interfaces = {i["name"]: i["claimed_by"] for i in client.list_interfaces()}
     assert interfaces["a/position"] is None and "c/effort" in interfaces
     (bus,) = client.list_hardware()

@@ -172,6 +172,15 @@ def test_speed_to_stop_within_is_zero_without_room() -> None:
 
 
 # ---- activation -----------------------------------------------------------------------------------------------
+def test_it_reports_reading_the_position_of_its_joints_only(make_engine: MakeEngine) -> None:
+    """What list_controllers reports as its required state interfaces: the measured position it starts from and
+    follows, never velocity (it does not read it)."""
+    engine = make_engine(servo_patch(joints=["a", "c"]))
+    assert servo_of(engine).state_interfaces() == ["a/position", "c/position"]
+    (entry,) = [c for c in engine.snapshot().controllers if c["name"] == "servo"]
+    assert entry["state_interfaces"] == ["a/position", "c/position"]
+
+
 def test_activation_holds_where_the_joints_are(make_engine: MakeEngine) -> None:
     engine, servo = started(make_engine)
     start = engine.state.position.copy()

@@ -3,7 +3,8 @@
 Only fields matter to CDR and to the RIHS01 hash: comments and constants are left out. A service is written as
 its request and response field lists; ``types`` adds the ``_Event`` message and the service struct rosidl
 generates (REP-2016). A change here changes the type hash, and a peer with another hash sees nothing: keep each
-definition equal to the distro's release named beside it.
+definition equal to the distro's release named beside it. tests/api/ros2/released/ holds those released files;
+test_released.py holds these definitions equal to them, and test_against_rosidl.py their hashes to rosidl's.
 """
 
 from __future__ import annotations
@@ -27,8 +28,10 @@ class ActionDefinition(NamedTuple):
     source: str
 
 
-# controller_manager_msgs, ros2_control 4.20.0 (jazzy branch; ControllerState as of 4.13.0, #1021).
-CONTROLLER_MANAGER = "ros2_control 4.20.0 (jazzy), controller_manager_msgs"
+# controller_manager_msgs, ros2_control 4.46.0, the jazzy branch's newest tag (2026-07-01). Since 4.28.0 (2025-04)
+# ControllerState has is_async and update_rate (#2102) and SwitchController's response a message (#2088): with the
+# older definitions a current Jazzy `ros2 control` and hild have different hashes and never meet.
+CONTROLLER_MANAGER = "ros2_control 4.46.0 (jazzy), controller_manager_msgs"
 MESSAGES: dict[str, tuple[str, str]] = {
     "controller_manager_msgs/msg/ChainConnection": (
         """
@@ -42,6 +45,8 @@ string[] reference_interfaces
 string name
 string state
 string type
+bool is_async
+uint16 update_rate
 string[] claimed_interfaces
 string[] required_command_interfaces
 string[] required_state_interfaces
@@ -55,8 +60,9 @@ controller_manager_msgs/ChainConnection[] chain_connections
     ),
 }
 
-# control_msgs for Jazzy (5.x; these files unchanged since the 4.x of Humble).
-CONTROL_MSGS = "control_msgs 5.x (jazzy), control_msgs"
+# control_msgs 5.8.0, the jazzy branch's newest tag (these files unchanged since the 4.x of Humble; the indices
+# rolling added to FollowJointTrajectory's feedback, #67, are not in jazzy).
+CONTROL_MSGS = "control_msgs 5.8.0 (jazzy), control_msgs"
 MESSAGES.update(
     {
         "control_msgs/msg/JointTolerance": (
@@ -129,11 +135,13 @@ int32 strictness
 bool activate_asap
 builtin_interfaces/Duration timeout
 """,
-        "bool ok",
+        "bool ok\nstring message",
         CONTROLLER_MANAGER,
     ),
 }
 
-# SwitchController.strictness values (constants: not part of the hash).
+# SwitchController.strictness values (constants: not part of the hash); 0 means the manager's default.
 BEST_EFFORT = 1
 STRICT = 2
+AUTO = 3
+FORCE_AUTO = 4

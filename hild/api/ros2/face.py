@@ -63,6 +63,9 @@ JOINT_STATE = "sensor_msgs/msg/JointState"
 STRING = "std_msgs/msg/String"
 FLOAT64_ARRAY = "std_msgs/msg/Float64MultiArray"
 SOURCE = "ros2"  # the source of hild events this face emits
+# joint_state_broadcaster's frame_id parameter defaults to this (ros2_controllers 4.42.1, jazzy); rviz needs a frame
+# to show the joints' efforts
+JOINT_STATES_FRAME = "base_link"
 
 
 @dataclass
@@ -132,7 +135,8 @@ class RosFace:
         self._clock = RosClock(self.engine, self.writer(CLOCK_TOPIC, CLOCK) if sim else None)
         self._sync(self._loaded_controllers())
         self._declare_description()
-        ControllerManager(self, self.services, self.settings.node)  # ros2_control's services live under its node
+        # ros2_control's services live under its node
+        ControllerManager(self, self.services, self.settings.node, self.engine.loaded.config.update_rate)
 
     def _loaded_controllers(self) -> dict[str, Any]:
         """The loaded controllers; the copy is retried when the records change while it is taken (start-up)."""
@@ -290,7 +294,9 @@ class RosFace:
                 msg = types.message(
                     JOINT_STATE,
                     header=types.message(
-                        "std_msgs/msg/Header", stamp=ros_time(self._clock.sample_ns(stamp)), frame_id=""
+                        "std_msgs/msg/Header",
+                        stamp=ros_time(self._clock.sample_ns(stamp)),
+                        frame_id=JOINT_STATES_FRAME,
                     ),
                     name=out.names,
                     position=np.asarray(fields["position"], dtype=np.float64),

@@ -23,6 +23,7 @@ from tests.conftest import with_trajectory
 os.environ.setdefault("CYDR_CACHE_DIR", os.path.join(tempfile.gettempdir(), "hild-tests-cydr-cache"))
 
 CLIENT_GID = bytes(range(16))
+RELEASED = Path(__file__).parent / "released"  # the released .msg/.srv/.action files definitions.py copies
 URDF = """<robot name="mock3"><link name="base"/></robot>"""
 
 
@@ -83,3 +84,12 @@ def call(session: zenoh.Session, service: str, type_name: str, payload: bytes, s
 
 def request(type_name: str, **fields: Any) -> bytes:
     return types.encode(types.message(f"{type_name}_Request", **fields), f"{type_name}_Request")
+
+
+def released_files() -> dict[str, Path]:
+    """``pkg/kind/Name`` → its released file under ``released/<repository>-<tag>/<pkg>/<kind>/``."""
+    return {
+        f"{path.parent.parent.name}/{path.parent.name}/{path.stem}": path
+        for path in sorted(RELEASED.glob("*/*/*/*"))
+        if path.suffix in (".msg", ".srv", ".action")
+    }

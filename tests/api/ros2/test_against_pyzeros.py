@@ -2,8 +2,9 @@
 none of hild's code) subscribes to ``/joint_states`` and calls ``list_controllers`` and ``switch_controller``.
 
 controller_manager_msgs are not in pyzeros' message set: they are declared here in its own IDL dataclasses from
-ros2_control 4.20.0's .msg/.srv files, so the service hashes in the keys are computed by pyzeros' algorithm — a
-second implementation. A hash that differed from hild's would be a different key: the calls would time out.
+ros2_control 4.46.0's .msg/.srv files (released/ros2_control-4.46.0, Jazzy's current release), so the service
+hashes in the keys are computed by pyzeros' algorithm — a second implementation. A hash that differed from hild's
+would be a different key: the calls would time out.
 Skipped only when the ros2-verify extra is not installed.
 """
 
@@ -56,6 +57,8 @@ class ControllerState(idl.IdlStruct, typename="controller_manager_msgs/msg/Contr
     name: str = ""
     state: str = ""
     type: str = ""
+    is_async: bool = False
+    update_rate: T.uint16 = 0
     claimed_interfaces: T.sequence[str] = field(default_factory=list)
     required_command_interfaces: T.sequence[str] = field(default_factory=list)
     required_state_interfaces: T.sequence[str] = field(default_factory=list)
@@ -95,6 +98,7 @@ class SwitchController_Request(idl.IdlStruct, typename="controller_manager_msgs/
 @dataclass
 class SwitchController_Response(idl.IdlStruct, typename="controller_manager_msgs/srv/SwitchController_Response"):
     ok: bool = False
+    message: str = ""
 
 
 @dataclass
@@ -277,15 +281,21 @@ def test_pyzeros_subscribes_lists_and_switches(ros_daemon: Daemon, peer: zenoh.S
 
     with pyzeros.auto_context(node="pyzeros_probe", zenoh_session=peer, domain_id=0):
         got = asyncio.run(main())
-    assert list(got["state"].name) == ["a", "b", "c"]
+    assert list(got["state"].name) == ["a", "b", "c"] and got["state"].header.frame_id == "base_link"
     sim_now = ros_daemon.engine.t  # lockstep: ROS time is the sim clock, on /clock and in every stamp
     for stamp in (got["tick"].clock, got["state"].header.stamp):
         assert 0.0 < stamp.sec + stamp.nanosec * 1e-9 <= sim_now + 1e-9  # ns rounding
     before = {c.name: c.state for c in got["before"].controller}
     assert before == {"jsb": "active", "fwd": "inactive", "fwd_a": "inactive", "traj": "inactive"}
     assert got["switched"].ok is True and got["refused"].ok is False
+    assert got["switched"].message == "switched controllers: activated fwd; deactivated none"
+    assert "unknown controller(s) 'nope'" in got["refused"].message
+    claims = ["a/position", "b/position", "c/position"]
+    fwd_before = next(c for c in got["before"].controller if c.name == "fwd")
+    assert (list(fwd_before.claimed_interfaces), list(fwd_before.required_command_interfaces)) == ([], claims)
+    assert (fwd_before.is_async, fwd_before.update_rate) == (False, 500)
     after = {c.name: (c.state, list(c.claimed_interfaces)) for c in got["after"].controller}
-    assert after["fwd"] == ("active", ["a/position", "b/position", "c/position"])
+    assert after["fwd"] == ("active", claims)
 
 
 async def _goal_session(

@@ -5,7 +5,11 @@ packages ship (written by rosidl when they were built) and rosidl's own hash gen
 - controller_manager_msgs and control_msgs are not on PyPI: their definitions (hild/api/ros2/definitions.py) are
   run through rosidl_adapter (.msg/.srv/.action → .idl) and rosidl_generator_type_description, exactly as a ROS
   build does; hild's hashes equal the generated ones. (This checks hild's derivation of services and actions and
-  its hashing; that the definitions equal the released files rests on their source versions.)
+  its hashing.)
+- The released files themselves (``released/``, the Jazzy releases definitions.py copies) go through the same
+  build: every type hash it writes — each message, service, its request/response/event, each action's derived
+  types — equals hild's. With test_released.py (the same fields) this holds hild to what a current Jazzy install
+  computes, not only to its own definitions.
 """
 
 from __future__ import annotations
@@ -29,6 +33,7 @@ from rosidl_adapter.srv import convert_srv_to_idl  # noqa: E402
 
 from hild.api.ros2 import types  # noqa: E402
 from hild.api.ros2.definitions import ACTIONS, MESSAGES, SERVICES  # noqa: E402
+from tests.api.ros2.conftest import released_files  # noqa: E402
 
 SHARE = Path(sys.prefix) / "share"
 
@@ -87,11 +92,17 @@ def write_package(root: Path, package: str) -> list[tuple[Path, Path]]:
 
 
 def generated_hashes(tmp_path: Path, package: str) -> dict[str, str]:
-    """rosidl_adapter then rosidl_generator_type_description, as a ROS build runs them for ``package``."""
+    """The hashes a ROS build of hild's definitions of ``package`` writes."""
+    return rosidl_hashes(tmp_path, package, write_package(tmp_path / "src", package))
+
+
+def rosidl_hashes(tmp_path: Path, package: str, sources: list[tuple[Path, Path]]) -> dict[str, str]:
+    """rosidl_adapter then rosidl_generator_type_description, as a ROS build runs them for ``package``'s
+    ``sources`` (package dir, relative path): every type name → hash the generated JSON files list."""
     idl_dir = tmp_path / "idl" / package
     tuples = []
     converters = {"msg": convert_msg_to_idl, "srv": convert_srv_to_idl, "action": convert_action_to_idl}
-    for package_dir, relative in write_package(tmp_path / "src", package):
+    for package_dir, relative in sources:
         out_dir = idl_dir / relative.parent
         out_dir.mkdir(parents=True, exist_ok=True)
         with contextlib.redirect_stdout(io.StringIO()):
@@ -138,3 +149,27 @@ def test_definitions_hash_as_rosidl_generates_them(tmp_path: Path, package: str,
     for short in names:
         name = f"{package}/{short}"
         assert types.type_hash(name) == generated[name], name
+
+
+def released_sources() -> dict[str, list[tuple[Path, Path]]]:
+    """package → its released files as (package dir, relative path), for ``rosidl_hashes``."""
+    out: dict[str, list[tuple[Path, Path]]] = {}
+    for name, path in released_files().items():
+        package_dir = path.parent.parent
+        out.setdefault(name.split("/")[0], []).append((package_dir, path.relative_to(package_dir)))
+    return out
+
+
+@pytest.mark.parametrize("package", sorted(released_sources()))
+def test_released_files_hash_as_hild_does(tmp_path: Path, package: str) -> None:
+    """Every hash rosidl writes for the released files — the types themselves, a service's request, response and
+    event, an action's goal, result, feedback, SendGoal, GetResult and FeedbackMessage, and what they reference —
+    is hild's."""
+    generated = rosidl_hashes(tmp_path, package, released_sources()[package])
+    held = types.typestore().fielddefs
+    # an action's own type: rmw_zenoh's keys carry its services' and FeedbackMessage's hashes, never its own
+    assert {name for name in generated if name not in held} == {n for n in ACTIONS if n.startswith(f"{package}/")}
+    compared = {name: value for name, value in generated.items() if name in held}
+    assert len([name for name in compared if name.startswith(f"{package}/")]) >= len(released_sources()[package])
+    wrong = {name: (types.type_hash(name), value) for name, value in compared.items() if types.type_hash(name) != value}
+    assert wrong == {}

@@ -47,6 +47,7 @@ def test_joint_states_are_cdr_with_rmw_zenoh_attachment(ros_daemon: Daemon, peer
     sample = inbox.last()
     msg = types.decode(sample.payload.to_bytes(), JOINT_STATE)
     assert list(msg.name) == ["a", "b", "c"]
+    assert msg.header.frame_id == "base_link"  # joint_state_broadcaster's default frame_id
     np.testing.assert_allclose(msg.position, [0.1, -0.1, 0.0], atol=1e-6)  # b: reduction 2
     assert sample.attachment is not None
     meta = wire.parse_attachment(sample.attachment.to_bytes())

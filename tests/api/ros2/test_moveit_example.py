@@ -199,7 +199,12 @@ def test_the_daemon_serves_what_the_example_names(tmp_path: Path) -> None:
             session.close()
     (state,) = [c for c in got["listing"].controller if c.name == name]
     assert state.type == "joint_trajectory_controller/JointTrajectoryController"
-    assert {f"{j}/position" for j in entry["joints"]} <= set(state.claimed_interfaces)
+    # listed before the goal's switch: inactive, so it holds nothing yet but requires its joints' interfaces
+    assert (state.state, list(state.claimed_interfaces)) == ("inactive", [])
+    assert {f"{j}/position" for j in entry["joints"]} <= set(state.required_command_interfaces)
+    assert list(state.required_state_interfaces) == [
+        f"{j}/{f}" for j in entry["joints"] for f in ("position", "velocity")
+    ]
     assert got["accepted"].accepted and (got["result"].status, got["result"].result.error_code) == (4, 0)
     assert list(got["state"].name) == entry["joints"]
     assert max(abs(p - t) for p, t in zip(got["state"].position, target, strict=True)) < 0.02
