@@ -30,6 +30,7 @@ from hild.api.keys import check_chunk
 from hild.api.queries import LargePayloadWorker, too_large
 from hild.config.loader import ConfigError, check_controller, load_config
 from hild.config.params import describe, flatten, with_values
+from hild.config.tuning import MANAGER
 from hild.controller import and_more, unknown_keys
 from hild.crossing.cells import MAX_CONTROLLERS
 from hild.crossing.requests import (
@@ -349,6 +350,8 @@ class Services:
     async def _load(self, request: dict[str, Any]) -> Reply:
         """Checked here as ``hild check`` checks the config's controllers; built and adopted by the cycle."""
         name = _required(request, "name")
+        if name == MANAGER:
+            raise RequestError(f"{MANAGER!r} names the daemon's own parameters: choose another name")
         loaded = {c["name"] for c in self.engine.snapshot().controllers}
         if name in loaded:
             raise RequestError(f"controller {name!r} is already loaded (reload it, or unload it first)")
@@ -401,7 +404,11 @@ class Services:
 
     # ---- parameters (docs/protocol.md, "Parameters while the robot runs") --------------------------------------------
     def _controller(self, request: dict[str, Any]) -> tuple[str, Any]:
+        """The controller named in ``request`` (its API half: its params are what the cycle's are), or the daemon's
+        own parameters (``controller_manager``: always active, so only its dynamic ones change)."""
         name = _required(request, "controller")
+        if name == MANAGER:
+            return name, _Node(self.engine.snapshot().tuning)
         controller = self.engine.controllers().get(name)
         if controller is None:
             known = ", ".join(sorted(self.engine.controllers())) or "none"
@@ -437,6 +444,13 @@ class Services:
         if len(values) > MAX_NAMES:
             raise RequestError(f"{len(values)} parameters in one request; at most {MAX_NAMES}")
         model = type(controller.params)
+        if name == MANAGER:
+            joints = controller.params.joints
+            unknown = sorted(
+                {p.split(".")[1] for p in values if p.startswith("joints.") and p.split(".")[1] not in joints}
+            )
+            if unknown:
+                raise RequestError(f"unknown joint(s) {unknown} (joints: {', '.join(joints)})")
         try:
             params = with_values(controller.params, values)
         except ValueError as exc:
@@ -460,6 +474,14 @@ class Services:
         load = Load(name, checked.type, checked.params, replaces=True, keeps_fallbacks=True, source="new parameters")
         reply = await self.on_cycle(load)
         return {"controller": name, "changed": changes, "applied": f"rebuilt ({reply['state']})"}
+
+
+@dataclass(frozen=True)
+class _Node:
+    """The daemon's own parameters, read and set like a controller's that is always active."""
+
+    params: Any
+    active: bool = True
 
 
 def _changes(old: Any, new: Any) -> list[str]:

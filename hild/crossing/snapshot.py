@@ -21,3 +21,4 @@ class Snapshot:
     hardware: tuple[dict[str, Any], ...]  # list_hardware's entries
     interfaces: tuple[dict[str, Any], ...]  # list_interfaces' entries
     realtime: dict[str, str] = field(default_factory=dict)
+    tuning: Any = None  # the daemon's own parameters as they are now (hild.config.tuning.ManagerParams)

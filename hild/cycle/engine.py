@@ -27,6 +27,7 @@ import numpy as np
 from hild import plugins
 from hild.arrays import JointState, ServoCommand, contiguous_slice, gather_command, scatter_state
 from hild.config.loader import LoadedConfig
+from hild.config.tuning import MANAGER, ManagerParams
 from hild.controller import ControllerContext, JointLimitArrays
 from hild.crossing.events import EventLog
 from hild.crossing.inprocess import BoundedQueue
@@ -62,6 +63,7 @@ SET_ZERO_MAX_SPEED = 0.05  # rad/s: set-zero only on a still joint
 SET_ZERO_SETTLE = 0.5  # s: hold follows the reading while the drive moves to its new frame (some drop replies ~1 s)
 MAX_STEP_PERIODS = 2.0  # a late cycle advances the control clock (and the slew limit) by at most this many periods
 RESET_OVERTAKEN = "an e-stop took effect after this reset was sent: reset again to clear it"
+HOLD_GAIN_RAMP = 0.5  # s over which new hold gains are ramped in
 GAP_EVENT_PERIODS = 10  # a cycle later than this many periods is reported (at most once a second, with a count)
 
 
@@ -178,6 +180,7 @@ class Engine:
         self._estop_waiters: deque[concurrent.futures.Future[Any]] = deque(maxlen=256)
         self._deferred: list[tuple[Deferred, concurrent.futures.Future[Any], bool]] = []  # …, clears an e-stop
         self._health_every = max(1, round(self.update_rate / HEALTH_POLL_HZ))
+        self.tuning = ManagerParams.of(cfg)  # the daemon's own parameters (hold gains): set_parameters changes them
         for name, spec in cfg.controllers.items():
             self.load_controller(name, spec.type, loaded.controller_params[name], spec.fallback_controllers)
 
@@ -486,6 +489,8 @@ class Engine:
 
     def _set_params(self, request: SetParams) -> dict[str, Any]:
         """Hand a controller its new parameters; one whose ``on_params`` raises gets its old ones back."""
+        if request.name == MANAGER:
+            return self._tune(request)
         record = self.manager.records.get(request.name)
         if record is None:
             raise Refused(f"unknown controller {request.name!r}")
@@ -499,6 +504,19 @@ class Engine:
         self.loads_seq += 1
         self.events.emit("info", request.name, f"parameters set by {request.by}: {'; '.join(request.changes)}")
         return {"name": request.name, "changed": list(request.changes)}
+
+    def _tune(self, request: SetParams) -> dict[str, Any]:
+        """The daemon's own parameters: hold gains, ramped in by the supervisor over ``HOLD_GAIN_RAMP``."""
+        tuning: ManagerParams = request.params
+        if list(tuning.joints) != list(self.joints) or tuning.update_rate != self.update_rate:
+            raise Refused("the joints and the update rate are the config's")
+        holds = [tuning.joints[j].hold for j in self.joints]
+        ramp = max(1, round(HOLD_GAIN_RAMP * self.update_rate))
+        self.supervisor.set_hold_gains([h.kp for h in holds], [h.kd for h in holds], ramp)
+        self.tuning = tuning
+        self.supervisor.change_seq += 1  # a new snapshot carries them
+        self.events.emit("info", MANAGER, f"parameters set by {request.by}: {'; '.join(request.changes)}")
+        return {"name": MANAGER, "changed": list(request.changes)}
 
     def _apply_lifecycle(self, request: LifecycleRequest, future: concurrent.futures.Future[Any]) -> None:
         if not future.set_running_or_notify_cancel():
@@ -856,6 +874,7 @@ class Engine:
             ),
             interfaces=tuple({"name": n, "claimed_by": owner_of.get(n)} for n in self.available_interfaces),
             realtime=dict(self.realtime_report),
+            tuning=self.tuning,
         )
 
     def status(self) -> dict[str, Any]:

@@ -154,6 +154,8 @@ class Supervisor:
         self._vmax, self._emax = limits.velocity.tolist(), limits.effort.tolist()
         self._overspeed = [v * safety.overspeed_factor for v in self._vmax]
         self._hold_kp, self._hold_kd = gains.hold_kp.tolist(), gains.hold_kd.tolist()
+        self._hold_target = (self._hold_kp, self._hold_kd)  # where set_hold_gains is ramping them to
+        self._hold_steps = 0  # cycles of that ramp still to go
         # Whether the drive applies the command's kp/kd itself (its torque is then predictable from them).
         self._applies_gains = [True] * n if applies_gains is None else [bool(a) for a in applies_gains]
 
@@ -192,6 +194,21 @@ class Supervisor:
         self._prev_position[:] = np.where(np.isfinite(self.latched), self.latched, 0.0)
         self._relatch = [False] * len(self.joints)
         self.mode[:] = JointMode.HOLD
+
+    def set_hold_gains(self, kp: list[float], kd: list[float], cycles: int) -> None:
+        """New hold gains (an operator tuning hold stiffness), reached linearly over ``cycles``: a held joint's
+        target stays where it is latched, and its torque changes smoothly even with an error in the spring."""
+        self._hold_target = (list(kp), list(kd))
+        self._hold_steps = max(1, cycles)
+
+    def _ramp_hold_gains(self) -> None:
+        steps, (kp, kd) = self._hold_steps, self._hold_target
+        for i in range(len(kp)):
+            self._hold_kp[i] += (kp[i] - self._hold_kp[i]) / steps
+            self._hold_kd[i] += (kd[i] - self._hold_kd[i]) / steps
+        self._hold_steps = steps - 1
+        if not self._hold_steps:
+            self.gains.hold_kp[:], self.gains.hold_kd[:] = kp, kd
 
     def set_claims(self, masks: ClaimMasks) -> None:
         """Recompute per-joint mode defaults from the active claims (called at each switch)."""
@@ -380,6 +397,8 @@ class Supervisor:
         splitting it into per-step helpers would cost a call and the lookups per joint per cycle (the module
         docstring says why a plain loop, not numpy)."""
         pos, g, pose = state.position, self._g, self._pose
+        if self._hold_steps:
+            self._ramp_hold_gains()
         if self.gravity is not None:  # at the accepted pose (the state holds stand-ins for rejected readings)
             if self.gate.all_known:
                 self.gravity(pos, g)

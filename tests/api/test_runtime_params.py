@@ -12,11 +12,16 @@ import pytest
 
 from hild.api.client import HildClient, HildError
 from hild.api.ctl import EXIT_OK, EXIT_SERVICE
+from hild.api.goals import GoalEndpoint
 from hild.config.params import describe, flatten, with_values
+from hild.config.tuning import MANAGER
 from hild.controllers.joint_trajectory import JointTrajectoryParams
-from tests.api.conftest import Daemon, engine_with_trajectory, running
+from hild.crossing.requests import SetParams
+from hild.cycle.engine import HOLD_GAIN_RAMP
+from tests.api.conftest import Daemon, engine_from, engine_with_trajectory, robot_config, running
 from tests.api.test_ctl import ctl
 from tests.api.test_services import raw_call
+from tests.conftest import with_trajectory
 from tests.helpers import wait_for
 
 
@@ -141,3 +146,54 @@ def test_dynamic_is_said_by_the_schema_and_inherited_below_a_dynamic_field() -> 
     params = JointTrajectoryParams(joints=["a", "b"])
     changed = with_values(params, {"constraints.joints.a.goal": 0.01})
     assert flatten(changed)["constraints.joints.a.goal"] == 0.01 and "constraints.joints.a.goal" not in flatten(params)
+
+
+# ---- the daemon's own parameters: hold gains ------------------------------------------------------------------------
+def test_the_controller_manager_node_has_the_update_rate_and_each_joints_hold_gains(client: HildClient) -> None:
+    listed = {p["name"]: p for p in client.list_parameters("controller_manager")}
+    assert listed["update_rate"]["value"] == 500 and listed["update_rate"]["dynamic"] is False
+    assert listed["joints.a.hold.kp"]["value"] == 100 and listed["joints.a.hold.kp"]["dynamic"] is True
+    with pytest.raises(HildError, match="update_rate of controller_manager cannot change while it is active"):
+        client.set_parameters("controller_manager", {"update_rate": 1000})
+    with pytest.raises(HildError, match=r"unknown joint\(s\) \['z'\]"):
+        client.set_parameters("controller_manager", {"joints.z.hold.kp": 1})
+    with pytest.raises(HildError, match=r"joints\.a\.hold\.kp: Input should be greater than or equal to 0"):
+        client.set_parameters("controller_manager", {"joints.a.hold.kp": -1})
+    with pytest.raises(HildError, match="names the daemon's own parameters"):
+        client.load_controller("controller_manager", "forward_command", {"joints": ["a"]})
+    reply = client.set_parameters("controller_manager", {"joints.a.hold.kp": 300})
+    assert reply["changed"] == ["joints.a.hold.kp: 100.0 → 300.0"]
+    assert client.get_parameters("controller_manager", ["joints.a.hold.kp"]) == {"joints.a.hold.kp": 300.0}
+
+
+def test_raising_a_held_joints_stiffness_while_a_goal_runs_ramps_it_in_and_nothing_jumps(tmp_path: Path) -> None:
+    """Joint c is held while a goal moves a and b: its hold kp goes 100 → 300 over HOLD_GAIN_RAMP, never in a step,
+    its target stays where it was latched, and the goal runs on undisturbed."""
+    config = with_trajectory(robot_config(), "traj", joints=("a", "b"))
+    engine = engine_from(config, tmp_path)
+    engine.start()
+    assert engine.switch(["traj"], []).ok
+    engine.run_cycles(5)
+    goal = engine.manager.records["traj"].instance
+    endpoint = GoalEndpoint.of(goal.action)
+    accepted = endpoint.submit({"positions": [0.9, -0.9]})
+    assert accepted["ok"], accepted
+    engine.run_cycles(50)  # the goal is moving
+    held = engine.supervisor.latched[2]
+    tuning = engine.tuning
+    new = with_values(tuning, {"joints.c.hold.kp": 300.0})
+    future = engine.request(SetParams(MANAGER, new, ("joints.c.hold.kp: 100.0 → 300.0",)))
+    kp, target, moving = [], [], []
+    for _ in range(int(0.7 * engine.update_rate)):
+        engine.run_cycles(1)
+        kp.append(float(engine.final.kp[2]))
+        target.append(float(engine.final.position[2]))
+        moving.append(goal.goal is not None)
+    assert future.result(0)["changed"] == ["joints.c.hold.kp: 100.0 → 300.0"]
+    steps = np.diff([100.0, *kp])
+    ramp = int(HOLD_GAIN_RAMP * engine.update_rate)
+    assert kp[-1] == pytest.approx(300.0) and kp[0] < 101.0  # reached, from where it was
+    assert steps.max() <= 200.0 / ramp * 1.01 and steps.min() >= 0.0  # linear, never a step
+    np.testing.assert_allclose(target, held)  # the held joint's target never moved
+    assert all(moving[:ramp])  # the goal ran throughout the ramp
+    engine.stop()
