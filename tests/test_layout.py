@@ -20,7 +20,7 @@ from tests.conftest import REPO
 
 CYCLE_ENTRY = "hild.cycle.process"
 CLIENT_ONLY = ("hild.daemon", "hild.api", "hild.main", "hild.telemetry", "hild.bench", "hild.importers")
-CLIENT_LIBRARIES = ("zenoh", "rerun", "rosbags", "xxhash", "rclpy", "simpleeval")
+CLIENT_LIBRARIES = ("zenoh", "rerun", "rosbags", "xxhash", "rclpy", "simpleeval", "ruamel")
 # Loaded into the cycle process by name (entry points), beside what its entry imports.
 PLUGIN_PACKAGES = ("hild.controllers", "drivers")
 

@@ -23,6 +23,7 @@ LIBRARY_ROOMS = {
     "ruckig": ("hild/motion", "hild/controllers"),
     "rerun": ("hild/telemetry",),
     "simpleeval": ("hild/api/expressions.py",),
+    "ruamel": ("hild/config/tuned.py",),
 }
 
 

@@ -16,6 +16,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 from hild.api import render
@@ -105,6 +106,13 @@ def add_ctl_parser(subparsers: Any) -> None:
     for verb in verbs.choices.values():
         verb.add_argument("controller", help="the controller's name")
         verb._actions.insert(1, verb._actions.pop())  # the controller first in the usage line
+    params = sub.add_parser("params", parents=[common], help="every parameter at once: save")
+    saves = params.add_subparsers(dest="params_command", metavar="VERB", required=True)
+    save = saves.add_parser(
+        "save", parents=[common], help="write the daemon's config file with the values as they are now, comments kept"
+    )
+    save.add_argument("file", nargs="?", help="where (default: <config name>.tuned.yaml here)")
+    save.add_argument("--force", action="store_true", help="replace the file if it exists")
     sub.add_parser("estop", parents=[common], help="engage the e-stop (only reset leaves it)")
     sub.add_parser("reset", parents=[common], help="clear latched faults and the e-stop")
     enable = sub.add_parser("enable", parents=[common], help="enable drives a fault disabled (after reset)")
@@ -406,6 +414,26 @@ def _param(client: HildClient, args: argparse.Namespace, as_json: bool) -> int:
     return _service(service, text, lambda _: request)(client, args, as_json)
 
 
+def _params_save(client: HildClient, args: argparse.Namespace, as_json: bool) -> int:
+    """The daemon's tuned copy of its config (``tuned_config``), written here: never over a file unless --force."""
+    reply = client.call("tuned_config", check=False)
+    if not reply.get("ok"):
+        return _fail(HildError(f"params save: {reply.get('error')}"), as_json, EXIT_SERVICE)
+    target = Path(args.file or f"{Path(reply['path']).stem}.tuned.yaml")
+    try:
+        with open(target, "w" if args.force else "x", encoding="utf-8") as out:
+            out.write(reply["yaml"])
+    except OSError as exc:
+        hint = " (--force replaces it)" if isinstance(exc, FileExistsError) else ""
+        return _fail(OSError(f"params save: {target}: {exc.strerror}{hint}"), as_json, EXIT_SERVICE)
+    if as_json:
+        print(json.dumps({"ok": True, "error": None, "file": str(target), "changed": reply["changed"]}))
+    else:
+        changed = ", ".join(reply["changed"]) or "nothing: every value is as the file says"
+        print(f"{target}: {reply['path']} with {changed}")
+    return EXIT_OK
+
+
 def _set_text(reply: dict[str, Any]) -> str:
     return "\n".join([*reply["changed"], f"{reply['controller']}: {reply['applied']}"])
 
@@ -488,6 +516,7 @@ COMMANDS: dict[str, Callable[[HildClient, argparse.Namespace, bool], int]] = {
     ),
     "load": _load,
     "param": _param,
+    "params": _params_save,
     "configure": _service("configure_controller", lambda r: f"{r['name']}: {r['state']}", _named),
     "unload": _service("unload_controller", lambda r: f"{r['name']}: unloaded", _named),
     "reload": _service("reload_controller", lambda r: f"{r['name']}: reloaded ({r['state']})", _named),

@@ -30,6 +30,7 @@ SERVICES = (
     "list_parameters",
     "get_parameters",
     "set_parameters",
+    "tuned_config",
 )
 # Second-level chunks the API itself uses; a controller output may not take one of these names.
 RESERVED = frozenset(

@@ -194,6 +194,7 @@ class Services:
             "list_parameters": Service({"controller": controller_name}, read=self._list_parameters),
             "get_parameters": Service({"controller": controller_name, "names": names}, read=self._get_parameters),
             "set_parameters": Service({"controller": controller_name, "values": mapping}, self._set_parameters),
+            "tuned_config": Service({}, self._tuned_config),
         }
 
     async def handle(self, name: str, raw: bytes, *, timeout: float | None = None) -> Reply:
@@ -474,6 +475,21 @@ class Services:
         load = Load(name, checked.type, checked.params, replaces=True, keeps_fallbacks=True, source="new parameters")
         reply = await self.on_cycle(load)
         return {"controller": name, "changed": changes, "applied": f"rebuilt ({reply['state']})"}
+
+    async def _tuned_config(self, request: dict[str, Any]) -> Reply:
+        """The daemon's config file with every parameter as it is now (``hild ctl params save`` writes it)."""
+        from hild.config.tuned import tuned_copy  # ruamel.yaml: loaded only when a copy is asked for
+
+        path = self.engine.loaded.path
+        snapshot = self.engine.snapshot()
+        types = {c["name"]: c["type"] for c in snapshot.controllers}
+        controllers = {n: (types[n], c.params) for n, c in self.engine.controllers().items() if n in types}
+        hold = {joint: (t.hold.kp, t.hold.kd) for joint, t in snapshot.tuning.joints.items()}
+        try:
+            text, changed = await asyncio.to_thread(tuned_copy, path, controllers, hold)
+        except ConfigError as exc:
+            raise RequestError(f"{path} does not load as it is on disk, so there is nothing to copy:\n{exc}") from None
+        return {"path": str(path), "yaml": text, "changed": changed}
 
 
 @dataclass(frozen=True)

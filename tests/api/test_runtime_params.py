@@ -13,6 +13,7 @@ import pytest
 from hild.api.client import HildClient, HildError
 from hild.api.ctl import EXIT_OK, EXIT_SERVICE
 from hild.api.goals import GoalEndpoint
+from hild.config import load_config
 from hild.config.params import describe, flatten, with_values
 from hild.config.tuning import MANAGER
 from hild.controllers.joint_trajectory import JointTrajectoryParams
@@ -197,3 +198,36 @@ def test_raising_a_held_joints_stiffness_while_a_goal_runs_ramps_it_in_and_nothi
     np.testing.assert_allclose(target, held)  # the held joint's target never moved
     assert all(moving[:ramp])  # the goal ran throughout the ramp
     engine.stop()
+
+
+def test_params_save_writes_the_config_with_what_was_tuned_and_keeps_its_comments(
+    client: HildClient,
+    daemon: Daemon,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    path = Path(daemon.engine.loaded.path)
+    path.write_text("# the bench arm: tuned on the robot\n" + path.read_text())
+    client.set_parameters("fwd", {"command_timeout": 0.8})
+    client.set_parameters("controller_manager", {"joints.a.hold.kp": 300})
+    client.load_controller("late", "forward_command", {"joints": ["b"], "command_timeout": 0.3})
+    monkeypatch.chdir(tmp_path)
+    assert ctl(daemon, "params", "save") == EXIT_OK
+    saved = tmp_path / "robot.tuned.yaml"
+    assert capsys.readouterr().out.startswith(f"{saved.name}: {path} with ")
+    text = saved.read_text()
+    assert text.startswith("# the bench arm: tuned on the robot\n")
+    tuned = load_config(saved)
+    assert tuned.controller_params["fwd"].command_timeout == 0.8
+    assert tuned.config.joints["a"].hold.kp == 300 and tuned.config.joints["b"].hold.kp == 100
+    assert tuned.config.controllers["late"].type == "forward_command"
+    assert tuned.controller_params["late"].command_timeout == 0.3
+    assert ctl(daemon, "params", "save") == EXIT_SERVICE  # never over a file
+    assert "--force replaces it" in capsys.readouterr().err
+    assert ctl(daemon, "--json", "params", "save", "--force") == EXIT_OK
+    assert set(json.loads(capsys.readouterr().out)["changed"]) == {
+        "controllers.fwd.params.command_timeout",
+        "joints.a.hold.kp",
+        "controllers.late",
+    }
