@@ -20,9 +20,11 @@ sends a goal meant to outlive its sender.
 from __future__ import annotations
 
 import contextlib
+import getpass
 import json
 import logging
 import math
+import socket
 import threading
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -83,6 +85,7 @@ class HildClient:
         self._publishers: dict[str, zenoh.Publisher] = {}
         self._lock = threading.Lock()  # guards the publisher cache only
         self.client_id = new_client_id()  # named in watched goals; the daemon watches its liveliness token
+        self.sender = f"{getpass.getuser()}@{socket.gethostname()}"[:64]  # who loads and tunes, for the events
         self._presence: zenoh.LivelinessToken | None = None
         self._presence_lock = threading.Lock()
         try:
@@ -220,7 +223,7 @@ class HildClient:
         self, name: str, type: str, params: dict[str, Any] | None = None, fallback_controllers: Iterable[str] = ()
     ) -> dict[str, Any]:
         """Load a controller (unconfigured) from params checked as the config's are; configure, then switch it."""
-        request: dict[str, Any] = {"name": name, "type": type, "params": params or {}}
+        request: dict[str, Any] = {"name": name, "type": type, "params": params or {}, "by": self.sender}
         if fallback_controllers:
             request["fallback_controllers"] = list(fallback_controllers)
         return self.call("load_controller", request)
@@ -241,7 +244,7 @@ class HildClient:
     def set_parameters(self, controller: str, values: dict[str, Any]) -> dict[str, Any]:
         """Set parameters by dotted path (``{"constraints.goal_time": 0.8}``): dynamic ones while the controller is
         active, any while it is not (it is then rebuilt); all or nothing."""
-        return self.call("set_parameters", {"controller": controller, "values": values})
+        return self.call("set_parameters", {"controller": controller, "values": values, "by": self.sender})
 
     def reload_controller(self, name: str) -> dict[str, Any]:
         """Replace a controller that is not active with one built from the daemon's config file as it is now."""

@@ -374,7 +374,13 @@ def _load(client: HildClient, args: argparse.Namespace, as_json: bool) -> int:
     steps: list[tuple[str, dict[str, Any], str]] = [
         (
             "load_controller",
-            {"name": args.name, "type": args.type, "params": params, "fallback_controllers": args.fallback},
+            {
+                "name": args.name,
+                "type": args.type,
+                "params": params,
+                "fallback_controllers": args.fallback,
+                "by": client.sender,
+            },
             "loaded",
         ),
     ]
@@ -405,7 +411,7 @@ def _param(client: HildClient, args: argparse.Namespace, as_json: bool) -> int:
         if len(args.pairs) % 2:
             return _fail(ValueError("param set takes NAME VALUE pairs"), as_json, EXIT_SERVICE)
         values = {name: _value(raw) for name, raw in zip(args.pairs[::2], args.pairs[1::2], strict=True)}
-        request: dict[str, Any] = {"controller": args.controller, "values": values}
+        request: dict[str, Any] = {"controller": args.controller, "values": values, "by": client.sender}
     elif args.param_command == "get":
         request = {"controller": args.controller, "names": args.names}
     else:

@@ -60,6 +60,7 @@ DEFAULT_TIMEOUT = 1.0  # s; below the client's default 2 s so the client sees ou
 # handled: a context variable, so the services that hop to the cycle need not all carry it.
 _ASKED_TIMEOUT: contextvars.ContextVar[float | None] = contextvars.ContextVar("asked_timeout", default=None)
 MAX_NAMES = 256
+MAX_SENDER = 64  # characters of a request's "by"
 # Bytes a request may have, refused larger before it is copied or decoded (docs/protocol.md, "Limits"). A request
 # without fields is "", "{}" or a little whitespace; the largest with fields, a switch of 2 x MAX_NAMES names of
 # up to ~120 characters. One status poll of 1 MiB cost the cycle 43 ms of GIL to refuse by its keys.
@@ -128,6 +129,13 @@ def mapping(field: str, value: Any) -> dict[str, Any]:
     return value
 
 
+def sender(field: str, value: Any) -> str:
+    """Who a change is from, as the client says (``user@host``): it goes into the event and the recording."""
+    if not isinstance(value, str) or not 0 < len(value) <= MAX_SENDER or not value.isprintable():
+        raise RequestError(f"{field} must be a printable string of at most {MAX_SENDER} characters")
+    return value
+
+
 def request_limit(fields: Mapping[str, Validator]) -> int:
     """The size limit of a request with these fields, in bytes."""
     return FIELDS_REQUEST if fields else EMPTY_REQUEST
@@ -186,14 +194,17 @@ class Services:
             "enable": Service({"joints": names}, self._enable),
             "list_controller_types": Service({}, read=self._list_controller_types),
             "load_controller": Service(
-                {"name": controller_name, "type": text, "params": mapping, "fallback_controllers": names}, self._load
+                {"name": controller_name, "type": text, "params": mapping, "fallback_controllers": names, "by": sender},
+                self._load,
             ),
             "configure_controller": Service({"name": controller_name}, self._configure),
             "unload_controller": Service({"name": controller_name}, self._unload),
             "reload_controller": Service({"name": controller_name}, self._reload),
             "list_parameters": Service({"controller": controller_name}, read=self._list_parameters),
             "get_parameters": Service({"controller": controller_name, "names": names}, read=self._get_parameters),
-            "set_parameters": Service({"controller": controller_name, "values": mapping}, self._set_parameters),
+            "set_parameters": Service(
+                {"controller": controller_name, "values": mapping, "by": sender}, self._set_parameters
+            ),
             "tuned_config": Service({}, self._tuned_config),
         }
 
@@ -358,11 +369,11 @@ class Services:
             raise RequestError(f"controller {name!r} is already loaded (reload it, or unload it first)")
         if len(loaded) >= MAX_CONTROLLERS:
             raise RequestError(f"{len(loaded)} controllers are loaded: at most {MAX_CONTROLLERS}; unload one first")
-        section = {k: v for k, v in request.items() if k != "name"}
+        section = {k: v for k, v in request.items() if k not in ("name", "by")}
         if "type" not in section:
             raise RequestError('give the controller\'s type: {"name": NAME, "type": TYPE, "params": {...}}')
         checked = self._checked(name, section, loaded, "request")
-        load = Load(name, checked.type, checked.params, checked.fallbacks, source="a client")
+        load = Load(name, checked.type, checked.params, checked.fallbacks, source=f"by {request.get('by', 'a client')}")
         return dict(await self.on_cycle(load))
 
     async def _configure(self, request: dict[str, Any]) -> Reply:
@@ -386,7 +397,9 @@ class Services:
         loaded = {c["name"] for c in self.engine.snapshot().controllers}
         raw = {"type": section.type, "params": section.params, "fallback_controllers": section.fallback_controllers}
         checked = self._checked(name, raw, loaded, str(path))
-        load = Load(name, checked.type, checked.params, checked.fallbacks, replaces=name in loaded, source=str(path))
+        load = Load(
+            name, checked.type, checked.params, checked.fallbacks, replaces=name in loaded, source=f"from {path}"
+        )
         return dict(await self.on_cycle(load))
 
     def _checked(self, name: str, section: dict[str, Any], loaded: set[str], source: str) -> Any:
@@ -461,7 +474,7 @@ class Services:
             return {"controller": name, "changed": [], "applied": "unchanged"}
         fixed = sorted({path for path in values if not describe(model, path)[0]})
         if not fixed:
-            reply = await self.on_cycle(SetParams(name, params, tuple(changes)))
+            reply = await self.on_cycle(SetParams(name, params, tuple(changes), request.get("by", "a client")))
             return {"controller": name, "changed": reply["changed"], "applied": "now"}
         if controller.active:
             raise RequestError(
@@ -472,7 +485,8 @@ class Services:
         section = {"type": spec["type"], "params": params.model_dump(mode="json")}
         loaded = {c["name"] for c in self.engine.snapshot().controllers}
         checked = self._checked(name, section, loaded, "request")
-        load = Load(name, checked.type, checked.params, replaces=True, keeps_fallbacks=True, source="new parameters")
+        by = request.get("by", "a client")
+        load = Load(name, checked.type, checked.params, replaces=True, keeps_fallbacks=True, source=f"by {by}")
         reply = await self.on_cycle(load)
         return {"controller": name, "changed": changes, "applied": f"rebuilt ({reply['state']})"}
 

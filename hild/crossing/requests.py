@@ -62,7 +62,7 @@ class Load:
     doors: str = ""
     replaces: bool = False
     keeps_fallbacks: bool = False  # a replacement keeps the fallbacks of the one it replaces (new parameters)
-    source: str = field(default="", compare=False)  # where the params came from, for the event: a file, a client
+    source: str = field(default="", compare=False)  # for the event: "from <file>", "by <user@host>"
 
 
 @dataclass(frozen=True, slots=True)

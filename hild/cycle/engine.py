@@ -322,7 +322,7 @@ class Engine:
                 case Load():
                     state = self._loaded(request)
                     verb = "reloaded" if request.replaces else "loaded"
-                    source = f" from {request.source}" if request.source else ""
+                    source = f" {request.source}" if request.source else ""
                     self.events.emit("info", "controller_manager", f"{verb} {name} ({request.type}){source}: {state}")
                     return {"name": name, "type": request.type, "state": state}
                 case Configure():

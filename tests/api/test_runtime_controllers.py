@@ -60,7 +60,7 @@ def test_load_configure_switch_stream_and_unload_a_controller(client: HildClient
     assert client.unload_controller("late") == {"ok": True, "error": None, "name": "late"}
     assert "late" not in states(client)
     wait_for(lambda: daemon.events_with("unloaded late"), what="the unload event")
-    assert daemon.events_with("loaded late (forward_command) from a client: unconfigured")
+    assert daemon.events_with(f"loaded late (forward_command) by {client.sender}: unconfigured")
 
 
 def test_a_loaded_controller_gets_its_zenoh_input_and_loses_it_when_unloaded(client: HildClient) -> None:

@@ -52,7 +52,8 @@ def test_a_dynamic_parameter_changes_while_active_and_the_event_says_who_what_ol
     assert reply["changed"] == ["command_timeout: 0.5 → 0.05"] and reply["applied"] == "now"
     assert client.get_parameters("fwd", ["command_timeout"]) == {"command_timeout": 0.05}
     assert daemon.engine.manager.records["fwd"].instance.params.command_timeout == 0.05  # the cycle's
-    wait_for(lambda: daemon.events_with("parameters set by a client: command_timeout: 0.5 → 0.05"), what="event")
+    said = f"parameters set by {client.sender}: command_timeout: 0.5 → 0.05"  # who (user@host), what, old → new
+    wait_for(lambda: daemon.events_with(said), what="the event")
     client.send("fwd", [0.2, -0.1, 0.1])  # then silence: the new, shorter timeout hands the joints back to hold
     wait_for(lambda: daemon.events_with("no command for 0.05 s: joints return to hold"), what="the new timeout")
     assert client.set_parameters("fwd", {"command_timeout": 0.05})["applied"] == "unchanged"
