@@ -95,18 +95,7 @@ class ControllerManager:
     def load(self, name: str, type_name: str, controller: Controller, fallbacks: Sequence[str] = ()) -> None:
         if name in self.records:
             raise SwitchError(f"controller {name!r} is already loaded")
-        claims = tuple(controller.claims())
-        check_claims(name, claims, self.available)
-        self.records[name] = ControllerRecord(
-            slot=self._slots,
-            name=name,
-            type=type_name,
-            instance=controller,
-            claims=claims,
-            fallbacks=tuple(fallbacks),
-            reads=tuple(controller.state_interfaces()),
-            joint_index=self._joints_of(claims),
-        )
+        self.records[name] = self._record(self._slots, name, type_name, controller, fallbacks)
         self._slots += 1
         self._changed()
 
@@ -151,8 +140,7 @@ class ControllerManager:
         old = self._get(name)
         if old.state is ControllerState.ACTIVE:
             raise SwitchError(f"controller {name!r} is active; deactivate it before reloading it")
-        claims = tuple(controller.claims())
-        check_claims(name, claims, self.available)
+        record = self._record(old.slot, name, type_name, controller, fallbacks)
         configured = old.state is not ControllerState.UNCONFIGURED
         if configured:
             try:
@@ -162,19 +150,27 @@ class ControllerManager:
                     f"{name}: the new instance's on_configure raised {type(exc).__name__}: {exc}; the loaded one stays"
                 ) from None
             self._cleanup(old)
-        self.records[name] = ControllerRecord(
-            slot=old.slot,
+        record.state = ControllerState.INACTIVE if configured else ControllerState.UNCONFIGURED
+        self.records[name] = record
+        self._changed()
+        return str(record.state)
+
+    def _record(
+        self, slot: int, name: str, type_name: str, controller: Controller, fallbacks: Sequence[str]
+    ) -> ControllerRecord:
+        """A record for ``controller``, unconfigured; ClaimError if it claims what the drives do not offer."""
+        claims = tuple(controller.claims())
+        check_claims(name, claims, self.available)
+        return ControllerRecord(
+            slot=slot,
             name=name,
             type=type_name,
             instance=controller,
             claims=claims,
             fallbacks=tuple(fallbacks),
-            state=ControllerState.INACTIVE if configured else ControllerState.UNCONFIGURED,
             reads=tuple(controller.state_interfaces()),
             joint_index=self._joints_of(claims),
         )
-        self._changed()
-        return str(self.records[name].state)
 
     def _cleanup(self, rec: ControllerRecord) -> None:
         try:
