@@ -28,7 +28,7 @@ from hild import plugins
 from hild.arrays import JointState, ServoCommand, contiguous_slice, gather_command, scatter_state
 from hild.config.loader import LoadedConfig
 from hild.config.tuning import MANAGER, ManagerParams
-from hild.controller import ControllerContext, JointLimitArrays
+from hild.controller import ControllerContext, ControllerState, JointLimitArrays
 from hild.crossing.events import EventLog
 from hild.crossing.inprocess import BoundedQueue
 from hild.crossing.mailboxes import InProcess, Mailboxes
@@ -498,8 +498,15 @@ class Engine:
         try:
             record.instance.set_params(request.params)
         except Exception as exc:  # the plugin's code: it must not take the cycle down, nor keep half of a change
-            record.instance.set_params(old)
-            raise Refused(f"{request.name}: on_params raised {type(exc).__name__}: {exc}; nothing changed") from None
+            reason = f"{request.name}: on_params raised {type(exc).__name__}: {exc}"
+            try:
+                record.instance.set_params(old)
+            except Exception:  # not even its old parameters take: it cannot be trusted to command anything
+                record.instance.params = old
+                if record.state is ControllerState.ACTIVE:
+                    self.manager.fail(record, f"{reason}, and again with its old parameters", self.state, self.command)
+                raise Refused(f"{reason}, and again with its old parameters; it is stopped") from None
+            raise Refused(f"{reason}; nothing changed") from None
         self.loads[request.name] = dataclasses.replace(self.loads[request.name], params=request.params)
         self.loads_seq += 1
         self.events.emit("info", request.name, f"parameters set by {request.by}: {'; '.join(request.changes)}")

@@ -1,0 +1,149 @@
+"""The controller manager's lifecycle beyond load and switch (issue [runtime]): configure again, replace, unload,
+and a controller whose own code raises in on_configure, on_cleanup or on_params — reported, and the rest as it was.
+Lockstep: nothing here depends on timing."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import pytest
+
+from hild.controller import Controller
+from hild.crossing.requests import Configure, Load, Refused, SetParams, Unload
+from hild.cycle.engine import Engine
+from hild.cycle.manager import SwitchError
+from tests.test_engine import JumpGuard, events
+
+MakeEngine = Callable[..., Engine]
+
+
+class Fragile(Controller):
+    """Raises from the hooks named in ``raises``; counts the calls of each."""
+
+    def __init__(self, context, raises: set[str] = frozenset()) -> None:  # type: ignore[assignment]
+        super().__init__(context, Controller.Params())
+        self.raises = raises
+        self.calls: dict[str, int] = {}
+
+    def _hook(self, name: str) -> None:
+        self.calls[name] = self.calls.get(name, 0) + 1
+        if name in self.raises:
+            raise RuntimeError(f"{name} failed")
+
+    def on_configure(self) -> None:
+        self._hook("configure")
+
+    def on_cleanup(self) -> None:
+        self._hook("cleanup")
+
+    def on_params(self, old: object) -> None:
+        self._hook("params")
+
+
+def fragile(engine: Engine, name: str, raises: set[str] = frozenset()) -> Fragile:  # type: ignore[assignment]
+    return Fragile(engine.controller_context(name), raises)
+
+
+def test_configure_again_cleans_up_first_and_a_raising_on_configure_leaves_it_unconfigured(
+    make_engine: MakeEngine,
+) -> None:
+    engine = make_engine()
+    one = fragile(engine, "one")
+    engine.add_controller("one", "test", one)
+    engine.manager.configure("one")  # inactive → cleaned up, configured again
+    assert one.calls == {"configure": 2, "cleanup": 1}
+    one.raises = {"configure"}
+    with pytest.raises(SwitchError, match="one: on_configure raised RuntimeError: configure failed; it stays unconf"):
+        engine.manager.configure("one")
+    assert engine.manager.records["one"].state == "unconfigured"
+    result = engine.switch(["one"], [])
+    assert not result.ok and "one is not configured" in result.error
+
+
+def test_a_replacement_whose_on_configure_raises_leaves_the_loaded_one_as_it_was(make_engine: MakeEngine) -> None:
+    engine = make_engine()
+    old = fragile(engine, "one")
+    engine.add_controller("one", "test", old)
+    with pytest.raises(SwitchError, match="the new instance's on_configure raised RuntimeError"):
+        engine.manager.replace("one", "test", fragile(engine, "one", {"configure"}))
+    assert engine.manager.records["one"].instance is old and engine.manager.records["one"].state == "inactive"
+    new = fragile(engine, "one")
+    assert engine.manager.replace("one", "test", new) == "inactive"
+    assert old.calls["cleanup"] == 1 and new.calls == {"configure": 1}
+
+
+def test_on_cleanup_that_raises_is_reported_and_the_unload_goes_on(make_engine: MakeEngine) -> None:
+    engine = make_engine()
+    engine.add_controller("one", "test", fragile(engine, "one", {"cleanup"}))
+    engine.manager.unload("one")
+    assert "one" not in engine.manager.records
+    assert any("one: on_cleanup raised RuntimeError: cleanup failed" in e for e in events(engine))
+
+
+def test_on_params_that_raises_gets_the_old_params_back_and_nothing_changes(make_engine: MakeEngine) -> None:
+    engine = make_engine()
+    fwd = engine.manager.records["fwd"].instance
+    old = fwd.params
+    future = engine.request(SetParams("fwd", old.model_copy(update={"command_timeout": 0.9}), ("x",)))
+    engine.run_cycles(1)
+    assert future.result(0)["changed"] == ["x"] and fwd.params.command_timeout == 0.9
+    one = fragile(engine, "one", {"params"})
+    engine.add_controller("one", "test", one)
+    engine.loads["one"] = Load("one", "test", one.params)
+    failed = engine.request(SetParams("one", Controller.Params(), ("y",)))
+    engine.run_cycles(1)
+    with pytest.raises(Refused, match="one: on_params raised RuntimeError: params failed, and again with its old"):
+        failed.result(0)  # it raises for any params: not even its old ones take
+    assert one.calls["params"] == 2 and one.params is not None
+    one.raises = set()
+    once = engine.request(SetParams("one", Controller.Params(), ("y",)))
+    engine.run_cycles(1)
+    assert once.result(0)["changed"] == ["y"]
+    engine.stop()
+
+
+class RejectsTimeout(Fragile):
+    """Takes any parameters but a command_timeout over 1 s (its old ones are always fine)."""
+
+    def on_params(self, old: object) -> None:
+        if getattr(self.params, "command_timeout", 0.0) > 1.0:
+            raise ValueError("too slow")
+
+
+def test_on_params_that_raises_for_the_new_ones_keeps_the_old_ones_and_the_controller_runs(
+    make_engine: MakeEngine,
+) -> None:
+    engine = make_engine()
+    fwd = engine.manager.records["fwd"].instance
+    picky = RejectsTimeout(engine.controller_context("picky"))
+    picky.params = fwd.params
+    engine.add_controller("picky", "test", picky)
+    engine.loads["picky"] = Load("picky", "test", fwd.params)
+    failed = engine.request(SetParams("picky", fwd.params.model_copy(update={"command_timeout": 2.0}), ("z",)))
+    engine.run_cycles(1)
+    with pytest.raises(Refused, match="picky: on_params raised ValueError: too slow; nothing changed"):
+        failed.result(0)
+    assert picky.params.command_timeout == fwd.params.command_timeout
+    engine.stop()
+
+
+def test_lifecycle_requests_never_move_the_arm(make_engine: MakeEngine) -> None:
+    """Load, configure, new parameters and unload while a controller moves a joint: the command never steps."""
+    engine = make_engine()
+    assert engine.switch(["fwd"], []).ok
+    guard = JumpGuard(engine)
+    params = engine.loaded.controller_params["fwd"]
+    fwd = engine.manager.records["fwd"].instance
+    for k in range(20):
+        fwd.accept({"values": [0.1 + 0.01 * k, -0.2, 0.3]})
+        for request in (
+            Load(f"late{k}", "forward_command", params),
+            Configure(f"late{k}"),
+            SetParams("fwd", params.model_copy(update={"command_timeout": 0.5 + 0.01 * k}), ("t",)),
+            Unload(f"late{k}"),
+        ):
+            future = engine.request(request)
+            guard.run(1)
+            assert future.done() and future.exception() is None, future.exception()
+    assert set(engine.manager.records) == {"jsb", "fwd"} and engine.manager.records["fwd"].state == "active"
+    engine.stop()
