@@ -14,6 +14,9 @@ The server side, run by the client domain (``hild.daemon``), which reaches the c
 - ``ports``         controller inputs (subscribers), outputs (publishers of sample rings) and goal endpoints
 - ``goals``         ``GoalEndpoint``: a controller's goals, client half (accept, cancel, results, feedback)
 - ``services``      the control-plane services, independent of Zenoh (bytes in, reply dict out)
+- ``fields``        what every service request is checked against: its fields' validators, its size
+- ``lifecycle``     load, configure, unload, reload controllers while the robot runs (services)
+- ``parameters``    controllers' and the daemon's own parameters while the robot runs, and the tuned config (services)
 - ``queries``       admitting and answering queries: size and in-flight caps, the large-payload worker
 - ``unique``        one robot name, one daemon: refuse to start beside another, report one that appears
 - ``goal_senders``  goal senders' liveliness tokens: a sender that goes away is told to its controllers
@@ -24,6 +27,9 @@ The client library:
 - ``client``        ``HildClient``: the Python client (``from hild.client import HildClient``)
 - ``aio``           its asyncio face
 - ``ctl``           ``hild ctl``, with ``render`` for its text output
+- ``pub``           ``hild ctl pub``: streams values to a controller input on an absolute schedule
+- ``stream_inputs`` which input of a controller ``pub`` streams to, and how many values it takes
+- ``expressions``   ``pub``'s values: numbers and expressions of ``t``, evaluated by simpleeval (no ``eval``)
 
 The wire format is documented in docs/protocol.md.
 """

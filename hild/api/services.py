@@ -20,32 +20,41 @@ import concurrent.futures
 import contextvars
 import logging
 import time
-from collections.abc import Awaitable, Callable, Mapping
-from dataclasses import dataclass
 from typing import Any
 
-from hild import plugins
-from hild.api.codec import MAX_PAYLOAD, PayloadError, decode, encode
-from hild.api.keys import check_chunk
-from hild.api.queries import LargePayloadWorker, too_large
-from hild.config.loader import ConfigError, check_controller, load_config
-from hild.config.params import describe, flatten, with_values
-from hild.config.tuning import MANAGER
-from hild.controller import and_more, unknown_keys
-from hild.crossing.cells import MAX_CONTROLLERS
-from hild.crossing.requests import (
-    Configure,
-    Enable,
-    Load,
-    Refused,
-    Request,
-    Reset,
-    SetParams,
-    SetZero,
-    Switch,
-    Unload,
+from hild.api.codec import MAX_PAYLOAD, encode
+from hild.api.fields import (
+    EMPTY_REQUEST,
+    FIELDS_REQUEST,
+    MAX_NAMES,
+    Reply,
+    RequestError,
+    Service,
+    boolean,
+    joint_name,
+    names,
+    ok,
+    parse_request,
 )
+from hild.api.lifecycle import ControllerLifecycle
+from hild.api.parameters import ControllerParameters
+from hild.api.queries import LargePayloadWorker, clip
+from hild.crossing.requests import Enable, Refused, Request, Reset, SetZero, Switch
 from hild.daemon.link import CycleLink
+
+__all__ = [  # the request checks live in hild.api.fields; these names stay importable from here too
+    "DEFAULT_TIMEOUT",
+    "EMPTY_REQUEST",
+    "FIELDS_REQUEST",
+    "MAX_NAMES",
+    "Reply",
+    "RequestError",
+    "Services",
+    "boolean",
+    "joint_name",
+    "names",
+    "parse_request",
+]
 
 log = logging.getLogger("hild.api")
 
@@ -59,119 +68,6 @@ DEFAULT_TIMEOUT = 1.0  # s; below the client's default 2 s so the client sees ou
 # A caller's own, shorter limit on waiting for the cycle (ROS' SwitchController.timeout), for the request being
 # handled: a context variable, so the services that hop to the cycle need not all carry it.
 _ASKED_TIMEOUT: contextvars.ContextVar[float | None] = contextvars.ContextVar("asked_timeout", default=None)
-MAX_NAMES = 256
-MAX_SENDER = 64  # characters of a request's "by"
-# Bytes a request may have, refused larger before it is copied or decoded (docs/protocol.md, "Limits"). A request
-# without fields is "", "{}" or a little whitespace; the largest with fields, a switch of 2 x MAX_NAMES names of
-# up to ~120 characters. One status poll of 1 MiB cost the cycle 43 ms of GIL to refuse by its keys.
-EMPTY_REQUEST = 256
-FIELDS_REQUEST = 64 * 1024
-
-
-def ok(body: Reply) -> Reply:
-    """A successful reply; a body may carry its own ok/error (switch, reset)."""
-    return {"ok": True, "error": None, **body}
-
-
-class RequestError(Exception):
-    """A request that cannot be served; the message is the reply's ``error``."""
-
-
-Validator = Callable[[str, Any], Any]
-Reply = dict[str, Any]
-
-
-def names(field: str, value: Any) -> list[str]:
-    """A list of distinct, non-empty controller names."""
-    if not isinstance(value, list):
-        raise RequestError(f"{field} must be a list of controller names, not {type(value).__name__}")
-    if len(value) > MAX_NAMES:
-        raise RequestError(f"{field} lists {len(value)} names; at most {MAX_NAMES}")
-    seen: set[str] = set()
-    for item in value:
-        if not isinstance(item, str) or not item:
-            raise RequestError(f"{field} must contain non-empty strings, found {item!r}")
-        if item in seen:
-            raise RequestError(f"{field} lists {item!r} twice")
-        seen.add(item)
-    return value
-
-
-def boolean(field: str, value: Any) -> bool:
-    if not isinstance(value, bool):
-        raise RequestError(f"{field} must be true or false, not {value!r}")
-    return value
-
-
-def joint_name(field: str, value: Any) -> str:
-    if not isinstance(value, str) or not value:
-        raise RequestError(f"{field} must be a joint name, not {value!r}")
-    return value
-
-
-def controller_name(field: str, value: Any) -> str:
-    """A controller's name: it becomes a chunk of its Zenoh keys (``hild/<robot>/ctrl/<name>/…``)."""
-    try:
-        return check_chunk(value, field)
-    except ValueError as exc:
-        raise RequestError(str(exc)) from None
-
-
-def text(field: str, value: Any) -> str:
-    if not isinstance(value, str) or not value:
-        raise RequestError(f"{field} must be a non-empty string, not {value!r}")
-    return value
-
-
-def mapping(field: str, value: Any) -> dict[str, Any]:
-    if not isinstance(value, dict):
-        raise RequestError(f"{field} must be a JSON object, not {type(value).__name__}")
-    return value
-
-
-def sender(field: str, value: Any) -> str:
-    """Who a change is from, as the client says (``user@host``): it goes into the event and the recording."""
-    if not isinstance(value, str) or not 0 < len(value) <= MAX_SENDER or not value.isprintable():
-        raise RequestError(f"{field} must be a printable string of at most {MAX_SENDER} characters")
-    return value
-
-
-def request_limit(fields: Mapping[str, Validator]) -> int:
-    """The size limit of a request with these fields, in bytes."""
-    return FIELDS_REQUEST if fields else EMPTY_REQUEST
-
-
-def parse_request(raw: bytes, fields: Mapping[str, Validator]) -> dict[str, Any]:
-    """Decode a request object and check every field; an empty payload is an empty object.
-
-    The size limit is checked first; the API's gate checks it too, before the payload is even copied."""
-    limit = request_limit(fields)
-    if len(raw) > limit:
-        raise RequestError(too_large(len(raw), limit)["error"])
-    if not raw.strip():
-        return {}
-    try:
-        request = decode(raw)
-    except PayloadError as exc:
-        raise RequestError(str(exc)) from None
-    if not isinstance(request, dict):
-        raise RequestError(f"request must be a JSON object, not {type(request).__name__}")
-    unknown, more = unknown_keys(request, fields)
-    if unknown:
-        allowed = ", ".join(sorted(fields)) if fields else "none"
-        raise RequestError(f"unknown field(s) {', '.join(map(repr, unknown))}{and_more(more)} (allowed: {allowed})")
-    return {key: fields[key](key, value) for key, value in request.items()}
-
-
-@dataclass(frozen=True)
-class Service:
-    fields: Mapping[str, Validator]
-    run: Callable[[dict[str, Any]], Awaitable[Reply]] | None = None  # changes state: on the asyncio thread
-    read: Callable[[dict[str, Any]], Reply] | None = None  # read-only: answered on any thread
-
-    @property
-    def limit(self) -> int:
-        return request_limit(self.fields)
 
 
 class Services:
@@ -192,21 +88,10 @@ class Services:
             "reset": Service({}, self._reset),
             "set_zero": Service({"joint": joint_name, "confirm": boolean}, self._set_zero),
             "enable": Service({"joints": names}, self._enable),
-            "list_controller_types": Service({}, read=self._list_controller_types),
-            "load_controller": Service(
-                {"name": controller_name, "type": text, "params": mapping, "fallback_controllers": names, "by": sender},
-                self._load,
-            ),
-            "configure_controller": Service({"name": controller_name}, self._configure),
-            "unload_controller": Service({"name": controller_name}, self._unload),
-            "reload_controller": Service({"name": controller_name}, self._reload),
-            "list_parameters": Service({"controller": controller_name}, read=self._list_parameters),
-            "get_parameters": Service({"controller": controller_name, "names": names}, read=self._get_parameters),
-            "set_parameters": Service(
-                {"controller": controller_name, "values": mapping, "by": sender}, self._set_parameters
-            ),
-            "tuned_config": Service({}, self._tuned_config),
         }
+        lifecycle = ControllerLifecycle(engine, self.on_cycle)
+        self.table.update(lifecycle.services())
+        self.table.update(ControllerParameters(engine, self.on_cycle, lifecycle.checked).services())
 
     async def handle(self, name: str, raw: bytes, *, timeout: float | None = None) -> Reply:
         """Serve one request on the asyncio thread; always returns a reply with ``ok`` and ``error``. ``timeout``:
@@ -276,12 +161,14 @@ class Services:
 
     @staticmethod
     def _failed(name: str, exc: Exception) -> Reply:
+        """The refusal's reply, its error clipped as every reply's is (a read-only reply is sent as it is encoded
+        here: a refusal quoting a 300-name list once went out whole)."""
         if isinstance(exc, Refused):
-            return {**exc.details, "ok": False, "error": str(exc)}
+            return {**exc.details, "ok": False, "error": clip(str(exc))}
         if isinstance(exc, RequestError):
-            return {"ok": False, "error": str(exc)}
+            return {"ok": False, "error": clip(str(exc))}
         log.exception("service %s failed", name, exc_info=exc)  # a bug must cost one reply, not the daemon
-        return {"ok": False, "error": f"internal error: {type(exc).__name__}: {exc}"}
+        return {"ok": False, "error": clip(f"internal error: {type(exc).__name__}: {exc}")}
 
     # ---- the cycle hop ------------------------------------------------------------------------------------------
     async def on_cycle(self, request: Request) -> Any:
@@ -354,189 +241,3 @@ class Services:
 
     async def _enable(self, request: dict[str, Any]) -> Reply:
         return dict(await self.on_cycle(Enable(tuple(request.get("joints", ())))))
-
-    # ---- controller lifecycle (docs/protocol.md, "Controllers while the robot runs") -------------------------------
-    def _list_controller_types(self, request: dict[str, Any]) -> Reply:
-        return {"types": [{"type": name, "class": where} for name, where in plugins.sources(plugins.CONTROLLERS)]}
-
-    async def _load(self, request: dict[str, Any]) -> Reply:
-        """Checked here as ``hild check`` checks the config's controllers; built and adopted by the cycle."""
-        name = _required(request, "name")
-        if name == MANAGER:
-            raise RequestError(f"{MANAGER!r} names the daemon's own parameters: choose another name")
-        loaded = {c["name"] for c in self.engine.snapshot().controllers}
-        if name in loaded:
-            raise RequestError(f"controller {name!r} is already loaded (reload it, or unload it first)")
-        if len(loaded) >= MAX_CONTROLLERS:
-            raise RequestError(f"{len(loaded)} controllers are loaded: at most {MAX_CONTROLLERS}; unload one first")
-        section = {k: v for k, v in request.items() if k not in ("name", "by")}
-        if "type" not in section:
-            raise RequestError('give the controller\'s type: {"name": NAME, "type": TYPE, "params": {...}}')
-        checked = self._checked(name, section, loaded, "request")
-        load = Load(name, checked.type, checked.params, checked.fallbacks, source=f"by {request.get('by', 'a client')}")
-        return dict(await self.on_cycle(load))
-
-    async def _configure(self, request: dict[str, Any]) -> Reply:
-        return dict(await self.on_cycle(Configure(self._loaded(request))))
-
-    async def _unload(self, request: dict[str, Any]) -> Reply:
-        return dict(await self.on_cycle(Unload(self._loaded(request))))
-
-    async def _reload(self, request: dict[str, Any]) -> Reply:
-        """Replace a controller that is not active with a new one built from the config file as it is on disk now
-        (the same file the daemon started from); not loaded, it is loaded."""
-        name = _required(request, "name")
-        path = self.engine.loaded.path
-        try:
-            on_disk = await asyncio.to_thread(load_config, path)
-        except ConfigError as exc:
-            raise RequestError(f"{path} does not load, so nothing was reloaded:\n{exc}") from None
-        section = on_disk.config.controllers.get(name)
-        if section is None:
-            raise RequestError(f"{path} has no controller {name!r}: nothing to reload it from")
-        loaded = {c["name"] for c in self.engine.snapshot().controllers}
-        raw = {"type": section.type, "params": section.params, "fallback_controllers": section.fallback_controllers}
-        checked = self._checked(name, raw, loaded, str(path))
-        load = Load(
-            name, checked.type, checked.params, checked.fallbacks, replaces=name in loaded, source=f"from {path}"
-        )
-        return dict(await self.on_cycle(load))
-
-    def _checked(self, name: str, section: dict[str, Any], loaded: set[str], source: str) -> Any:
-        try:
-            return check_controller(self.engine.loaded, name, section, loaded, source)
-        except ConfigError as exc:
-            raise RequestError(f"controller {name!r} was not loaded:\n{exc}") from None
-
-    def _loaded(self, request: dict[str, Any]) -> str:
-        name = _required(request, "name")
-        loaded = {c["name"] for c in self.engine.snapshot().controllers}
-        if name not in loaded:
-            known = ", ".join(sorted(loaded)) or "none"
-            raise RequestError(f"unknown controller {name!r} (loaded: {known})")
-        return name
-
-    # ---- parameters (docs/protocol.md, "Parameters while the robot runs") --------------------------------------------
-    def _controller(self, request: dict[str, Any]) -> tuple[str, Any]:
-        """The controller named in ``request`` (its API half: its params are what the cycle's are), or the daemon's
-        own parameters (``controller_manager``: always active, so only its dynamic ones change)."""
-        name = _required(request, "controller")
-        if name == MANAGER:
-            return name, _Node(self.engine.snapshot().tuning)
-        controller = self.engine.controllers().get(name)
-        if controller is None:
-            known = ", ".join(sorted(self.engine.controllers())) or "none"
-            raise RequestError(f"unknown controller {name!r} (loaded: {known})")
-        return name, controller
-
-    def _list_parameters(self, request: dict[str, Any]) -> Reply:
-        name, controller = self._controller(request)
-        model = type(controller.params)
-        parameters = []
-        for path, value in flatten(controller.params).items():
-            dynamic, description = describe(model, path)
-            parameters.append({"name": path, "value": value, "dynamic": dynamic, "description": description})
-        return {"controller": name, "parameters": parameters}
-
-    def _get_parameters(self, request: dict[str, Any]) -> Reply:
-        name, controller = self._controller(request)
-        values = flatten(controller.params)
-        wanted = request.get("names") or list(values)
-        unknown = [path for path in wanted if path not in values]
-        if unknown:
-            raise RequestError(f"{name} has no parameter(s) {', '.join(map(repr, unknown))} (list_parameters)")
-        return {"controller": name, "values": {path: values[path] for path in wanted}}
-
-    async def _set_parameters(self, request: dict[str, Any]) -> Reply:
-        """Validated here against the controller's own schema, whole; applied between two cycles in both halves.
-        A controller that is active takes only dynamic parameters; one that is not takes any, and is then rebuilt
-        (as a reload, from these values: it is configured again if it was)."""
-        name, controller = self._controller(request)
-        values = request.get("values") or {}
-        if not values:
-            raise RequestError('nothing to set: {"controller": NAME, "values": {"path.to.param": value}}')
-        if len(values) > MAX_NAMES:
-            raise RequestError(f"{len(values)} parameters in one request; at most {MAX_NAMES}")
-        model = type(controller.params)
-        if name == MANAGER:
-            joints = controller.params.joints
-            unknown = sorted(
-                {p.split(".")[1] for p in values if p.startswith("joints.") and p.split(".")[1] not in joints}
-            )
-            if unknown:
-                raise RequestError(f"unknown joint(s) {unknown} (joints: {', '.join(joints)})")
-        try:
-            params = with_values(controller.params, values)
-        except ValueError as exc:
-            raise RequestError(f"{name}: {_validation_text(exc)}; nothing changed") from None
-        changes = _changes(controller.params, params)
-        if not changes:
-            return {"controller": name, "changed": [], "applied": "unchanged"}
-        fixed = sorted({path for path in values if not describe(model, path)[0]})
-        if not fixed:
-            reply = await self.on_cycle(SetParams(name, params, tuple(changes), request.get("by", "a client")))
-            return {"controller": name, "changed": reply["changed"], "applied": "now"}
-        if controller.active:
-            raise RequestError(
-                f"{', '.join(fixed)} of {name} cannot change while it is active: deactivate it, set them, "
-                "and it is rebuilt with them (only dynamic parameters change while active: list_parameters)"
-            )
-        spec = next(c for c in self.engine.snapshot().controllers if c["name"] == name)
-        section = {"type": spec["type"], "params": params.model_dump(mode="json")}
-        loaded = {c["name"] for c in self.engine.snapshot().controllers}
-        checked = self._checked(name, section, loaded, "request")
-        by = request.get("by", "a client")
-        load = Load(name, checked.type, checked.params, replaces=True, keeps_fallbacks=True, source=f"by {by}")
-        reply = await self.on_cycle(load)
-        return {"controller": name, "changed": changes, "applied": f"rebuilt ({reply['state']})"}
-
-    async def _tuned_config(self, request: dict[str, Any]) -> Reply:
-        """The daemon's config file with every parameter as it is now (``hild ctl params save`` writes it)."""
-        from hild.config.tuned import tuned_copy  # ruamel.yaml: loaded only when a copy is asked for
-
-        path = self.engine.loaded.path
-        snapshot = self.engine.snapshot()
-        types = {c["name"]: c["type"] for c in snapshot.controllers}
-        controllers = {n: (types[n], c.params) for n, c in self.engine.controllers().items() if n in types}
-        hold = {joint: (t.hold.kp, t.hold.kd) for joint, t in snapshot.tuning.joints.items()}
-        try:
-            text, changed = await asyncio.to_thread(tuned_copy, path, controllers, hold)
-        except ConfigError as exc:
-            raise RequestError(f"{path} does not load as it is on disk, so there is nothing to copy:\n{exc}") from None
-        return {"path": str(path), "yaml": text, "changed": changed}
-
-
-@dataclass(frozen=True)
-class _Node:
-    """The daemon's own parameters, read and set like a controller's that is always active."""
-
-    params: Any
-    active: bool = True
-
-
-def _changes(old: Any, new: Any) -> list[str]:
-    """``path: old → new`` for every parameter that differs, in JSON."""
-    before, after = flatten(old), flatten(new)
-    return [
-        f"{path}: {encode(before.get(path)).decode()} → {encode(value).decode()}"
-        for path, value in after.items()
-        if before.get(path) != value
-    ]
-
-
-def _validation_text(exc: ValueError) -> str:
-    """A pydantic error as ``path: what``, one per problem; any other ValueError as it is."""
-    errors = getattr(exc, "errors", None)
-    if not callable(errors):
-        return str(exc)
-    parts = []
-    for err in errors():
-        where = ".".join(str(p) for p in err["loc"]) or "params"
-        parts.append(f"{where}: {err['msg'].removeprefix('Value error, ')} (found {err.get('input')!r:.60})")
-    return "; ".join(parts)
-
-
-def _required(request: dict[str, Any], field: str) -> Any:
-    if field not in request:
-        raise RequestError(f"give the {field}: {{{field!r}: ...}}".replace("'", '"'))
-    return request[field]

@@ -22,8 +22,8 @@ import pytest
 import zenoh
 
 from hild.action import GoalRejected
+from hild.api import fields as fields_module  # parse_request decodes there
 from hild.api import ports as ports_module
-from hild.api import services as services_module
 from hild.api.client import HildClient
 from hild.api.codec import (
     FAST_DECODE,
@@ -182,7 +182,7 @@ def test_a_megabyte_status_request_is_refused_by_its_size_unread(
 ) -> None:
     raw = json.dumps(wide(), separators=(",", ":")).encode()  # the finding: 90 000 keys
     assert len(raw) <= MAX_PAYLOAD
-    decodes = Decodes(monkeypatch, services_module)
+    decodes = Decodes(monkeypatch, fields_module)
     for service in ("status", "list_controllers", "estop", "reset"):
         reply = query(client, f"srv/{service}", raw)
         assert reply == {"ok": False, "error": f"payload of {len(raw)} bytes exceeds the {EMPTY_REQUEST}-byte limit"}
@@ -193,7 +193,7 @@ def test_a_megabyte_status_request_is_refused_by_its_size_unread(
 def test_each_service_refuses_what_it_cannot_need_and_serves_the_rest(
     client: HildClient, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    decodes = Decodes(monkeypatch, services_module)
+    decodes = Decodes(monkeypatch, fields_module)
     padded = b"{}" + b" " * (EMPTY_REQUEST - 2)
     assert query(client, "srv/status", padded)["ok"] is True
     error = f"payload of {EMPTY_REQUEST + 1} bytes exceeds the {EMPTY_REQUEST}-byte limit"

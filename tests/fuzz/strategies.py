@@ -359,6 +359,15 @@ SERVICE_FIELDS: dict[str, tuple[str, ...]] = {
     "reset": (),
     "set_zero": ("joint", "confirm"),
     "enable": ("joints",),
+    "list_controller_types": (),
+    "load_controller": ("name", "type", "params", "fallback_controllers", "by"),
+    "configure_controller": ("name",),
+    "unload_controller": ("name",),
+    "reload_controller": ("name",),
+    "list_parameters": ("controller",),
+    "get_parameters": ("controller", "names"),
+    "set_parameters": ("controller", "values", "by"),
+    "tuned_config": (),
 }
 
 

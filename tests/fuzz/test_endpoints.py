@@ -16,18 +16,37 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
+from hild.api.fields import (
+    RequestError,
+    boolean,
+    controller_name,
+    joint_name,
+    mapping,
+    names,
+    parse_request,
+    sender,
+    text,
+)
 from hild.api.keys import SERVICES
 from hild.api.queries import clip
-from hild.api.services import RequestError, boolean, joint_name, names, parse_request
 from tests.fuzz import strategies, tally
 from tests.fuzz.checks import refused, unharmed
 from tests.fuzz.daemon import FuzzDaemon, wait_for
 
-READ_ONLY = {"status", "list_controllers", "list_interfaces", "list_hardware"}
+# Answered ok whenever the fields parse; the others change state or need a field they may lack ("give the name").
+READ_ONLY = {"status", "list_controllers", "list_interfaces", "list_hardware", "list_controller_types"}
+NAMED = {"name": controller_name}
 FIELDS = {
     "switch_controllers": {"activate": names, "deactivate": names, "strict": boolean},
     "set_zero": {"joint": joint_name, "confirm": boolean},
     "enable": {"joints": names},
+    "load_controller": {**NAMED, "type": text, "params": mapping, "fallback_controllers": names, "by": sender},
+    "configure_controller": NAMED,
+    "unload_controller": NAMED,
+    "reload_controller": NAMED,
+    "list_parameters": {"controller": controller_name},
+    "get_parameters": {"controller": controller_name, "names": names},
+    "set_parameters": {"controller": controller_name, "values": mapping, "by": sender},
 }
 TOO_DEEP = "malformed JSON: nested too deeply"
 
