@@ -4,17 +4,22 @@
 a client alternates two kinds of window, ``--rounds`` times each, interleaved so the machine's own drift shows in
 both:
 
-* ``quiet``: read-only queries (``list_controllers``, ``get_parameters``) at the lifecycle window's query rate;
-* ``lifecycle``: over and over, ``load_controller`` (a forward_command), ``configure_controller``,
-  ``set_parameters`` on joint_trajectory (``constraints.goal_time``) and on ``controller_manager`` (a hold gain),
-  then ``unload_controller`` — each applied by the cycle between two cycles, after its write.
+* ``quiet``: five read-only queries (``list_controllers``, ``get_parameters``) per period;
+* ``lifecycle``: per period, ``load_controller`` (a forward_command), ``configure_controller``, ``set_parameters``
+  on joint_trajectory (``constraints.goal_time``) and on ``controller_manager`` (a hold gain), then
+  ``unload_controller`` — each applied by the cycle between two cycles, after its write.
+
+``--rate`` sequences per second (default 2: a tuning session or a spawner is slower); ``--rate 0`` sends them
+back to back, a stress of the client domain as much as of the cycle (on two shared cores every query the
+client domain serves takes CPU from the cycle: compare it with the quiet window at the same query rate).
 
 Reported: overruns per 10 000 cycles in each kind of window (the daemon's own count: a cycle that ended after the
 next one was due) and how many lifecycle operations ran. The target: lifecycle ≤ quiet + 1 per 10 000. A
 benchmark, never a test: the numbers measure the machine as much as hild (docs/performance.md).
 
-    python -m hild.bench.lifecycle                          # 1 kHz, 3 rounds of 2 × 20 s
-    python -m hild.bench.lifecycle --rate 500 --seconds 10 --rounds 2 --json lifecycle.json
+    python -m hild.bench.lifecycle                          # 1 kHz, 2 sequences/s, 3 rounds of 2 × 20 s
+    python -m hild.bench.lifecycle --update-rate 500 --seconds 10 --rounds 2 --json lifecycle.json
+    python -m hild.bench.lifecycle --rate 0                 # back to back
 """
 
 from __future__ import annotations
@@ -55,9 +60,11 @@ class Window:
 
 @dataclass
 class Report:
-    rate: float
+    update_rate: float
+    rate: float  # load…unload sequences (quiet: query batches) per second; 0: back to back
     seconds: float
     rounds: int
+    priority: int = 0  # the cycle's SCHED_FIFO priority (0: normal scheduling)
     windows: list[Window] = field(default_factory=list)
 
     def total(self, kind: str) -> tuple[int, int, int]:
@@ -97,11 +104,13 @@ def _quiet_round(client: HildClient) -> int:
     return 5
 
 
-def measure(rate: float, seconds: float, rounds: int) -> Report:
-    report = Report(rate, seconds, rounds)
+def measure(update_rate: float, rate: float, seconds: float, rounds: int, priority: int = 0) -> Report:
+    report = Report(update_rate, rate, seconds, rounds, priority)
     with tempfile.TemporaryDirectory(prefix="hild-lifecycle-") as tmp:
         config = Path(tmp) / "arm6.yaml"
-        data = arm6_config("twin", rate)
+        data = arm6_config("twin", update_rate)
+        if priority:  # as on a robot PC (systemd grants it): the client domain's work cannot preempt the cycle
+            data.setdefault("realtime", {})["priority"] = priority
         config.write_text(yaml.safe_dump(data, sort_keys=False))
         joints = list(data["joints"])
         kp = float(data["joints"][joints[0]]["hold"]["kp"])
@@ -113,12 +122,16 @@ def measure(rate: float, seconds: float, rounds: int) -> Report:
                     cycles0, overruns0 = _loop(client)
                     start = time.monotonic()
                     operations = 0
+                    batches = 0
                     while time.monotonic() - start < seconds:
                         if kind == "lifecycle":
                             operations += _lifecycle_round(client, k, joints, kp)
                             k += 1
                         else:
                             operations += _quiet_round(client)
+                        batches += 1
+                        if rate > 0:  # on an absolute schedule, so a slow batch does not slow the rate after it
+                            time.sleep(max(0.0, start + batches / rate - time.monotonic()))
                     cycles1, overruns1 = _loop(client)
                     elapsed = time.monotonic() - start
                     report.windows.append(Window(kind, elapsed, cycles1 - cycles0, overruns1 - overruns0, operations))
@@ -127,7 +140,12 @@ def measure(rate: float, seconds: float, rounds: int) -> Report:
 
 
 def render(report: Report) -> str:
-    lines = [f"arm6 twin at {report.rate:g} Hz, {report.rounds} rounds of 2 × {report.seconds:g} s"]
+    pace = f"{report.rate:g} per second" if report.rate > 0 else "back to back"
+    lines = [
+        f"arm6 twin at {report.update_rate:g} Hz, {report.rounds} rounds of 2 × {report.seconds:g} s, "
+        f"sequences (quiet: batches of 5 reads) {pace}, cycle "
+        + (f"SCHED_FIFO {report.priority}" if report.priority else "at normal priority")
+    ]
     for kind in ("quiet", "lifecycle"):
         cycles, overruns, operations = report.total(kind)
         lines.append(
@@ -144,12 +162,14 @@ def render(report: Report) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--rate", type=float, default=1000.0, help="update rate in Hz (default 1000)")
+    parser.add_argument("--update-rate", type=float, default=1000.0, help="the cycle's rate in Hz (default 1000)")
+    parser.add_argument("--rate", type=float, default=2.0, help="sequences per second (default 2; 0: back to back)")
     parser.add_argument("--seconds", type=float, default=20.0, help="length of each window (default 20)")
     parser.add_argument("--rounds", type=int, default=3, help="quiet + lifecycle windows, interleaved (default 3)")
+    parser.add_argument("--priority", type=int, default=0, help="realtime.priority for the cycle (default 0: normal)")
     parser.add_argument("--json", metavar="OUT", help="also write the report as JSON")
     args = parser.parse_args(argv)
-    report = measure(args.rate, args.seconds, args.rounds)
+    report = measure(args.update_rate, args.rate, args.seconds, args.rounds, args.priority)
     print(render(report))
     if args.json:
         data: dict[str, Any] = asdict(report)

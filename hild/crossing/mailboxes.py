@@ -211,3 +211,7 @@ class Shared:
     def carving(self) -> Shared:
         """The same cells, carved rather than found: a client domain's, for a controller loaded while it runs."""
         return Shared(self.region, create=True, prefix=self.prefix)
+
+    def finding(self) -> Shared:
+        """The same cells, found rather than carved: given-back cells a new load uses again."""
+        return Shared(self.region, create=False, prefix=self.prefix)

@@ -96,8 +96,9 @@ class Region:
         return self.buffer[offset : offset + size]
 
     def release(self, prefix: str) -> int:
-        """Give back the pages of every cell named ``prefix…`` (an unloaded controller's, nobody uses them any more):
-        they read as zeros again and cost no memory. The whole pages inside each cell; the bytes released."""
+        """Zero every cell named ``prefix…`` (an unloaded controller's: nobody uses them any more) and give its
+        whole pages back (``MADV_REMOVE``: they cost no memory until written again). Zero is every cell's empty
+        state, so the cells can serve another load. Returns the bytes whose pages were given back."""
         released = 0
         for name, (offset, size) in self._directory().items():
             if not name.startswith(prefix):
@@ -107,6 +108,9 @@ class Region:
             if end > start:
                 self._map.madvise(mmap.MADV_REMOVE, start, end - start)
                 released += end - start
+            for lo, hi in ((offset, min(start, offset + size)), (max(end, offset), offset + size)):
+                if hi > lo:  # the part of a page the cell shares with its neighbours: zeroed by hand
+                    self.buffer[lo:hi] = bytes(hi - lo)
         return released
 
     def cells(self) -> list[tuple[str, int, int]]:

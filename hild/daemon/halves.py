@@ -16,6 +16,7 @@ from __future__ import annotations
 import concurrent.futures
 import dataclasses
 import threading
+import time
 from collections.abc import Callable, Iterable
 from typing import Any
 
@@ -23,9 +24,11 @@ from hild import plugins
 from hild.config.loader import LoadedConfig
 from hild.controller import Controller, ControllerContext, JointLimitArrays
 from hild.crossing.mailboxes import Mailboxes, Shared
+from hild.crossing.region import RegionError
 from hild.crossing.requests import Load
 
 Emit = Callable[[str, str, str], None]  # (level, source, message)
+REUSE_AFTER = 1.0  # s before given-back cells serve another load: the API withdraws what read them within ms
 
 
 def configured_loads(loaded: LoadedConfig) -> list[Load]:
@@ -63,7 +66,12 @@ class ApiHalves:
     """The client domain's controllers (their API halves) and the prefixes of their cells, kept in step with the
     cycle's loads and unloads: a load's half is built (its cells carved) before the cycle is asked, and kept only
     if the cycle loaded it; an unloaded or replaced controller's half goes, and its cells' pages are given back.
-    ``seq`` moves with every change, so the API re-declares its endpoints (``change_seq``)."""
+    ``seq`` moves with every change, so the API re-declares its endpoints (``change_seq``).
+
+    Cells given back are used again: the region's directory only grows (8192 cells), and a test rig that loads and
+    unloads a controller every second would fill it in hours. A later load of the same type takes a given-back
+    prefix whose cells fit its doors (found by name and size, zeros again after ``release``), once the API has had
+    ``REUSE_AFTER`` to withdraw the endpoints that read them."""
 
     def __init__(self, loaded: LoadedConfig, loads: Iterable[Load], doors: Shared, emit: Emit) -> None:
         self.loaded = loaded
@@ -72,6 +80,8 @@ class ApiHalves:
         loads = list(loads)
         self._halves = api_halves(loaded, loads, doors, emit)
         self._prefixes = {load.name: load.doors or load.name for load in loads}
+        self._types = {load.name: load.type for load in loads}
+        self._free: dict[str, list[tuple[float, str]]] = {}  # type → (when given back, prefix)
         self._lock = threading.Lock()  # the loop answers replies; the API's threads read the halves
         self.seq = 0
 
@@ -80,29 +90,55 @@ class ApiHalves:
             return dict(self._halves)
 
     def prepare(self, load: Load) -> tuple[Load, Controller]:
-        """Carve cells of their own for ``load`` and build its API half: the load the cycle is to apply (with
-        those cells' prefix), and the half. Raises with the reason if the half cannot be built."""
+        """Cells for ``load`` (given back ones that fit, else carved anew) and its API half: the load the cycle is
+        to apply (with those cells' prefix), and the half. Raises with the reason if the half cannot be built."""
+        reused = self._reuse(load)
+        if reused is not None:
+            return reused
         region = self._doors.region
         doors = f"{load.name}@{len(region.cells())}"  # never used before: the directory only grows
         load = dataclasses.replace(load, doors=doors)
         try:
             return load, api_half(self.loaded, load, self._doors.carving(), self._emit)
         except Exception:
-            region.release(f"{doors}/")
+            self._give_back(load.type, doors)
             raise
+
+    def _reuse(self, load: Load) -> tuple[Load, Controller] | None:
+        now = time.monotonic()
+        with self._lock:
+            free = self._free.get(load.type, [])
+            ready = [entry for entry in free if now - entry[0] >= REUSE_AFTER]
+        for entry in ready:
+            candidate = dataclasses.replace(load, doors=entry[1])
+            try:
+                half = api_half(self.loaded, candidate, self._doors.finding(), self._emit)
+            except RegionError:  # its doors are of other sizes (other params): not these cells
+                continue
+            with self._lock:
+                free.remove(entry)
+            return candidate, half
+        return None
+
+    def _give_back(self, type_name: str, prefix: str) -> None:
+        self._doors.region.release(f"{prefix}/")
+        with self._lock:
+            self._free.setdefault(type_name, []).append((time.monotonic(), prefix))
 
     def loaded_one(self, load: Load, half: Controller, future: concurrent.futures.Future[Any]) -> None:
         """The cycle answered ``load``: keep its half (and drop the one it replaced), or give its cells back."""
         if future.cancelled() or future.exception() is not None:
-            self._doors.region.release(f"{load.doors}/")
+            self._give_back(load.type, load.doors)
             return
         with self._lock:
             replaced = self._prefixes.get(load.name) if load.replaces else None
+            replaced_type = self._types.get(load.name, load.type)
             self._halves[load.name] = half
             self._prefixes[load.name] = load.doors
+            self._types[load.name] = load.type
             self.seq += 1
         if replaced is not None:
-            self._doors.region.release(f"{replaced}/")
+            self._give_back(replaced_type, replaced)
 
     def params_set(self, name: str, params: Any, future: concurrent.futures.Future[Any]) -> None:
         """The cycle took new parameters for ``name``: its API half takes them too (it plans and validates)."""
@@ -120,6 +156,7 @@ class ApiHalves:
         with self._lock:
             self._halves.pop(name, None)
             prefix = self._prefixes.pop(name, None)
+            type_name = self._types.pop(name, "")
             self.seq += 1
         if prefix is not None:
-            self._doors.region.release(f"{prefix}/")
+            self._give_back(type_name, prefix)
