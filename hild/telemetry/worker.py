@@ -310,11 +310,8 @@ def _lower_priority(avoid_cpus: Sequence[int]) -> None:
 def main(
     setup: TelemetrySetup, ring: tuple[str, int, int, int], conn: Connection, events: Any, parent_pid: int
 ) -> None:
-    """Entry point of the recorder process (spawned by ``Telemetry``): start the sinks, report, then serve.
-
-    It lowers its priority once it is ready, not before: importing rerun, loading the model and opening the sinks
-    is a second or two of CPU that the daemon's start waits for, and at nice 19 beside busy processes it got
-    almost none (a daemon beside four busy processes failed to start: "the recorder process did not start")."""
+    """Entry point of the recorder process (spawned by ``Telemetry``): start the sinks, report, then serve."""
+    _lower_priority(setup.avoid_cpus)
     proc = _Process(conn, events, parent_pid)
     handler = _PipeLog(proc.send)
     logger = logging.getLogger("hild")
@@ -330,7 +327,6 @@ def main(
     except Exception as exc:  # e.g. the model does not load
         proc.send(("error", f"telemetry: {type(exc).__name__}: {exc}"))
         os._exit(1)
-    _lower_priority(setup.avoid_cpus)
     proc.send(("ready", recorder.info()))
     proc.serve(recorder, setup.section.flush_period)
     # Everything is flushed and acknowledged: leave now, skipping rerun's at-exit flush (it would wait again for
