@@ -5,8 +5,8 @@ output ring (``/joint_states``), a forward_command controller's ``inputs()`` cal
 the same validation, the same refusals), the services layer (the controller manager's services and every node's
 parameters) and a joint_trajectory controller's action server (``action``). This module is the plumbing they share:
 the node's tokens, publishers, subscriptions and service queryables, and one more node per loaded controller
-(``/<controller>``, with its parameter services), as ros2_control's controllers are nodes. Anything a ROS peer sends that is wrong is dropped or refused with a warning event;
-nothing it sends reaches the cycle unvalidated.
+(``/<controller>``, with its parameter services), as ros2_control's controllers are nodes. Anything a ROS peer
+sends that is wrong is dropped or refused with a warning event; nothing it sends reaches the cycle unvalidated.
 
 Threads: samples and queries arrive on Zenoh threads. A command is validated there and handed over (as the JSON
 API does when the cycle runs in its own process); a query hops to the asyncio loop, which answers it. ``flush``

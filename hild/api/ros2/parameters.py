@@ -17,6 +17,8 @@ from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
 
+import numpy as np
+
 from hild.api.ros2 import types
 from hild.api.ros2.node import RosNode, ServiceHost
 from hild.api.ros2.parameter_values import STRING, from_ros, ros_type, to_ros
@@ -118,7 +120,7 @@ class ParameterServer:
     async def _types(self, request: Any) -> Any:
         found = self._known("get_parameter_types", list(request.names))
         kinds = [STRING if ros_type(entry.value) is None else ros_type(entry.value) for entry in found]
-        return types.message(f"{GET_TYPES}_Response", types=kinds)
+        return types.message(f"{GET_TYPES}_Response", types=np.asarray(kinds, dtype=np.uint8))
 
     async def _describe(self, request: Any) -> Any:
         descriptors = [describe(entry) for entry in self._known("describe_parameters", list(request.names))]
@@ -143,8 +145,8 @@ class ParameterServer:
             except ValueError as exc:
                 reason = f"{parameter.name}: {exc}"
                 break
-        if reason is None:
-            reason = await self.store.set(values) if values else "no parameters given"
+        if reason is None and values:  # none at all: nothing to do, as rclcpp answers it
+            reason = await self.store.set(values)
         if reason is not None:
             self.face.refused(f"{self.prefix}/{service}", reason)
         return types.message("rcl_interfaces/msg/SetParametersResult", successful=reason is None, reason=reason or "")
