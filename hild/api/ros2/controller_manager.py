@@ -2,10 +2,12 @@
 services layer: ``list_controllers`` from the same reply the JSON API gives, ``switch_controller`` as the JSON
 request it is, through ``Services.handle`` (the same checks, the same cycle hop, the same refusals).
 
-What ros2_control's fields mean here (its controller_manager.cpp, 4.46.0): ``claimed_interfaces`` are the command
-interfaces an active controller holds (none when inactive); ``required_command_interfaces`` what its configuration
-claims when active, ``required_state_interfaces`` what it reads; every hild controller runs on the cycle, so
-``is_async`` is false and ``update_rate`` is the cycle's rate.
+What ros2_control's fields mean here (its controller_manager.cpp, 4.46.0): ``state`` is ``unconfigured``,
+``inactive`` or ``active`` (``ros2 control set_controller_state`` reads it to choose configure or switch);
+``claimed_interfaces`` are the command interfaces an active controller holds (none when inactive);
+``required_command_interfaces`` what its configuration claims when active, ``required_state_interfaces`` what it
+reads, both empty while it is unconfigured, as ros2_control reports them; every hild controller runs on the cycle,
+so ``is_async`` is false and ``update_rate`` is the cycle's rate.
 """
 
 from __future__ import annotations
@@ -27,6 +29,8 @@ PLUGIN_NAMES = {
     "forward_command": "forward_command_controller/ForwardCommandController",
     "joint_trajectory": "joint_trajectory_controller/JointTrajectoryController",
 }
+HILD_TYPES = {plugin: kind for kind, plugin in PLUGIN_NAMES.items()}
+HILD_PREFIX = "hild/"  # a type without a ros2_control plugin name: hild/<type>
 UINT16_MAX = 65535
 # strictness → what hild cannot do instead, said in the reply (ros2_control 4.46 itself runs both as BEST_EFFORT,
 # with a log line: a client that asked for them would get something else without knowing)
@@ -56,18 +60,19 @@ class ControllerManager:
 
     def _state(self, controller: dict[str, Any]) -> Any:
         """One JSON ``list_controllers`` entry as a ControllerState."""
-        active = controller["state"] == "active"
+        state = controller["state"] if controller["state"] in ("active", "unconfigured") else "inactive"
+        configured = state != "unconfigured"
         claims = list(controller.get("claimed", []))  # hild's JSON lists the claims in every state
         return types.message(
             CONTROLLER_STATE,
             name=controller["name"],
-            state="active" if active else "inactive",
-            type=PLUGIN_NAMES.get(controller["type"], f"hild/{controller['type']}"),
+            state=state,
+            type=plugin_name(controller["type"]),
             is_async=False,
             update_rate=self.update_rate,
-            claimed_interfaces=claims if active else [],
-            required_command_interfaces=claims,
-            required_state_interfaces=list(controller.get("state_interfaces", [])),
+            claimed_interfaces=claims if state == "active" else [],
+            required_command_interfaces=claims if configured else [],
+            required_state_interfaces=list(controller.get("state_interfaces", [])) if configured else [],
             is_chainable=False,
             is_chained=False,
             exported_state_interfaces=[],
@@ -100,6 +105,16 @@ class ControllerManager:
         if not ok:
             self.face.refused(self.switch_name, message)
         return types.message(f"{SWITCH_CONTROLLER}_Response", ok=ok, message=message)
+
+
+def plugin_name(kind: str) -> str:
+    """hild's controller type as the ros2_control plugin a ROS tool expects (``hild/<type>`` when there is none)."""
+    return PLUGIN_NAMES.get(kind, f"{HILD_PREFIX}{kind}")
+
+
+def hild_type(plugin: str) -> str:
+    """``plugin_name``'s inverse; anything else is taken as a hild type name (hild's load checks it)."""
+    return HILD_TYPES.get(plugin, plugin.removeprefix(HILD_PREFIX))
 
 
 def switch_refusal(request: Any) -> str | None:

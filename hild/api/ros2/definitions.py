@@ -58,6 +58,29 @@ controller_manager_msgs/ChainConnection[] chain_connections
 """,
         CONTROLLER_MANAGER,
     ),
+    "controller_manager_msgs/msg/HardwareInterface": (
+        """
+string name
+string data_type
+bool is_available
+bool is_claimed
+""",
+        CONTROLLER_MANAGER,
+    ),
+    "controller_manager_msgs/msg/HardwareComponentState": (
+        """
+string name
+string type
+bool is_async
+uint16 rw_rate
+string class_type
+string plugin_name
+lifecycle_msgs/State state
+controller_manager_msgs/HardwareInterface[] command_interfaces
+controller_manager_msgs/HardwareInterface[] state_interfaces
+""",
+        CONTROLLER_MANAGER,
+    ),
 }
 
 # control_msgs 5.8.0, the jazzy branch's newest tag (these files unchanged since the 4.x of Humble; the indices
@@ -138,7 +161,56 @@ builtin_interfaces/Duration timeout
         "bool ok\nstring message",
         CONTROLLER_MANAGER,
     ),
+    # the controller lifecycle and hardware services (hild/api/ros2/lifecycle.py, hardware.py): a name in, ``ok`` out
+    **{
+        f"controller_manager_msgs/srv/{name}": ServiceDefinition("string name", "bool ok", CONTROLLER_MANAGER)
+        for name in ("LoadController", "ConfigureController", "UnloadController", "CleanupController")
+    },
+    "controller_manager_msgs/srv/ReloadControllerLibraries": ServiceDefinition(
+        "bool force_kill", "bool ok", CONTROLLER_MANAGER
+    ),
+    "controller_manager_msgs/srv/ListControllerTypes": ServiceDefinition(
+        "", "string[] types\nstring[] base_classes", CONTROLLER_MANAGER
+    ),
+    "controller_manager_msgs/srv/ListHardwareComponents": ServiceDefinition(
+        "", "controller_manager_msgs/HardwareComponentState[] component", CONTROLLER_MANAGER
+    ),
+    "controller_manager_msgs/srv/ListHardwareInterfaces": ServiceDefinition(
+        "",
+        "controller_manager_msgs/HardwareInterface[] command_interfaces\n"
+        "controller_manager_msgs/HardwareInterface[] state_interfaces",
+        CONTROLLER_MANAGER,
+    ),
+    "controller_manager_msgs/srv/SetHardwareComponentState": ServiceDefinition(
+        "string name\nlifecycle_msgs/State target_state",
+        "bool ok\nlifecycle_msgs/State state",
+        CONTROLLER_MANAGER,
+    ),
 }
+
+# rcl_interfaces 2.0.3 (jazzy): the six parameter services every ROS node offers (hild/api/ros2/parameters.py).
+# rosbags has their messages (Parameter, ParameterValue, ParameterDescriptor, …), not the services.
+RCL_INTERFACES = "rcl_interfaces 2.0.3 (jazzy), rcl_interfaces"
+SERVICES.update(
+    {
+        "rcl_interfaces/srv/ListParameters": ServiceDefinition(
+            "string[] prefixes\nuint64 depth", "rcl_interfaces/ListParametersResult result", RCL_INTERFACES
+        ),
+        "rcl_interfaces/srv/GetParameters": ServiceDefinition(
+            "string[] names", "rcl_interfaces/ParameterValue[] values", RCL_INTERFACES
+        ),
+        "rcl_interfaces/srv/SetParameters": ServiceDefinition(
+            "rcl_interfaces/Parameter[] parameters", "rcl_interfaces/SetParametersResult[] results", RCL_INTERFACES
+        ),
+        "rcl_interfaces/srv/SetParametersAtomically": ServiceDefinition(
+            "rcl_interfaces/Parameter[] parameters", "rcl_interfaces/SetParametersResult result", RCL_INTERFACES
+        ),
+        "rcl_interfaces/srv/DescribeParameters": ServiceDefinition(
+            "string[] names", "rcl_interfaces/ParameterDescriptor[] descriptors", RCL_INTERFACES
+        ),
+        "rcl_interfaces/srv/GetParameterTypes": ServiceDefinition("string[] names", "uint8[] types", RCL_INTERFACES),
+    }
+)
 
 # SwitchController.strictness values (constants: not part of the hash); 0 means the manager's default.
 BEST_EFFORT = 1

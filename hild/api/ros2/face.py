@@ -2,10 +2,11 @@
 
 It shares the API's Zenoh session and reaches the robot only through what the JSON API uses: the broadcaster's
 output ring (``/joint_states``), a forward_command controller's ``inputs()`` callable (``<controller>/commands``:
-the same validation, the same refusals), the services layer (``manager``) and a joint_trajectory controller's
-action server (``action``). This module is the plumbing they share: the node's tokens, publishers, subscriptions
-and service queryables. Anything a ROS peer sends that is wrong is dropped or refused with a warning event;
-nothing it sends reaches the cycle unvalidated.
+the same validation, the same refusals), the services layer (the controller manager's services and every node's
+parameters) and a joint_trajectory controller's action server (``action``). This module is the plumbing they share:
+the node's tokens, publishers, subscriptions and service queryables, and one more node per loaded controller
+(``/<controller>``, with its parameter services), as ros2_control's controllers are nodes. Anything a ROS peer
+sends that is wrong is dropped or refused with a warning event; nothing it sends reaches the cycle unvalidated.
 
 Threads: samples and queries arrive on Zenoh threads. A command is validated there and handed over (as the JSON
 API does when the cycle runs in its own process); a query hops to the asyncio loop, which answers it. ``flush``
@@ -37,7 +38,11 @@ from hild.api.ros2 import types
 from hild.api.ros2.clock import CLOCK, CLOCK_TOPIC, RosClock, ros_time
 from hild.api.ros2.controller_manager import ControllerManager
 from hild.api.ros2.follow_joint_trajectory import TrajectoryAction
-from hild.api.ros2.node import Writer
+from hild.api.ros2.hardware import HardwareServices
+from hild.api.ros2.lifecycle import LifecycleServices
+from hild.api.ros2.manager_parameters import ManagerParameters, PendingLoads
+from hild.api.ros2.node import NodeHost, Writer
+from hild.api.ros2.parameters import ControllerParameters, ParameterServer
 from hild.api.ros2.wire import (
     DEFAULT_QOS,
     LATCHED_QOS,
@@ -106,6 +111,27 @@ class Inlet:
 
 
 @dataclass
+class SubNode:
+    """A node of the face's session besides the daemon's (:meth:`RosFace.declare_node`): its token and services,
+    withdrawn together by :meth:`close`."""
+
+    face: RosFace
+    info: NodeInfo
+    tokens: list[Any] = field(default_factory=list)
+    entities: list[Any] = field(default_factory=list)
+
+    def declare_service(self, relative: str, type_name: str, serve: Callable[[Any], Any]) -> None:
+        with self.face._declaring_into(self.tokens, self.entities):
+            self.face._declare_service(self.info, relative, type_name, serve)
+
+    def close(self) -> None:
+        """The services' tokens, then the node's (declared first), then the queryables."""
+        _undeclare([*reversed(self.tokens), *self.entities])
+        self.tokens.clear()
+        self.entities.clear()
+
+
+@dataclass
 class RosFace:
     """Declared by :meth:`start` on the API's session; :meth:`flush` publishes, :meth:`close` withdraws."""
 
@@ -119,6 +145,7 @@ class RosFace:
     _tokens: list[Any] = field(default_factory=list)  # where declarations go: the node's, or a controller's
     _entities: list[Any] = field(default_factory=list)
     _controllers: dict[str, Declared] = field(default_factory=dict)
+    _controller_nodes: dict[str, NodeHost | None] = field(default_factory=dict)  # by name: a rebuild keeps its node
     _tasks: set[asyncio.Task[None]] = field(default_factory=set)
     _drops: DropReporter | None = None
     _clock: RosClock | None = None
@@ -135,8 +162,13 @@ class RosFace:
         self._clock = RosClock(self.engine, self.writer(CLOCK_TOPIC, CLOCK) if sim else None)
         self._sync(self._loaded_controllers())
         self._declare_description()
-        # ros2_control's services live under its node
-        ControllerManager(self, self.services, self.settings.node, self.engine.loaded.config.update_rate)
+        # ros2_control's services live under its node, its parameters too (what a spawner sets before a load)
+        node, rate = self.settings.node, self.engine.loaded.config.update_rate
+        pending = PendingLoads()
+        ControllerManager(self, self.services, node, rate)
+        LifecycleServices(self, self.services, node, pending)
+        HardwareServices(self, self.services, node, rate)
+        ParameterServer(self, node, ManagerParameters(rate, pending), self)
 
     def _loaded_controllers(self) -> dict[str, Any]:
         """The loaded controllers; the copy is retried when the records change while it is taken (start-up)."""
@@ -157,6 +189,7 @@ class RosFace:
         self._sync(current)
 
     def _sync(self, current: dict[str, Any]) -> None:
+        self._sync_controller_nodes(current)
         stale = [n for n, d in self._controllers.items() if current.get(n) is not d.instance]
         for name in stale:
             self._withdraw(self._controllers.pop(name))
@@ -168,6 +201,32 @@ class RosFace:
             if name in kinds:  # not yet in the snapshot: the next sync declares it
                 self._controllers[name] = self._declare_controller(name, current[name], kinds[name])
 
+    def _sync_controller_nodes(self, current: dict[str, Any]) -> None:
+        """A node ``/<controller>`` with the six parameter services for each loaded controller, as ros2_control's
+        controllers are nodes; it follows the name, not the instance (a parameter change that rebuilds the
+        controller keeps its node, so the call that rebuilt it is answered on it)."""
+        for name in [n for n in self._controller_nodes if n not in current]:
+            node = self._controller_nodes.pop(name)
+            if node is not None:
+                node.close()
+        for name in [n for n in current if n not in self._controller_nodes]:
+            self._controller_nodes[name] = self._controller_node(name)
+
+    def _controller_node(self, controller: str) -> NodeHost | None:
+        if controller == self.settings.node:
+            self.engine.events.emit(
+                "error", SOURCE, f"controller {controller}: no parameter node: it has the controller manager's name"
+            )
+            return None
+        node = self.declare_node(controller)
+        try:
+            ParameterServer(node, controller, ControllerParameters(self.services, controller), self)
+        except Exception as exc:  # a node that cannot be offered costs its own services, not the face
+            node.close()
+            self.engine.events.emit("error", SOURCE, f"controller {controller}: no parameter node on ROS 2: {exc}")
+            return None
+        return node
+
     def _withdraw(self, declared: Declared) -> None:
         """An unloaded controller's tokens first (ROS graph tools see its endpoints go), then its entities."""
         if declared.action is not None:
@@ -178,8 +237,13 @@ class RosFace:
     def _declaring_for(self, declared: Declared) -> Iterator[None]:
         """Tokens and entities declared inside go to ``declared`` (the writer, service and subscription helpers
         are shared with the node's own declarations)."""
+        with self._declaring_into(declared.tokens, declared.entities):
+            yield
+
+    @contextlib.contextmanager
+    def _declaring_into(self, tokens: list[Any], entities: list[Any]) -> Iterator[None]:
         saved = self._tokens, self._entities
-        self._tokens, self._entities = declared.tokens, declared.entities
+        self._tokens, self._entities = tokens, entities
         try:
             yield
         finally:
@@ -196,11 +260,15 @@ class RosFace:
     def _key(self, name: str, type_name: str) -> str:
         return data_key(self.settings.domain_id, name, type_name, self.settings.distro)
 
-    def _token(self, kind: str, name: str, type_name: str, qos: Qos = DEFAULT_QOS) -> bytes:
-        """Declare the entity's liveliness token; its GID (rmw_zenoh's: a hash of the token key)."""
-        assert self._node is not None
+    def _token(
+        self, kind: str, name: str, type_name: str, qos: Qos = DEFAULT_QOS, node: NodeInfo | None = None
+    ) -> bytes:
+        """Declare the entity's liveliness token (of the daemon's node unless ``node``); its GID (rmw_zenoh's: a
+        hash of the token key)."""
+        node = node or self._node
+        assert node is not None
         self._next_id += 1
-        token = self._node.entity_token(self._next_id, kind, name, type_name, qos, self.settings.distro)
+        token = node.entity_token(self._next_id, kind, name, type_name, qos, self.settings.distro)
         self._tokens.append(self.session.liveliness().declare_token(token))
         return gid_of(token)
 
@@ -264,16 +332,35 @@ class RosFace:
         writer.put(types.encode(types.message(STRING, data=text), STRING))
 
     def declare_service(self, relative: str, type_name: str, serve: Callable[[Any], Any]) -> None:
+        assert self._node is not None
+        self._declare_service(self._node, relative, type_name, serve)
+
+    def _declare_service(self, node: NodeInfo, relative: str, type_name: str, serve: Callable[[Any], Any]) -> None:
         name = self.name(relative)
-        self._token(SERVICE, name, type_name)
+        self._token(SERVICE, name, type_name, node=node)
         handler = self._query_handler(name, type_name, serve)
         self._entities.append(self.session.declare_queryable(self._key(name, type_name), handler, complete=True))
+
+    def declare_node(self, name: str) -> SubNode:
+        """Another node in the ROS graph, ``<namespace>/<name>``: its own token (node ids share the entity
+        counter, as in rmw_zenoh's context), for ``ros2 node list`` and ``ros2 param``, which look the node up
+        before calling it."""
+        assert self._node is not None
+        self._next_id += 1
+        info = NodeInfo(self._node.domain_id, self._node.zid, self._node.namespace, name, node_id=self._next_id)
+        node = SubNode(self, info)
+        node.tokens.append(self.session.liveliness().declare_token(info.node_token()))
+        return node
 
     def close(self) -> None:
         """Tokens first (ROS graph tools see the node go), then the entities."""
         self.closing = True
         for task in list(self._tasks):
             task.cancel()
+        for node in self._controller_nodes.values():
+            if node is not None:
+                node.close()
+        self._controller_nodes.clear()
         declared = list(self._controllers.values())
         tokens = [*self._tokens, *(t for d in declared for t in d.tokens)]
         _undeclare([*tokens, *self._entities, *(e for d in declared for e in d.entities)])

@@ -93,3 +93,10 @@ def released_files() -> dict[str, Path]:
         for path in sorted(RELEASED.glob("*/*/*/*"))
         if path.suffix in (".msg", ".srv", ".action")
     }
+
+
+def ask(session: zenoh.Session, service: str, type_name: str, **fields: Any) -> Any:
+    """One service call as a ROS client makes it: the decoded response (the call must be answered, not refused)."""
+    reply = call(session, service, type_name, request(type_name, **fields))
+    assert reply.ok is not None, reply.err.payload.to_bytes() if reply.err is not None else "no reply"
+    return types.decode(reply.ok.payload.to_bytes(), f"{type_name}_Response")

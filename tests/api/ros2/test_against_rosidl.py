@@ -110,7 +110,7 @@ def rosidl_hashes(tmp_path: Path, package: str, sources: list[tuple[Path, Path]]
         tuples.append(f"{idl_dir}:{idl.relative_to(idl_dir)}")
     output = tmp_path / "out" / package
     deps = ["builtin_interfaces", "std_msgs", "geometry_msgs", "trajectory_msgs", "unique_identifier_msgs",
-            "action_msgs", "service_msgs"]  # fmt: skip
+            "action_msgs", "service_msgs", "lifecycle_msgs", "rcl_interfaces"]  # fmt: skip
     arguments = {
         "package_name": package,
         "output_dir": str(output),
@@ -131,7 +131,34 @@ def rosidl_hashes(tmp_path: Path, package: str, sources: list[tuple[Path, Path]]
     [
         (
             "controller_manager_msgs",
-            ["msg/ControllerState", "msg/ChainConnection", "srv/ListControllers", "srv/SwitchController"],
+            [
+                "msg/ControllerState",
+                "msg/ChainConnection",
+                "msg/HardwareInterface",
+                "msg/HardwareComponentState",
+                "srv/ListControllers",
+                "srv/SwitchController",
+                "srv/LoadController",
+                "srv/ConfigureController",
+                "srv/UnloadController",
+                "srv/CleanupController",
+                "srv/ReloadControllerLibraries",
+                "srv/ListControllerTypes",
+                "srv/ListHardwareComponents",
+                "srv/ListHardwareInterfaces",
+                "srv/SetHardwareComponentState",
+            ],
+        ),
+        (
+            "rcl_interfaces",
+            [
+                "srv/ListParameters",
+                "srv/GetParameters",
+                "srv/SetParameters",
+                "srv/SetParametersAtomically",
+                "srv/DescribeParameters",
+                "srv/GetParameterTypes",
+            ],
         ),
         (
             "control_msgs",
