@@ -30,16 +30,35 @@ def refused() -> concurrent.futures.Future[Any]:
     return future
 
 
+def ignore(level: str, source: str, message: str) -> None:
+    """The API halves' events: none matter here."""
+
+
+class Client:
+    """The API halves of the arm6 twin's controllers over a region of their own, and one controller loaded later."""
+
+    def __init__(self) -> None:
+        self.loaded = lockstep()
+        self.region = Region(SIZE)
+        self.api = ApiHalves(self.loaded, configured_loads(self.loaded), Shared(self.region, create=True), ignore)
+        self.params = self.loaded.controller_params["forward_position"]
+        self.load, self.half = self.api.prepare(Load("late", "forward_command", self.params))
+        self.api.loaded_one(self.load, self.half, answered())
+
+
 def test_given_back_cells_serve_the_next_load_of_that_type_and_the_directory_stops_growing(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     monkeypatch.setattr(halves, "REUSE_AFTER", 0.0)
-    loaded = lockstep()
-    region = Region(SIZE)
-    api = ApiHalves(loaded, configured_loads(loaded), Shared(region, create=True), lambda *e: None)
-    params = loaded.controller_params["forward_position"]
-    load, half = api.prepare(Load("late", "forward_command", params))
-    api.loaded_one(load, half, answered())
+    client = Client()
+    loaded, region, api, params, load, half = (
+        client.loaded,
+        client.region,
+        client.api,
+        client.params,
+        client.load,
+        client.half,
+    )
     half.set_active(True)  # something the cells hold: the active flag
     cells = len(region.cells())
     api.unloaded("late", answered())
@@ -60,11 +79,7 @@ def test_given_back_cells_serve_the_next_load_of_that_type_and_the_directory_sto
 
 
 def test_given_back_cells_wait_until_the_api_has_withdrawn_what_read_them() -> None:
-    loaded = lockstep()
-    region = Region(SIZE)
-    api = ApiHalves(loaded, configured_loads(loaded), Shared(region, create=True), lambda *e: None)
-    params = loaded.controller_params["forward_position"]
-    load, half = api.prepare(Load("late", "forward_command", params))
-    api.loaded_one(load, half, answered())
-    api.unloaded("late", answered())
-    assert api.prepare(Load("soon", "forward_command", params))[0].doors != load.doors  # within REUSE_AFTER
+    client = Client()
+    client.api.unloaded("late", answered())
+    soon, _ = client.api.prepare(Load("soon", "forward_command", client.params))
+    assert soon.doors != client.load.doors  # within REUSE_AFTER
