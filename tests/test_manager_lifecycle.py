@@ -4,15 +4,19 @@ Lockstep: nothing here depends on timing."""
 
 from __future__ import annotations
 
+import concurrent.futures
 from collections.abc import Callable
+from typing import Any
 
 import pytest
 
+from hild.config.params import with_values
+from hild.config.tuning import MANAGER
 from hild.controller import Controller
 from hild.crossing.requests import Configure, Load, Refused, SetParams, Unload
 from hild.cycle.engine import Engine
 from hild.cycle.manager import SwitchError
-from tests.test_engine import JumpGuard, events
+from tests.test_engine import JumpGuard, events, send
 
 MakeEngine = Callable[..., Engine]
 
@@ -147,3 +151,53 @@ def test_lifecycle_requests_never_move_the_arm(make_engine: MakeEngine) -> None:
             assert future.done() and future.exception() is None, future.exception()
     assert set(engine.manager.records) == {"jsb", "fwd"} and engine.manager.records["fwd"].state == "active"
     engine.stop()
+
+
+# ---- the daemon's own limits: soft margins and the velocity scale ---------------------------------------------------
+def tune(engine: Engine, **changes: float) -> concurrent.futures.Future[Any]:
+    """Ask the cycle for the daemon's own parameters with ``changes`` (dotted paths, ``__`` for the dots)."""
+    values = {path.replace("__", "."): value for path, value in changes.items()}
+    return engine.request(SetParams(MANAGER, with_values(engine.tuning, values), tuple(values)))
+
+
+def test_a_wider_soft_margin_keeps_commands_further_from_the_stops_and_a_narrower_one_is_refused(
+    make_engine: MakeEngine,
+) -> None:
+    engine = make_engine()
+    narrower = tune(engine, joints__a__soft_margin=0.0)
+    engine.run_cycles(1)
+    with pytest.raises(Refused, match=r"soft_margin of \['a'\] below the config's"):
+        narrower.result(0)
+    wider = tune(engine, joints__a__soft_margin=0.8)  # a is at 0.1: inside [-0.2, 0.2]
+    engine.run_cycles(1)
+    assert wider.result(0)["changed"] == ["joints.a.soft_margin"]
+    assert engine.switch(["fwd"], []).ok
+    send(engine, "fwd", [0.5, -0.2, 0.3])
+    JumpGuard(engine).run(50)  # within the stream's 0.2 s timeout
+    assert engine.final.position[0] == pytest.approx(0.2)  # clamped to 1.0 - 0.8
+    assert "position" in engine.status()["joints"][0]["limits"]
+
+
+def test_a_margin_that_would_leave_a_joint_outside_its_range_is_refused_and_nothing_changes(
+    make_engine: MakeEngine,
+) -> None:
+    engine = make_engine()
+    outside = tune(engine, joints__c__soft_margin=0.8)  # c is at 0.3, the new range [-0.2, 0.2]
+    engine.run_cycles(1)
+    with pytest.raises(Refused, match=r"c is at 0\.3 rad, outside the new soft range \[-0\.2, 0\.2\]"):
+        outside.result(0)
+    assert engine.tuning.joints["c"].soft_margin == 0.05  # the config's
+    assert engine.supervisor._soft_upper[2] == pytest.approx(0.95)
+
+
+def test_the_velocity_scale_slows_what_controllers_command_and_never_steps_it(make_engine: MakeEngine) -> None:
+    engine = make_engine()
+    scaled = tune(engine, velocity_scale=0.25)
+    engine.run_cycles(1)
+    assert scaled.result(0)["changed"] == ["velocity_scale"]
+    assert engine.switch(["fwd"], []).ok
+    send(engine, "fwd", [0.9, -0.2, 0.3])
+    before = engine.final.position[0]
+    engine.run_cycles(10)
+    moved = engine.final.position[0] - before
+    assert moved == pytest.approx(0.25 * engine.limits.velocity[0] * 10 * engine.period, rel=0.15)

@@ -119,9 +119,8 @@ class ControllerParameters:
         snapshot = self.engine.snapshot()
         types = {c["name"]: c["type"] for c in snapshot.controllers}
         controllers = {n: (types[n], c.params) for n, c in self.engine.controllers().items() if n in types}
-        hold = {joint: (t.hold.kp, t.hold.kd) for joint, t in snapshot.tuning.joints.items()}
         try:
-            text, changed = await asyncio.to_thread(tuned_copy, path, controllers, hold)
+            text, changed = await asyncio.to_thread(tuned_copy, path, controllers, snapshot.tuning)
         except ConfigError as exc:
             raise RequestError(f"{path} does not load as it is on disk, so there is nothing to copy:\n{exc}") from None
         return {"path": str(path), "yaml": text, "changed": changed}

@@ -18,14 +18,16 @@ from ruamel.yaml.comments import CommentedMap
 
 from hild.config.loader import load_config
 from hild.config.params import Params, flatten
+from hild.config.tuning import ManagerParams
 
 
 def tuned_copy(
-    path: Path, controllers: Mapping[str, tuple[str, Params]], hold: Mapping[str, tuple[float, float]]
+    path: Path, controllers: Mapping[str, tuple[str, Params]], tuning: ManagerParams
 ) -> tuple[str, list[str]]:
-    """The config file at ``path`` with ``controllers`` (name → type, current params) and each joint's ``hold``
-    gains (kp, kd) as they are now: its text, and the dotted keys that changed. ConfigError if the file on disk
-    does not load (there is nothing sound to copy)."""
+    """The config file at ``path`` with ``controllers`` (name → type, current params) and the daemon's own
+    ``tuning`` (each joint's hold gains and soft margin; the velocity scale has no place in a config and is left
+    out) as they are now: its text, and the dotted keys that changed. ConfigError if the file on disk does not load
+    (there is nothing sound to copy)."""
     on_disk = load_config(path)
     yaml = YAML()  # round trip: comments and order survive
     yaml.width = 120
@@ -43,12 +45,16 @@ def tuned_copy(
             if before.get(key) != value:
                 _set(sections[name].setdefault("params", CommentedMap()), key.split("."), value)
                 changed.append(f"controllers.{name}.params.{key}")
-    for joint, (kp, kd) in hold.items():
-        gains = on_disk.config.joints[joint].hold
-        for key, value, was in (("kp", kp, gains.kp), ("kd", kd, gains.kd)):
-            if value != was:
-                document["joints"][joint]["hold"][key] = value
-                changed.append(f"joints.{joint}.hold.{key}")
+    for joint, now in tuning.joints.items():
+        was = on_disk.config.joints[joint]
+        for keys, value, before in (
+            (("hold", "kp"), now.hold.kp, was.hold.kp),
+            (("hold", "kd"), now.hold.kd, was.hold.kd),
+            (("limits", "soft_margin"), now.soft_margin, was.limits.soft_margin),
+        ):
+            if value != before:
+                _set(document["joints"][joint], list(keys), value)
+                changed.append(f"joints.{joint}.{'.'.join(keys)}")
     out = io.StringIO()
     yaml.dump(document, out)
     return out.getvalue(), changed

@@ -181,6 +181,7 @@ class Engine:
         self._deferred: list[tuple[Deferred, concurrent.futures.Future[Any], bool]] = []  # …, clears an e-stop
         self._health_every = max(1, round(self.update_rate / HEALTH_POLL_HZ))
         self.tuning = ManagerParams.of(cfg)  # the daemon's own parameters (hold gains): set_parameters changes them
+        self.tuning_floor = [j.soft_margin for j in self.tuning.joints.values()]  # the config's soft margins
         for name, spec in cfg.controllers.items():
             self.load_controller(name, spec.type, loaded.controller_params[name], spec.fallback_controllers)
 
@@ -513,13 +514,23 @@ class Engine:
         return {"name": request.name, "changed": list(request.changes)}
 
     def _tune(self, request: SetParams) -> dict[str, Any]:
-        """The daemon's own parameters: hold gains, ramped in by the supervisor over ``HOLD_GAIN_RAMP``."""
+        """The daemon's own parameters: hold gains, ramped in by the supervisor over ``HOLD_GAIN_RAMP``; soft margins
+        (never below the config's) and the velocity scale, refused if they would leave a joint outside its range."""
         tuning: ManagerParams = request.params
         if list(tuning.joints) != list(self.joints) or tuning.update_rate != self.update_rate:
             raise Refused("the joints and the update rate are the config's")
-        holds = [tuning.joints[j].hold for j in self.joints]
+        joints = [tuning.joints[j] for j in self.joints]
+        margins = [j.soft_margin for j in joints]
+        narrower = [n for n, m, c in zip(self.joints, margins, self.tuning_floor, strict=True) if m < c]
+        if narrower:  # the margin keeps commands off the hard stops: a client may widen it, never shrink it
+            raise Refused(f"soft_margin of {narrower} below the config's: only a wider margin can be set")
+        refusal = self.supervisor.set_command_limits(
+            (self.limits.lower + margins).tolist(), (self.limits.upper - margins).tolist(), tuning.velocity_scale
+        )
+        if refusal:
+            raise Refused(refusal)
         ramp = max(1, round(HOLD_GAIN_RAMP * self.update_rate))
-        self.supervisor.set_hold_gains([h.kp for h in holds], [h.kd for h in holds], ramp)
+        self.supervisor.set_hold_gains([j.hold.kp for j in joints], [j.hold.kd for j in joints], ramp)
         self.tuning = tuning
         self.supervisor.change_seq += 1  # a new snapshot carries them
         self.events.emit("info", MANAGER, f"parameters set by {request.by}: {'; '.join(request.changes)}")

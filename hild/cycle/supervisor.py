@@ -201,6 +201,22 @@ class Supervisor:
         self._hold_target = (list(kp), list(kd))
         self._hold_steps = max(1, cycles)
 
+    def set_command_limits(self, soft_lower: list[float], soft_upper: list[float], velocity_scale: float) -> str:
+        """Tuned soft limits and velocity scale, between two cycles; refused (the reason, nothing changed) if a
+        joint's position or held target lies outside its new soft range: clamping it there would move the arm."""
+        position, commanded = self.gate.accepted_position.tolist(), self._prev_position.tolist()
+        for i, name in enumerate(self.joints):
+            for what, value in (("is at", position[i]), ("is commanded to", commanded[i])):
+                if not soft_lower[i] <= value <= soft_upper[i]:
+                    return (
+                        f"{name} {what} {value:.4g} rad, outside the new soft range [{soft_lower[i]:.4g}, "
+                        f"{soft_upper[i]:.4g}]: move it inside first"
+                    )
+        self._soft_lower[:], self._soft_upper[:] = soft_lower, soft_upper
+        self._vmax[:] = [v * velocity_scale for v in self.limits.velocity.tolist()]
+        self.change_seq += 1
+        return ""
+
     def _ramp_hold_gains(self) -> None:
         steps, (kp, kd) = self._hold_steps, self._hold_target
         for i in range(len(kp)):
