@@ -147,8 +147,9 @@ class Services:
         assert service.read is not None
         try:
             reply = ok(service.read(parse_request(raw, service.fields)))
-        except Exception as exc:
-            return encode(self._failed(name, exc))
+        except Exception as exc:  # sent as encoded here: clipped here, as the API clips every other reply's error
+            failed = self._failed(name, exc)
+            return encode({**failed, "error": clip(failed["error"])})
         encoded = encode(reply)
         if empty:
             self._read_cache[name] = (change, now, encoded)
@@ -161,14 +162,12 @@ class Services:
 
     @staticmethod
     def _failed(name: str, exc: Exception) -> Reply:
-        """The refusal's reply, its error clipped as every reply's is (a read-only reply is sent as it is encoded
-        here: a refusal quoting a 300-name list once went out whole)."""
         if isinstance(exc, Refused):
-            return {**exc.details, "ok": False, "error": clip(str(exc))}
+            return {**exc.details, "ok": False, "error": str(exc)}
         if isinstance(exc, RequestError):
-            return {"ok": False, "error": clip(str(exc))}
+            return {"ok": False, "error": str(exc)}
         log.exception("service %s failed", name, exc_info=exc)  # a bug must cost one reply, not the daemon
-        return {"ok": False, "error": clip(f"internal error: {type(exc).__name__}: {exc}")}
+        return {"ok": False, "error": f"internal error: {type(exc).__name__}: {exc}"}
 
     # ---- the cycle hop ------------------------------------------------------------------------------------------
     async def on_cycle(self, request: Request) -> Any:

@@ -26,7 +26,7 @@ from typing import Any
 from hild.api.ros2 import types
 from hild.api.ros2.controller_manager import hild_type, plugin_name
 from hild.api.ros2.manager_parameters import PendingLoads
-from hild.api.ros2.node import RosNode
+from hild.api.ros2.node import ROS_SENDER, RosNode
 from hild.api.ros2.params_files import controller_params
 from hild.api.services import Services
 
@@ -85,7 +85,7 @@ class LifecycleServices:
             if error is not None:
                 error += f"; nor was {name}.type set on {self.face.name(self.node)} (the spawner sets it)"
             return error
-        body: dict[str, Any] = {"name": name, "type": hild_type(pending["type"])}
+        body: dict[str, Any] = {"name": name, "type": hild_type(pending["type"]), "by": ROS_SENDER}
         files = pending.get("params_file") or []
         if files:
             try:

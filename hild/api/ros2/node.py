@@ -14,6 +14,8 @@ from typing import Any, Protocol
 
 from hild.api.ros2.wire import attachment
 
+ROS_SENDER = "a ROS 2 client"  # who a ROS request is from, in the events: ROS requests name no user
+
 
 @dataclass
 class Writer:

@@ -20,7 +20,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from hild.api.ros2 import types
-from hild.api.ros2.node import RosNode, ServiceHost
+from hild.api.ros2.node import ROS_SENDER, RosNode, ServiceHost
 from hild.api.ros2.parameter_values import STRING, from_ros, ros_type, to_ros
 from hild.api.services import Services
 
@@ -193,6 +193,6 @@ class ControllerParameters:
         }
 
     async def set(self, values: dict[str, Any]) -> str | None:
-        body = json.dumps({"controller": self.controller, "values": values}).encode()
+        body = json.dumps({"controller": self.controller, "values": values, "by": ROS_SENDER}).encode()
         reply = await self.services.handle("set_parameters", body)
         return None if reply.get("ok") else str(reply.get("error"))

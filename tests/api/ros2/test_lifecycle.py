@@ -73,7 +73,7 @@ def test_load_configure_activate_and_unload_as_set_controller_state_does(
     assert load(peer, "late")
     late = listed(peer)["late"]
     assert (late.state, late.type, list(late.required_command_interfaces)) == ("unconfigured", FWD_PLUGIN, [])
-    wait_for(lambda: ros_daemon.events_with("loaded late (forward_command) from a client: unconfigured"))
+    wait_for(lambda: ros_daemon.events_with("loaded late (forward_command) by a ROS 2 client: unconfigured"))
     # `ros2 control set_controller_state late inactive` sees unconfigured and configures; `active` switches
     assert configure(peer, "late")
     late = listed(peer)["late"]
