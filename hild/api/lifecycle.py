@@ -19,6 +19,11 @@ from hild.daemon.link import CycleLink
 OnCycle = Callable[[Request], Awaitable[Any]]
 
 
+def loaded_names(engine: CycleLink) -> set[str]:
+    """The controllers the cycle has loaded, as its latest snapshot says."""
+    return {c["name"] for c in engine.snapshot().controllers}
+
+
 class ControllerLifecycle:
     def __init__(self, engine: CycleLink, on_cycle: OnCycle) -> None:
         self.engine = engine
@@ -42,7 +47,7 @@ class ControllerLifecycle:
         name = required(request, "name")
         if name == MANAGER:
             raise RequestError(f"{MANAGER!r} names the daemon's own parameters: choose another name")
-        loaded = {c["name"] for c in self.engine.snapshot().controllers}
+        loaded = loaded_names(self.engine)
         if name in loaded:
             raise RequestError(f"controller {name!r} is already loaded (reload it, or unload it first)")
         if len(loaded) >= MAX_CONTROLLERS:
@@ -72,7 +77,7 @@ class ControllerLifecycle:
         section = on_disk.config.controllers.get(name)
         if section is None:
             raise RequestError(f"{path} has no controller {name!r}: nothing to reload it from")
-        loaded = {c["name"] for c in self.engine.snapshot().controllers}
+        loaded = loaded_names(self.engine)
         raw = {"type": section.type, "params": section.params, "fallback_controllers": section.fallback_controllers}
         checked = self.checked(name, raw, loaded, str(path))
         load = Load(
@@ -90,7 +95,7 @@ class ControllerLifecycle:
 
     def _loaded(self, request: dict[str, Any]) -> str:
         name = required(request, "name")
-        loaded = {c["name"] for c in self.engine.snapshot().controllers}
+        loaded = loaded_names(self.engine)
         if name not in loaded:
             known = ", ".join(sorted(loaded)) or "none"
             raise RequestError(f"unknown controller {name!r} (loaded: {known})")

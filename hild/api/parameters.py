@@ -102,10 +102,10 @@ class ControllerParameters:
                 f"{', '.join(fixed)} of {name} cannot change while it is active: deactivate it, set them, "
                 "and it is rebuilt with them (only dynamic parameters change while active: list_parameters)"
             )
-        spec = next(c for c in self.engine.snapshot().controllers if c["name"] == name)
-        section = {"type": spec["type"], "params": params.model_dump(mode="json")}
-        loaded = {c["name"] for c in self.engine.snapshot().controllers}
-        checked = self._checked(name, section, loaded, "request")
+        controllers = self.engine.snapshot().controllers
+        type_name = next(c["type"] for c in controllers if c["name"] == name)
+        section = {"type": type_name, "params": params.model_dump(mode="json")}
+        checked = self._checked(name, section, {c["name"] for c in controllers}, "request")
         by = request.get("by", "a client")
         load = Load(name, checked.type, checked.params, replaces=True, keeps_fallbacks=True, source=f"by {by}")
         reply = await self.on_cycle(load)

@@ -36,7 +36,7 @@ from hild.api.fields import (
     ok,
     parse_request,
 )
-from hild.api.lifecycle import ControllerLifecycle
+from hild.api.lifecycle import ControllerLifecycle, loaded_names
 from hild.api.parameters import ControllerParameters
 from hild.api.queries import LargePayloadWorker, clip
 from hild.crossing.requests import Enable, Refused, Request, Reset, SetZero, Switch
@@ -217,7 +217,7 @@ class Services:
         if not activate and not deactivate:
             raise RequestError("nothing to switch: give activate and/or deactivate")
         if strict:
-            loaded = {c["name"] for c in self.engine.snapshot().controllers}
+            loaded = loaded_names(self.engine)
             unknown = [n for n in (*activate, *deactivate) if n not in loaded]
             if unknown:
                 known = ", ".join(sorted(loaded)) or "none"

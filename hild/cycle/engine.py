@@ -621,10 +621,10 @@ class Engine:
         return future
 
     def request(self, request: Request) -> concurrent.futures.Future[Any]:
-        """An operator request (:mod:`hild.crossing.requests`), applied at the start of the next cycle. Its future
-        holds the reply dict, or raises :class:`~hild.crossing.requests.Refused`; an e-stop takes its own path and is
-        never refused."""
-        if isinstance(request, Load | Configure | Unload | SetParams):
+        """An operator request (:mod:`hild.crossing.requests`), applied at the start of the next cycle (a lifecycle
+        request: after its write). Its future holds the reply dict, or raises
+        :class:`~hild.crossing.requests.Refused`; an e-stop takes its own path and is never refused."""
+        if isinstance(request, LifecycleRequest):
             future: concurrent.futures.Future[Any] = concurrent.futures.Future()
             if not self._lifecycle.offer((request, future)):
                 future.set_exception(Refused("too many pending requests; try again"))
@@ -635,6 +635,8 @@ class Engine:
 
     def apply(self, request: Request) -> dict[str, Any] | Deferred:
         """Apply one request now (on the cycle thread, between cycles): the reply, or :class:`Refused`."""
+        if isinstance(request, LifecycleRequest):
+            return self.apply_lifecycle(request)
         match request:
             case Switch(activate, deactivate, strict):
                 return self.switch(activate, deactivate, strict).as_dict()  # carries its own ok and error
@@ -647,8 +649,6 @@ class Engine:
                 return _refused_if_error(self.enable(joints))  # type: ignore[return-value]
             case SetZero(joint):
                 return _refused_if_error(self.set_zero(joint))  # type: ignore[return-value]
-            case Load() | Configure() | Unload() | SetParams():
-                return self.apply_lifecycle(request)
         return self.estop()
 
     def _apply_requests(self, estop_now: bool) -> None:
