@@ -14,6 +14,7 @@ import os
 import threading
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 import rerun as rr
@@ -25,6 +26,7 @@ from hild.telemetry.errors import TelemetryError
 log = logging.getLogger("hild.telemetry")
 
 APPLICATION_ID = "hild"
+ROTATION_FLUSH = 30.0  # s the rotation thread waits for a file's rows to be on disk; the rows' loop never waits
 
 OnOpen = Callable[[rr.RecordingStream], None]
 
@@ -58,7 +60,13 @@ class Outlet:
 
 class FileOutlet(Outlet):
     """An ``.rrd`` file, rotated by size and/or age into ``<stem>-<UTC timestamp>.rrd`` files. ``keep_existing``:
-    a file already at ``path`` is not overwritten either (the recording of a client domain that crashed)."""
+    a file already at ``path`` is not overwritten either (the recording of a client domain that crashed).
+
+    Rotation runs on a thread of its own. rerun's calls that wait — a flush (its timeout is not always held), and
+    the drop of a stream, which ``send_blueprint`` does with its temporary blueprint stream — were seen to block
+    for over a minute on a loaded machine. So the loop that sends rows only ever hands work to that thread and, at
+    a later ``maintain``, adopts the stream it prepared: a stuck rerun can delay a rotation, never the rows.
+    """
 
     def __init__(
         self,
@@ -80,7 +88,12 @@ class FileOutlet(Outlet):
             self.base.parent.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise TelemetryError(f"telemetry file sink: cannot create {self.base.parent}: {exc}") from exc
-        super().__init__(self._open(), f"file {self.base}")
+        rec, path = self._open()
+        self._adopt(path)
+        super().__init__(rec, f"file {self.base}")
+        self._rotator = ThreadPoolExecutor(max_workers=1, thread_name_prefix="hild-telemetry-rotate")
+        self._next: Future[tuple[rr.RecordingStream, Path] | None] | None = None
+        self._retired: list[Future[None]] = []
 
     def _next_path(self) -> Path:
         if not self.rotating and not (self.keep_existing and self.base.exists()):
@@ -93,35 +106,81 @@ class FileOutlet(Outlet):
             n += 1
         return path
 
-    def _open(self) -> rr.RecordingStream:
+    def _open(self) -> tuple[rr.RecordingStream, Path]:
         path = self._next_path()
         rec = new_stream(self.recording_id, self.name)
         try:
             rec.set_sinks(rr.FileSink(path))
         except Exception as exc:
             raise TelemetryError(f"telemetry file sink: cannot write {path}: {exc}") from exc
+        self.on_open(rec)
+        return rec, path
+
+    def _adopt(self, path: Path) -> None:
         self.files.append(path)
         self.opened = time.monotonic()
-        self.on_open(rec)
-        return rec
+
+    def _rotate_if_due(self, rec: rr.RecordingStream, path: Path) -> tuple[rr.RecordingStream, Path] | None:
+        """On the rotation thread: a new stream and file if ``path`` is old or big enough, else ``None``."""
+        too_old = self.rotate_seconds is not None and time.monotonic() - self.opened >= self.rotate_seconds
+        too_big = False
+        if self.rotate_bytes is not None and not too_old:
+            rec.flush(timeout_sec=ROTATION_FLUSH)  # so the size on disk is current
+            try:
+                too_big = os.path.getsize(path) >= self.rotate_bytes
+            except OSError:
+                too_big = False
+        return self._open() if too_old or too_big else None
+
+    @staticmethod
+    def _finish(rec: rr.RecordingStream, timeout: float) -> None:
+        try:
+            rec.flush(timeout_sec=timeout)
+        finally:
+            rec.disconnect()
 
     def maintain(self) -> None:
         if not self.rotating:
             return
-        too_old = self.rotate_seconds is not None and time.monotonic() - self.opened >= self.rotate_seconds
-        too_big = False
-        if self.rotate_bytes is not None:
-            self.rec.flush(timeout_sec=1.0)  # so the size on disk is current; a local file write is quick
+        if self._next is None:
+            self._next = self._rotator.submit(self._rotate_if_due, self.rec, self.files[-1])
+            return
+        if not self._next.done():
+            return  # still checking or opening: the rows keep going to the current file
+        pending, self._next = self._next, None
+        try:
+            opened = pending.result()
+        except Exception as exc:
+            log.warning("telemetry: cannot rotate %s: %s; still writing %s", self.base, exc, self.files[-1])
+            self.opened = time.monotonic()  # try again one rotation period on
+            return
+        if opened is not None:
+            old, (self.rec, path) = self.rec, opened
+            self._adopt(path)
+            self._retired.append(self._rotator.submit(self._finish, old, ROTATION_FLUSH))
+            del old  # the stream is dropped on the rotation thread: rerun's drop can wait too
+            self._retired = [f for f in self._retired if not f.done()]
+            log.info("telemetry: rotated to %s", path)
+
+    def close(self, timeout: float) -> None:
+        deadline = time.monotonic() + timeout
+        streams = [self.rec]
+        if self._next is not None and not self._next.cancel():
             try:
-                too_big = os.path.getsize(self.files[-1]) >= self.rotate_bytes
-            except OSError:
-                too_big = False
-        if too_old or too_big:
-            old = self.rec
-            self.rec = self._open()
-            old.flush(timeout_sec=1.0)
-            old.disconnect()
-            log.info("telemetry: rotated to %s", self.files[-1])
+                opened = self._next.result(timeout=max(0.0, deadline - time.monotonic()))
+            except Exception as exc:
+                log.warning("telemetry: a rotation of %s did not finish: %s", self.base, exc)
+            else:
+                if opened is not None:  # the new file exists on disk: close it as a file of the recording
+                    streams.append(opened[0])
+                    self._adopt(opened[1])
+        self._next = None
+        for rec in streams:
+            self._retired.append(self._rotator.submit(self._finish, rec, max(0.0, deadline - time.monotonic())))
+        del streams
+        self._rotator.shutdown(wait=False)
+        for retired in self._retired:
+            retired.result(timeout=max(0.0, deadline - time.monotonic()))
 
 
 class LiveOutlet(Outlet):

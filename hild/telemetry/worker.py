@@ -205,11 +205,14 @@ class Recorder:
         Gives up after ``budget`` s; returns whether every sink closed."""
         done = threading.Event()
         outlets = sorted(self.outlets, key=lambda o: not isinstance(o, FileOutlet))
+        deadline = time.monotonic() + budget
 
         def finish() -> None:
-            for outlet in outlets:
+            for outlet in outlets:  # each may take what those before it left of the budget: files come first
                 try:
-                    outlet.close(budget / max(1, len(outlets)))
+                    outlet.close(max(0.0, deadline - time.monotonic()))
+                except TimeoutError:
+                    log.warning("telemetry: closing %s did not finish within %g s", outlet.description, budget)
                 except Exception as exc:
                     log.warning("telemetry: closing %s failed: %s", outlet.description, exc)
             done.set()

@@ -40,6 +40,9 @@ from tests.helpers import free_port, wait_for
 # s a test waits for the recorder to acknowledge a flush. It runs at nice 19 by design: beside busy processes it
 # gets the CPU last, so its acknowledgement may come seconds late (the daemon never waits for it; tests and tools do).
 FLUSH_WAIT = 60.0
+# A close's timeout where the file must be complete: a file sink closes first and may take all of it, but a
+# nice-19 recorder beside busy processes needed more than the half second a 1 s timeout gives the sinks.
+CLOSE_BUDGET = 10.0
 
 ARM6_BODIES = ("shoulder_link", "upper_arm_link", "forearm_link", "wrist_1_link", "wrist_2_link", "wrist_3_link")
 
@@ -185,8 +188,8 @@ def test_close_with_an_unreachable_viewer_returns_promptly(rig: Callable[..., Ri
     r = rig({"enabled": True, "sinks": [{"kind": "connect", "url": url}, {"kind": "file", "path": "x.rrd"}]})
     r.run(200)
     start = time.monotonic()
-    r.telemetry.close(timeout=1.0)
-    assert time.monotonic() - start < 3.0
+    r.telemetry.close(timeout=CLOSE_BUDGET)  # the viewer's flush can never finish: it takes what the file left …
+    assert time.monotonic() - start < CLOSE_BUDGET + 2.0  # … and close still keeps to its timeout
     assert entity_row_counts(r.telemetry.files[0])["/joints/position/measured"] == 200  # the file still got it all
 
 
