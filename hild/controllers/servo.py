@@ -54,8 +54,13 @@ class ServoParams(Params):
     command_timeout: float = dynamic(
         default=0.5, gt=0.0, description="Seconds without a target after which the joints brake to a stop and hold."
     )
-    velocity_scale: float = Field(default=1.0, gt=0.0, le=1.0, description="Fraction of the joints' velocity limits.")
-    acceleration_scale: float = Field(
+    velocity_scale: float = dynamic(
+        default=1.0,
+        gt=0.0,
+        le=1.0,
+        description="Fraction of the joints' velocity limits. Lowered while moving, the joints brake to it smoothly.",
+    )
+    acceleration_scale: float = dynamic(
         default=1.0, gt=0.0, le=1.0, description="Fraction of the acceleration limits; jerk scales with it."
     )
 
@@ -212,11 +217,7 @@ class ServoController(PlansMotion, Controller):
         self._writes_velocity = "velocity" in params.command_interfaces
         self._period = 1.0 / context.update_rate
 
-        # Per-joint constants as Python floats: the per-cycle braking check reads them without numpy overhead.
-        self._vlimit = (lim.velocity[self._index] * params.velocity_scale).tolist()  # what clients are told
-        self._vmax = [v * (1.0 - VELOCITY_MARGIN) for v in self._vlimit]  # what ruckig plans with
-        self._amax = (lim.acceleration[self._index] * params.acceleration_scale).tolist()
-        self._jmax = (lim.jerk[self._index] * params.acceleration_scale).tolist()
+        self._scale_limits(params)
         self._soft_lower, self._soft_upper = lim.soft_lower[self._index].tolist(), lim.soft_upper[self._index].tolist()
         self._lo = [p + POSITION_MARGIN for p in self._soft_lower]
         self._hi = [p - POSITION_MARGIN for p in self._soft_upper]
@@ -225,6 +226,7 @@ class ServoController(PlansMotion, Controller):
         self._slot = TargetRecord(context.mailboxes.latest_numbers("target", TargetRecord.width(n)), n)
         self._zeros = [0.0] * n
         self._otg: Ruckig | None = None
+        self._jerk_pending = False  # a lowered jerk not yet in ruckig's input (see on_params)
         self._inp = InputParameter(n)
         self._out = OutputParameter(n)
         self._p: list[float] = list(self._zeros)  # desired state written each cycle
@@ -235,13 +237,57 @@ class ServoController(PlansMotion, Controller):
         self._last_target = -math.inf
         self._last_clamp = -math.inf
 
+    def _scale_limits(self, params: ServoParams) -> None:
+        """Per-joint limits as Python floats: the per-cycle braking check reads them without numpy overhead."""
+        lim = self.context.limits
+        self._vlimit = (lim.velocity[self._index] * params.velocity_scale).tolist()  # what clients are told
+        self._vmax = [v * (1.0 - VELOCITY_MARGIN) for v in self._vlimit]  # what ruckig plans with
+        self._amax = (lim.acceleration[self._index] * params.acceleration_scale).tolist()
+        self._jmax = (lim.jerk[self._index] * params.acceleration_scale).tolist()
+
     def on_configure(self) -> None:
-        inp = self._inp
         self._otg = Ruckig(len(self._index), self._period)
+        self._inp.target_acceleration = self._zeros
+        self._plan_within_limits()
+
+    def _plan_within_limits(self) -> None:
+        inp = self._inp
         inp.max_velocity = self._vmax
         inp.max_acceleration = self._amax
         inp.max_jerk = self._jmax
-        inp.target_acceleration = self._zeros
+
+    def on_params(self, old: Params) -> None:
+        """New scales apply from the next cycle: ruckig replans from the current position, velocity and
+        acceleration, so a joint faster than a lowered limit brakes to it — the command never steps.
+
+        A lowered jerk waits (per joint) until the joint can reach its new limits with it: the motion under way
+        was planned with the old jerk, and braking it with a lower one overshoots even the old velocity limit.
+        Targets already accepted were clamped to the old limits; ruckig holds the new ones all the same."""
+        assert isinstance(self.params, ServoParams)
+        jerk_before = self._inp.max_jerk
+        self._scale_limits(self.params)
+        self._plan_within_limits()
+        if self.phase != Phase.HOLD:
+            self._inp.max_jerk = [max(a, b) for a, b in zip(jerk_before, self._jmax, strict=True)]
+            self._jerk_pending = self._inp.max_jerk != self._jmax
+        vmax = self._vmax  # a target or cruise velocity above the new limit is one ruckig would refuse to plan
+        self._cruise_velocity[:] = [min(max(v, -m), m) for v, m in zip(self._cruise_velocity, vmax, strict=True)]
+        self._inp.target_velocity = [min(max(v, -m), m) for v, m in zip(self._inp.target_velocity, vmax, strict=True)]
+
+    def _adopt_pending_jerk(self) -> None:
+        """Each joint takes its lowered jerk once braking with it stays within its new limits."""
+        inp = self._inp
+        jerk, v, a = inp.max_jerk, inp.current_velocity, inp.current_acceleration
+        pending = False
+        for i in range(len(jerk)):
+            new = self._jmax[i]
+            if jerk[i] != new:
+                if abs(a[i]) <= self._amax[i] and abs(v[i]) + a[i] * a[i] / (2.0 * new) <= self._vlimit[i]:
+                    jerk[i] = new
+                else:
+                    pending = True
+        inp.max_jerk = jerk
+        self._jerk_pending = pending
 
     def on_cleanup(self) -> None:
         self._otg = None
@@ -386,6 +432,9 @@ class ServoController(PlansMotion, Controller):
         inp.current_acceleration = self._zeros
         self._p, self._v = position, self._zeros
         self.phase = Phase.HOLD
+        if self._jerk_pending:
+            inp.max_jerk = self._jmax
+            self._jerk_pending = False
         if self._otg is not None:
             self._otg.reset()
 
@@ -422,6 +471,8 @@ class ServoController(PlansMotion, Controller):
             return
         out.pass_to_input(inp)
         self._p, self._v = p, v
+        if self._jerk_pending:
+            self._adopt_pending_jerk()
         if result == Result.Finished:
             if self.phase == Phase.TRACK and self._moving:
                 self._cruise()

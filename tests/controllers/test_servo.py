@@ -23,6 +23,7 @@ from hild.controllers.servo import (
     speed_to_stop_within,
     stopping_distance,
 )
+from hild.crossing.requests import SetParams
 from hild.cycle.engine import Engine
 from tests.conftest import merge, mock_robot
 from tests.test_engine import JumpGuard, events, modes
@@ -693,3 +694,31 @@ def test_a_fault_makes_servo_follow_the_arm_and_reset_resumes_without_a_jump() -
     guard.run(300)  # no target since the reset: it rests where the arm was, no jump, no resumed motion
     np.testing.assert_allclose(engine.final.position, held, atol=5e-3)
     assert [j["mode"] for j in engine.status()["joints"]] == ["controlled"] * 6
+
+
+# ---- parameters at runtime --------------------------------------------------------------------------------------
+def _set(probe: LimitProbe, servo: ServoController, **values: float) -> None:
+    """Set servo parameters as the client domain does: validated whole, applied between two cycles."""
+    future = probe.engine.request(SetParams("servo", servo.params.model_copy(update=values), ("scales",)))
+    probe.run(1)
+    assert future.result(0)["changed"] == ["scales"]
+
+
+@pytest.mark.parametrize("phase", [Phase.TRACK, Phase.CRUISE])
+def test_lowering_the_scales_while_moving_brakes_to_the_new_limits_without_a_step(
+    make_engine: MakeEngine, phase: Phase
+) -> None:
+    engine, servo = started(make_engine, command_timeout=3.0)
+    probe = LimitProbe(engine, servo)  # the old limits bound every step: a step would break acceleration or jerk
+    velocity = 1.8 if phase == Phase.CRUISE else 0.0
+    servo.accept({"positions": [-0.6, 0.0, 0.0], "velocities": [velocity, 0.0, 0.0]})
+    while not (servo.phase == phase and abs(engine.command.velocity[0]) > 1.5):
+        probe.run(1)
+    _set(probe, servo, velocity_scale=0.25, acceleration_scale=0.5)
+    probe.run(400)  # 0.8 s: down from 1.8 rad/s to 0.5 at 4 rad/s² takes 0.3 s and some jerk
+    slowed = LimitProbe(engine, servo, scale_v=0.25, scale_a=0.5)
+    slowed.run(200)  # from here on, the new limits hold
+    assert slowed.peak["velocity"] > 0.9  # still moving, at the new limit
+    assert not [e for e in events(engine) if "could not plan" in e or "limit engaged" in e]
+    assert servo._inp.max_jerk == servo._jmax  # the lowered jerk was taken once it could be
+    assert servo._vlimit[0] == pytest.approx(0.5)  # what clients' targets are now clamped to
