@@ -34,6 +34,8 @@ from hild.motion.planning import PlanningError, plan_stop
 from hild.motion.trajectory import Trajectory
 
 INTERFACE_SETS = (("position",), ("position", "velocity"), ("effort",))
+GAIN_RAMP = 0.5  # s over which changed PID gains replace the old ones on an active controller
+GAIN_FIELDS = ("p", "i", "d", "i_clamp", "ff_velocity_scale")
 PLAN_MARGIN = 1.0 - 1e-6  # ruckig plans exactly at the limits; stay a hair inside so the supervisor never clamps
 
 
@@ -74,7 +76,11 @@ class JointTrajectoryParams(Params):
     constraints: Constraints = dynamic(
         default_factory=Constraints, description="Goals accepted after a change are checked against the new ones."
     )
-    gains: dict[str, PidGains] = Field(default_factory=dict, description="Per joint, for the effort interface.")
+    gains: dict[str, PidGains] = dynamic(
+        default_factory=dict,
+        description="Per joint, for the effort interface. Changed while active, new gains are ramped in over "
+        "0.5 s: the effort command never steps.",
+    )
     feedback_rate: float = dynamic(default=25.0, gt=0.0, description="Hz of the feedback topic while a goal runs.")
     velocity_scale: float = dynamic(
         default=1.0, gt=0.0, le=1.0, description="Of the joints' limits, for planning (goals planned after a change)."
@@ -164,9 +170,11 @@ class JointTrajectoryController(PlansMotion, Controller):
         self._q = np.zeros(n)
         self._qd = np.zeros(n)
         self._modes = np.zeros(n, dtype=np.int64)
-        gains = [params.gains.get(j) for j in params.joints]
-        self._pid = {k: np.array([getattr(g, k) if g else 0.0 for g in gains]) for k in ("p", "i", "d", "i_clamp")}
-        self._ff_velocity = np.array([g.ff_velocity_scale if g else 0.0 for g in gains])
+        self._gains = self._gain_table(params)  # rows as GAIN_FIELDS; the rows below are views that stay valid
+        self._kp, self._ki, self._kd, self._i_clamp, self._kff = self._gains
+        self._gains_target = self._gains.copy()
+        self._gains_step = np.zeros_like(self._gains)
+        self._ramp_left = 0  # cycles of a gain ramp still to go
         self._integral = np.zeros(n)
         self.action: ActionServer[PreparedGoal] = ActionServer(
             params.joints, self._parse, self._accepting, context.notify, context.mailboxes
@@ -193,13 +201,29 @@ class JointTrajectoryController(PlansMotion, Controller):
             start_tolerance=params.start_tolerance,
         )
 
+    @staticmethod
+    def _gain_table(params: JointTrajectoryParams) -> np.ndarray:
+        gains = [params.gains.get(j) for j in params.joints]
+        return np.array([[getattr(g, k) if g else 0.0 for g in gains] for k in GAIN_FIELDS])
+
     def on_params(self, old: Params) -> None:
         """Tolerances, scales and options apply to goals accepted from now on (a running goal keeps the plan and
-        the checks it was accepted with: nothing it already does changes under it)."""
+        the checks it was accepted with: nothing it already does changes under it). New PID gains on an active
+        controller are ramped in linearly over ``GAIN_RAMP``: with a tracking error, a gain step would be an
+        effort step. The integral holds ∫ i·e dt, so a new ``i`` never steps it; a lowered clamp trims it as the
+        clamp ramps down."""
         assert isinstance(self.params, JointTrajectoryParams)
         self.goal_context = self._goal_context(self.params, self.context)
         self.limits = self.goal_context.limits
         self._feedback_interval = 1.0 / min(self.params.feedback_rate, self.context.update_rate)
+        self._gains_target[:] = self._gain_table(self.params)
+        if self.active:
+            self._ramp_left = max(1, round(GAIN_RAMP * self.context.update_rate))
+            np.subtract(self._gains_target, self._gains, out=self._gains_step)
+            self._gains_step /= self._ramp_left
+        else:
+            self._gains[:] = self._gains_target
+            self._ramp_left = 0
 
     # ---- contract ----------------------------------------------------------------------------------------------
     def action_server(self) -> ActionServer[PreparedGoal]:
@@ -222,6 +246,7 @@ class JointTrajectoryController(PlansMotion, Controller):
         self.goal, self.goal_track, self.canceling = None, None, False
         self._integral[:] = 0.0
         self._next_feedback = 0.0
+        self._gains[:], self._ramp_left = self._gains_target, 0  # a ramp cut short by a deactivation ends here
 
     def on_deactivate(self) -> None:
         if self.goal is not None:
@@ -414,13 +439,22 @@ class JointTrajectoryController(PlansMotion, Controller):
     def _write(self, dt: float, q: np.ndarray, qd: np.ndarray, command: ServoCommand) -> None:
         idx = self.index
         if self.interfaces[0] == "effort":
+            if self._ramp_left:
+                self._step_gains()
             error = self.pd - q
-            self._integral += self._pid["i"] * error * dt
-            np.clip(self._integral, -self._pid["i_clamp"], self._pid["i_clamp"], out=self._integral)
-            effort = self._pid["p"] * error + self._integral + self._pid["d"] * (self.vd - qd)
-            command.effort[idx] = effort + self._ff_velocity * self.vd
+            self._integral += self._ki * error * dt
+            np.clip(self._integral, -self._i_clamp, self._i_clamp, out=self._integral)
+            effort = self._kp * error + self._integral + self._kd * (self.vd - qd)
+            command.effort[idx] = effort + self._kff * self.vd
         else:
             command.position[idx] = self.pd
             if "velocity" in self.interfaces:
                 command.velocity[idx] = self.vd
         command.written[idx] = True
+
+    def _step_gains(self) -> None:
+        self._ramp_left -= 1
+        if self._ramp_left:
+            self._gains += self._gains_step
+        else:
+            self._gains[:] = self._gains_target  # exactly the new values, whatever the rounding on the way

@@ -144,7 +144,8 @@ def test_dynamic_is_said_by_the_schema_and_inherited_below_a_dynamic_field() -> 
         "Goal position tolerance (rad); 0 = not checked.",
     )
     assert describe(JointTrajectoryParams, "joints")[0] is False
-    assert describe(JointTrajectoryParams, "gains.a.p")[0] is False  # a gain would step the effort: not while active
+    assert describe(JointTrajectoryParams, "command_interfaces")[0] is False  # claims: not while active
+    assert describe(JointTrajectoryParams, "gains.a.p")[0] is True  # ramped in: the effort never steps
     params = JointTrajectoryParams(joints=["a", "b"])
     changed = with_values(params, {"constraints.joints.a.goal": 0.01})
     assert flatten(changed)["constraints.joints.a.goal"] == 0.01 and "constraints.joints.a.goal" not in flatten(params)

@@ -10,6 +10,7 @@ import pytest
 from hild.action import ErrorCode, GoalResult
 from hild.api.goals import GoalEndpoint
 from hild.controllers.joint_trajectory import JointTrajectoryController
+from hild.crossing.requests import SetParams
 from hild.cycle.engine import Engine
 from hild.cycle.supervisor import Fault
 from hild.motion.reference import standard_trajectory
@@ -378,8 +379,10 @@ def test_bad_goals_are_rejected_with_their_reason_and_nothing_moves(goal: Any, r
     np.testing.assert_allclose(engine.final.position, before, atol=1e-9)
 
 
-def test_effort_interface_tracks_a_move_with_pid() -> None:
-    engine = twin("rrbot_twin.yaml")
+EFFORT_GAINS = {"joint1": {"p": 400.0, "d": 40.0, "i": 50.0, "i_clamp": 5.0}, "joint2": {"p": 200, "d": 15}}
+
+
+def effort_jtc(engine: Engine) -> None:
     engine.manager.unload(JTC)
     engine.load_controller(
         JTC,
@@ -387,15 +390,53 @@ def test_effort_interface_tracks_a_move_with_pid() -> None:
         {
             "joints": ["joint1", "joint2"],
             "command_interfaces": ["effort"],
-            "gains": {"joint1": {"p": 400.0, "d": 40.0, "i": 50.0, "i_clamp": 5.0}, "joint2": {"p": 200, "d": 15}},
+            "gains": EFFORT_GAINS,
             "constraints": {"goal_time": 2.0, "joints": {"joint1": {"goal": 0.02}, "joint2": {"goal": 0.02}}},
         },
     )
     assert engine.switch([JTC], []).ok
+
+
+def test_effort_interface_tracks_a_move_with_pid() -> None:
+    engine = twin("rrbot_twin.yaml")
+    effort_jtc(engine)
     target = engine.state.position + np.array([0.4, -0.3])
     result = run_until_result(Recorder(engine), submit(engine, {"positions": target.tolist()}))
     assert result.status == "succeeded", result
     np.testing.assert_allclose(engine.state.position, target, atol=0.02)
+
+
+def test_new_pid_gains_while_a_goal_runs_are_ramped_in_and_the_effort_never_steps() -> None:
+    engine = twin("rrbot_twin.yaml")
+    effort_jtc(engine)
+    jtc = controller(engine)
+    target = engine.state.position + np.array([0.6, -0.4])
+    goal_id = submit(engine, {"positions": target.tolist()})
+    efforts, errors = [], []
+
+    def run(cycles: int) -> None:
+        for _ in range(cycles):
+            engine.run_cycles(1)
+            efforts.append(engine.final.effort[:2].copy())
+            errors.append(np.abs(jtc.pd - engine.state.position[:2]))
+
+    run(150)  # mid-move: the PID works against a tracking error
+    tripled = jtc.params.model_copy(
+        update={"gains": {j: g.model_copy(update={"p": 3 * g.p}) for j, g in jtc.params.gains.items()}}
+    )
+    before = len(efforts)
+    future = engine.request(SetParams(JTC, tripled, ("gains",)))
+    run(400)
+    assert future.result(0)["changed"] == ["gains"]
+    steps = np.abs(np.diff(np.array(efforts), axis=0))
+    error_then = errors[before - 1]
+    unramped = 2 * 400.0 * error_then[0]  # the step a switch from p=400 to p=1200 would have made on joint1
+    assert unramped > 5 * steps[: before - 1, 0].max()  # a step that size would stand out of the move's own …
+    assert steps[before - 1 :, 0].max() < unramped / 5  # … and with the ramp, nothing does
+    assert jtc._kp.tolist() == [1200.0, 600.0] and jtc._kd.tolist() == [40.0, 15.0]  # exactly the new gains
+    result = run_until_result(Recorder(engine), goal_id)
+    assert result.status == "succeeded", result
+    assert any("parameters set" in e for e in events(engine))
 
 
 def test_oversized_goals_are_refused_before_planning() -> None:
