@@ -13,10 +13,10 @@ import pytest
 from hild.config.params import with_values
 from hild.config.tuning import MANAGER
 from hild.controller import Controller
-from hild.crossing.requests import Configure, Load, Refused, SetParams, Unload
+from hild.crossing.requests import Cleanup, Configure, Load, Refused, SetHardwareState, SetParams, Unload
 from hild.cycle.engine import Engine
 from hild.cycle.manager import SwitchError
-from tests.test_engine import JumpGuard, events, send
+from tests.test_engine import JumpGuard, events, modes, send
 
 MakeEngine = Callable[..., Engine]
 
@@ -62,6 +62,34 @@ def test_configure_again_cleans_up_first_and_a_raising_on_configure_leaves_it_un
     assert engine.manager.records["one"].state == "unconfigured"
     result = engine.switch(["one"], [])
     assert not result.ok and "one is not configured" in result.error
+
+
+def test_cleanup_takes_only_an_inactive_controller_to_unconfigured_and_configure_brings_it_back(
+    make_engine: MakeEngine,
+) -> None:
+    engine = make_engine()
+    one = fragile(engine, "one")
+    engine.add_controller("one", "test", one)
+    assert engine.switch(["one"], []).ok
+
+    def cleanup() -> concurrent.futures.Future[Any]:
+        future = engine.request(Cleanup("one"))
+        engine.run_cycles(1)
+        return future
+
+    with pytest.raises(Refused, match="'one' is active: it cannot be cleaned up \\(deactivate it first\\)"):
+        cleanup().result(0)
+    assert engine.switch([], ["one"]).ok
+    assert cleanup().result(0) == {"name": "one", "state": "unconfigured"}
+    assert one.calls == {"configure": 1, "cleanup": 1} and engine.manager.records["one"].state == "unconfigured"
+    assert "info:controller_manager:cleaned up one: unconfigured" in events(engine)
+    with pytest.raises(Refused, match="'one' is unconfigured: it cannot be cleaned up \\(only an inactive one"):
+        cleanup().result(0)
+    result = engine.switch(["one"], [])
+    assert not result.ok and "one is not configured" in result.error
+    configured = engine.request(Configure("one"))
+    engine.run_cycles(1)
+    assert configured.result(0)["state"] == "inactive" and engine.switch(["one"], []).ok
 
 
 def test_a_replacement_whose_on_configure_raises_leaves_the_loaded_one_as_it_was(make_engine: MakeEngine) -> None:
@@ -151,6 +179,64 @@ def test_lifecycle_requests_never_move_the_arm(make_engine: MakeEngine) -> None:
             assert future.done() and future.exception() is None, future.exception()
     assert set(engine.manager.records) == {"jsb", "fwd"} and engine.manager.records["fwd"].state == "active"
     engine.stop()
+
+
+# ---- hardware set inactive by an operator --------------------------------------------------------------------------
+def test_hardware_set_inactive_mid_move_holds_its_joints_where_they_are_and_keeps_writing(
+    make_engine: MakeEngine,
+) -> None:
+    """ros2_control stops writing an inactive component; hild keeps its drives held (an unbraked arm would fall),
+    so inactive means: read, held by the supervisor, out of every controller's reach."""
+    engine = make_engine()
+    assert engine.switch(["fwd"], []).ok
+    guard = JumpGuard(engine)
+    bus = engine.hardware[0]
+    writes = []
+    real_write = bus.component.write
+    bus.component.write = lambda t, dt, command: (writes.append(t), real_write(t, dt, command))[1]  # type: ignore[method-assign]
+    for k in range(50):  # moving
+        send(engine, "fwd", [0.2 * k / 50, -0.2, 0.3])
+        guard.run(1)
+    inactive = engine.request(SetHardwareState(bus.name, "inactive"))
+    guard.run(1)
+    assert inactive.result(0) == {"name": bus.name, "state": "inactive", "deactivated": ["fwd"]}
+    latched = engine.final.position.copy()
+    guard.run(200)
+    assert modes(engine) == ["hold"] * 3
+    assert abs(engine.final.position - latched).max() < 1e-9  # held where it was, not at the controller's target
+    assert len(writes) == 251  # and written every cycle: the drives stay enabled
+    assert engine.snapshot().hardware[0]["state"] == "inactive"
+    assert not any(i["available"] for i in engine.snapshot().interfaces)
+    refused = engine.switch(["fwd"], [])
+    assert not refused.ok and "of inactive hardware ['bus'] (set it active first)" in refused.error
+    again = engine.request(SetHardwareState(bus.name, "inactive"))
+    guard.run(1)
+    assert again.result(0)["deactivated"] == []  # already inactive: nothing more to do
+    active = engine.request(SetHardwareState(bus.name, "active"))
+    guard.run(1)
+    assert active.result(0)["state"] == "active" and engine.switch(["fwd"], []).ok
+    assert [e for e in events(engine) if "hardware bus set" in e] == [
+        "info:controller_manager:hardware bus set inactive; deactivated ['fwd'], its joints held",
+        "info:controller_manager:hardware bus set active",
+    ]
+
+
+@pytest.mark.parametrize(
+    ("name", "state", "reason"),
+    [
+        ("nope", "inactive", "no hardware component 'nope' (components: ['bus'])"),
+        ("bus", "unconfigured", "bus unconfigured: hardware can be set active or inactive while the daemon runs"),
+    ],
+)
+def test_a_hardware_state_request_that_cannot_be_is_refused(
+    make_engine: MakeEngine, name: str, state: str, reason: str
+) -> None:
+    engine = make_engine()
+    future = engine.request(SetHardwareState(name, state))
+    engine.run_cycles(1)
+    with pytest.raises(Refused, match=reason.replace("(", "\\(").replace(")", "\\)").replace("[", "\\[")):
+        future.result(0)
+    assert engine.snapshot().hardware[0]["state"] == "active"
 
 
 # ---- the daemon's own limits: soft margins and the velocity scale ---------------------------------------------------

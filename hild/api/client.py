@@ -231,6 +231,15 @@ class HildClient:
     def configure_controller(self, name: str) -> dict[str, Any]:
         return self.call("configure_controller", {"name": name})
 
+    def set_hardware_state(self, name: str, state: str) -> dict[str, Any]:
+        """``inactive``: the component's joints held, its command interfaces out of the controllers' reach (the
+        controllers claiming them are deactivated); ``active``: available again."""
+        return self.call("set_hardware_state", {"name": name, "state": state})
+
+    def cleanup_controller(self, name: str) -> dict[str, Any]:
+        """inactive → unconfigured; configure it again before activating it."""
+        return self.call("cleanup_controller", {"name": name})
+
     def unload_controller(self, name: str) -> dict[str, Any]:
         return self.call("unload_controller", {"name": name})
 

@@ -69,6 +69,13 @@ def add_ctl_parser(subparsers: Any) -> None:
     sub.add_parser("controllers", parents=[common], help="loaded controllers and their claims")
     sub.add_parser("interfaces", parents=[common], help="command interfaces and who claims them")
     sub.add_parser("hardware", parents=[common], help="hardware components")
+    hardware_state = sub.add_parser(
+        "hardware-state",
+        parents=[common],
+        help="set a hardware component inactive (its joints held, no controller may command them) or active",
+    )
+    hardware_state.add_argument("name", help="the component (hild ctl hardware)")
+    hardware_state.add_argument("state", choices=("active", "inactive"))
     switch = sub.add_parser("switch", parents=[common], help="activate/deactivate controllers atomically")
     switch.add_argument("--activate", nargs="+", action="extend", default=[], metavar="NAME", help="start these")
     switch.add_argument("--deactivate", nargs="+", action="extend", default=[], metavar="NAME", help="stop these")
@@ -90,6 +97,7 @@ def add_ctl_parser(subparsers: Any) -> None:
     )
     for verb, what in (
         ("configure", "configure a loaded controller (an inactive one is cleaned up and configured again)"),
+        ("cleanup", "clean up an inactive controller: unconfigured, loaded (configure it again to use it)"),
         ("unload", "unload a controller that is not active"),
         ("reload", "replace a controller that is not active with one from the daemon's config file as it is now"),
     ):
@@ -224,6 +232,15 @@ def _no_request(args: argparse.Namespace) -> dict[str, Any]:
 
 def _enable_request(args: argparse.Namespace) -> dict[str, Any]:
     return {"joints": args.joints}
+
+
+def _hardware_state_request(args: argparse.Namespace) -> dict[str, Any]:
+    return {"name": args.name, "state": args.state}
+
+
+def _hardware_state_text(reply: dict[str, Any]) -> str:
+    held = f"; deactivated {', '.join(reply['deactivated'])}, their joints held" if reply.get("deactivated") else ""
+    return f"{reply['name']}: {reply['state']}{held}"
 
 
 def _switch_request(args: argparse.Namespace) -> dict[str, Any]:
@@ -524,6 +541,8 @@ COMMANDS: dict[str, Callable[[HildClient, argparse.Namespace, bool], int]] = {
     "param": _param,
     "params": _params_save,
     "configure": _service("configure_controller", lambda r: f"{r['name']}: {r['state']}", _named),
+    "hardware-state": _service("set_hardware_state", _hardware_state_text, _hardware_state_request),
+    "cleanup": _service("cleanup_controller", lambda r: f"{r['name']}: {r['state']}", _named),
     "unload": _service("unload_controller", lambda r: f"{r['name']}: unloaded", _named),
     "reload": _service("reload_controller", lambda r: f"{r['name']}: reloaded ({r['state']})", _named),
     "list-types": _service("list_controller_types", lambda r: render.types_text(r["types"]), _no_request),

@@ -13,7 +13,7 @@ from hild.api.fields import Reply, RequestError, Service, controller_name, mappi
 from hild.config.loader import CheckedController, ConfigError, check_controller, load_config
 from hild.config.tuning import MANAGER
 from hild.crossing.cells import MAX_CONTROLLERS
-from hild.crossing.requests import Configure, Load, Request, Unload
+from hild.crossing.requests import Cleanup, Configure, Load, Request, Unload
 from hild.daemon.link import CycleLink
 
 OnCycle = Callable[[Request], Awaitable[Any]]
@@ -35,6 +35,7 @@ class ControllerLifecycle:
             "list_controller_types": Service({}, read=self._list_controller_types),
             "load_controller": Service({**load_fields, "by": sender}, self._load),
             "configure_controller": Service({"name": controller_name}, self._configure),
+            "cleanup_controller": Service({"name": controller_name}, self._cleanup),
             "unload_controller": Service({"name": controller_name}, self._unload),
             "reload_controller": Service({"name": controller_name}, self._reload),
         }
@@ -61,6 +62,9 @@ class ControllerLifecycle:
 
     async def _configure(self, request: dict[str, Any]) -> Reply:
         return dict(await self.on_cycle(Configure(self._loaded(request))))
+
+    async def _cleanup(self, request: dict[str, Any]) -> Reply:
+        return dict(await self.on_cycle(Cleanup(self._loaded(request))))
 
     async def _unload(self, request: dict[str, Any]) -> Reply:
         return dict(await self.on_cycle(Unload(self._loaded(request))))

@@ -72,7 +72,10 @@ def types_text(types: Sequence[dict[str, Any]]) -> str:
 
 
 def interfaces_text(interfaces: Sequence[dict[str, Any]]) -> str:
-    return table(["INTERFACE", "CLAIMED BY"], [[i["name"], i.get("claimed_by")] for i in interfaces])
+    return table(
+        ["INTERFACE", "CLAIMED BY", "AVAILABLE"],
+        [[i["name"], i.get("claimed_by"), "no" if i.get("available") is False else "yes"] for i in interfaces],
+    )
 
 
 def hardware_text(hardware: Sequence[dict[str, Any]]) -> str:

@@ -35,11 +35,12 @@ from hild.api.fields import (
     names,
     ok,
     parse_request,
+    text,
 )
 from hild.api.lifecycle import ControllerLifecycle, loaded_names
 from hild.api.parameters import ControllerParameters
 from hild.api.queries import LargePayloadWorker, clip
-from hild.crossing.requests import Enable, Refused, Request, Reset, SetZero, Switch
+from hild.crossing.requests import Enable, Refused, Request, Reset, SetHardwareState, SetZero, Switch
 from hild.daemon.link import CycleLink
 
 __all__ = [  # the request checks live in hild.api.fields; these names stay importable from here too
@@ -88,6 +89,7 @@ class Services:
             "reset": Service({}, self._reset),
             "set_zero": Service({"joint": joint_name, "confirm": boolean}, self._set_zero),
             "enable": Service({"joints": names}, self._enable),
+            "set_hardware_state": Service({"name": text, "state": text}, self._set_hardware_state),
         }
         lifecycle = ControllerLifecycle(engine, self.on_cycle)
         self.table.update(lifecycle.services())
@@ -240,3 +242,9 @@ class Services:
 
     async def _enable(self, request: dict[str, Any]) -> Reply:
         return dict(await self.on_cycle(Enable(tuple(request.get("joints", ())))))
+
+    async def _set_hardware_state(self, request: dict[str, Any]) -> Reply:
+        """``inactive``: the component's joints are held and no controller may command them; ``active`` again."""
+        if "name" not in request or "state" not in request:
+            raise RequestError('give the component and its state: {"name": NAME, "state": "active" | "inactive"}')
+        return dict(await self.on_cycle(SetHardwareState(request["name"], request["state"])))

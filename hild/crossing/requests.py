@@ -48,6 +48,15 @@ class SetZero:
 
 
 @dataclass(frozen=True, slots=True)
+class SetHardwareState:
+    """An operator takes a hardware component out of the controllers' reach (``inactive``: still read, its joints
+    held by the supervisor, its command interfaces unavailable) or gives it back (``active``)."""
+
+    name: str
+    state: str
+
+
+@dataclass(frozen=True, slots=True)
 class Load:
     """Load a controller, unconfigured (ros2_control's ``load_controller``), from params the client domain validated.
 
@@ -73,6 +82,13 @@ class Configure:
 
 
 @dataclass(frozen=True, slots=True)
+class Cleanup:
+    """``on_cleanup``: inactive → unconfigured (ros2_control's ``cleanup_controller``); it stays loaded."""
+
+    name: str
+
+
+@dataclass(frozen=True, slots=True)
 class Unload:
     """Clean up (if configured) and forget a controller that is not active."""
 
@@ -91,5 +107,5 @@ class SetParams:
 
 
 # Applied after a cycle's write, one per cycle: a controller's own code never delays a command.
-LifecycleRequest = Load | Configure | Unload | SetParams
-Request = Switch | Estop | Reset | Enable | SetZero | LifecycleRequest
+LifecycleRequest = Load | Configure | Cleanup | Unload | SetParams
+Request = Switch | Estop | Reset | Enable | SetZero | SetHardwareState | LifecycleRequest

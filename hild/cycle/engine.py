@@ -33,6 +33,7 @@ from hild.crossing.events import EventLog
 from hild.crossing.inprocess import BoundedQueue
 from hild.crossing.mailboxes import InProcess, Mailboxes
 from hild.crossing.requests import (
+    Cleanup,
     Configure,
     Enable,
     LifecycleRequest,
@@ -40,6 +41,7 @@ from hild.crossing.requests import (
     Refused,
     Request,
     Reset,
+    SetHardwareState,
     SetParams,
     SetZero,
     Switch,
@@ -86,6 +88,16 @@ class HardwareSlot:
     in_place: bool  # state and command are views of the engine's actuator arrays: no scatter or gather
     lifecycle: Lifecycle = Lifecycle.UNCONFIGURED
     fault: str = ""
+    locked_out: bool = False  # set inactive by an operator: read and held, its command interfaces unavailable
+
+    def command_interfaces(self) -> list[str]:
+        return [interface_name(j, f) for j in self.component.joints for f in sorted(self.component.COMMAND_FIELDS)]
+
+    def reported_state(self) -> str:
+        """ros2_control's word: an active component an operator set inactive is ``inactive`` (a fault wins)."""
+        if self.locked_out and self.lifecycle is Lifecycle.ACTIVE:
+            return str(Lifecycle.INACTIVE)
+        return str(self.lifecycle)
 
 
 class Engine:
@@ -156,12 +168,8 @@ class Engine:
         self._max_step = MAX_STEP_PERIODS * self.period
         self.max_cycle_gap = s.max_cycle_gap
         self.stop_descent = s.stop_descent
-        self.available_interfaces = [  # what controllers may claim: only fields the drives really use
-            interface_name(j, f)
-            for slot in self.hardware
-            for j in slot.component.joints
-            for f in sorted(slot.component.COMMAND_FIELDS)
-        ]
+        # what controllers may claim: only fields the drives really use
+        self.available_interfaces = [i for slot in self.hardware for i in slot.command_interfaces()]
         self.manager = ControllerManager(self.joints, self.available_interfaces, self.events)
         self.manager.on_claims = self.supervisor.set_claims
         self._requests: BoundedQueue[tuple[Callable[[], Any], concurrent.futures.Future[Any], bool]] = BoundedQueue(
@@ -330,6 +338,10 @@ class Engine:
                     self.manager.configure(name)
                     self.events.emit("info", "controller_manager", f"configured {name}: inactive")
                     return {"name": name, "state": "inactive"}
+                case Cleanup():
+                    self.manager.cleanup(name)
+                    self.events.emit("info", "controller_manager", f"cleaned up {name}: unconfigured")
+                    return {"name": name, "state": "unconfigured"}
                 case SetParams():
                     return self._set_params(request)
                 case Unload():
@@ -629,7 +641,7 @@ class Engine:
             if not self._lifecycle.offer((request, future)):
                 future.set_exception(Refused("too many pending requests; try again"))
             return future
-        if isinstance(request, Switch | Reset | Enable | SetZero):
+        if isinstance(request, Switch | Reset | Enable | SetZero | SetHardwareState):
             return self.submit(lambda: self.apply(request), clears_estop=isinstance(request, Reset))
         return self.request_estop()
 
@@ -649,6 +661,8 @@ class Engine:
                 return _refused_if_error(self.enable(joints))  # type: ignore[return-value]
             case SetZero(joint):
                 return _refused_if_error(self.set_zero(joint))  # type: ignore[return-value]
+            case SetHardwareState(name, state):
+                return _refused_if_error(self.set_hardware_state(name, state))  # type: ignore[return-value]
         return self.estop()
 
     def _apply_requests(self, estop_now: bool) -> None:
@@ -725,6 +739,33 @@ class Engine:
         """Switch controllers now (call on the cycle thread, i.e. through ``submit``, or before start)."""
         refuse = "e-stop is engaged; reset first" if self.supervisor.estop else ""
         return self.manager.switch(activate, deactivate, strict, self.state, self.final, refuse)
+
+    def set_hardware_state(self, name: str, state: str) -> dict[str, Any]:
+        """Operator request (between cycles), ros2_control's ``set_hardware_component_state`` for ``active`` and
+        ``inactive``. Inactive, a component is still read and written every cycle — the supervisor holds its joints
+        where they are, so its drives stay enabled and nothing falls — but no controller may command it: those
+        that do are deactivated. A faulted component is recovered with reset and enable, never here."""
+        slot = next((s for s in self.hardware if s.name == name), None)
+        if slot is None:
+            return {"error": f"no hardware component {name!r} (components: {[s.name for s in self.hardware]})"}
+        if state not in ("active", "inactive"):
+            return {"error": f"{name} {state}: hardware can be set active or inactive while the daemon runs"}
+        if slot.lifecycle is not Lifecycle.ACTIVE:
+            fault = f" ({slot.fault})" if slot.fault else ""
+            return {
+                "error": f"{name} is {slot.lifecycle}{fault}: recover it as an operator does, with reset (it also "
+                "releases the e-stop) then enable for its joints (hild ctl reset; hild ctl enable)"
+            }
+        deactivated: list[str] = []
+        if (state == "inactive") != slot.locked_out:
+            slot.locked_out = state == "inactive"
+            if slot.locked_out:
+                deactivated = self.manager.make_unavailable(slot.command_interfaces(), name)
+            else:
+                self.manager.make_available(slot.command_interfaces())
+            held = f"; deactivated {deactivated}, its joints held" if deactivated else ""
+            self.events.emit("info", "controller_manager", f"hardware {name} set {state}{held}")
+        return {"name": name, "state": state, "deactivated": deactivated}
 
     def estop(self) -> dict[str, Any]:
         self.supervisor.engage_estop()
@@ -883,14 +924,17 @@ class Engine:
                 {
                     "name": s.name,
                     "driver": s.driver,
-                    "state": str(s.lifecycle),
+                    "state": s.reported_state(),
                     "fault": s.fault or None,
                     "joints": list(s.component.joints),
                     "command_fields": sorted(s.component.COMMAND_FIELDS),
                 }
                 for s in self.hardware
             ),
-            interfaces=tuple({"name": n, "claimed_by": owner_of.get(n)} for n in self.available_interfaces),
+            interfaces=tuple(
+                {"name": n, "claimed_by": owner_of.get(n), "available": n not in self.manager.unavailable}
+                for n in self.available_interfaces
+            ),
             realtime=dict(self.realtime_report),
             tuning=self.tuning,
         )

@@ -89,6 +89,7 @@ class ControllerManager:
         self.masks = ClaimMasks.empty(len(self.joints))
         self.snapshot: tuple[ControllerInfo, ...] = ()
         self.change_seq = 0
+        self.unavailable: dict[str, str] = {}  # interface → the inactive hardware component it belongs to
         self.on_claims: Callable[[ClaimMasks], None] = lambda masks: None  # the supervisor listens here
 
     # ---- lifecycle ------------------------------------------------------------------------------------------
@@ -117,6 +118,17 @@ class ControllerManager:
             ) from None
         rec.state = ControllerState.INACTIVE
         rec.error = ""
+        self._changed()
+
+    def cleanup(self, name: str) -> None:
+        """inactive → unconfigured, as ros2_control's ``cleanup_controller``: only from inactive (an active one is
+        deactivated first; an unconfigured one has nothing to clean up). It stays loaded, to be configured again."""
+        rec = self._get(name)
+        if rec.state is not ControllerState.INACTIVE:
+            hint = "deactivate it first" if rec.state is ControllerState.ACTIVE else "only an inactive one can be"
+            raise SwitchError(f"controller {name!r} is {rec.state}: it cannot be cleaned up ({hint})")
+        self._cleanup(rec)
+        rec.state = ControllerState.UNCONFIGURED
         self._changed()
 
     def unload(self, name: str) -> None:
@@ -264,6 +276,9 @@ class ControllerManager:
                 problems.append(f"{name} is already active")
             elif rec.state is ControllerState.UNCONFIGURED:
                 problems.append(f"{name} is not configured")
+            elif blocked := [c for c in rec.claims if c in self.unavailable]:
+                owners = sorted({self.unavailable[c] for c in blocked})
+                problems.append(f"{name} claims {blocked}, of inactive hardware {owners} (set it active first)")
             else:
                 candidates.append(rec)
         if strict and problems:
@@ -314,6 +329,23 @@ class ControllerManager:
             self._apply_claims()
             self.events.emit("warning", "controller_manager", f"{reason}: deactivated {[r.name for r in stopped]}")
         return [r.name for r in stopped]
+
+    def make_unavailable(self, interfaces: Sequence[str], component: str) -> list[str]:
+        """``component``'s command interfaces leave the controllers' reach: the active controllers claiming any of
+        them are deactivated (their joints held where they are) and none may claim them until it is active again."""
+        self.unavailable.update(dict.fromkeys(interfaces, component))
+        stopped = [r for r in self.active if any(c in self.unavailable for c in r.claims)]
+        for rec in stopped:
+            self._deactivate(rec)
+        if stopped:
+            self._apply_claims()
+        self._changed()
+        return [r.name for r in stopped]
+
+    def make_available(self, interfaces: Sequence[str]) -> None:
+        for interface in interfaces:
+            self.unavailable.pop(interface, None)
+        self._changed()
 
     def deactivate_all(self, reason: str) -> None:
         stopped = list(self.active)

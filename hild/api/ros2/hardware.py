@@ -6,15 +6,15 @@ several joints and runs on the cycle: ``type`` ``system``, ``is_async`` false, `
 ``plugin_name`` ``hild/<driver>``. Its command interfaces are those ``list_interfaces`` names for its joints
 (``<joint>/<field>``, ``double``): ``is_claimed`` when a controller holds one (the JSON's ``claimed_by``),
 ``is_available`` while the component is active. Its state interfaces are every joint's ``position``, ``velocity``
-and ``effort``, available while it is active and never claimed (ros2_control claims none). Lifecycle states:
+and ``effort``, available while it is active or inactive and never claimed (ros2_control claims none). Lifecycle states:
 hild's ``unconfigured``, ``inactive`` and ``active`` are ROS's (ids 1, 2, 3); hild's ``fault`` has no ROS state and
 is reported as id 0 (unknown) with the label ``fault``.
 
-``set_hardware_component_state`` changes nothing in hild: while the daemon runs every component is active, read
-and written every cycle (hold needs its drives), and no JSON service takes one out of the cycle. ``active`` on an
-active component is ``ok``; on a faulted one it is refused with how an operator recovers it (``reset``, then
-``enable``: reset also releases the e-stop, which a state request must not do on the side); ``inactive`` is refused
-saying why; any other state is refused as not offered.
+``set_hardware_component_state`` ``active`` / ``inactive`` → hild's ``set_hardware_state``: inactive, the component
+is still read and written every cycle (the supervisor holds its joints: its drives stay enabled), but its command
+interfaces are unavailable and the controllers claiming them are deactivated. A faulted component is refused with
+how an operator recovers it (``reset``, then ``enable``: reset also releases the e-stop, which a state request must
+not do on the side); any other state is refused as not offered.
 """
 
 from __future__ import annotations
@@ -33,11 +33,6 @@ ACTIVE, INACTIVE = 3, 2
 STATE_FIELDS = ("position", "velocity", "effort")
 DATA_TYPE = "double"
 UINT16_MAX = 65535
-NOT_INACTIVE = (
-    "hild does not take a hardware component out of the cycle while the daemon runs (the supervisor's hold "
-    "commands its drives every cycle): to stop commanding its joints, deactivate the controllers that claim them "
-    "(switch_controller); to stop the arm, e-stop"
-)
 
 
 def ros_state(state: str) -> Any:
@@ -95,7 +90,7 @@ class HardwareServices:
 
     @staticmethod
     def _state_interfaces(hardware: dict[str, Any]) -> list[Any]:
-        available = hardware["state"] == "active"
+        available = hardware["state"] in ("active", "inactive")  # an inactive component is still read
         return [interface(f"{j}/{f}", available, False) for j in hardware.get("joints", []) for f in STATE_FIELDS]
 
     async def _components(self, request: Any) -> Any:
@@ -126,29 +121,17 @@ class HardwareServices:
         )
 
     async def _set_state(self, request: Any) -> Any:
-        hardware = {h["name"]: h for h in self._read("list_hardware", "hardware")}
-        found = hardware.get(str(request.name))
-        state = ros_state(found["state"]) if found is not None else types.message(STATE, id=0, label="")
-        reason = self.refusal(str(request.name), found, target_of(request.target_state))
+        name, target = str(request.name), target_of(request.target_state)
+        reason: str | None
+        if target in ("active", "inactive"):
+            reply = await self.services.handle(
+                "set_hardware_state", json.dumps({"name": name, "state": target}).encode()
+            )
+            reason = None if reply.get("ok") else str(reply.get("error"))
+        else:
+            reason = f"{name} {target}: not a state hild offers (inactive and active only)"
         if reason is not None:
             self.face.refused(self.set_name, reason)
+        found = {h["name"]: h for h in self._read("list_hardware", "hardware")}.get(name)
+        state = ros_state(found["state"]) if found is not None else types.message(STATE, id=0, label="")
         return types.message(f"{PACKAGE}/srv/SetHardwareComponentState_Response", ok=reason is None, state=state)
-
-    @staticmethod
-    def refusal(name: str, hardware: dict[str, Any] | None, target: str) -> str | None:
-        if hardware is None:
-            return f"no hardware component {name!r}"
-        if target == "inactive":
-            return f"{name} inactive: {NOT_INACTIVE}"
-        if target != "active":
-            return (
-                f"{name} {target}: not a state hild offers (inactive and active only; hardware is active while the "
-                "daemon runs)"
-            )
-        if hardware["state"] == "active":
-            return None
-        fault = f" ({hardware['fault']})" if hardware.get("fault") else ""
-        return (
-            f"{name} is {hardware['state']}{fault}: recover it as an operator does, with hild's reset (it also "
-            "releases the e-stop) then enable for its joints (hild ctl reset; hild ctl enable)"
-        )

@@ -5,9 +5,7 @@ answered by hild's JSON service of the same job through ``Services.handle``: the
   the manager (``<name>.type``, ``.params_file``, ``.fallback_controllers``: the spawner's sequence); with no
   ``<name>.type`` set, ``reload_controller {name}``, which loads it from the daemon's config file, as ros2_control's
   manager loads a controller its own YAML names.
-- ``configure_controller``, ``unload_controller`` → the JSON services of the same names.
-- ``cleanup_controller`` → refused: hild has none (``configure_controller`` cleans an inactive controller up and
-  configures it again).
+- ``configure_controller``, ``cleanup_controller``, ``unload_controller`` → the JSON services of the same names.
 - ``reload_controller_libraries {force_kill}`` → ``reload_controller`` for every loaded controller (rebuilt from the
   config file on disk; hild's controller code is imported once, at start); refused while any is active unless
   ``force_kill``, which deactivates them first, as ros2_control does.
@@ -32,10 +30,6 @@ from hild.api.services import Services
 
 PACKAGE = "controller_manager_msgs/srv"
 BASE_CLASS = "controller_interface::ControllerInterface"  # hild has no chainable controllers
-NO_CLEANUP = (
-    "hild has no cleanup: configure_controller cleans an inactive controller up and configures it again, "
-    "unload_controller forgets it"
-)
 
 
 class LifecycleServices:
@@ -105,7 +99,8 @@ class LifecycleServices:
         return self._ok("UnloadController", "unload_controller", self._error(reply))
 
     async def _cleanup(self, request: Any) -> Any:
-        return self._ok("CleanupController", "cleanup_controller", f"{request.name}: {NO_CLEANUP}")
+        reply = await self._call("cleanup_controller", {"name": str(request.name)})
+        return self._ok("CleanupController", "cleanup_controller", self._error(reply))
 
     async def _reload_all(self, request: Any) -> Any:
         return self._ok("ReloadControllerLibraries", "reload_controller_libraries", await self.reload_all(request))

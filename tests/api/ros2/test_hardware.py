@@ -71,11 +71,30 @@ def test_active_is_ok_for_an_active_component(ros_daemon: Daemon, peer: zenoh.Se
     assert set_state(peer, "bus", 0, "active").ok  # by label, as rclcpp_lifecycle takes it
 
 
+@pytest.mark.parametrize("by", [(2, ""), (0, "inactive")], ids=["by id", "by label"])
+def test_inactive_deactivates_its_controllers_holds_its_joints_and_active_gives_them_back(
+    ros_daemon: Daemon, peer: zenoh.Session, by: tuple[int, str]
+) -> None:
+    assert switch(peer, ["fwd"])
+    reply = set_state(peer, "bus", *by)
+    assert reply.ok and (reply.state.id, reply.state.label) == (2, "inactive")
+    wait_for(lambda: ros_daemon.events_with("hardware bus set inactive; deactivated ['fwd'], its joints held"))
+    snapshot = ros_daemon.engine.snapshot()
+    assert [c["state"] for c in snapshot.controllers if c["name"] == "fwd"] == ["inactive"]
+    assert {j["mode"] for j in snapshot.joints} == {"hold"}
+    listing = interfaces(peer)
+    assert not any(i.is_available or i.is_claimed for i in listing.command_interfaces)
+    assert all(i.is_available for i in listing.state_interfaces)  # still read, as ros2_control has it
+    assert not switch(peer, ["fwd"])  # nothing may command it now …
+    wait_for(lambda: ros_daemon.events_with("fwd claims ['a/position', 'b/position', 'c/position'], of inactive hard"))
+    assert set_state(peer, "bus", 3, "active").ok
+    assert all(i.is_available for i in interfaces(peer).command_interfaces)
+    assert switch(peer, ["fwd"])  # … and once active again, it may
+
+
 @pytest.mark.parametrize(
     ("name", "state_id", "label", "reason"),
     [
-        ("bus", 2, "inactive", "bus inactive: hild does not take a hardware component out of the cycle"),
-        ("bus", 0, "inactive", "bus inactive: hild does not take"),
         ("bus", 1, "unconfigured", "bus unconfigured (id 1): not a state hild offers"),
         ("bus", 4, "finalized", "bus finalized (id 4): not a state hild offers"),
         ("nope", 3, "active", "no hardware component 'nope'"),

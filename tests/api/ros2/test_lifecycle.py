@@ -131,11 +131,20 @@ def test_a_load_hild_refuses_is_not_ok_and_the_event_says_why(
     assert {n: c.state for n, c in listed(peer).items()} == before
 
 
-def test_configure_names_a_loaded_controller_and_cleanup_is_refused(ros_daemon: Daemon, peer: zenoh.Session) -> None:
+def test_configure_names_a_loaded_controller_and_cleanup_takes_an_inactive_one_to_unconfigured(
+    ros_daemon: Daemon, peer: zenoh.Session
+) -> None:
     assert not configure(peer, "ghost")
     refused(ros_daemon, "configure_controller", "unknown controller 'ghost'")
+    assert switch(peer, ["fwd"])
     assert not lifecycle(peer, "cleanup_controller", "CleanupController", name="fwd")
-    refused(ros_daemon, "cleanup_controller", "fwd: hild has no cleanup: configure_controller cleans")
+    refused(ros_daemon, "cleanup_controller", "'fwd' is active: it cannot be cleaned up (deactivate it first)")
+    # `ros2 control set_controller_state fwd unconfigured`: deactivate (a switch), then cleanup
+    assert switch(peer, [], deactivate=("fwd",))
+    assert lifecycle(peer, "cleanup_controller", "CleanupController", name="fwd")
+    assert listed(peer)["fwd"].state == "unconfigured"
+    wait_for(lambda: ros_daemon.events_with("cleaned up fwd: unconfigured"))
+    assert configure(peer, "fwd")  # and `set_controller_state fwd inactive` brings it back
     assert listed(peer)["fwd"].state == "inactive"
 
 
