@@ -48,12 +48,18 @@ def fragile(engine: Engine, name: str, raises: set[str] = frozenset()) -> Fragil
     return Fragile(engine.controller_context(name), raises)
 
 
-def test_configure_again_cleans_up_first_and_a_raising_on_configure_leaves_it_unconfigured(
-    make_engine: MakeEngine,
-) -> None:
+def with_one(make_engine: MakeEngine) -> tuple[Engine, Fragile]:
+    """An engine with the Fragile controller ``one`` added (configured, inactive)."""
     engine = make_engine()
     one = fragile(engine, "one")
     engine.add_controller("one", "test", one)
+    return engine, one
+
+
+def test_configure_again_cleans_up_first_and_a_raising_on_configure_leaves_it_unconfigured(
+    make_engine: MakeEngine,
+) -> None:
+    engine, one = with_one(make_engine)
     engine.manager.configure("one")  # inactive → cleaned up, configured again
     assert one.calls == {"configure": 2, "cleanup": 1}
     one.raises = {"configure"}
@@ -67,9 +73,7 @@ def test_configure_again_cleans_up_first_and_a_raising_on_configure_leaves_it_un
 def test_cleanup_takes_only_an_inactive_controller_to_unconfigured_and_configure_brings_it_back(
     make_engine: MakeEngine,
 ) -> None:
-    engine = make_engine()
-    one = fragile(engine, "one")
-    engine.add_controller("one", "test", one)
+    engine, one = with_one(make_engine)
     assert engine.switch(["one"], []).ok
 
     def cleanup() -> concurrent.futures.Future[Any]:

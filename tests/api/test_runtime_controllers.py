@@ -218,6 +218,24 @@ def test_hild_ctl_load_switch_and_unload_as_a_new_user_would(
     assert "hild.controllers.forward_command:ForwardCommandController" in capsys.readouterr().out
 
 
+def test_hild_ctl_cleanup_and_hardware_state(daemon: Daemon, capsys: pytest.CaptureFixture[str]) -> None:
+    assert ctl(daemon, "cleanup", "fwd") == EXIT_OK
+    assert capsys.readouterr().out.splitlines() == ["fwd: unconfigured"]
+    assert ctl(daemon, "cleanup", "fwd") == EXIT_SERVICE
+    assert "'fwd' is unconfigured: it cannot be cleaned up" in capsys.readouterr().err
+    assert ctl(daemon, "configure", "fwd") == EXIT_OK and ctl(daemon, "switch", "--activate", "fwd") == EXIT_OK
+    capsys.readouterr()
+    assert ctl(daemon, "hardware-state", "bus", "inactive") == EXIT_OK
+    assert capsys.readouterr().out.splitlines() == ["bus: inactive; deactivated fwd, their joints held"]
+    assert ctl(daemon, "interfaces") == EXIT_OK
+    listing = capsys.readouterr().out
+    assert "AVAILABLE" in listing and " yes" not in listing  # every command interface is out of reach
+    assert ctl(daemon, "switch", "--activate", "fwd") == EXIT_SERVICE
+    assert "of inactive hardware ['bus'] (set it active first)" in capsys.readouterr().err
+    assert ctl(daemon, "hardware-state", "bus", "active") == EXIT_OK
+    assert ctl(daemon, "switch", "--activate", "fwd") == EXIT_OK
+
+
 def test_hild_ctl_load_refuses_a_params_file_that_is_not_a_mapping(
     daemon: Daemon, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
