@@ -180,3 +180,56 @@ def test_controllers_hild_cannot_map_are_listed_as_partial(tmp_path: Path) -> No
     ]
     assert [f"{f.where}" for f in report.partial] == [f"{path}:21", f"{path}:26"]
     assert "diff_drive" in report.partial[0].text and "temperature" in report.partial[1].text
+
+
+# A file that repeats its top-level key: ROS's parameter parser applies every block in order, as it would separate
+# files; yaml.safe_load keeps the last block only.
+REPEATED = f"""\
+/**:
+  controller_manager:
+    ros__parameters:
+      update_rate: 250
+      jtc:
+        type: {JTC}
+      jsb:
+        type: {JSB}
+
+/**:
+  jtc:
+    ros__parameters:
+      joints: [j1, j2]
+      command_interfaces: [position]
+      constraints:
+        goal_time: 0.5
+
+/**:
+  jtc:
+    ros__parameters:
+      constraints:
+        goal_time: 0.8
+"""
+
+
+def test_a_repeated_top_level_key_is_merged_block_by_block_as_ros_applies_it(tmp_path: Path) -> None:
+    path = write(tmp_path, "controllers.yaml", REPEATED)
+    plan, report = read([path])
+    assert [(c.name, c.type) for c in plan.controllers] == [
+        ("jtc", "joint_trajectory"),
+        ("jsb", "joint_state_broadcaster"),
+    ]
+    assert plan.update_rate == 250  # from the first block
+    (jtc,) = [c for c in plan.controllers if c.name == "jtc"]
+    assert jtc.params["joints"] == ["j1", "j2"]  # from the second block …
+    assert jtc.params["constraints"]["goal_time"] == 0.8  # … overridden by the third, parameter by parameter
+    assert f"{path}:10: '/**' repeated (first at line 1): merged with it block by block, as ROS applies it" in texts(
+        report, "mapped"
+    )
+    assert f"{path}:18: '/**' repeated (first at line 1): merged with it block by block, as ROS applies it" in texts(
+        report, "mapped"
+    )
+
+
+def test_a_file_that_yields_no_controllers_stops_the_import(tmp_path: Path) -> None:
+    path = write(tmp_path, "controllers.yaml", "/**:\n  ros__parameters:\n    use_sim_time: true\n")
+    with pytest.raises(ImportFailure, match="no controllers found"):
+        read([path])

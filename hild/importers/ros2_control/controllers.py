@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from hild.config.documents import KeyPath
-from hild.importers.ros2_control.report import Report, SourceRef
+from hild.importers.ros2_control.report import ImportFailure, Report, SourceRef
 from hild.importers.ros2_control.ros_params import WILDCARD, ParamTree, read_param_files
 
 DEFAULT_UPDATE_RATE = 100.0  # Hz: controller_manager's own default
@@ -219,7 +219,17 @@ class _Reader:
                     self.ref((name,)),
                     f"parameters for {name!r}, which is not a controller: no type here or in controller_manager",
                 )
+        if not found:
+            raise self.no_controllers()
         return rate, rate_where, found
+
+    def no_controllers(self) -> ImportFailure:
+        """A controllers file with nothing to import stops the import: a config without its controllers is not
+        what was asked for (``--allow-partial`` leaves out controllers hild cannot map, never all of them)."""
+        return SourceRef(str(self.tree.files[0]), 1).fail(
+            "no controllers found: expected controller_manager: ros__parameters: with <name>: {type: ...}, "
+            "<name>: ros__parameters: {type: ...} (ROS 2), or mappings with a type (ROS 1)"
+        )
 
     def ros1_layout(self, data: dict[str, Any]) -> tuple[float, SourceRef, list[_Controller]]:
         found: list[_Controller] = []
@@ -238,10 +248,7 @@ class _Reader:
 
         walk(data, ())
         if not found:
-            raise SourceRef(str(self.tree.files[0]), 1).fail(
-                "no controllers found: expected controller_manager: ros__parameters: with <name>: {type: ...} "
-                "(ROS 2), or mappings with a type (ROS 1)"
-            )
+            raise self.no_controllers()
         rate, where = self.update_rate(None, (), ())
         self.report.approximated(where, "ROS 1 layout (gazebo_ros_control): controllers read from their type keys")
         return rate, where, found
