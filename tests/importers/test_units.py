@@ -92,6 +92,10 @@ def test_package_roots_given_inferred_and_uris(tmp_path: Path) -> None:
     assert roots.resolve_uri("package://absent/c.obj", Path("/x"))[1] == (
         "unknown ROS package 'absent': pass --package-root absent=DIR"
     )
+    # Doubled slashes, as xacro writes them from file://$(find pkg)/… or package://pkg//…: clean paths, in the package
+    assert roots.resolve_uri("file:////m//meshes/a.stl", Path("/x")) == (Path("/m/meshes/a.stl"), None)
+    assert str(roots.resolve_uri("file:////m/a.stl", Path("/x"))[0]) == "/m/a.stl"  # not //m/a.stl
+    assert roots.resolve_uri("package://given//a//b.stl", Path("/x")) == (tmp_path.resolve() / "a/b.stl", None)
     assert parse_package_root("pkg=/some/dir") == ("pkg", Path("/some/dir"))
     with pytest.raises(ValueError, match="expected NAME=DIR"):
         parse_package_root("pkg")

@@ -36,9 +36,10 @@ class PackageRoots:
             root = self.find(package)
             if root is None:
                 return None, f"unknown ROS package {package!r}: pass --package-root {package}=DIR"
-            return root / unquote(rest), None
+            return root / unquote(rest).lstrip("/"), None  # package://pkg//meshes/… is inside pkg, not at /meshes
         if uri.startswith("file://"):
-            return Path(unquote(urlparse(uri).path)), None
+            # file:////abs/… (xacro's file:///$(find pkg)/…): POSIX keeps a leading "//" as it is, so trim it
+            return Path("/" + unquote(urlparse(uri).path).lstrip("/")), None
         if "://" in uri:
             return None, f"unsupported URI scheme in {uri!r} (package:// and file:// are)"
         return (base / uri).resolve(), None
