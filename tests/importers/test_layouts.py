@@ -233,3 +233,57 @@ def test_a_file_that_yields_no_controllers_stops_the_import(tmp_path: Path) -> N
     path = write(tmp_path, "controllers.yaml", "/**:\n  ros__parameters:\n    use_sim_time: true\n")
     with pytest.raises(ImportFailure, match="no controllers found"):
         read([path])
+
+
+TWO_ROBOTS = f"""\
+/leader:
+  controller_manager:
+    ros__parameters:
+      update_rate: 100
+      jtc:
+        type: {JTC}
+  jtc:
+    ros__parameters:
+      joints: [j1, j2]
+/follower:
+  controller_manager:
+    ros__parameters:
+      update_rate: 500
+      fwd:
+        type: {FORWARD}
+  fwd:
+    ros__parameters:
+      joints: [left_j1]
+      interface_name: position
+/**:
+  jtc:
+    ros__parameters:
+      constraints:
+        goal_time: 0.7
+"""
+
+
+def test_two_robots_blocks_are_not_merged_the_first_is_read_and_the_report_says_so(tmp_path: Path) -> None:
+    path = write(tmp_path, "controllers.yaml", TWO_ROBOTS)
+    plan, report = read([path])
+    assert [c.name for c in plan.controllers] == ["jtc"] and plan.update_rate == 100  # the leader's, not merged
+    assert plan.controllers[0].params["constraints"]["goal_time"] == 0.7  # /** applies to every robot
+    assert (
+        f"{path}:2: the controller files give 2 robots' namespaces (/leader, /follower): the import reads /leader, "
+        "the first (--namespace NAME chooses)"
+    ) in texts(report, "approximated")
+    left_out = [t for t in texts(report, "unsupported") if "another robot's namespace" in t]
+    reads = "another robot's namespace, left out (the import reads /leader)"
+    assert left_out == [
+        f"{path}:11: 'controller_manager' under /follower: {reads}",
+        f"{path}:16: 'fwd' under /follower: {reads}",
+    ]
+
+
+def test_the_namespace_chooses_the_robot(tmp_path: Path) -> None:
+    path = write(tmp_path, "controllers.yaml", TWO_ROBOTS)
+    report = Report()
+    plan = read_controllers([path], CATALOG, report, {}, namespace="/follower")
+    assert [c.name for c in plan.controllers] == ["fwd"] and plan.update_rate == 500
+    with pytest.raises(ImportFailure, match="--namespace /right: no node of the controller files is under it"):
+        read_controllers([path], CATALOG, Report(), {}, namespace="right")

@@ -86,6 +86,12 @@ def register(subparsers: Any) -> None:
         help="let the twin collide robot links that overlap at the start pose (adjacent links never collide)",
     )
     p.add_argument("--robot-name", help="hild robot name (default: the URDF's <robot name>)")
+    p.add_argument(
+        "--namespace",
+        metavar="NAME",
+        help="the robot whose nodes to read when the controller files give several (/leader/…, /follower/…); "
+        "default: the first, said in the report",
+    )
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
     p.set_defaults(func=run)
 
@@ -102,6 +108,7 @@ def run(args: argparse.Namespace) -> int:
         xacro_args=dict(args.xacro_arg),
         args=dict(args.arg),
         robot_name=args.robot_name,
+        namespace=args.namespace,
         force=args.force,
         allow_partial=args.allow_partial,
         keep_self_contacts=args.keep_self_contacts,

@@ -148,11 +148,16 @@ class _Controller:
 
 
 def read_controllers(
-    paths: Path | Sequence[Path], catalog: JointCatalog, report: Report, variables: Mapping[str, str] | None = None
+    paths: Path | Sequence[Path],
+    catalog: JointCatalog,
+    report: Report,
+    variables: Mapping[str, str] | None = None,
+    namespace: str | None = None,
 ) -> ControllersPlan:
-    """Read the controller files (merged in order, ``$(var NAME)`` from ``variables``) into hild controllers."""
+    """Read the controller files (merged in order, ``$(var NAME)`` from ``variables``; of several robots' nodes,
+    those under ``namespace``) into hild controllers."""
     files = [paths] if isinstance(paths, Path) else list(paths)
-    tree = read_param_files(files, variables or {}, report)
+    tree = read_param_files(files, variables or {}, report, namespace)
     reader = _Reader(tree, catalog, report)
     if tree.document is not None:
         rate, rate_where, found = reader.ros1_layout(tree.document)

@@ -43,6 +43,7 @@ class ImportRequest:
     xacro_args: Mapping[str, str] = field(default_factory=dict)
     args: Mapping[str, str] = field(default_factory=dict)  # launch arguments: xacro args and $(var NAME) in YAML
     robot_name: str | None = None
+    namespace: str | None = None  # of several robots' nodes in the controller files, this one's (default: the first)
     force: bool = False
     allow_partial: bool = False  # accept an import that leaves out controllers or joints it cannot map
     keep_self_contacts: bool = False  # let the twin collide robot links that overlap at the start pose
@@ -76,7 +77,7 @@ def import_ros2_control(request: ImportRequest) -> ImportResult:
     if not selected:
         raise robot.where.fail("no joint to command: <ros2_control> lists no movable, non-mimic joint")
     files = request.controller_files
-    plan = ctl.read_controllers(files, mapping.catalog(robot, selected), report, request.args)
+    plan = ctl.read_controllers(files, mapping.catalog(robot, selected), report, request.args, request.namespace)
     can = read_can_facts(robot, report)
     mapping.report_hardware(robot, {name: facts.used for name, facts in can.items()}, report)
     mapping.check_limits(selected)

@@ -100,33 +100,29 @@ class ParamTree:
         return self.lines.get(path, SourceRef(str(self.files[0]), 1))
 
 
-def read_param_files(paths: Sequence[Path], variables: Mapping[str, str], report: Report) -> ParamTree:
-    """Read, substitute and merge ``paths`` in order; raises ImportFailure (with file:line) on bad input."""
+def read_param_files(
+    paths: Sequence[Path], variables: Mapping[str, str], report: Report, namespace: str | None = None
+) -> ParamTree:
+    """Read, substitute and merge ``paths`` in order; raises ImportFailure (with file:line) on bad input.
+
+    ``namespace``: the robot whose nodes to read when the files give several robots' (``/leader/…``,
+    ``/follower/…``); by default the first one given, said in the report. Nodes at the root and under ``/**`` apply
+    to every robot."""
     if not paths:
         raise ImportFailure("no controllers file given")
     tree = ParamTree(tuple(paths))
-    layouts: list[tuple[Path, bool]] = []
-    for path in paths:
-        text = _substitute(path, read_file(path), variables, report)
-        try:
-            data, lines = load_document_lines(path, text, RosParamLoader)
-        except DocumentError as exc:
-            raise ImportFailure(str(exc)) from None
-        for key_path, first, line in repeated_keys(text):
-            report.mapped(
-                SourceRef(str(path), line),
-                f"{'.'.join(map(str, key_path))!r} repeated (first at line {first}): merged with it block by block, "
-                "as ROS applies it",
-            )
-        if data is None:
-            data = {}
-        if not isinstance(data, dict):
-            raise SourceRef(str(path), 1).fail("expected a mapping of ROS nodes (controller_manager: ros__parameters:)")
-        ros2 = _has_ros2_nodes(data)
-        layouts.append((path, ros2))
-        where = {key: SourceRef(str(path), line) for key, line in lines.items()}
-        if ros2:
+    loaded = [_load(path, variables, report) for path in paths]
+    chosen = _robot_namespace(loaded, namespace, report)
+    for _, data, where in loaded:
+        if _has_ros2_nodes(data):
             for (node, node_path), params in _ros2_nodes(data, ()):
+                if _namespace(node_path) not in ("", WILDCARD, chosen):
+                    report.unsupported(
+                        where[node_path[:-1]],
+                        f"{node!r} under /{_namespace(node_path)}: another robot's namespace, left out "
+                        f"(the import reads /{chosen})",
+                    )
+                    continue
                 target = tree.nodes.setdefault(node, {})
                 tree.lines[(node,)] = where[node_path[:-1]]
                 if not isinstance(params, dict):
@@ -135,8 +131,65 @@ def read_param_files(paths: Sequence[Path], variables: Mapping[str, str], report
         else:
             tree.document = tree.document if tree.document is not None else {}
             _merge(tree.document, data, (), (), where, tree.lines)
-    _check_one_layout(layouts)
+    _check_one_layout([(path, _has_ros2_nodes(data)) for path, data, _ in loaded])
     return tree
+
+
+Loaded = tuple[Path, dict[str, Any], dict[KeyPath, SourceRef]]
+
+
+def _load(path: Path, variables: Mapping[str, str], report: Report) -> Loaded:
+    """One file, substituted and parsed, with where each key is."""
+    text = _substitute(path, read_file(path), variables, report)
+    try:
+        data, lines = load_document_lines(path, text, RosParamLoader)
+    except DocumentError as exc:
+        raise ImportFailure(str(exc)) from None
+    for key_path, first, line in repeated_keys(text):
+        report.mapped(
+            SourceRef(str(path), line),
+            f"{'.'.join(map(str, key_path))!r} repeated (first at line {first}): merged with it block by block, "
+            "as ROS applies it",
+        )
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise SourceRef(str(path), 1).fail("expected a mapping of ROS nodes (controller_manager: ros__parameters:)")
+    return path, data, {key: SourceRef(str(path), line) for key, line in lines.items()}
+
+
+def _namespace(node_path: KeyPath) -> str:
+    """The namespace of the node whose ``ros__parameters`` are at ``node_path`` (``leader`` for
+    ``/leader/controller_manager`` or ``/leader: controller_manager:``); ``**`` under a wildcard; ``""`` at the root."""
+    parts = [p for key in node_path[:-1] for p in str(key).strip("/").split("/") if p]
+    return WILDCARD if WILDCARD in parts[:-1] else "/".join(parts[:-1])
+
+
+def _robot_namespace(loaded: Sequence[Loaded], asked: str | None, report: Report) -> str:
+    """The namespace whose nodes are read: ``asked``, or the first of several, said in the report."""
+    first_seen: dict[str, SourceRef] = {}
+    for _, data, where in loaded:
+        for (_, node_path), _ in _ros2_nodes(data, ()):
+            ns = _namespace(node_path)
+            if ns not in ("", WILDCARD):
+                first_seen.setdefault(ns, where[node_path[:-1]])
+    if asked is not None:
+        asked = asked.strip("/")
+        if asked not in first_seen:
+            given = ", ".join(f"/{ns}" for ns in first_seen) or "none"
+            raise ImportFailure(f"--namespace /{asked}: no node of the controller files is under it (given: {given})")
+        return asked
+    if not first_seen:
+        return ""
+    chosen, where = next(iter(first_seen.items()))
+    if len(first_seen) > 1:
+        report.approximated(
+            where,
+            f"the controller files give {len(first_seen)} robots' namespaces "
+            f"({', '.join(f'/{ns}' for ns in first_seen)}): the import reads /{chosen}, the first "
+            "(--namespace NAME chooses)",
+        )
+    return chosen
 
 
 def read_file(path: Path) -> str:
