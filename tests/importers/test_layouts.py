@@ -182,6 +182,11 @@ def test_controllers_hild_cannot_map_are_listed_as_partial(tmp_path: Path) -> No
     assert "diff_drive" in report.partial[0].text and "temperature" in report.partial[1].text
 
 
+def goal_time_block(seconds: float) -> str:
+    """A ``/**`` block setting jtc's goal time: applied to every node and every robot."""
+    return f"/**:\n  jtc:\n    ros__parameters:\n      constraints:\n        goal_time: {seconds}\n"
+
+
 # A file that repeats its top-level key: ROS's parameter parser applies every block in order, as it would separate
 # files; yaml.safe_load keeps the last block only.
 REPEATED = f"""\
@@ -202,12 +207,7 @@ REPEATED = f"""\
       constraints:
         goal_time: 0.5
 
-/**:
-  jtc:
-    ros__parameters:
-      constraints:
-        goal_time: 0.8
-"""
+{goal_time_block(0.8)}"""
 
 
 def test_a_repeated_top_level_key_is_merged_block_by_block_as_ros_applies_it(tmp_path: Path) -> None:
@@ -255,12 +255,7 @@ TWO_ROBOTS = f"""\
     ros__parameters:
       joints: [left_j1]
       interface_name: position
-/**:
-  jtc:
-    ros__parameters:
-      constraints:
-        goal_time: 0.7
-"""
+{goal_time_block(0.7)}"""
 
 
 def test_two_robots_blocks_are_not_merged_the_first_is_read_and_the_report_says_so(tmp_path: Path) -> None:
