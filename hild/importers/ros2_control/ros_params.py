@@ -21,64 +21,15 @@ as whole documents instead, and the two layouts never mix.
 from __future__ import annotations
 
 import re
-from collections.abc import Hashable, Iterator, Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import yaml
-
-from hild.config.documents import DocumentError, KeyPath, load_document_lines, read_text
+from hild.config.documents import DocumentError, KeyPath, load_document_lines, read_text, repeated_keys
 from hild.importers.ros2_control.report import ImportFailure, Report, SourceRef
 
 WILDCARD = "**"
-
-
-class RosParamLoader(yaml.SafeLoader):
-    """YAML as ROS's parameter parser reads it: a key given twice in one mapping is applied block by block, a later
-    value overriding an earlier one parameter by parameter (mappings merge key by key; anything else replaces)."""
-
-    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
-        self.flatten_mapping(node)
-        mapping: dict[Any, Any] = {}
-        for key_node, value_node in node.value:
-            key = self.construct_object(key_node, deep=True)
-            if not isinstance(key, Hashable):
-                raise yaml.constructor.ConstructorError(
-                    "while constructing a mapping", node.start_mark, "found an unhashable key", key_node.start_mark
-                )
-            value = self.construct_object(value_node, deep=True)
-            earlier = mapping.get(key)
-            mapping[key] = _overlaid(earlier, value) if isinstance(earlier, dict) and isinstance(value, dict) else value
-        return mapping
-
-
-def _overlaid(earlier: dict[Any, Any], later: Mapping[Any, Any]) -> dict[Any, Any]:
-    merged = dict(earlier)
-    for key, value in later.items():
-        before = merged.get(key)
-        merged[key] = _overlaid(before, value) if isinstance(before, dict) and isinstance(value, dict) else value
-    return merged
-
-
-def repeated_keys(text: str) -> Iterator[tuple[KeyPath, int, int]]:
-    """``(key path, line of its first occurrence, line of this one)`` for every key a mapping gives again."""
-
-    def walk(node: yaml.Node, at: KeyPath) -> Iterator[tuple[KeyPath, int, int]]:
-        if isinstance(node, yaml.MappingNode):
-            first: dict[str, int] = {}
-            for key, value in node.value:
-                name, line = str(key.value), key.start_mark.line + 1
-                if name in first:
-                    yield (*at, name), first[name], line
-                first.setdefault(name, line)
-                yield from walk(value, (*at, name))
-        elif isinstance(node, yaml.SequenceNode):
-            for i, item in enumerate(node.value):
-                yield from walk(item, (*at, i))
-
-    root = yaml.compose(text, Loader=yaml.SafeLoader)
-    return walk(root, ()) if root is not None else iter(())
 
 
 _SUBSTITUTION = re.compile(r"\$\(\s*([A-Za-z][\w-]*)\s*([^()]*?)\s*\)")
@@ -142,7 +93,7 @@ def _load(path: Path, variables: Mapping[str, str], report: Report) -> Loaded:
     """One file, substituted and parsed, with where each key is."""
     text = _substitute(path, read_file(path), variables, report)
     try:
-        data, lines = load_document_lines(path, text, RosParamLoader)
+        data, lines = load_document_lines(path, text, merge_repeated=True)  # as ROS's parameter parser reads it
     except DocumentError as exc:
         raise ImportFailure(str(exc)) from None
     for key_path, first, line in repeated_keys(text):
