@@ -322,25 +322,26 @@ class ControllerManager:
 
     def deactivate_commanding(self, reason: str) -> list[str]:
         """Stop every active controller that claims command interfaces (e-stop); broadcasters keep running."""
-        stopped = [r for r in self.active if r.claims]
-        for rec in stopped:
-            self._deactivate(rec)
+        stopped = self._deactivate_each([r for r in self.active if r.claims])
         if stopped:
-            self._apply_claims()
-            self.events.emit("warning", "controller_manager", f"{reason}: deactivated {[r.name for r in stopped]}")
-        return [r.name for r in stopped]
+            self.events.emit("warning", "controller_manager", f"{reason}: deactivated {stopped}")
+        return stopped
 
     def make_unavailable(self, interfaces: Sequence[str], component: str) -> list[str]:
         """``component``'s command interfaces leave the controllers' reach: the active controllers claiming any of
         them are deactivated (their joints held where they are) and none may claim them until it is active again."""
         self.unavailable.update(dict.fromkeys(interfaces, component))
-        stopped = [r for r in self.active if any(c in self.unavailable for c in r.claims)]
-        for rec in stopped:
-            self._deactivate(rec)
-        if stopped:
-            self._apply_claims()
+        stopped = self._deactivate_each([r for r in self.active if any(c in self.unavailable for c in r.claims)])
         self._changed()
-        return [r.name for r in stopped]
+        return stopped
+
+    def _deactivate_each(self, records: list[ControllerRecord]) -> list[str]:
+        """Deactivate ``records`` (their joints to hold) and recompute the claims once; their names."""
+        for rec in records:
+            self._deactivate(rec)
+        if records:
+            self._apply_claims()
+        return [r.name for r in records]
 
     def make_available(self, interfaces: Sequence[str]) -> None:
         for interface in interfaces:

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+from collections.abc import Awaitable, Callable
 from typing import Any
 
 from hild.api.ros2 import types
@@ -40,15 +41,16 @@ class LifecycleServices:
         self.services = services
         self.node = node
         self.pending = pending
-        for short, kind, serve in (
+        served: tuple[tuple[str, str, Callable[[Any], Awaitable[Any]] | None], ...] = (
             ("load_controller", "LoadController", self._load),
-            ("configure_controller", "ConfigureController", self._configure),
-            ("unload_controller", "UnloadController", self._unload),
-            ("cleanup_controller", "CleanupController", self._cleanup),
+            ("configure_controller", "ConfigureController", None),  # None: hild's JSON service of the same name
+            ("unload_controller", "UnloadController", None),
+            ("cleanup_controller", "CleanupController", None),
             ("reload_controller_libraries", "ReloadControllerLibraries", self._reload_all),
             ("list_controller_types", "ListControllerTypes", self._types),
-        ):
-            face.declare_service(f"{node}/{short}", f"{PACKAGE}/{kind}", serve)
+        )
+        for short, kind, serve in served:
+            face.declare_service(f"{node}/{short}", f"{PACKAGE}/{kind}", serve or self._by_name(short, kind))
 
     async def _call(self, service: str, body: dict[str, Any]) -> dict[str, Any]:
         return await self.services.handle(service, json.dumps(body).encode())
@@ -90,17 +92,14 @@ class LifecycleServices:
             body["fallback_controllers"] = pending["fallback_controllers"]
         return self._error(await self._call("load_controller", body))
 
-    async def _configure(self, request: Any) -> Any:
-        reply = await self._call("configure_controller", {"name": str(request.name)})
-        return self._ok("ConfigureController", "configure_controller", self._error(reply))
+    def _by_name(self, short: str, kind: str) -> Callable[[Any], Awaitable[Any]]:
+        """The ROS service ``short`` answered by hild's JSON service of the same name with ``{name}``."""
 
-    async def _unload(self, request: Any) -> Any:
-        reply = await self._call("unload_controller", {"name": str(request.name)})
-        return self._ok("UnloadController", "unload_controller", self._error(reply))
+        async def serve(request: Any) -> Any:
+            reply = await self._call(short, {"name": str(request.name)})
+            return self._ok(kind, short, self._error(reply))
 
-    async def _cleanup(self, request: Any) -> Any:
-        reply = await self._call("cleanup_controller", {"name": str(request.name)})
-        return self._ok("CleanupController", "cleanup_controller", self._error(reply))
+        return serve
 
     async def _reload_all(self, request: Any) -> Any:
         return self._ok("ReloadControllerLibraries", "reload_controller_libraries", await self.reload_all(request))

@@ -64,8 +64,9 @@ def read_param_files(
     tree = ParamTree(tuple(paths))
     loaded = [_load(path, variables, report) for path in paths]
     chosen = _robot_namespace(loaded, namespace, report)
-    for _, data, where in loaded:
-        if _has_ros2_nodes(data):
+    layouts = [(path, _has_ros2_nodes(data)) for path, data, _ in loaded]
+    for (_, data, where), (_, ros2) in zip(loaded, layouts, strict=True):
+        if ros2:
             for (node, node_path), params in _ros2_nodes(data, ()):
                 if _namespace(node_path) not in ("", WILDCARD, chosen):
                     report.unsupported(
@@ -82,7 +83,7 @@ def read_param_files(
         else:
             tree.document = tree.document if tree.document is not None else {}
             _merge(tree.document, data, (), (), where, tree.lines)
-    _check_one_layout([(path, _has_ros2_nodes(data)) for path, data, _ in loaded])
+    _check_one_layout(layouts)
     return tree
 
 
