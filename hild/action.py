@@ -20,7 +20,7 @@ Statuses and error codes follow ROS's FollowJointTrajectory action, so tools tha
 from __future__ import annotations
 
 import enum
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
@@ -28,10 +28,12 @@ from hild.crossing.mailboxes import InProcess, Latest, Mailboxes, Queue
 from hild.crossing.ring import SampleRing
 
 __all__ = [
+    "TRAJECTORY_FEEDBACK",
     "ActionServer",
     "CancelRequest",
     "ClientLost",
     "ErrorCode",
+    "FeedbackShape",
     "GoalRejected",
     "GoalRequest",
     "GoalResult",
@@ -69,12 +71,16 @@ class ErrorCode(enum.IntEnum):
     GOAL_TOLERANCE_VIOLATED = -5
 
 
+ResultValue = float | bool
+
+
 @dataclass(frozen=True, slots=True)
 class GoalResult:
     goal_id: str
     status: GoalStatus
     error_code: int = ErrorCode.SUCCESSFUL
     error_string: str = ""
+    values: tuple[tuple[str, ResultValue], ...] = ()  # a controller's own result fields (a gripper's position, …)
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -82,7 +88,38 @@ class GoalResult:
             "status": str(self.status),
             "error_code": int(self.error_code),
             "error_string": self.error_string,
+            **dict(self.values),
         }
+
+
+FeedbackFields = Mapping[str, list[float]]
+
+
+@dataclass(frozen=True, slots=True)
+class FeedbackShape:
+    """What a controller's feedback ring holds per sample (``fields``, each one value per joint) and how the client
+    half turns a sample into the message clients see (``render``: joint names and the sample's fields → the
+    message's own keys; the client half adds ``goal_id`` and ``stamp``)."""
+
+    fields: tuple[str, ...]
+    render: Callable[[Sequence[str], FeedbackFields], dict[str, Any]]
+
+
+def _trajectory_feedback(joint_names: Sequence[str], fields: FeedbackFields) -> dict[str, Any]:
+    desired_p, desired_v = fields["desired_positions"], fields["desired_velocities"]
+    actual_p, actual_v = fields["actual_positions"], fields["actual_velocities"]
+    return {
+        "joint_names": list(joint_names),
+        "desired": {"positions": desired_p, "velocities": desired_v},
+        "actual": {"positions": actual_p, "velocities": actual_v},
+        "error": {
+            "positions": [d - a for d, a in zip(desired_p, actual_p, strict=True)],
+            "velocities": [d - a for d, a in zip(desired_v, actual_v, strict=True)],
+        },
+    }
+
+
+TRAJECTORY_FEEDBACK = FeedbackShape(FEEDBACK_FIELDS, _trajectory_feedback)
 
 
 @dataclass(frozen=True, slots=True)
@@ -121,20 +158,30 @@ class ActionServer(Generic[G]):
         accepting: Callable[[], str | None],
         notify: Callable[[], None],
         mailboxes: Mailboxes | None = None,
+        feedback: FeedbackShape = TRAJECTORY_FEEDBACK,
     ) -> None:
         self.joint_names = list(joint_names)
         self.parse = parse  # run by the client half: validation and planning never run on the cycle
         self.accepting = accepting  # None when goals are welcome, else the reason they are not
+        self.feedback_shape = feedback
         self._notify = notify
         boxes = mailboxes or InProcess()
         self.requests: Queue[GoalRequest[G] | CancelRequest] = boxes.queue("goals", PENDING_GOALS, GOAL_BYTES)
         self.feedback: SampleRing = boxes.ring(
-            "feedback", len(self.joint_names), (*FEEDBACK_FIELDS, "serial"), capacity=64
+            "feedback", len(self.joint_names), (*feedback.fields, "serial"), capacity=64
         )
         self.results: Queue[GoalResult] = boxes.queue("results", KEPT_RESULTS)  # cycle → client half
         self.kept: Latest[list[GoalResult]] = boxes.latest("kept_results", KEPT_BYTES)  # client half → its successor
 
-    def finish(self, goal_id: str, status: GoalStatus, code: int = ErrorCode.SUCCESSFUL, text: str = "") -> None:
-        """Report a goal's end (once per goal, on a transition: never per cycle)."""
-        self.results.offer(GoalResult(goal_id, status, code, text))  # full only if the client half is gone
+    def finish(
+        self,
+        goal_id: str,
+        status: GoalStatus,
+        code: int = ErrorCode.SUCCESSFUL,
+        text: str = "",
+        values: tuple[tuple[str, ResultValue], ...] = (),
+    ) -> None:
+        """Report a goal's end (once per goal, on a transition: never per cycle); ``values``: the controller's own
+        result fields, as plain floats and bools."""
+        self.results.offer(GoalResult(goal_id, status, code, text, values))  # full only if the client half is gone
         self._notify()

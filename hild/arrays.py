@@ -69,6 +69,10 @@ class ServoCommand:
 
     ``written`` is only meaningful on the controllers' side of the supervisor: a controller sets it for each
     joint it commanded in this cycle. A joint nobody wrote goes to hold, so silence is always safe.
+
+    ``hold_effort`` too: the effort a joint keeps pressing with once its controller stops commanding it (a
+    gripper's grasp, so a held or e-stopped gripper does not let go of what it holds; docs/safety.md, "Grasps").
+    Every other controller leaves it 0; the supervisor keeps what the joint's controller last wrote.
     """
 
     position: FloatArray
@@ -77,6 +81,7 @@ class ServoCommand:
     kp: FloatArray
     kd: FloatArray
     written: np.ndarray
+    hold_effort: FloatArray
 
     @classmethod
     def zeros(cls, n: int) -> ServoCommand:
@@ -87,6 +92,7 @@ class ServoCommand:
             kp=np.zeros(n),
             kd=np.zeros(n),
             written=np.zeros(n, dtype=bool),
+            hold_effort=np.zeros(n),
         )
 
     def copy_from(self, other: ServoCommand) -> None:

@@ -37,6 +37,7 @@ __all__ = [
     "Controller",
     "ControllerContext",
     "ControllerState",
+    "JointGainArrays",
     "JointLimitArrays",
     "and_more",
     "unknown_keys",
@@ -82,6 +83,21 @@ class JointLimitArrays:
         )
 
 
+@dataclass(frozen=True, slots=True)
+class JointGainArrays:
+    """The gains a position claim gets per joint unless its controller claims kp and kd (``position_gains``, else
+    ``hold``): a controller that shapes a torque through the drive's spring (a gripper bounding its force) needs
+    them."""
+
+    position_kp: np.ndarray
+    position_kd: np.ndarray
+
+    @classmethod
+    def of(cls, cfg: Any) -> JointGainArrays:
+        gains = [j.position_gains or j.hold for j in cfg.joints.values()]
+        return cls(position_kp=np.array([g.kp for g in gains]), position_kd=np.array([g.kd for g in gains]))
+
+
 @dataclass(frozen=True)
 class ControllerContext:
     robot: str
@@ -92,6 +108,7 @@ class ControllerContext:
     emit_event: Callable[[str, str], None]  # (level, message); events only, never per cycle
     notify: Callable[[], None]  # wakes the client domain after writing an output
     joint_modes: np.ndarray | None = None  # the supervisor's live JointMode per robot joint (read-only)
+    gains: JointGainArrays | None = None  # the robot's position gains per joint, in the robot's order
     # The doors between the controller's API half and its cycle half: plain objects in one process, cells of the
     # shared region when the cycle runs in a process of its own (hild.crossing.mailboxes).
     mailboxes: Mailboxes = field(default_factory=InProcess)

@@ -100,6 +100,9 @@ class AsyncHildClient:
     async def move_to(self, controller: str, positions: Sequence[float], **options: Any) -> dict[str, Any]:
         return await asyncio.to_thread(self.sync.move_to, controller, positions, **options)
 
+    async def gripper(self, controller: str, position: float | str, **options: Any) -> dict[str, Any]:
+        return await asyncio.to_thread(self.sync.gripper, controller, position, **options)
+
     async def cancel(self, controller: str, goal_id: str) -> dict[str, Any]:
         return await asyncio.to_thread(self.sync.cancel, controller, goal_id)
 

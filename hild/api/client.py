@@ -391,6 +391,32 @@ class HildClient:
         with handle:
             return handle.wait(timeout)
 
+    def gripper(
+        self,
+        controller: str,
+        position: float | str,
+        *,
+        max_effort: float | None = None,
+        max_velocity: float | None = None,
+        wait: bool = True,
+        timeout: float | None = None,
+        feedback: Callable[[dict[str, Any]], None] | None = None,
+    ) -> dict[str, Any]:
+        """Move a parallel_gripper to ``position`` (a number, ``"open"`` or ``"close"``) pressing with at most
+        ``max_effort``; the result says ``position``, ``effort``, ``stalled`` (stopped on an object, which it now
+        holds) and ``reached_goal``. Returns ``{"goal_id"}`` at once when ``wait`` is False."""
+        goal: dict[str, Any] = {"position": position if isinstance(position, str) else float(position)}
+        if max_effort is not None:
+            goal["max_effort"] = float(max_effort)
+        if max_velocity is not None:
+            goal["max_velocity"] = float(max_velocity)
+        handle = self.send_goal(controller, goal, feedback)
+        if not wait:
+            handle.close()
+            return {"goal_id": handle.goal_id}
+        with handle:
+            return handle.wait(timeout)
+
     def cancel(self, controller: str, goal_id: str) -> dict[str, Any]:
         """Ask the controller to stop a goal (decelerating to a stop); the goal's result says when it is done."""
         key = self.keys.input(check_chunk(controller, "controller name"), "cancel")

@@ -16,6 +16,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -139,6 +140,19 @@ def add_ctl_parser(subparsers: Any) -> None:
     move.add_argument("--duration", type=float, help="take at least this long (s); never faster than the limits")
     trajectory = sub.add_parser("trajectory", parents=[common, goal], help="execute a trajectory from a YAML file")
     trajectory.add_argument("file", help='YAML/JSON: a goal {"trajectory": {joint_names, points}, ...}')
+    gripper = sub.add_parser(
+        "gripper",
+        parents=[common],
+        help="open, close or move a parallel gripper; closing on an object stalls on it and holds it",
+    )
+    gripper.add_argument("position", help='"open", "close", or a position (m or rad)')
+    gripper.add_argument("--effort", type=float, metavar="N", help="press with at most this (default: its max_effort)")
+    gripper.add_argument(
+        "--velocity", type=float, metavar="V", help="move at most this fast (default: its max_velocity)"
+    )
+    gripper.add_argument("--controller", help="default: the robot's only parallel_gripper controller")
+    gripper.add_argument("--no-wait", action="store_true", help="print the goal id and return once it is accepted")
+    gripper.add_argument("--wait", type=float, default=None, metavar="S", help="give up waiting after S seconds")
     cancel = sub.add_parser("cancel", parents=[common], help="stop a running goal (decelerates, then holds)")
     cancel.add_argument("goal_id")
     cancel.add_argument("--controller", help="default: the robot's only joint_trajectory controller")
@@ -314,51 +328,76 @@ def _trajectory(client: HildClient, args: argparse.Namespace, as_json: bool) -> 
     return _run_goal(client, args, as_json, goal)
 
 
-TRAJECTORY_TYPE = "joint_trajectory"  # the controller type that takes move_to and trajectory goals
+def _gripper(client: HildClient, args: argparse.Namespace, as_json: bool) -> int:
+    try:
+        position: float | str = float(args.position)
+    except ValueError:
+        position = args.position  # "open", "close", or a word the controller refuses with its reason
+    goal: dict[str, Any] = {"position": position}
+    if args.effort is not None:
+        goal["max_effort"] = args.effort
+    if args.velocity is not None:
+        goal["max_velocity"] = args.velocity
+    return _run_goal(client, args, as_json, goal, GRIPPER)
 
 
-def _goal_controller(client: HildClient, asked: str | None) -> str:
-    """The controller a goal goes to: the one asked for, or the robot's only trajectory controller."""
+@dataclass(frozen=True)
+class GoalKind:
+    """A controller type that takes goals, as ``ctl`` names it when it chooses the controller."""
+
+    type: str
+    words: str
+
+
+TRAJECTORY = GoalKind("joint_trajectory", "trajectory controller")  # move-to and trajectory goals
+GRIPPER = GoalKind("parallel_gripper", "gripper controller")
+
+
+def _goal_controller(client: HildClient, asked: str | None, kind: GoalKind = TRAJECTORY) -> str:
+    """The controller a goal goes to: the one asked for, or the robot's only controller of ``kind``."""
     if asked is not None:
         return asked
     controllers = client.list_controllers()
-    found = [c["name"] for c in controllers if c.get("type") == TRAJECTORY_TYPE]
+    found = [c["name"] for c in controllers if c.get("type") == kind.type]
     if len(found) == 1:
         return str(found[0])
     if found:
         raise HildError(
-            f"robot {client.robot!r} has {len(found)} trajectory controllers: {', '.join(found)}; "
-            "choose one with --controller"
+            f"robot {client.robot!r} has {len(found)} {kind.words}s: {', '.join(found)}; choose one with --controller"
         )
     listed = ", ".join(f"{c['name']} ({c.get('type')})" for c in controllers) or "none"
-    raise HildError(f"robot {client.robot!r} has no trajectory controller (controllers: {listed})")
+    raise HildError(f"robot {client.robot!r} has no {kind.words} (controllers: {listed})")
 
 
-def _no_such_goal_controller(client: HildClient, name: str, unreachable: HildUnreachable) -> HildError:
+def _no_such_goal_controller(
+    client: HildClient, name: str, unreachable: HildUnreachable, kind: GoalKind = TRAJECTORY
+) -> HildError:
     """Why a goal key got no reply, when the daemon is there: the controller is missing or takes no goals."""
     try:
         controllers = client.list_controllers()
     except HildError:
         return unreachable  # the daemon itself does not answer: say that
-    trajectory = ", ".join(c["name"] for c in controllers if c.get("type") == TRAJECTORY_TYPE) or "none"
-    kind = next((c.get("type") for c in controllers if c["name"] == name), None)
-    if kind is None:
+    of_kind = ", ".join(c["name"] for c in controllers if c.get("type") == kind.type) or "none"
+    found = next((c.get("type") for c in controllers if c["name"] == name), None)
+    if found is None:
         reason = f"robot {client.robot!r} has no controller {name!r}"
-    elif kind != TRAJECTORY_TYPE:
-        reason = f"controller {name!r} ({kind}) takes no goals"
+    elif found != kind.type:
+        reason = f"controller {name!r} ({found}) takes no {kind.type} goals"
     else:
         return unreachable
-    return HildError(f"{reason} (trajectory controllers: {trajectory}); {unreachable}")
+    return HildError(f"{reason} ({kind.words}s: {of_kind}); {unreachable}")
 
 
-def _run_goal(client: HildClient, args: argparse.Namespace, as_json: bool, goal: dict[str, Any]) -> int:
+def _run_goal(
+    client: HildClient, args: argparse.Namespace, as_json: bool, goal: dict[str, Any], kind: GoalKind = TRAJECTORY
+) -> int:
     """Send a goal, then wait for its result (Ctrl-C cancels it); exit 0 only if it succeeded."""
-    controller = _goal_controller(client, args.controller)
+    controller = _goal_controller(client, args.controller, kind)
     # --no-wait: nobody stays to watch the goal, so it must not be stopped when this command exits
     try:
         handle = client.send_goal(controller, goal, watched=not args.no_wait)
     except HildUnreachable as exc:
-        raise _no_such_goal_controller(client, controller, exc) from None
+        raise _no_such_goal_controller(client, controller, exc, kind) from None
     with handle:
         if args.no_wait:
             print(json.dumps({"ok": True, "goal_id": handle.goal_id}) if as_json else handle.goal_id)
@@ -530,6 +569,7 @@ COMMANDS: dict[str, Callable[[HildClient, argparse.Namespace, bool], int]] = {
     "reset": _service("reset", lambda r: f"reset; cleared {r.get('cleared') or []}", _no_request),
     "watch": _watch,
     "move-to": _move_to,
+    "gripper": _gripper,
     "trajectory": _trajectory,
     "cancel": _cancel,
     "pub": _pub,

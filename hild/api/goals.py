@@ -171,27 +171,15 @@ class GoalEndpoint(Generic[G]):
         return RingReader(self._action.feedback)
 
     def feedback_messages(self, reader: RingReader | None = None) -> list[dict[str, Any]]:
-        """New feedback as messages, from the API's reader or ``reader``."""
+        """New feedback as messages, from the API's reader or ``reader``: each in the controller's own shape
+        (:class:`hild.action.FeedbackShape`), with its goal's id and stamp."""
         out = []
+        render, names = self._action.feedback_shape.render, self._action.joint_names
         for _, stamp, fields in (reader or self._feedback_reader).read():
             goal_id = self._ids_by_serial.get(int(fields["serial"][0]))
             if goal_id is None:  # the goal finished since; its result says the rest
                 continue
-            desired_p, desired_v = fields["desired_positions"], fields["desired_velocities"]
-            actual_p, actual_v = fields["actual_positions"], fields["actual_velocities"]
-            out.append(
-                {
-                    "goal_id": goal_id,
-                    "stamp": stamp,
-                    "joint_names": self._action.joint_names,
-                    "desired": {"positions": desired_p, "velocities": desired_v},
-                    "actual": {"positions": actual_p, "velocities": actual_v},
-                    "error": {
-                        "positions": [d - a for d, a in zip(desired_p, actual_p, strict=True)],
-                        "velocities": [d - a for d, a in zip(desired_v, actual_v, strict=True)],
-                    },
-                }
-            )
+            out.append({"goal_id": goal_id, "stamp": stamp, **render(names, fields)})
         return out
 
 

@@ -131,6 +131,24 @@ def result_text(result: dict[str, Any]) -> str:
     status = str(result.get("status", "?"))
     code = result.get("error_code", 0)
     detail = result.get("error_string") or ""
+    where = _gripper_words(result)
     if status == "succeeded" and not detail:
-        return f"goal {result.get('goal_id', '')}: succeeded"
-    return f"goal {result.get('goal_id', '')}: {status} ({code}){': ' + detail if detail else ''}"
+        return f"goal {result.get('goal_id', '')}: succeeded{where}"
+    return f"goal {result.get('goal_id', '')}: {status} ({code}){': ' + detail if detail else ''}{where}"
+
+
+def _gripper_words(result: dict[str, Any]) -> str:
+    """A gripper's result fields (parallel_gripper), when the result has them."""
+    if "stalled" not in result:
+        return ""
+    position, effort = result.get("position"), result.get("effort")
+    at = f"at {position:.4g}" if isinstance(position, int | float) else "at ?"
+    pressing = f", effort {effort:.3g}" if isinstance(effort, int | float) else ""
+    outcome = (
+        "stalled on an object, holding it"
+        if result["stalled"]
+        else "reached"
+        if result.get("reached_goal")
+        else "stopped"
+    )
+    return f" ({outcome} {at}{pressing})"

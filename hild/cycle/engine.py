@@ -28,7 +28,7 @@ from hild import plugins
 from hild.arrays import JointState, ServoCommand, contiguous_slice, gather_command, scatter_state
 from hild.config.loader import LoadedConfig
 from hild.config.tuning import MANAGER, ManagerParams
-from hild.controller import ControllerContext, ControllerState, JointLimitArrays
+from hild.controller import ControllerContext, ControllerState, JointGainArrays, JointLimitArrays
 from hild.crossing.events import EventLog
 from hild.crossing.inprocess import BoundedQueue
 from hild.crossing.mailboxes import InProcess, Mailboxes
@@ -149,6 +149,7 @@ class Engine:
         self.realtime_report: dict[str, str] = {}
 
         self.limits = JointLimitArrays.of(cfg)
+        self._position_gains = JointGainArrays.of(cfg)
         self.state = JointState.zeros(n)  # joint space, what controllers see
         self.command = ServoCommand.zeros(n)  # controllers' output
         self.final = ServoCommand.zeros(n)  # the supervisor's output, joint space
@@ -284,6 +285,7 @@ class Engine:
             emit_event=lambda level, msg: self.events.emit(level, name, msg),
             notify=self._ring,
             joint_modes=self.supervisor.mode,
+            gains=self._position_gains,
             mailboxes=self.mailboxes.scoped(doors or name),
         )
 

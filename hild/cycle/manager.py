@@ -359,6 +359,7 @@ class ControllerManager:
     # ---- the cycle ---------------------------------------------------------------------------------------------
     def update(self, t: float, dt: float, state: JointState, command: ServoCommand) -> None:
         command.written.fill(False)
+        command.hold_effort.fill(0.0)
         failed: list[tuple[ControllerRecord, BaseException]] | None = None
         for rec in self.active:
             try:
@@ -367,6 +368,7 @@ class ControllerManager:
                 failed = failed or []
                 failed.append((rec, exc))
                 command.written[rec.joint_index] = False  # nothing it wrote this cycle is used
+                command.hold_effort[rec.joint_index] = 0.0
         if failed:
             for rec, exc in failed:
                 self.fail(rec, f"update raised {type(exc).__name__}: {exc}", state, command)

@@ -13,7 +13,8 @@ Every cycle, whatever the controllers do:
     the rest from the joint's mode defaults (position gains for a position claim, kp = 0 for velocity,
     kp = kd = 0 for effort) plus gravity feed-forward;
   - **hold** (nobody commands it): the position latched when it lost its controller (or at start-up), hold
-    gains, gravity feed-forward — never a stale command;
+    gains, gravity feed-forward — never a stale command — plus the ``hold_effort`` its controller last wrote
+    (a gripper's grasp: 0 for every other controller);
   - **fault / e-stop**: the configured safe action (hold, damp or disable). A fault latches the last *accepted*
     position; a joint whose position cannot be trusted (its readings are being rejected, or it never had one)
     is never held with a spring: it gets damping only (kp 0, hold kd) and gravity feed-forward from the last
@@ -144,6 +145,7 @@ class Supervisor:
         self.fault = np.zeros(n, dtype=np.int64)
         self.fault_text: list[str] = [""] * n
         self.limit_flags = np.zeros(n, dtype=np.int64)
+        self.hold_effort = np.zeros(n)  # what a held joint keeps pressing with: its controller's last hold_effort
         self.estop = False
         self.change_seq = 0  # bumped on any mode/fault/limit change: the status publisher watches it
         self.bad_command_owners: list[int] = []  # controller slots that produced invalid commands this cycle
@@ -428,6 +430,8 @@ class Supervisor:
         fresh_all = state.fresh.tolist()
         c_pos, c_vel, c_eff = ctrl.position.tolist(), ctrl.velocity.tolist(), ctrl.effort.tolist()
         c_kp, c_kd, written = ctrl.kp.tolist(), ctrl.kd.tolist(), ctrl.written.tolist()
+        c_hold, hold_effort = ctrl.hold_effort.tolist(), self.hold_effort
+        kept_all = hold_effort.tolist()
         latched, prev, modes, old_flags = self.latched, self._prev_position, self.mode, self.limit_flags
         mode_all, prev_all, flags_all = modes.tolist(), prev.tolist(), old_flags.tolist()
         o_pos, o_vel, o_eff, o_kp, o_kd = out.position, out.velocity, out.effort, out.kp, out.kd
@@ -473,8 +477,8 @@ class Supervisor:
                     # back to the old latch once readings recover would pull the arm the way it drifted).
                     action = _DAMP_GRAVITY
                     untrusted_fault[i] = True
-                if action == _HOLD:
-                    p, v, ff, kp, kd = latched.item(i), 0.0, ff_gravity, hold_kp[i], hold_kd[i]
+                if action == _HOLD:  # a grasp is kept: an e-stopped gripper holds what it holds
+                    p, v, ff, kp, kd = latched.item(i), 0.0, ff_gravity + kept_all[i], hold_kp[i], hold_kd[i]
                 else:  # damp or disable: no stiffness, position field where the arm last was
                     p = q if known else prev_all[i]
                     v, kp = 0.0, 0.0
@@ -490,17 +494,23 @@ class Supervisor:
                     kp = c_kp[i] if has_kp else default_kp[i]
                     kd = c_kd[i] if has_kd else default_kd[i]
                     # Finite command and non-negative gains (NaN gains compare False, so they fail too).
-                    if isfinite(p) and isfinite(v) and isfinite(ff) and kp >= 0.0 and kd >= 0.0:
+                    kept = c_hold[i]
+                    if isfinite(p) and isfinite(v) and isfinite(ff) and isfinite(kept) and kp >= 0.0 and kd >= 0.0:
                         controlled = True
+                        if kept != kept_all[i]:
+                            kept_all[i] = kept
+                            hold_effort[i] = kept
                     else:  # a controller bug never reaches a drive: hold, and fail the controller
                         bad_owners = bad_owners or []
                         bad_owners.append(owner[i])
                 if not controlled:
                     if mode == _CONTROLLED and known:
                         latched[i] = q  # it just lost its controller: hold where it is now
-                    p, v, ff, kp, kd = latched.item(i), 0.0, ff_gravity, hold_kp[i], hold_kd[i]
+                        if kept_all[i]:
+                            self._report_grasp(i, kept_all[i])
+                    p, v, ff, kp, kd = latched.item(i), 0.0, ff_gravity + kept_all[i], hold_kp[i], hold_kd[i]
                     if not isfinite(p):  # never had a position: damp until the gate accepts one
-                        p, kp = prev_all[i], 0.0
+                        p, kp, ff = prev_all[i], 0.0, ff_gravity
                 new_mode = _CONTROLLED if controlled else _HOLD_MODE
 
             if following and not controlled:  # damping and gravity only: no spring toward any position
@@ -550,9 +560,17 @@ class Supervisor:
                 old_flags[i] = flags
                 self.change_seq += 1
         prev[:] = prev_all
+        np.copyto(out.hold_effort, hold_effort)  # what each joint's hold keeps: a controller activated next sees it
         self.bad_command_owners = bad_owners or []
         if left > 0.0:
             self._descent = (max(0.0, left - dt), total)
+
+    def _report_grasp(self, i: int, effort: float) -> None:
+        self.events.emit(
+            "info",
+            "supervisor",
+            f"joint {self.joints[i]} holds its grasp: it keeps pressing with {effort:g} (its controller's hold effort)",
+        )
 
     def _report_limits(self, i: int, was: int, now: int) -> None:
         for bit, word in _LIMIT_WORDS:

@@ -22,7 +22,7 @@ from typing import Any
 
 from hild import plugins
 from hild.config.loader import LoadedConfig
-from hild.controller import Controller, ControllerContext, JointLimitArrays
+from hild.controller import Controller, ControllerContext, JointGainArrays, JointLimitArrays
 from hild.crossing.mailboxes import Mailboxes, Shared
 from hild.crossing.region import RegionError
 from hild.crossing.requests import Load
@@ -49,6 +49,7 @@ def api_half(loaded: LoadedConfig, load: Load, mailboxes: Mailboxes, emit: Emit)
         name=load.name,
         joints=tuple(cfg.joints),
         limits=JointLimitArrays.of(cfg),
+        gains=JointGainArrays.of(cfg),
         update_rate=cfg.update_rate,
         emit_event=lambda level, message, source=load.name: emit(level, source, message),
         notify=lambda: None,  # the API half writes no output: the cycle half does, and rings
