@@ -97,6 +97,13 @@ float64 acceleration
 """,
             CONTROL_MSGS,
         ),
+        "control_msgs/msg/GripperCommand": (
+            """
+float64 position
+float64 max_effort
+""",
+            CONTROL_MSGS,
+        ),
         "control_msgs/msg/JointComponentTolerance": (
             """
 string joint_name
@@ -136,6 +143,20 @@ trajectory_msgs/MultiDOFJointTrajectoryPoint multi_dof_desired
 trajectory_msgs/MultiDOFJointTrajectoryPoint multi_dof_actual
 trajectory_msgs/MultiDOFJointTrajectoryPoint multi_dof_error
 """,
+        source=CONTROL_MSGS,
+    ),
+    # parallel_gripper's two actions (hild/api/ros2/gripper_command.py): MoveIt's GripperCommand, and the
+    # ParallelGripperCommand ros2_controllers' parallel_gripper_action_controller serves.
+    "control_msgs/action/GripperCommand": ActionDefinition(
+        goal="control_msgs/GripperCommand command",
+        result="float64 position\nfloat64 effort\nbool stalled\nbool reached_goal",
+        feedback="float64 position\nfloat64 effort\nbool stalled\nbool reached_goal",
+        source=CONTROL_MSGS,
+    ),
+    "control_msgs/action/ParallelGripperCommand": ActionDefinition(
+        goal="sensor_msgs/JointState command",
+        result="sensor_msgs/JointState state\nbool stalled\nbool reached_goal",
+        feedback="sensor_msgs/JointState state",
         source=CONTROL_MSGS,
     ),
 }

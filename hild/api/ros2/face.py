@@ -35,9 +35,11 @@ from hild.api.codec import FAST_DECODE, MAX_PAYLOAD
 from hild.api.ports import DropReporter
 from hild.api.queries import clip, drop
 from hild.api.ros2 import types
+from hild.api.ros2.actions import RosAction
 from hild.api.ros2.clock import CLOCK, CLOCK_TOPIC, RosClock, ros_time
 from hild.api.ros2.controller_manager import ControllerManager
 from hild.api.ros2.follow_joint_trajectory import TrajectoryAction
+from hild.api.ros2.gripper_command import GripperAction
 from hild.api.ros2.hardware import HardwareServices
 from hild.api.ros2.lifecycle import LifecycleServices
 from hild.api.ros2.manager_parameters import ManagerParameters, PendingLoads
@@ -94,7 +96,7 @@ class Declared:
     tokens: list[Any] = field(default_factory=list)
     entities: list[Any] = field(default_factory=list)
     joint_states: JointStatesOut | None = None
-    action: TrajectoryAction | None = None
+    action: RosAction | None = None
 
 
 @dataclass
@@ -304,9 +306,11 @@ class RosFace:
             names = list(getattr(ring, "names", None) or self.engine.joints)
             writer = self.writer(self.name("joint_states"), JOINT_STATE)
             declared.joint_states = JointStatesOut(writer, RingReader(ring), names)
-        server = instance.action_server() if kind == "joint_trajectory" else None
-        if server is not None:
+        server = instance.action_server() if kind in ("joint_trajectory", "parallel_gripper") else None
+        if server is not None and kind == "joint_trajectory":
             declared.action = TrajectoryAction(self, controller, server)
+        elif server is not None:
+            declared.action = GripperAction(self, controller, server, instance.params.ros_action)
         accept = inputs.get("commands")
         if accept is not None and kind == "forward_command":
             name = self.name(f"{controller}/commands")

@@ -110,7 +110,7 @@ def rosidl_hashes(tmp_path: Path, package: str, sources: list[tuple[Path, Path]]
         tuples.append(f"{idl_dir}:{idl.relative_to(idl_dir)}")
     output = tmp_path / "out" / package
     deps = ["builtin_interfaces", "std_msgs", "geometry_msgs", "trajectory_msgs", "unique_identifier_msgs",
-            "action_msgs", "service_msgs", "lifecycle_msgs", "rcl_interfaces"]  # fmt: skip
+            "action_msgs", "service_msgs", "lifecycle_msgs", "rcl_interfaces", "sensor_msgs"]  # fmt: skip
     arguments = {
         "package_name": package,
         "output_dir": str(output),
@@ -167,6 +167,12 @@ def rosidl_hashes(tmp_path: Path, package: str, sources: list[tuple[Path, Path]]
                 "action/FollowJointTrajectory_SendGoal",
                 "action/FollowJointTrajectory_GetResult",
                 "action/FollowJointTrajectory_FeedbackMessage",
+                "msg/GripperCommand",
+                *(
+                    f"action/{action}_{part}"
+                    for action in ("GripperCommand", "ParallelGripperCommand")
+                    for part in ("SendGoal", "GetResult", "FeedbackMessage")
+                ),
             ],
         ),
     ],
