@@ -28,6 +28,7 @@ PLUGIN_NAMES = {
     "joint_state_broadcaster": "joint_state_broadcaster/JointStateBroadcaster",
     "forward_command": "forward_command_controller/ForwardCommandController",
     "joint_trajectory": "joint_trajectory_controller/JointTrajectoryController",
+    "parallel_gripper": "parallel_gripper_action_controller/GripperActionController",
 }
 HILD_TYPES = {plugin: kind for kind, plugin in PLUGIN_NAMES.items()}
 HILD_PREFIX = "hild/"  # a type without a ros2_control plugin name: hild/<type>
