@@ -161,3 +161,64 @@ def test_no_controllers_at_all_is_an_error(tmp_path: Path) -> None:
 
 FORWARD = "forward_command_controller/ForwardCommandController"
 JTC = "joint_trajectory_controller/JointTrajectoryController"
+
+
+@pytest.mark.parametrize(
+    ("ros_type", "action"),
+    [
+        ("parallel_gripper_action_controller/GripperActionController", "parallel_gripper_command"),
+        ("position_controllers/GripperActionController", "gripper_command"),
+    ],
+)
+def test_gripper_action_controllers_become_parallel_gripper(tmp_path: Path, ros_type: str, action: str) -> None:
+    plan, report, _ = read(
+        tmp_path,
+        f"""\
+controller_manager:
+  ros__parameters:
+    update_rate: 500
+    gripper_controller:
+      type: {ros_type}
+gripper_controller:
+  ros__parameters:
+    joint: j2
+    goal_tolerance: 0.002
+    allow_stalling: true
+    stall_velocity_threshold: 0.002
+    stall_timeout: 0.5
+    max_effort: 0.0
+    max_velocity: 0.05
+    max_effort_interface: j2/max_effort
+    action_monitor_rate: 50.0
+""",
+    )
+    (gripper,) = plan.controllers
+    assert gripper.type == "parallel_gripper" and not gripper.autostart
+    assert gripper.params == {
+        "joint": "j2",
+        "ros_action": action,
+        "goal_tolerance": 0.002,
+        "stall_velocity_threshold": 0.002,
+        "stall_timeout": 0.5,
+        "max_velocity": 0.05,
+        "action_monitor_rate": 50.0,
+        "allow_stalling": True,
+    }
+    assert any("gripper_controller → parallel_gripper on j2" in t for t in texts(report, "mapped"))
+    approximated = texts(report, "approximated")
+    assert any("13: gripper_controller: max_effort 0 → parallel_gripper's default" in t for t in approximated)
+    assert any("max_effort_interface not needed: hild bounds the grasp force itself" in t for t in approximated)
+    assert not report.of("dropped")
+
+
+def test_a_gripper_on_a_mimic_joint_is_refused(tmp_path: Path) -> None:
+    with pytest.raises(ImportFailure, match="names joint 'j3', which is a mimic joint of 'j1'"):
+        read(
+            tmp_path,
+            """\
+gripper:
+  ros__parameters:
+    type: parallel_gripper_action_controller/GripperActionController
+    joint: j3
+""",
+        )

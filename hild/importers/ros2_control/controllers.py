@@ -43,6 +43,26 @@ FORWARD_GROUPS = {
     "effort_controllers/JointEffortController": "effort",
 }
 EFFORT_POSITION_PID = "effort_controllers/JointPositionController"
+# Gripper action controllers → parallel_gripper, serving the ROS action the original served.
+GRIPPERS = {
+    "parallel_gripper_action_controller/GripperActionController": "parallel_gripper_command",
+    "position_controllers/GripperActionController": "gripper_command",
+    "effort_controllers/GripperActionController": "gripper_command",
+}
+GRIPPER_NUMBERS = (
+    "goal_tolerance",
+    "stall_velocity_threshold",
+    "stall_timeout",
+    "max_effort",
+    "max_velocity",
+    "action_monitor_rate",
+)
+GRIPPER_IGNORED = {
+    "state_interfaces": "hild reads the joint's position, velocity and effort",
+    "max_effort_interface": "hild bounds the grasp force itself, through the drive's spring",
+    "max_velocity_interface": "hild limits the finger's speed itself",
+    "gains": "hild's drive closes the position loop; the force is bounded by max_effort",
+}
 
 # JTC command interface sets → hild's (which has [position], [position, velocity] and [effort]).
 JTC_INTERFACES: dict[tuple[str, ...], tuple[list[str], str | None]] = {
@@ -288,6 +308,8 @@ class _Reader:
             return self.effort_position(c)
         if c.ros_type in FORWARD_GROUPS:
             return self.forward(c, FORWARD_GROUPS[c.ros_type], c.type_where, set())
+        if c.ros_type in GRIPPERS:
+            return self.gripper(c)
         self.report.dropped(c.type_where, f"controller {c.name!r}: type {c.ros_type} has no hild counterpart")
         return None
 
@@ -451,6 +473,35 @@ class _Reader:
             out["joints"] = per_joint
             self.report.mapped(self.ref(base), f"{c.name}: per-joint trajectory/goal tolerances")
         return out
+
+    def gripper(self, c: _Controller) -> ControllerPlan:
+        """A gripper action controller → parallel_gripper on its joint, with the same action on ROS 2."""
+        joints = self.joints(c, "joint")
+        if len(joints) != 1:
+            raise self.ref(c.params_path).fail(f"controller {c.name!r} ({c.ros_type}) drives exactly one joint")
+        joint = joints[0]
+        self.check_claims(c, [joint], ["position"])
+        params: dict[str, Any] = {"joint": joint, "ros_action": GRIPPERS[c.ros_type]}
+        for key in GRIPPER_NUMBERS:
+            if key not in c.params:
+                continue
+            value = self.number(c.params[key], (*c.params_path, key))
+            if key in ("max_effort", "max_velocity") and value == 0.0:  # ROS: no limit given; hild's default
+                self.report.approximated(
+                    self.ref((*c.params_path, key)), f"{c.name}: {key} 0 → parallel_gripper's default"
+                )
+                continue
+            params[key] = value
+        if "allow_stalling" in c.params:
+            params["allow_stalling"] = bool(c.params["allow_stalling"])
+        action = "ParallelGripperCommand" if GRIPPERS[c.ros_type] == "parallel_gripper_command" else "GripperCommand"
+        self.report.mapped(
+            c.type_where,
+            f"{c.name} → parallel_gripper on {joint}: goals to a position with a bounded force, stall detection; "
+            f"ROS 2 action {c.name}/gripper_cmd ({action})",
+        )
+        self.leftovers(c, {"joint", "allow_stalling", *GRIPPER_NUMBERS}, GRIPPER_IGNORED)
+        return ControllerPlan(c.name, "parallel_gripper", params, False, c.type_where, f"from {c.ros_type}")
 
     def effort_position(self, c: _Controller) -> ControllerPlan:
         joints = self.joints(c, "joint" if "joint" in c.params else "joints")
