@@ -168,6 +168,12 @@ def _check_destination(request: ImportRequest, config_path: Path, urdf_path: Pat
                 raise ImportFailure(f"{path} exists: pass --force to overwrite it")
 
 
+GRAVITY_ON_EFFORT = (
+    "gravity_compensation: true — on the twin hild adds the model's gravity torque to the PID's effort, as a real "
+    "arm's driver does (without it the arm stops short by gravity / p); on real drives the same must come from hild "
+    "with robot.model, or from the drive itself with gravity_compensation: false, never both"
+)
+
 _WARNING = re.compile(r"^warning: .*?:\d+: (?P<key>\S+): (?P<message>.*)$", re.S)
 
 
@@ -241,12 +247,15 @@ def _robot_name(name: str) -> str:
 
 
 def _complete_effort_gains(plan: ctl.ControllersPlan, joints: list[mapping.JointPlan], report: Report) -> None:
-    """An effort trajectory controller needs a PID per joint and a bounded integral."""
+    """An effort trajectory controller needs a PID per joint and a bounded integral, and gravity on top of its
+    effort: a ROS effort PID relies on the robot's driver (or a simulator's) to carry the arm's weight."""
     by_name = {j.name: j for j in joints}
     for controller in plan.controllers:
         params = controller.params
         if params.get("command_interfaces") != ["effort"]:
             continue
+        params["gravity_compensation"] = True
+        report.approximated(controller.where, f"{controller.name}: {GRAVITY_ON_EFFORT}")
         gains = {}
         for joint in params["joints"]:
             pid = controller.pid.get(joint)
