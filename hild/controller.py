@@ -163,6 +163,13 @@ class Controller:
     def claims(self) -> list[str]:
         return self.claims_for(self.params)
 
+    def gravity_joints(self) -> list[str]:
+        """Joints on which the supervisor adds the robot model's gravity torque (``robot.model``) to this controller's
+        effort command, as a real arm's own driver does under an effort-interface controller; each must be one whose
+        effort it claims. None by default: a claimed effort is the controller's alone. Must not change while the
+        controller is loaded. Limits apply to the sum (docs/safety.md, "Gravity on top of an effort command")."""
+        return []
+
     def state_interfaces(self) -> list[str]:
         """The measured values this controller reads, as ``<joint>/<position|velocity|effort>``: what ros2_control
         lists as a controller's required state interfaces (``list_controllers`` reports them). None by default:

@@ -3,6 +3,10 @@
 A command interface is named ``<joint>/<field>`` with field one of the servo command's ``position, velocity,
 effort, kp, kd``. A claim is exclusive, and stricter than ros2_control: all claimed fields of one joint belong to
 the same controller, because the five fields form one servo command and mixing owners has no safe meaning.
+
+A controller that claims effort may also ask for **gravity on top** of it (``Controller.gravity_joints``): the
+supervisor then adds the robot model's gravity torque to that controller's effort for those joints, as a real arm's
+driver does under an effort-interface controller (docs/safety.md, "Gravity on top of an effort command").
 """
 
 from __future__ import annotations
@@ -57,16 +61,22 @@ class ClaimMasks:
     effort: np.ndarray
     kp: np.ndarray
     kd: np.ndarray
+    gravity: np.ndarray  # the supervisor adds the gravity torque to the owner's effort command (effort claims only)
 
     @classmethod
     def empty(cls, n: int) -> ClaimMasks:
-        return cls(np.full(n, -1, dtype=np.int64), *(np.zeros(n, dtype=bool) for _ in FIELDS))
+        return cls(np.full(n, -1, dtype=np.int64), *(np.zeros(n, dtype=bool) for _ in (*FIELDS, "gravity")))
 
 
 def build_masks(
-    joint_index: Mapping[str, int], claims_by_slot: Mapping[int, Iterable[str]], owner_names: Mapping[int, str]
+    joint_index: Mapping[str, int],
+    claims_by_slot: Mapping[int, Iterable[str]],
+    owner_names: Mapping[int, str],
+    gravity_by_slot: Mapping[int, Iterable[str]] | None = None,
 ) -> ClaimMasks:
-    """Turn the active controllers' claims into masks; raises ClaimError on any conflict."""
+    """Turn the active controllers' claims into masks; raises ClaimError on any conflict. ``gravity_by_slot``: the
+    joints each controller wants gravity added to its effort on (a joint whose effort it does not claim is
+    refused: there is no effort of its own to add to)."""
     masks = ClaimMasks.empty(len(joint_index))
     taken: dict[str, int] = {}
     for slot, claims in claims_by_slot.items():
@@ -81,4 +91,13 @@ def build_masks(
             taken[name] = slot
             masks.owner[i] = slot
             getattr(masks, field)[i] = True
+    for slot, joints in (gravity_by_slot or {}).items():
+        for joint in joints:
+            i = joint_index[joint]
+            if masks.owner[i] != slot or not masks.effort[i]:
+                raise ClaimError(
+                    f"{owner_names[slot]} asks for gravity on top of its effort on {joint}, which it "
+                    "does not command by effort"
+                )
+            masks.gravity[i] = True
     return masks

@@ -33,7 +33,7 @@ DT = 0.002
 LOWER, UPPER, VMAX, EMAX = -1.0, 1.0, 2.0, 20.0
 WEIGHT = np.array([8.0, 3.0, 0.0])  # gravity torque amplitude per joint: g_i = WEIGHT_i · cos(q_i)
 READINGS = ("true", "true", "true", "push", "push", "spike", "jump", "nan", "missing", "frozen", "flip")
-CLAIMS = ("none", "position", "velocity", "effort")
+CLAIMS = ("none", "position", "velocity", "effort", "effort+gravity")
 OPS = ("none", "none", "none", "none", "trip", "estop", "reset")
 
 
@@ -65,7 +65,8 @@ def masks(claims: list[str]) -> ClaimMasks:
     for i, claim in enumerate(claims):
         if claim != "none":
             m.owner[i] = 0
-            getattr(m, claim)[i] = True
+            for field in claim.split("+"):  # effort+gravity: the controller's effort with the gravity torque added
+                getattr(m, field)[i] = True
     return m
 
 
@@ -153,7 +154,7 @@ def test_the_supervisor_keeps_its_promises(
         ctrl.written[:] = [c != "none" for c in claims]
         sup.command(DT, state, ctrl, out)
         finals = (out.position, out.velocity, out.effort, out.kp, out.kd)
-        # 2. Everything finite, feed-forward within the effort limit.
+        # 2. Everything finite, feed-forward within the effort limit (gravity on top of an effort included).
         assert all(np.isfinite(a).all() for a in finals), finals
         assert (np.abs(out.effort) <= EMAX + 1e-9).all(), out.effort
         gravity(np.nan_to_num(sup.gate.accepted_position), g_accepted)
@@ -251,3 +252,22 @@ def test_the_trim_takes_torque_away_from_a_faulted_joint_and_never_adds_any() ->
         assert out.kp[1] > 0.0  # still held: the reading is trusted, only the torque is bounded
         # The spring alone exceeds the limit: reported (not silently "compensated"); an ODrive-like drive has none.
         assert bool(sup.limit_flags[1] & LIMIT_EFFORT) is applies_gains
+
+
+def test_gravity_on_top_of_an_effort_claim_is_added_and_stays_within_the_effort_limit() -> None:
+    """An effort claim replaces the feed-forward; with gravity asked for on top (``ClaimMasks.gravity``), the drive
+    gets the controller's effort plus the model's gravity torque at the accepted pose, clamped to ±effort."""
+    sup = make(True, "hold")
+    state, ctrl, out = JointState.zeros(N), ServoCommand.zeros(N), ServoCommand.zeros(N)
+    state.position[:] = [0.3, 0.3, 0.3]
+    sup.start(state)
+    sup.set_claims(masks(["effort", "effort+gravity", "effort+gravity"]))
+    g = np.zeros(N)
+    gravity(state.position, g)
+    for effort, expected in ((1.5, [1.5, 1.5 + g[1], 1.5]), (19.0, [19.0, EMAX, 19.0])):
+        ctrl.effort[:], ctrl.written[:] = effort, True
+        sup.check(state, DT)
+        sup.command(DT, state, ctrl, out)
+        np.testing.assert_allclose(out.effort, expected)  # j2 weighs nothing: gravity adds 0
+        assert (out.kp == 0.0).all() and (out.kd == 0.0).all()
+    assert sup.limit_flags[1] & LIMIT_EFFORT and not sup.limit_flags[0] & LIMIT_EFFORT

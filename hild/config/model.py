@@ -179,7 +179,9 @@ class SafetySection(Params):
     fault_action: SafeAction = Field(default="hold", description="What a faulted joint does.")
     estop_action: SafeAction = Field(default="hold", description="What every joint does under e-stop.")
     gravity_compensation: bool = Field(
-        default=True, description="Add gravity feed-forward from robot.model in hold and position modes."
+        default=True,
+        description="Add gravity feed-forward from robot.model in hold and position modes, and on top of the effort "
+        "of controllers that ask for it (joint_trajectory gravity_compensation).",
     )
 
 

@@ -81,6 +81,12 @@ class JointTrajectoryParams(Params):
         description="Per joint, for the effort interface. Changed while active, new gains are ramped in over "
         "0.5 s: the effort command never steps.",
     )
+    gravity_compensation: bool = Field(
+        default=False,
+        description="Effort interface only: the supervisor adds the robot model's gravity torque (robot.model) to "
+        "the PID's effort, as a real arm's own driver does under an effort controller. Off, the PID alone holds the "
+        "arm up and a P-only PID stops short by gravity / p (docs/safety.md).",
+    )
     feedback_rate: float = dynamic(default=25.0, gt=0.0, description="Hz of the feedback topic while a goal runs.")
     velocity_scale: float = dynamic(
         default=1.0, gt=0.0, le=1.0, description="Of the joints' limits, for planning (goals planned after a change)."
@@ -109,6 +115,11 @@ class JointTrajectoryParams(Params):
             missing = [j for j in self.joints if j not in self.gains]
             if missing:
                 raise ValueError(f"the effort interface needs gains for {missing}")
+        elif self.gravity_compensation:
+            raise ValueError(
+                "gravity_compensation is for the effort interface: a position command already gets the "
+                "supervisor's gravity feed-forward"
+            )
         return self
 
 
@@ -226,6 +237,10 @@ class JointTrajectoryController(PlansMotion, Controller):
             self._ramp_left = 0
 
     # ---- contract ----------------------------------------------------------------------------------------------
+    def gravity_joints(self) -> list[str]:
+        assert isinstance(self.params, JointTrajectoryParams)
+        return list(self.params.joints) if self.params.gravity_compensation else []
+
     def action_server(self) -> ActionServer[PreparedGoal]:
         return self.action
 

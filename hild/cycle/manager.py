@@ -29,6 +29,7 @@ class ControllerRecord:
     claims: tuple[str, ...]
     fallbacks: tuple[str, ...]
     reads: tuple[str, ...] = ()  # the state interfaces it reads
+    gravity: tuple[str, ...] = ()  # joints whose effort command gets the gravity torque on top (gravity_joints)
     state: ControllerState = ControllerState.UNCONFIGURED
     error: str = ""
     joint_index: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.intp))
@@ -173,6 +174,11 @@ class ControllerManager:
         """A record for ``controller``, unconfigured; ClaimError if it claims what the drives do not offer."""
         claims = tuple(controller.claims())
         check_claims(name, claims, self.available)
+        gravity = tuple(controller.gravity_joints())
+        if stray := [j for j in gravity if f"{j}/effort" not in claims]:
+            raise ClaimError(
+                f"{name}: gravity on top of its effort asked for on {stray}, whose effort it does not claim"
+            )
         return ControllerRecord(
             slot=slot,
             name=name,
@@ -181,6 +187,7 @@ class ControllerManager:
             claims=claims,
             fallbacks=tuple(fallbacks),
             reads=tuple(controller.state_interfaces()),
+            gravity=gravity,
             joint_index=self._joints_of(claims),
         )
 
@@ -289,7 +296,12 @@ class ControllerManager:
         for rec in candidates:
             trial = remaining + to_start + [rec]
             try:
-                build_masks(self._joint_index, {r.slot: r.claims for r in trial}, {r.slot: r.name for r in trial})
+                build_masks(
+                    self._joint_index,
+                    {r.slot: r.claims for r in trial},
+                    {r.slot: r.name for r in trial},
+                    {r.slot: r.gravity for r in trial},
+                )
             except ClaimError as exc:
                 if strict:
                     raise SwitchError(str(exc)) from None
@@ -396,7 +408,10 @@ class ControllerManager:
     # ---- bookkeeping -------------------------------------------------------------------------------------------
     def _apply_claims(self) -> None:
         self.masks = build_masks(
-            self._joint_index, {r.slot: r.claims for r in self.active}, {r.slot: r.name for r in self.active}
+            self._joint_index,
+            {r.slot: r.claims for r in self.active},
+            {r.slot: r.name for r in self.active},
+            {r.slot: r.gravity for r in self.active},
         )
         self.on_claims(self.masks)
         self._changed()

@@ -11,7 +11,9 @@ Every cycle, whatever the controllers do:
 * ``command(state, ctrl, out)`` (after the controllers) builds the final servo command per joint:
   - **controlled** (an active controller claimed and wrote it this cycle): claimed fields from the controller,
     the rest from the joint's mode defaults (position gains for a position claim, kp = 0 for velocity,
-    kp = kd = 0 for effort) plus gravity feed-forward;
+    kp = kd = 0 for effort) plus gravity feed-forward; a claimed effort replaces the feed-forward, unless its
+    controller asked for gravity on top (``Controller.gravity_joints``: the effort is then its command plus the
+    gravity torque, as a real arm's driver adds it);
   - **hold** (nobody commands it): the position latched when it lost its controller (or at start-up), hold
     gains, gravity feed-forward — never a stale command — plus the ``hold_effort`` its controller last wrote
     (a gripper's grasp: 0 for every other controller);
@@ -168,6 +170,7 @@ class Supervisor:
         """The per-joint state only the cycle touches, as Python lists (no numpy scalar overhead in its loop)."""
         # Per-joint claim view, rebuilt at each switch (set_claims).
         self._owner = [-1] * n
+        self._gravity_on_effort = [False] * n  # the owner's effort gets the gravity torque added (set_claims)
         self._claims: list[tuple[bool, bool, bool, bool, bool]] = [(False,) * 5] * n  # type: ignore[list-item]
         self._default_kp = [0.0] * n
         self._default_kd = [0.0] * n
@@ -233,6 +236,15 @@ class Supervisor:
         g = self.gains
         self._owner = masks.owner.tolist()
         self._claims = list(zip(*(getattr(masks, f).tolist() for f in FIELDS), strict=True))
+        self._gravity_on_effort = masks.gravity.tolist()
+        if self.gravity is None and any(self._gravity_on_effort):
+            names = ", ".join(j for j, on in zip(self.joints, self._gravity_on_effort, strict=True) if on)
+            self.events.emit(
+                "warning",
+                "supervisor",
+                f"joints {names}: their controller asks for gravity on top of its effort, but the robot has no "
+                "gravity model (robot.model, safety.gravity_compensation): the effort is the controller's alone",
+            )
         for i, (position, velocity, _, _, _) in enumerate(self._claims):
             if position:
                 self._default_kp[i], self._default_kd[i] = float(g.position_kp[i]), float(g.position_kd[i])
@@ -437,6 +449,7 @@ class Supervisor:
         o_pos, o_vel, o_eff, o_kp, o_kd = out.position, out.velocity, out.effort, out.kp, out.kd
         was_stiff = o_kp.tolist()  # last cycle's gains: a position with kp 0 held nothing anywhere
         owner, claims, default_kp, default_kd = self._owner, self._claims, self._default_kp, self._default_kd
+        gravity_on_effort = self._gravity_on_effort
         hold_kp, hold_kd, soft_lower, soft_upper = self._hold_kp, self._hold_kd, self._soft_lower, self._soft_upper
         vmax_all, emax_all, safe_action = self._vmax, self._emax, self._safe_action
         applies_gains, cause = self._applies_gains, self.gate.cause
@@ -490,7 +503,7 @@ class Supervisor:
                     has_p, has_v, has_e, has_kp, has_kd = claims[i]
                     p = c_pos[i] if has_p else q
                     v = c_vel[i] if has_v else 0.0
-                    ff = c_eff[i] if has_e else ff_gravity
+                    ff = (c_eff[i] + ff_gravity if gravity_on_effort[i] else c_eff[i]) if has_e else ff_gravity
                     kp = c_kp[i] if has_kp else default_kp[i]
                     kd = c_kd[i] if has_kd else default_kd[i]
                     # Finite command and non-negative gains (NaN gains compare False, so they fail too).

@@ -85,6 +85,12 @@ def register(subparsers: Any) -> None:
         action="store_true",
         help="let the twin collide robot links that overlap at the start pose (adjacent links never collide)",
     )
+    p.add_argument(
+        "--no-tracking-check",
+        dest="tracking_check",
+        action="store_false",
+        help="skip the short lockstep run of a full-speed goal of each trajectory controller on the twin",
+    )
     p.add_argument("--robot-name", help="hild robot name (default: the URDF's <robot name>)")
     p.add_argument(
         "--namespace",
@@ -112,6 +118,7 @@ def run(args: argparse.Namespace) -> int:
         force=args.force,
         allow_partial=args.allow_partial,
         keep_self_contacts=args.keep_self_contacts,
+        tracking_check=args.tracking_check,
     )
     try:
         result = import_ros2_control(request)

@@ -3,10 +3,11 @@
 The steps, each in its own module: expand xacro (xacro_expand) → parse with lines (xmltree, urdf) → choose the
 joints (mapping) → read and merge the controller files (ros_params, controllers) → what the hardware params say
 about CAN drives (can_template) → the twin's URDF and its inertias (twin, inertia) → limits, gains,
-transmissions (mapping) → contacts the twin ignores (contacts) → YAML (writer). Both files are written to a
-temporary directory beside the output, checked there the way ``hild check`` checks a config (its warnings go into
-the report), and only then renamed into place: an error at any step — or a partial import the user did not
-accept — leaves nothing behind.
+transmissions (mapping), stiffness against friction and goal tolerances (tolerances) → contacts the twin ignores
+(contacts) → YAML (writer). Both files are written to a temporary directory beside the output, checked there the
+way ``hild check`` checks a config (its warnings go into the report), a full-speed goal of each trajectory
+controller is simulated on the twin there (tracking), and only then are both renamed into place: an error at any
+step — or a partial import the user did not accept — leaves nothing behind.
 """
 
 from __future__ import annotations
@@ -29,6 +30,8 @@ from hild.importers.ros2_control.contacts import excluded_contacts
 from hild.importers.ros2_control.inertia import joint_inertias
 from hild.importers.ros2_control.packages import PackageRoots
 from hild.importers.ros2_control.report import ImportFailure, Report, SourceRef
+from hild.importers.ros2_control.tolerances import fit_friction
+from hild.importers.ros2_control.tracking import report_tracking
 from hild.importers.ros2_control.urdf import Robot, parse_robot
 from hild.importers.ros2_control.xacro_expand import expand_xacro, is_xacro
 from hild.importers.ros2_control.xmltree import XmlDocument, XmlSyntaxError, parse_xml
@@ -47,6 +50,7 @@ class ImportRequest:
     force: bool = False
     allow_partial: bool = False  # accept an import that leaves out controllers or joints it cannot map
     keep_self_contacts: bool = False  # let the twin collide robot links that overlap at the start pose
+    tracking_check: bool = True  # simulate a full-speed goal of each trajectory controller on the twin (tracking.py)
 
     @property
     def twin_urdf(self) -> Path:
@@ -91,6 +95,7 @@ def import_ros2_control(request: ImportRequest) -> ImportResult:
             ranges = mapping.position_ranges(robot, selected)
             inertias = joint_inertias(staged_urdf, [s.joint.name for s in selected], ranges)
         joints = mapping.plan_joints(robot, selected, inertias, plan.effort_pid(), plan.update_rate, report)
+        fit_friction(joints, plan, plan.update_rate, report)
         start = {j.name: j.initial_position for j in joints if j.initial_position is not None}
         with _mujoco_refusal(robot, label, staging):
             exclusions = excluded_contacts(robot, staged_urdf, start, request.keep_self_contacts, report)
@@ -110,6 +115,10 @@ def import_ros2_control(request: ImportRequest) -> ImportResult:
         _relay_check_warnings(_hild_check(staged_config, config_path), joints, robot, report)
         if report.partial and not request.allow_partial:  # last: every real error in the input comes first
             raise report.partial_failure()
+        if request.tracking_check:
+            report_tracking(staged_config, {c.name: c.where for c in plan.controllers}, report, robot.where)
+        else:
+            report.tracking(robot.where, "not simulated (--no-tracking-check)")
         os.replace(staged_urdf, urdf_path)
         os.replace(staged_config, config_path)
     report.notes.insert(0, f"wrote {config_path} and {urdf_path} (the twin's model)")
@@ -167,6 +176,12 @@ def _check_destination(request: ImportRequest, config_path: Path, urdf_path: Pat
             if path.exists():
                 raise ImportFailure(f"{path} exists: pass --force to overwrite it")
 
+
+GRAVITY_ON_EFFORT = (
+    "gravity_compensation: true — on the twin hild adds the model's gravity torque to the PID's effort, as a real "
+    "arm's driver does (without it the arm stops short by gravity / p); on real drives the same must come from hild "
+    "with robot.model, or from the drive itself with gravity_compensation: false, never both"
+)
 
 _WARNING = re.compile(r"^warning: .*?:\d+: (?P<key>\S+): (?P<message>.*)$", re.S)
 
@@ -241,12 +256,15 @@ def _robot_name(name: str) -> str:
 
 
 def _complete_effort_gains(plan: ctl.ControllersPlan, joints: list[mapping.JointPlan], report: Report) -> None:
-    """An effort trajectory controller needs a PID per joint and a bounded integral."""
+    """An effort trajectory controller needs a PID per joint and a bounded integral, and gravity on top of its
+    effort: a ROS effort PID relies on the robot's driver (or a simulator's) to carry the arm's weight."""
     by_name = {j.name: j for j in joints}
     for controller in plan.controllers:
         params = controller.params
         if params.get("command_interfaces") != ["effort"]:
             continue
+        params["gravity_compensation"] = True
+        report.approximated(controller.where, f"{controller.name}: {GRAVITY_ON_EFFORT}")
         gains = {}
         for joint in params["joints"]:
             pid = controller.pid.get(joint)

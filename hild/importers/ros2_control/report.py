@@ -9,12 +9,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Literal
 
-Kind = Literal["mapped", "approximated", "unsupported"]
+Kind = Literal["mapped", "approximated", "unsupported", "tracking"]
 
 SECTIONS: tuple[tuple[Kind, str], ...] = (
     ("mapped", "Mapped"),
     ("approximated", "Approximated"),
     ("unsupported", "Not supported"),
+    ("tracking", "Tracking"),  # whether the config's trajectory controllers can meet their own tolerances
 )
 
 
@@ -61,6 +62,10 @@ class Report:
 
     def unsupported(self, where: SourceRef, text: str) -> None:
         self.findings.append(Finding("unsupported", where, text))
+
+    def tracking(self, where: SourceRef, text: str) -> None:
+        """Whether a trajectory controller meets its tolerances: what the gains allow, what the twin showed."""
+        self.findings.append(Finding("tracking", where, text))
 
     def dropped(self, where: SourceRef, text: str) -> None:
         """A controller or joint the source gives that the import leaves out: the import is partial."""
