@@ -21,15 +21,15 @@ enabled drive applies zero torque for its first N cycles, as a drive that has no
 from __future__ import annotations
 
 import math
-from typing import Annotated
+from typing import Annotated, Literal
 
 import mujoco
 import numpy as np
 
 from drivers.glitch import ReadingGlitch
 from hild.arrays import JointState, ServoCommand, contiguous_slice
-from hild.config.params import Field, Params
-from hild.dynamics.model import SCALAR_JOINT_TYPES, joint_names, load_model, scalar_joint_addresses
+from hild.config.params import Field, Params, model_validator
+from hild.dynamics.model import SCALAR_JOINT_TYPES, SceneObject, joint_names, load_model, scalar_joint_addresses
 from hild.hardware import ALL_COMMAND_FIELDS, HardwareComponent, HardwareContext, HardwareError
 
 __all__ = ["MujocoTwin", "MujocoTwinParams"]
@@ -40,6 +40,33 @@ _BAD_QACC = int(mujoco.mjtWarning.mjWARN_BADQACC)
 NonNegative = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
 Positive = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
 Finite = Annotated[float, Field(allow_inf_nan=False)]
+
+
+class TwinObject(Params):
+    """A primitive the twin adds to the world: something to grasp, or a table to put it on."""
+
+    name: str = Field(min_length=1, description="Body (and geom) name; must not be one of the model's.")
+    shape: Literal["box", "sphere", "cylinder"] = "box"
+    size: list[Positive] = Field(
+        min_length=1, max_length=3, description="Half-sizes (m): box [x, y, z], sphere [r], cylinder [r, half-height]."
+    )
+    pos: tuple[Finite, Finite, Finite] = Field(description="Position in the world (m) at start.")
+    quat: tuple[Finite, Finite, Finite, Finite] = (1.0, 0.0, 0.0, 0.0)
+    mass: Positive = Field(default=0.1, description="kg (a fixed object's mass does not matter).")
+    friction: Positive = Field(default=1.0, description="Sliding friction coefficient.")
+    fixed: bool = Field(default=False, description="Welded to the world (a table) instead of free (a box).")
+
+    @model_validator(mode="after")
+    def _sized(self) -> TwinObject:
+        needed = {"box": 3, "sphere": 1, "cylinder": 2}[self.shape]
+        if len(self.size) != needed:
+            raise ValueError(f"a {self.shape} takes {needed} half-size(s), got {len(self.size)}")
+        return self
+
+    def scene_object(self) -> SceneObject:
+        return SceneObject(
+            self.name, self.shape, tuple(self.size), self.pos, self.quat, self.mass, self.friction, self.fixed
+        )
 
 
 class MujocoTwinParams(Params):
@@ -72,6 +99,17 @@ class MujocoTwinParams(Params):
         default_factory=list,
         description="Body pairs whose contacts the simulation ignores (MuJoCo <contact><exclude>): links of the arm "
         "that touch by construction, e.g. collision meshes overlapping at the start pose.",
+    )
+    objects: list[TwinObject] = Field(
+        default_factory=list, description="Primitives added to the world: boxes to grasp, tables (docs/drivers.md)."
+    )
+    friction_cone: Literal["pyramidal", "elliptic"] | None = Field(
+        default=None,
+        description="MuJoCo's friction cone (default: the model's). Grasping: elliptic, with impratio ~10, keeps a "
+        "held object from creeping out of the fingers.",
+    )
+    impratio: Positive | None = Field(
+        default=None, description="MuJoCo's frictional-to-normal impedance ratio (default: the model's)."
     )
 
 
@@ -108,7 +146,7 @@ class MujocoTwin(HardwareComponent):
         p = self.params
         path = self.context.config_dir / p.model
         try:
-            model = load_model(path, p.exclude_contacts)
+            model = load_model(path, p.exclude_contacts, [o.scene_object() for o in p.objects])
         except ValueError as exc:
             raise HardwareError(f"{self.context.name}: {exc}") from None
         self._check_names()
@@ -130,6 +168,10 @@ class MujocoTwin(HardwareComponent):
         self._tau_lo, self._tau_hi = self._torque_limits(model, jid)
         self._tau_lo_list, self._tau_hi_list = self._tau_lo.tolist(), self._tau_hi.tolist()
 
+        if p.friction_cone is not None:
+            model.opt.cone = int(getattr(mujoco.mjtCone, f"mjCONE_{p.friction_cone.upper()}"))
+        if p.impratio is not None:
+            model.opt.impratio = p.impratio
         model.opt.timestep = self.context.period / p.substeps
         if not p.gravity:
             model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_GRAVITY)

@@ -4,6 +4,7 @@ plant, the gravity feed-forward, the kinematics and the importer's checks, so al
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import mujoco
@@ -13,12 +14,38 @@ import numpy as np
 SCALAR_JOINT_TYPES = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
 
 
-def load_model(path: Path, exclude_contacts: Sequence[tuple[str, str]] = ()) -> mujoco.MjModel:
+@dataclass(frozen=True, slots=True)
+class SceneObject:
+    """A rigid primitive added to the model's world: a box to grasp, a table, a wall (a URDF cannot hold one)."""
+
+    name: str
+    shape: str  # "box" | "sphere" | "cylinder"
+    size: tuple[float, ...]  # MuJoCo's half-sizes: box (x, y, z), sphere (r,), cylinder (r, half-height)
+    pos: tuple[float, float, float]
+    quat: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
+    mass: float = 0.1
+    friction: float = 1.0
+    fixed: bool = False  # welded to the world (a table) instead of free (a box)
+    rgba: tuple[float, float, float, float] = (0.8, 0.5, 0.2, 1.0)
+
+
+_SHAPES = {
+    "box": mujoco.mjtGeom.mjGEOM_BOX,
+    "sphere": mujoco.mjtGeom.mjGEOM_SPHERE,
+    "cylinder": mujoco.mjtGeom.mjGEOM_CYLINDER,
+}
+
+
+def load_model(
+    path: Path, exclude_contacts: Sequence[tuple[str, str]] = (), objects: Sequence[SceneObject] = ()
+) -> mujoco.MjModel:
     """Load and compile an MJCF (``.xml``) or URDF (``.urdf``) model with MuJoCo's loader.
 
     ``exclude_contacts``: body pairs whose contacts MuJoCo ignores (``<contact><exclude>``), added before the model
-    is compiled, since a URDF cannot say it. Raises ``ValueError`` naming the file, with MuJoCo's own message, when
-    the file is missing or does not compile, or a pair names a body the model does not have.
+    is compiled, since a URDF cannot say it. ``objects``: primitives added to the world (after the model's own
+    bodies, so its joints keep their addresses). Raises ``ValueError`` naming the file, with MuJoCo's own message,
+    when the file is missing or does not compile, a pair names a body the model does not have, or an object's name
+    is taken.
     """
     path = Path(path)
     if path.suffix.lower() not in (".xml", ".urdf", ".mjcf"):
@@ -26,7 +53,7 @@ def load_model(path: Path, exclude_contacts: Sequence[tuple[str, str]] = ()) -> 
     if not path.is_file():
         raise ValueError(f"model {path}: file not found")
     try:
-        if not exclude_contacts:
+        if not exclude_contacts and not objects:
             return mujoco.MjModel.from_xml_path(str(path))
         spec = mujoco.MjSpec.from_file(str(path))
     except Exception as exc:  # mujoco raises ValueError; be robust to other binding errors
@@ -37,10 +64,30 @@ def load_model(path: Path, exclude_contacts: Sequence[tuple[str, str]] = ()) -> 
         raise ValueError(f"model {path}: exclude_contacts names bodies it does not have: {', '.join(unknown)}")
     for first, second in exclude_contacts:
         spec.add_exclude(bodyname1=first, bodyname2=second)
+    taken = sorted({o.name for o in objects} & bodies)
+    if taken or len({o.name for o in objects}) != len(objects):
+        raise ValueError(f"model {path}: object names must be new and distinct: {', '.join(taken) or 'repeated'}")
+    for item in objects:
+        _add_object(spec, item)
     try:
         return spec.compile()
     except Exception as exc:
         raise ValueError(f"model {path}: MuJoCo could not load it: {exc}") from exc
+
+
+def _add_object(spec: mujoco.MjSpec, item: SceneObject) -> None:
+    body = spec.worldbody.add_body(name=item.name, pos=list(item.pos), quat=list(item.quat))
+    if not item.fixed:
+        body.add_freejoint(name=item.name)
+    body.add_geom(
+        name=item.name,
+        type=_SHAPES[item.shape],
+        size=[*item.size, *([0.0] * (3 - len(item.size)))],
+        mass=item.mass,
+        friction=[item.friction, 0.005, 0.0001],
+        condim=4,  # torsional friction too: a grasped object does not spin out of the fingers
+        rgba=list(item.rgba),
+    )
 
 
 def joint_names(model: mujoco.MjModel) -> list[str]:
