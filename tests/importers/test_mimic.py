@@ -1,0 +1,50 @@
+"""A parallel gripper described the usual way — one actuated knuckle, five ``<mimic>`` joints — imports, starts
+closed where its initial_value says and holds: every mimic joint at multiplier·q + offset from the first step, the
+start-pose contact check posed the same way, joint_states reporting the mimic joints as ros2_control does."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hild.config import load_config
+from hild.importers.ros2_control.importer import ImportResult
+from tests.importers.helpers import ROBOTS, import_robot, lockstep
+
+GRIPPER = ROBOTS / "gripper"
+START = 0.79  # finger_joint's initial_value
+# mimic joint → (followed joint, multiplier, offset), as gripper.urdf's <mimic> elements say
+MIMICS = {
+    "right_outer_knuckle_joint": ("finger_joint", -1.0, 0.0),
+    "left_inner_knuckle_joint": ("finger_joint", 1.0, 0.0),
+    "right_inner_knuckle_joint": ("finger_joint", -1.0, 0.0),
+    "left_inner_finger_joint": ("finger_joint", -1.0, 0.05),
+    "right_inner_finger_joint": ("finger_joint", 1.0, -0.05),
+}
+
+
+def imported(tmp_path: Path) -> ImportResult:
+    return import_robot(GRIPPER / "gripper.urdf", GRIPPER / "gripper_controllers.yaml", tmp_path / "gripper.yaml")
+
+
+def test_the_gripper_holds_closed_at_start_with_every_mimic_joint_where_its_leader_puts_it(tmp_path: Path) -> None:
+    engine = lockstep(imported(tmp_path).config)
+    twin = engine.hardware[0].component
+    finger = engine.joints.index("finger_joint")
+    for _ in range(400):
+        engine.run_cycles(1)
+        assert engine.status()["mode"] != "fault", engine.status()["joints"]
+        q = engine.state.position[finger]
+        for name, (_, multiplier, offset) in MIMICS.items():
+            assert twin.data.qpos[twin.model.joint(name).qposadr[0]] == pytest.approx(multiplier * q + offset, abs=2e-3)
+    assert engine.state.position[finger] == pytest.approx(START, abs=5e-3)
+    np.testing.assert_allclose(engine.state.velocity, 0.0, atol=0.02)
+
+
+def test_the_start_pose_contact_check_poses_the_mimic_joints(tmp_path: Path) -> None:
+    result = imported(tmp_path)
+    exclude = {frozenset(pair) for pair in load_config(result.config).config.hardware["twin"].params["exclude_contacts"]}
+    assert frozenset(("left_inner_finger", "right_inner_finger")) in exclude  # the pads touch when closed
+    assert frozenset(("left_outer_knuckle", "left_inner_knuckle")) not in exclude  # they only meet at a wrong pose
