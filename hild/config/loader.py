@@ -418,13 +418,15 @@ def _check_controller(
     limits = {joint: section.limits for joint, section in c.joints.items()}
     owner = {joint: hw for hw, section in c.hardware.items() for joint in section.joints}
     for i, joint in enumerate(cls.joints_for(params)):
+        if joint in c.joints:
+            continue
         if joint in c.mimic_joints:
             followed = c.mimic_joints[joint].joint
             report(
                 ("controllers", name, "params", "joints", i),
                 f"{joint!r} is a mimic joint of {followed!r}: it follows that joint and cannot be commanded",
             )
-        elif joint not in c.joints:
+        else:
             report(("controllers", name, "params", "joints", i), f"unknown joint {joint!r}")
     for problem in cls.robot_problems(params, limits):
         report(("controllers", name, "params"), problem)
