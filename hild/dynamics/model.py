@@ -122,12 +122,15 @@ def joint_couplings(model: mujoco.MjModel) -> list[JointCoupling]:
         placed |= {c.follower for c in ready}
 
 
-def couple_joints(model: mujoco.MjModel, data: mujoco.MjData) -> list[JointCoupling]:
+def couple_joints(
+    model: mujoco.MjModel, data: mujoco.MjData, couplings: Sequence[JointCoupling] | None = None
+) -> list[JointCoupling]:
     """Put every joint a joint equality couples where its leader puts it (position and velocity), chains
     included: a start pose that sets only the leader (``initial_positions``, a keyframe written for the driven
     joints) would otherwise leave every coupling violated, and the solver snaps the linkage in the first steps.
-    The caller runs ``mj_forward`` afterwards. Returns the couplings applied."""
-    couplings = joint_couplings(model)
+    The caller runs ``mj_forward`` afterwards. ``couplings``: :func:`joint_couplings` of the model, when the
+    caller keeps them for repeated use. Returns the couplings applied."""
+    couplings = joint_couplings(model) if couplings is None else list(couplings)
     for c in couplings:
         x = float(data.qpos[model.jnt_qposadr[c.leader]])
         data.qpos[model.jnt_qposadr[c.follower]] = c.position(model, x)

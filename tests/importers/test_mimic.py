@@ -12,6 +12,7 @@ import pytest
 
 from drivers.mujoco.plant import TwinPlant
 from hild.config import load_config
+from hild.dynamics.kinematics import Kinematics
 from hild.dynamics.model import couple_joints, linear_coupling, load_model
 from hild.hardware import HardwareError
 from hild.importers.ros2_control.importer import ImportResult
@@ -136,3 +137,12 @@ def test_the_emulators_twin_plant_starts_the_mimic_joints_where_their_leader_put
     for name, (_, multiplier, offset) in MIMICS.items():
         assert plant.data.qpos[plant.model.joint(name).qposadr[0]] == pytest.approx(multiplier * START + offset)
     assert plant.free_joints == []  # coupled joints follow; none moves freely
+
+
+def test_the_3d_pose_draws_the_mimic_joints_where_their_leader_puts_them() -> None:
+    kinematics = Kinematics(GRIPPER / "gripper.urdf", ["wrist", "finger_joint"])
+    xyz, _ = kinematics.body_poses(np.array([[0.0, START]]))
+    pads = [kinematics.body_names.index(b) for b in ("left_inner_finger", "right_inner_finger")]
+    left, right = xyz[0, pads]
+    assert left[0] == pytest.approx(-right[0], abs=1e-9)  # the linkage closes symmetrically
+    assert left[0] == pytest.approx(0.045 - 0.05 * np.sin(START), abs=1e-9)  # the pad sits on its knuckle's tip
