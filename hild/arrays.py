@@ -6,7 +6,9 @@ and then only written in place (``arr[:] = …`` or ``np.copyto``), so the cycle
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, fields
+from typing import Any
 
 import numpy as np
 
@@ -14,6 +16,8 @@ __all__ = [
     "COMMAND_FIELDS",
     "STATE_FIELDS",
     "JointState",
+    "MimicJoint",
+    "MimicJoints",
     "ServoCommand",
     "contiguous_slice",
     "gather_command",
@@ -129,3 +133,49 @@ def contiguous_slice(addresses: np.ndarray) -> slice | None:
     if n and np.array_equal(addresses, np.arange(addresses[0], addresses[0] + n)):
         return slice(int(addresses[0]), int(addresses[0]) + n)
     return None
+
+
+@dataclass(frozen=True, slots=True)
+class MimicJoint:
+    """A joint nothing commands that follows a robot joint (the config's ``mimic_joints``; URDF ``<mimic>``):
+    ``position = multiplier·q + offset``, ``velocity = multiplier·q̇``, as ros2_control reads them."""
+
+    name: str
+    joint: str  # the robot joint it follows
+    multiplier: float = 1.0
+    offset: float = 0.0
+
+
+class MimicJoints:
+    """The robot's mimic joints as arrays over the robot's joint order, computed in place (no allocation)."""
+
+    __slots__ = ("joints", "leader", "multiplier", "names", "offset")
+
+    def __init__(self, joints: Iterable[MimicJoint], robot_joints: Sequence[str]) -> None:
+        self.joints = tuple(joints)
+        index = {name: i for i, name in enumerate(robot_joints)}
+        self.names = tuple(m.name for m in self.joints)
+        self.leader = np.array([index[m.joint] for m in self.joints], dtype=np.intp)
+        self.multiplier = np.array([m.multiplier for m in self.joints], dtype=float)
+        self.offset = np.array([m.offset for m in self.joints], dtype=float)
+
+    @classmethod
+    def of(cls, cfg: Any) -> MimicJoints:
+        """From a validated config (its ``mimic_joints`` section), over its joints."""
+        section = getattr(cfg, "mimic_joints", None) or {}
+        mimics = [MimicJoint(name, m.joint, m.multiplier, m.offset) for name, m in section.items()]
+        return cls(mimics, list(cfg.joints))
+
+    def __len__(self) -> int:
+        return len(self.joints)
+
+    def positions(self, position: np.ndarray, out: np.ndarray) -> None:
+        """``out[k] = multiplier[k]·position[leader[k]] + offset[k]``; ``position`` over the robot's joints."""
+        np.take(position, self.leader, out=out)
+        out *= self.multiplier
+        out += self.offset
+
+    def velocities(self, velocity: np.ndarray, out: np.ndarray) -> None:
+        """``out[k] = multiplier[k]·velocity[leader[k]]``."""
+        np.take(velocity, self.leader, out=out)
+        out *= self.multiplier

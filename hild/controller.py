@@ -27,7 +27,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from hild.action import ActionServer
-from hild.arrays import JointState, ServoCommand
+from hild.arrays import JointState, MimicJoints, ServoCommand
 from hild.config.model import JointLimits
 from hild.config.params import Params
 from hild.crossing.mailboxes import InProcess, Mailboxes
@@ -112,6 +112,8 @@ class ControllerContext:
     # The doors between the controller's API half and its cycle half: plain objects in one process, cells of the
     # shared region when the cycle runs in a process of its own (hild.crossing.mailboxes).
     mailboxes: Mailboxes = field(default_factory=InProcess)
+    # Joints nothing commands that follow a robot joint (the config's mimic_joints): reported, never commanded.
+    mimic_joints: MimicJoints = field(default_factory=lambda: MimicJoints((), ()))
 
     def index_of(self, names: Sequence[str]) -> np.ndarray:
         lookup = {j: i for i, j in enumerate(self.joints)}

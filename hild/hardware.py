@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import ClassVar
 
-from hild.arrays import JointState, ServoCommand
+from hild.arrays import JointState, MimicJoint, ServoCommand
 from hild.config.params import Params
 
 __all__ = [
@@ -51,6 +51,8 @@ class HardwareContext:
     update_rate: float
     clock_source: str  # "wall" or "sim"
     emit_event: Callable[[str, str], None]  # (level, message); never call it per cycle
+    # The config's mimic joints that follow a joint of this component: a simulation couples them the same way.
+    mimic_joints: tuple[MimicJoint, ...] = ()
 
     @property
     def period(self) -> float:

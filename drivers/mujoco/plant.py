@@ -22,7 +22,14 @@ import mujoco
 import numpy as np
 
 from hild.cycle.transmission import Transmissions
-from hild.dynamics.model import SCALAR_JOINT_TYPES, joint_names, load_model, scalar_joint_addresses
+from hild.dynamics.model import (
+    SCALAR_JOINT_TYPES,
+    couple_joints,
+    joint_couplings,
+    joint_names,
+    load_model,
+    scalar_joint_addresses,
+)
 
 __all__ = ["TwinPlant"]
 
@@ -65,12 +72,15 @@ class TwinPlant:
             raise ValueError("reduction must be positive and direction ±1")
         self.transmissions = Transmissions(self.reduction, self.direction, self.offset)  # the daemon's maths
         own = set(self._qposadr.tolist())
+        coupled = {c.follower for c in joint_couplings(self.model)}
         self.free_joints = [
             name
             for i, name in enumerate(joint_names(self.model))
-            if int(self.model.jnt_type[i]) in SCALAR_JOINT_TYPES and int(self.model.jnt_qposadr[i]) not in own
+            if int(self.model.jnt_type[i]) in SCALAR_JOINT_TYPES
+            and int(self.model.jnt_qposadr[i]) not in own
+            and i not in coupled
         ]
-        """Model joints no drive acts on: they move freely."""
+        """Model joints no drive acts on and no joint equality couples (mimic joints follow): they move freely."""
         if not gravity:
             self.model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_GRAVITY)
         self.model_name = Path(model_path).name
@@ -89,7 +99,8 @@ class TwinPlant:
         return [self.model.key(i).name for i in range(self.model.nkey)]
 
     def reset(self, keyframe: str | None = None, initial_positions: Mapping[str, float] | None = None) -> None:
-        """Back to rest at ``keyframe`` (default: the model's qpos0), then ``initial_positions`` (joint space)."""
+        """Back to rest at ``keyframe`` (default: the model's qpos0), then ``initial_positions`` (joint space), then
+        every joint a joint equality couples (mimic joints) from its leader."""
         m, d = self.model, self.data
         if keyframe is None:
             mujoco.mj_resetData(m, d)
@@ -103,6 +114,7 @@ class TwinPlant:
                 raise ValueError(f"initial position for {name!r}, which is not one of {list(self.joints)}")
             d.qpos[self._qposadr[self.joints.index(name)]] = value
         d.qvel[:] = 0.0
+        couple_joints(m, d)  # mimic joints from their leaders: a violated coupling snaps the linkage at once
         mujoco.mj_forward(m, d)
         self._publish()
 

@@ -29,7 +29,16 @@ import numpy as np
 from drivers.glitch import ReadingGlitch
 from hild.arrays import JointState, ServoCommand, contiguous_slice
 from hild.config.params import Field, Params, model_validator
-from hild.dynamics.model import SCALAR_JOINT_TYPES, SceneObject, joint_names, load_model, scalar_joint_addresses
+from hild.dynamics.model import (
+    SCALAR_JOINT_TYPES,
+    SceneObject,
+    couple_joints,
+    joint_couplings,
+    joint_names,
+    linear_coupling,
+    load_model,
+    scalar_joint_addresses,
+)
 from hild.hardware import ALL_COMMAND_FIELDS, HardwareComponent, HardwareContext, HardwareError
 
 __all__ = ["MujocoTwin", "MujocoTwinParams"]
@@ -157,6 +166,7 @@ class MujocoTwin(HardwareComponent):
                 f"{self.context.name}: joints do not match the model {path.name}: {exc}; "
                 f"configured joints: {', '.join(self.joints)}"
             ) from None
+        self._check_mimic_joints(model, path.name)
         self._warn_about_unused_parts(model, jid)
         for values, field in (
             (p.friction, model.dof_frictionloss),
@@ -182,12 +192,43 @@ class MujocoTwin(HardwareComponent):
         self._allocate()
         self.reset()
 
+    def _check_mimic_joints(self, model: mujoco.MjModel, model_name: str) -> None:
+        """The config's mimic joints are reported as ``multiplier·q + offset``: the model must couple each of them
+        that way (a joint equality, as MuJoCo makes of URDF ``<mimic>``), or joint_states would say one thing and
+        the simulation do another."""
+        for mimic in self.context.mimic_joints:
+            wanted = f"{mimic.joint!r} × {mimic.multiplier:g} + {mimic.offset:g}"
+            if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, mimic.name) < 0:
+                raise HardwareError(
+                    f"{self.context.name}: mimic joint {mimic.name!r} (follows {wanted}) is not a joint of the "
+                    f"model {model_name}"
+                )
+            found = linear_coupling(model, mimic.name)
+            if found is None:
+                raise HardwareError(
+                    f"{self.context.name}: mimic joint {mimic.name!r} follows {wanted} in the config, but the model "
+                    f"{model_name} does not couple it linearly to any joint: add <mimic joint={mimic.joint!r} "
+                    f'multiplier="{mimic.multiplier:g}" offset="{mimic.offset:g}"/> to it (URDF) or a joint '
+                    "equality (MJCF)"
+                )
+            leader, multiplier, offset = found
+            if leader != mimic.joint or not (
+                math.isclose(multiplier, mimic.multiplier, abs_tol=1e-9)
+                and math.isclose(offset, mimic.offset, abs_tol=1e-9)
+            ):
+                raise HardwareError(
+                    f"{self.context.name}: mimic joint {mimic.name!r} follows {wanted} in the config, but the model "
+                    f"{model_name} couples it as {leader!r} × {multiplier:g} + {offset:g}: make them agree"
+                )
+
     def _warn_about_unused_parts(self, model: mujoco.MjModel, jid: np.ndarray) -> None:
-        """Model joints nobody drives, and actuators the twin never sets, surprise users: say so at configure."""
+        """Model joints nobody drives, and actuators the twin never sets, surprise users: say so at configure.
+        A joint a joint equality couples to another (a mimic joint) is not free: it follows."""
+        coupled = {c.follower for c in joint_couplings(model)}
         passive = [
             name
             for i, name in enumerate(joint_names(model))
-            if int(model.jnt_type[i]) in SCALAR_JOINT_TYPES and i not in jid
+            if int(model.jnt_type[i]) in SCALAR_JOINT_TYPES and i not in jid and i not in coupled
         ]
         if passive:
             self.context.emit_event(
@@ -235,7 +276,8 @@ class MujocoTwin(HardwareComponent):
         self._q = self._qd = self._frc = self._qpos_all = self._qvel_all = self._frc_all = None  # views on the data
 
     def reset(self) -> None:
-        """Put the twin back to its start pose at rest, sim time 0, no pending commands (non real-time)."""
+        """Put the twin back to its start pose at rest, sim time 0, no pending commands (non real-time): the keyframe
+        or qpos0, then initial_positions, then every joint a joint equality couples (mimic joints) from its leader."""
         m, d = self.model, self.data
         if m is None or d is None:
             raise HardwareError(f"{self.context.name}: reset() before configure()")
@@ -246,6 +288,7 @@ class MujocoTwin(HardwareComponent):
         for name, value in self.params.initial_positions.items():
             d.qpos[self._qposadr[self.joints.index(name)]] = value
         d.qvel[:] = 0.0
+        couple_joints(m, d)  # mimic joints where their leaders put them, or the couplings snap at the first step
         d.time = 0.0
         self._clear_commands()
         self._tau.fill(0.0)

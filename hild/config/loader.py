@@ -322,6 +322,7 @@ def _cross_check(loaded: LoadedConfig, issues: list[ConfigIssue]) -> None:
         issues.append(loaded.issue(loc, message))
 
     owner = _joint_owners(loaded.config, report)
+    _check_mimic_joints(loaded.config, report)
     _check_files(loaded, report)
     _check_controllers(loaded, owner, report)
 
@@ -342,6 +343,28 @@ def _joint_owners(c: RobotConfig, report: Report) -> dict[str, str]:
         if joint not in owner:
             report(("joints", joint), f"joint {joint!r} belongs to no hardware component")
     return owner
+
+
+def _check_mimic_joints(c: RobotConfig, report: Report) -> None:
+    """Each mimic joint follows a robot joint (not another mimic joint: give the composed multiplier and offset)
+    and is not itself a robot joint."""
+    for name, mimic in c.mimic_joints.items():
+        if name in c.joints:
+            report(("mimic_joints", name), f"{name!r} is also a joint under joints: a mimic joint is not commanded")
+        followed = mimic.joint
+        if followed in c.joints:
+            continue
+        loc = ("mimic_joints", name, "joint")
+        if followed in c.mimic_joints:
+            hint = ""
+            first = c.mimic_joints[followed]
+            if first.joint in c.joints:
+                multiplier = mimic.multiplier * first.multiplier
+                offset = mimic.multiplier * first.offset + mimic.offset
+                hint = f": follow {first.joint!r} with multiplier {multiplier:g} and offset {offset:g}"
+            report(loc, f"{followed!r} is a mimic joint itself; a mimic joint follows a robot joint{hint}")
+        else:
+            report(loc, f"joint {followed!r} is not defined under joints (defined: {', '.join(c.joints)})")
 
 
 def _check_files(loaded: LoadedConfig, report: Report) -> None:
@@ -395,7 +418,15 @@ def _check_controller(
     limits = {joint: section.limits for joint, section in c.joints.items()}
     owner = {joint: hw for hw, section in c.hardware.items() for joint in section.joints}
     for i, joint in enumerate(cls.joints_for(params)):
-        if joint not in c.joints:
+        if joint in c.joints:
+            continue
+        if joint in c.mimic_joints:
+            followed = c.mimic_joints[joint].joint
+            report(
+                ("controllers", name, "params", "joints", i),
+                f"{joint!r} is a mimic joint of {followed!r}: it follows that joint and cannot be commanded",
+            )
+        else:
             report(("controllers", name, "params", "joints", i), f"unknown joint {joint!r}")
     for problem in cls.robot_problems(params, limits):
         report(("controllers", name, "params"), problem)

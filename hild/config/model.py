@@ -113,6 +113,22 @@ class JointSection(Params):
     )
 
 
+class MimicJointSection(Params):
+    """A joint nothing commands that follows a robot joint, as URDF ``<mimic>`` says and ros2_control reads it:
+    ``position = multiplier·q + offset``, ``velocity = multiplier·q̇`` of the joint it follows."""
+
+    joint: str = Field(description="The robot joint (under joints) it follows.")
+    multiplier: float = Field(default=1.0, description="Its position per unit of the followed joint's position.")
+    offset: float = Field(default=0.0, description="Its position when the followed joint is at 0 (rad or m).")
+
+    @field_validator("multiplier", "offset")
+    @classmethod
+    def _finite(cls, v: float) -> float:
+        if not math.isfinite(v):
+            raise ValueError("must be a finite number")
+        return v
+
+
 class ControllerSection(Params):
     type: str = Field(description="Name in the hild.controllers entry-point group.")
     params: dict[str, Any] = Field(default_factory=dict)
@@ -336,6 +352,11 @@ class RobotConfig(Params):
     clock: ClockSection = Field(default_factory=ClockSection)
     hardware: dict[str, HardwareSection] = Field(min_length=1)
     joints: dict[str, JointSection] = Field(min_length=1)
+    mimic_joints: dict[str, MimicJointSection] = Field(
+        default_factory=dict,
+        description="Joints that follow a robot joint (a gripper's linkage): reported in joint_states after the "
+        "robot's joints; the twin checks its model couples them the same way.",
+    )
     controllers: dict[str, ControllerSection] = Field(default_factory=dict)
     safety: SafetySection = Field(default_factory=SafetySection)
     zenoh: ZenohSection = Field(default_factory=ZenohSection)

@@ -4,6 +4,11 @@ It claims nothing, so it runs alongside any controller and survives an e-stop. S
 ring; the API publishes them on ``hild/<robot>/joint_states`` from the asyncio side. ``fresh`` (1 or 0 per joint)
 says whether the sample is a new accepted reading; 0 means the drive's reading was missing or rejected as
 implausible and the values are the last accepted ones (hild.cycle.plausibility), never the bad reading.
+
+Mimic joints (the config's ``mimic_joints``) follow the robot's joints in each sample, as ros2_control reports them
+(hardware_interface's mimic joints, Jazzy): position = multiplier·q + offset, velocity = multiplier·q̇ of the joint
+each follows, and ``fresh`` that joint's. ros2_control computes no effort for a mimic joint and
+joint_state_broadcaster publishes NaN for an interface a joint does not have, so effort is NaN (JSON: null).
 """
 
 from __future__ import annotations
@@ -31,7 +36,10 @@ class JointStateBroadcaster(Controller):
 
     def __init__(self, context: ControllerContext, params: BroadcasterParams) -> None:
         super().__init__(context, params)
-        self.ring = context.mailboxes.ring("joint_states", len(context.joints), PUBLISHED_FIELDS)
+        self._n = n = len(context.joints)
+        self._mimics = context.mimic_joints
+        self.ring = context.mailboxes.ring("joint_states", n + len(self._mimics), PUBLISHED_FIELDS)
+        self.ring.names = [*context.joints, *self._mimics.names]  # type: ignore[attr-defined]  # what the API names
         self._interval = 1.0 / min(params.publish_rate, context.update_rate)
         self._next = 0.0
 
@@ -60,12 +68,33 @@ class JointStateBroadcaster(Controller):
             self._next = t + self._interval
         ring = self.ring
         i = ring.slot()
-        ring.data["position"][i] = state.position
-        ring.data["velocity"][i] = state.velocity
-        ring.data["effort"][i] = state.effort
-        ring.data["fresh"][i] = state.fresh
+        if self._mimics:
+            self._with_mimics(i, state)
+        else:
+            ring.data["position"][i] = state.position
+            ring.data["velocity"][i] = state.velocity
+            ring.data["effort"][i] = state.effort
+            ring.data["fresh"][i] = state.fresh
         ring.commit(t)
         self.context.notify()
+
+    def _with_mimics(self, i: int, state: JointState) -> None:
+        """Slot ``i``: the robot's joints, then each mimic joint from the joint it follows."""
+        n, mimics, data = self._n, self._mimics, self.ring.data
+        position, velocity, effort, fresh = (
+            data["position"][i],
+            data["velocity"][i],
+            data["effort"][i],
+            data["fresh"][i],
+        )
+        position[:n] = state.position
+        velocity[:n] = state.velocity
+        effort[:n] = state.effort
+        fresh[:n] = state.fresh
+        mimics.positions(state.position, position[n:])
+        mimics.velocities(state.velocity, velocity[n:])
+        effort[n:] = np.nan
+        np.take(fresh[:n], mimics.leader, out=fresh[n:])
 
     def outputs(self) -> Mapping[str, SampleRing]:
         return {"joint_states": self.ring}

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from hild import plugins
-from hild.arrays import JointState, ServoCommand, contiguous_slice, gather_command, scatter_state
+from hild.arrays import JointState, MimicJoints, ServoCommand, contiguous_slice, gather_command, scatter_state
 from hild.config.loader import LoadedConfig
 from hild.config.tuning import MANAGER, ManagerParams
 from hild.controller import ControllerContext, ControllerState, JointGainArrays, JointLimitArrays
@@ -150,6 +150,7 @@ class Engine:
 
         self.limits = JointLimitArrays.of(cfg)
         self._position_gains = JointGainArrays.of(cfg)
+        self.mimic_joints = MimicJoints.of(cfg)
         self.state = JointState.zeros(n)  # joint space, what controllers see
         self.command = ServoCommand.zeros(n)  # controllers' output
         self.final = ServoCommand.zeros(n)  # the supervisor's output, joint space
@@ -263,6 +264,7 @@ class Engine:
                 update_rate=self.update_rate,
                 clock_source=self.clock_source,
                 emit_event=lambda level, msg, src=name: self.events.emit(level, src, msg),
+                mimic_joints=tuple(m for m in self.mimic_joints.joints if m.joint in hw.joints),
             )
             component = loaded.driver_classes[name](context, loaded.driver_params[name])
             joint_index = np.array([index[j] for j in joints], dtype=np.intp)
@@ -287,6 +289,7 @@ class Engine:
             joint_modes=self.supervisor.mode,
             gains=self._position_gains,
             mailboxes=self.mailboxes.scoped(doors or name),
+            mimic_joints=self.mimic_joints,
         )
 
     def controllers(self) -> dict[str, Any]:

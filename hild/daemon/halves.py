@@ -21,6 +21,7 @@ from collections.abc import Callable, Iterable
 from typing import Any
 
 from hild import plugins
+from hild.arrays import MimicJoints
 from hild.config.loader import LoadedConfig
 from hild.controller import Controller, ControllerContext, JointGainArrays, JointLimitArrays
 from hild.crossing.mailboxes import Mailboxes, Shared
@@ -54,6 +55,7 @@ def api_half(loaded: LoadedConfig, load: Load, mailboxes: Mailboxes, emit: Emit)
         emit_event=lambda level, message, source=load.name: emit(level, source, message),
         notify=lambda: None,  # the API half writes no output: the cycle half does, and rings
         mailboxes=mailboxes.scoped(load.doors or load.name),
+        mimic_joints=MimicJoints.of(cfg),
     )
     return cls(context, params)
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from hild.dynamics.model import load_model, scalar_joint_addresses
+from hild.dynamics.model import couple_joints, load_model, scalar_joint_addresses
 
 
 @dataclass(frozen=True)
@@ -60,13 +60,15 @@ class BodyContact:
 
 def body_contacts(path: Path, pose: Mapping[str, float]) -> list[BodyContact]:
     """Pairs of bodies whose geoms MuJoCo finds penetrating at ``pose`` (joint name → position; other joints at
-    qpos0), each once, in model order — the contacts the model would fight from its first step."""
+    qpos0, joints a joint equality couples where their leaders put them, as the twin starts), each once, in model
+    order — the contacts the model would fight from its first step."""
     model = load_model(path)
     data = mujoco.MjData(model)
     data.qpos[:] = model.qpos0
     if pose:
         _, qposadr, _ = scalar_joint_addresses(model, list(pose))
         data.qpos[qposadr] = list(pose.values())
+    couple_joints(model, data)
     mujoco.mj_forward(model, data)
     deepest: dict[tuple[int, int], float] = {}
     for contact in data.contact[: data.ncon]:

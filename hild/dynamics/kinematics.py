@@ -10,7 +10,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from hild.dynamics.model import load_model, scalar_joint_addresses
+from hild.dynamics.model import couple_joints, joint_couplings, load_model, scalar_joint_addresses
 
 _GEOM_KINDS = {
     int(mujoco.mjtGeom.mjGEOM_PLANE): "plane",
@@ -48,7 +48,8 @@ class Kinematics:
 
     Plain numpy in and out, so telemetry draws the arm without importing mujoco. Not for the cycle thread (it
     allocates); the telemetry flusher calls :meth:`body_poses` for a decimated batch of measured positions.
-    Joints of the model that are not in ``joint_names`` stay at the model's ``qpos0``.
+    Joints of the model that are not in ``joint_names`` stay at the model's ``qpos0``, except those a joint
+    equality couples to another (URDF ``<mimic>``: a gripper's linkage), which are drawn where their leader puts them.
     """
 
     def __init__(self, model_path: Path, joint_names: Sequence[str]) -> None:
@@ -59,6 +60,7 @@ class Kinematics:
         except ValueError as exc:
             raise ValueError(f"model {model_path}: {exc}") from None
         self._data = mujoco.MjData(m)
+        self._couplings = joint_couplings(m)
         # Body 0 is the world: it never moves, so it is not one of the posed bodies.
         self.body_names: tuple[str, ...] = tuple(m.body(b).name or f"body{b}" for b in range(1, m.nbody))
         self.geoms: tuple[GeomShape, ...] = tuple(self._geom(g) for g in range(m.ngeom))
@@ -100,6 +102,8 @@ class Kinematics:
         d.qpos[:] = m.qpos0
         for row in range(k):
             d.qpos[self._qposadr] = q[row]
+            if self._couplings:
+                couple_joints(m, d, self._couplings)
             mujoco.mj_kinematics(m, d)
             xyz[row] = d.xpos[1:]
             wxyz[row] = d.xquat[1:]

@@ -125,3 +125,83 @@ def scalar_joint_addresses(
         raise ValueError(f"joint names repeat: {', '.join(names)}")
     jid = np.asarray(ids, dtype=np.intp)
     return jid, model.jnt_qposadr[jid].astype(np.intp), model.jnt_dofadr[jid].astype(np.intp)
+
+
+@dataclass(frozen=True)
+class JointCoupling:
+    """A MuJoCo joint equality (``mjEQ_JOINT`` with a second joint) — what MuJoCo's URDF loader makes of
+    ``<mimic>``: ``y − y0 = a0 + a1·(x − x0) + a2·(x − x0)² + a3·(x − x0)³ + a4·(x − x0)⁴``, with ``y`` the
+    follower, ``x`` the leader and ``y0, x0`` their reference positions (qpos0)."""
+
+    follower: int  # joint ids
+    leader: int
+    polycoef: tuple[float, float, float, float, float]
+
+    def position(self, model: mujoco.MjModel, leader_position: float) -> float:
+        """The follower's position the equality holds it at, for the leader at ``leader_position``."""
+        x = leader_position - float(model.qpos0[model.jnt_qposadr[self.leader]])
+        y = sum(a * x**k for k, a in enumerate(self.polycoef))
+        return float(model.qpos0[model.jnt_qposadr[self.follower]]) + y
+
+    def rate(self, model: mujoco.MjModel, leader_position: float) -> float:
+        """dy/dx at ``leader_position``: the follower's velocity per unit of the leader's."""
+        x = leader_position - float(model.qpos0[model.jnt_qposadr[self.leader]])
+        return sum(k * a * x ** (k - 1) for k, a in enumerate(self.polycoef) if k)
+
+
+def joint_couplings(model: mujoco.MjModel) -> list[JointCoupling]:
+    """The model's active joint-to-joint equalities, leaders before their followers (a chain of mimic joints is
+    resolved link by link); an equality whose leader follows it back (a cycle) is left out."""
+    found = [
+        JointCoupling(int(model.eq_obj1id[i]), int(model.eq_obj2id[i]), tuple(float(a) for a in model.eq_data[i, :5]))
+        for i in range(model.neq)
+        if int(model.eq_type[i]) == int(mujoco.mjtEq.mjEQ_JOINT) and model.eq_obj2id[i] >= 0 and model.eq_active0[i]
+    ]
+    ordered: list[JointCoupling] = []
+    followers = {c.follower for c in found}
+    placed: set[int] = set()
+    while True:
+        ready = [c for c in found if c not in ordered and (c.leader not in followers or c.leader in placed)]
+        if not ready:
+            return ordered
+        ordered += ready
+        placed |= {c.follower for c in ready}
+
+
+def couple_joints(
+    model: mujoco.MjModel, data: mujoco.MjData, couplings: Sequence[JointCoupling] | None = None
+) -> list[JointCoupling]:
+    """Put every joint a joint equality couples where its leader puts it (position and velocity), chains
+    included: a start pose that sets only the leader (``initial_positions``, a keyframe written for the driven
+    joints) would otherwise leave every coupling violated, and the solver snaps the linkage in the first steps.
+    The caller runs ``mj_forward`` afterwards. ``couplings``: :func:`joint_couplings` of the model, when the
+    caller keeps them for repeated use. Returns the couplings applied."""
+    couplings = joint_couplings(model) if couplings is None else list(couplings)
+    for c in couplings:
+        x = float(data.qpos[model.jnt_qposadr[c.leader]])
+        data.qpos[model.jnt_qposadr[c.follower]] = c.position(model, x)
+        data.qvel[model.jnt_dofadr[c.follower]] = c.rate(model, x) * float(data.qvel[model.jnt_dofadr[c.leader]])
+    return couplings
+
+
+def linear_coupling(model: mujoco.MjModel, follower: str) -> tuple[str, float, float] | None:
+    """``(leader joint, multiplier, offset)`` of a joint the model couples linearly to another — through a chain
+    of such couplings to the first leader that follows nothing — in absolute positions
+    (``y = multiplier·x + offset``); None when no joint equality drives it, or one is not linear."""
+    by_follower = {c.follower: c for c in joint_couplings(model)}
+    jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, follower)
+    if jid < 0 or jid not in by_follower:
+        return None
+    multiplier, offset = 1.0, 0.0
+    while jid in by_follower:
+        c = by_follower[jid]
+        if any(c.polycoef[2:]):
+            return None
+        y0 = float(model.qpos0[model.jnt_qposadr[c.follower]])
+        x0 = float(model.qpos0[model.jnt_qposadr[c.leader]])
+        a0, a1 = c.polycoef[0], c.polycoef[1]
+        # y = y0 + a0 + a1·(x − x0); composed with what is known of y so far: result = multiplier·y + offset
+        offset += multiplier * (y0 + a0 - a1 * x0)
+        multiplier *= a1
+        jid = c.leader
+    return model.joint(jid).name, multiplier, offset

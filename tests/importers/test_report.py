@@ -91,7 +91,7 @@ def test_xacro_findings_point_into_the_written_expansion(tmp_path: Path) -> None
 
     (transmission,) = find(result, "mapped", "transmission 'shoulder_lift_transmission'")
     assert "<mechanical_reduction>-50" in at(transmission)
-    (mimic,) = find(result, "unsupported", "mimic joint 'gripper_finger_right'")
+    (mimic,) = find(result, "mapped", "mimic joint 'gripper_finger_right'")
     assert '<mimic joint="gripper_finger_left"' in at(mimic)
     (plugin,) = find(result, "unsupported", "hardware plugin my_arm_hardware/MyArmSystemHardware")
     assert "<plugin>my_arm_hardware/MyArmSystemHardware</plugin>" in at(plugin)

@@ -84,6 +84,7 @@ def import_ros2_control(request: ImportRequest) -> ImportResult:
     plan = ctl.read_controllers(files, mapping.catalog(robot, selected), report, request.args, request.namespace)
     can = read_can_facts(robot, report)
     mapping.report_hardware(robot, {name: facts.used for name, facts in can.items()}, report)
+    mimics = mapping.plan_mimic_joints(robot, selected, report)
     mapping.check_limits(selected)
     twin.check_inertias(robot)
     urdf_text = twin.build_twin_urdf(document, robot, request.urdf.resolve().parent, packages, report)
@@ -110,6 +111,7 @@ def import_ros2_control(request: ImportRequest) -> ImportResult:
             [f"URDF: {request.urdf.resolve()}", *(f"controllers: {f.resolve()}" for f in files)],
             can,
             exclusions,
+            mimics,
         )
         staged_config.write_text(writer.render(doc))
         _relay_check_warnings(_hild_check(staged_config, config_path), joints, robot, report)

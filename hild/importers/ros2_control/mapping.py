@@ -72,6 +72,17 @@ class JointPlan:
     gains_pid: tuple[str, SourceRef] | None = None  # (controller, where) of the user's PID the hold gains come from
 
 
+@dataclass(frozen=True)
+class MimicPlan:
+    """A mimic joint of the config (``mimic_joints``): it follows ``joint``, a commanded joint, through any chain."""
+
+    name: str
+    joint: str
+    multiplier: float
+    offset: float
+    where: SourceRef  # its <mimic> element
+
+
 def select_joints(robot: Robot, report: Report) -> list[Selected]:
     """The joints hild will command: those of the ``<ros2_control>`` blocks, in their order."""
     selected: list[Selected] = []
@@ -91,8 +102,15 @@ def select_joints(robot: Robot, report: Report) -> list[Selected]:
                 raise hw.where.fail(f"joint {hw.name!r} is already in <ros2_control> at {seen[hw.name]}")
             seen[hw.name] = hw.where
             if hw.mimic or joint.mimic is not None:
-                if joint.mimic is None:  # URDF mimic joints are reported with the hardware
-                    report.unsupported(hw.where, f"joint {hw.name!r} is a mimic joint: not commanded")
+                if joint.mimic is None:  # ros2_control refuses this too: the URDF says whom it follows
+                    report.unsupported(
+                        hw.where, f'joint {hw.name!r} is mimic="true" but the URDF gives it no <mimic>: not commanded'
+                    )
+                elif hw.command_interfaces:
+                    report.unsupported(
+                        hw.command_interfaces[0].where,
+                        f"mimic joint {hw.name!r}: command interfaces (ros2_control refuses them on a mimic joint)",
+                    )
                 continue
             for spec in hw.command_interfaces:
                 if spec.name not in HILD_INTERFACES:
@@ -163,15 +181,42 @@ def report_hardware(robot: Robot, read: Mapping[str, set[str]], report: Report) 
         else:
             report.unsupported(element.where, f"<gazebo> {element.plugin or 'element'}: not used by the twin")
     for joint in robot.joints.values():
-        if joint.mimic is not None:
-            m = joint.mimic
+        if joint.mimic is None and joint.type in ("floating", "planar"):
+            report.unsupported(joint.where, f"{joint.type} joint {joint.name!r}: hild drives 1-DoF joints only")
+
+
+def plan_mimic_joints(robot: Robot, selected: list[Selected], report: Report) -> list[MimicPlan]:
+    """URDF ``<mimic>`` joints → the config's ``mimic_joints``: each follows a commanded joint, a chain of mimic
+    joints composed into one multiplier and offset. The twin keeps every one coupled (MuJoCo makes a joint
+    equality of ``<mimic>``); those that follow a joint hild does not command are left out of joint_states."""
+    commanded = {s.joint.name for s in selected}
+    plans = []
+    for joint in robot.joints.values():
+        m = joint.mimic
+        if m is None:
+            continue
+        leader, multiplier, offset, seen = m.joint, m.multiplier, m.offset, {joint.name}
+        while leader in robot.joints and robot.joints[leader].mimic is not None and leader not in seen:
+            seen.add(leader)
+            first = robot.joints[leader].mimic
+            assert first is not None
+            leader, multiplier, offset = first.joint, multiplier * first.multiplier, multiplier * first.offset + offset
+        follows = f"follows {m.joint!r} × {m.multiplier:g} + {m.offset:g}"
+        if leader not in commanded:
             report.unsupported(
                 m.where,
-                f"mimic joint {joint.name!r} (follows {m.joint!r} × {m.multiplier:g} + {m.offset:g}) is not commanded; "
-                "the twin keeps it coupled (MuJoCo joint equality)",
+                f"mimic joint {joint.name!r} ({follows}): {leader!r} is not commanded, so joint_states leaves it "
+                "out; the twin keeps it coupled (MuJoCo joint equality)",
             )
-        elif joint.type in ("floating", "planar"):
-            report.unsupported(joint.where, f"{joint.type} joint {joint.name!r}: hild drives 1-DoF joints only")
+            continue
+        chain = f", i.e. {leader!r} × {multiplier:g} + {offset:g}" if leader != m.joint else ""
+        report.mapped(
+            m.where,
+            f"mimic joint {joint.name!r} ({follows}{chain}) → mimic_joints: joint_states reports it, the twin "
+            "keeps it coupled (MuJoCo joint equality) and starts it where its joint puts it",
+        )
+        plans.append(MimicPlan(joint.name, leader, multiplier, offset, m.where))
+    return plans
 
 
 def plan_joints(

@@ -62,6 +62,7 @@ def build_twin_urdf(
     compiler = _compiler(document.root, robot.where, report)
     _balance_inertias(robot, compiler, report)
     keep_visuals = compiler.attrib.get("discardvisual", "true").strip().lower() == "false"
+    _unique_geom_names(document.root, robot.where.file, keep_visuals, report)
     resolved: dict[str, tuple[SourceRef, int]] = {}
     for link in robot.links.values():
         for mesh in link.meshes:
@@ -90,6 +91,44 @@ def build_twin_urdf(
     for package, root in packages.inferred.items():
         report.approximated(robot.where, f"ROS package {package!r} taken to be {root} (no --package-root given)")
     return serialize(document)
+
+
+def _unique_geom_names(root: XmlElement, label: str, keep_visuals: bool, report: Report) -> None:
+    """Geom names MuJoCo would see twice, made unique in the twin's copy. Its URDF loader names MuJoCo geoms after
+    ``<collision>`` (and kept ``<visual>``) elements, prints "WARNING: Geom with duplicate name … creating an
+    unnamed geom" to stderr for each repeat — on every load, during the import and at each start of the twin — and
+    leaves the repeat unnamed. hild uses no geom names: the first keeps its name, a repeat becomes
+    ``<link>_<name>``, and the report says so once per name."""
+    tags = ("collision", "visual") if keep_visuals else ("collision",)
+    named = [
+        (link.attrib.get("name", ""), element)
+        for link in root.elements("link")
+        for element in link.elements()
+        if element.tag in tags and element.attrib.get("name", "")
+    ]
+    taken = {element.attrib["name"] for _, element in named}
+    first: set[str] = set()
+    renamed: dict[str, list[tuple[XmlElement, str]]] = {}
+    for link, element in named:
+        name = element.attrib["name"]
+        if name not in first:
+            first.add(name)
+            continue
+        new, k = f"{link}_{name}", 2
+        while new in taken:
+            new, k = f"{link}_{name}_{k}", k + 1
+        taken.add(new)
+        element.attrib["name"] = new
+        renamed.setdefault(name, []).append((element, new))
+    for name, repeats in renamed.items():
+        element = repeats[0][0]
+        report.approximated(
+            SourceRef(label, element.line),
+            f"geom name {name!r} is given to {len(repeats) + 1} <{'/'.join(tags)}> elements: MuJoCo's URDF loader "
+            f'would print "WARNING: Geom with duplicate name {name!r} encountered in URDF, creating an unnamed '
+            f"geom\" for each repeat; the twin's URDF names the repeats {', '.join(new for _, new in repeats)} "
+            "instead (nothing in hild uses geom names)",
+        )
 
 
 def principal_moments(inertia: Inertia) -> tuple[float, float, float]:

@@ -18,7 +18,7 @@ from typing import Any
 from hild.config.stop_review import SUGGESTED_DESCENT
 from hild.importers.ros2_control.can_template import CanFacts, template_lines
 from hild.importers.ros2_control.controllers import ControllerPlan, ControllersPlan
-from hild.importers.ros2_control.mapping import JointPlan
+from hild.importers.ros2_control.mapping import JointPlan, MimicPlan
 
 KeyPath = tuple[str, ...]
 _PLAIN = re.compile(r"^[A-Za-z_][A-Za-z0-9_\-./]*$")
@@ -45,6 +45,7 @@ def build_document(
     sources: Sequence[str],
     can: Mapping[str, CanFacts],  # what each <ros2_control> block says about its CAN drives
     exclude_contacts: Sequence[tuple[str, str]] = (),
+    mimic_joints: Sequence[MimicPlan] = (),
 ) -> Document:
     twin_params: dict[str, Any] = {"model": urdf_name, "substeps": substeps}
     initial = {j.name: j.initial_position for j in joints if j.initial_position is not None}
@@ -60,6 +61,7 @@ def build_document(
             "safety": {"stop_descent": SUGGESTED_DESCENT},
             "hardware": {"twin": {"driver": "mujoco", "params": twin_params, "joints": {j.name: {} for j in joints}}},
             "joints": {j.name: _joint(j) for j in joints},
+            **({"mimic_joints": {m.name: _mimic(m) for m in mimic_joints}} if mimic_joints else {}),
             "controllers": {c.name: _controller(c) for c in controllers.controllers},
         }
     )
@@ -74,6 +76,8 @@ def build_document(
     for j in joints:
         c[("hardware", "twin", "joints", j.name)] = j.where.short
         c[("joints", j.name, "hold")] = j.gains_from
+    for m in mimic_joints:
+        c[("mimic_joints", m.name)] = m.where.short
     for plan in controllers.controllers:
         c[("controllers", plan.name)] = f"{plan.comment} ({plan.where.short})"
     doc.header = [
@@ -108,6 +112,10 @@ def _joint(j: JointPlan) -> dict[str, Any]:
         limits["soft_margin"] = j.soft_margin
     limits.update(velocity=j.velocity, effort=j.effort, acceleration=j.acceleration, jerk=j.jerk)
     return {"limits": limits, "hold": {"kp": j.kp, "kd": j.kd}}
+
+
+def _mimic(m: MimicPlan) -> dict[str, Any]:
+    return {"joint": m.joint, "multiplier": _whole(m.multiplier), "offset": _whole(m.offset)}
 
 
 def _controller(plan: ControllerPlan) -> dict[str, Any]:
