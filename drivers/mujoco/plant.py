@@ -10,7 +10,10 @@ config's transmission, mapped by the daemon's own :class:`hild.cycle.transmissio
   their own torque, so the model's actuatorfrcrange is not applied on top.
 
 Like `MotorPlant`, `positions` and `velocities` are the plant's state: a caller may overwrite them (a brake, a test
-placing the arm), and the next `step` starts from the written values. Model joints without a drive move freely.
+placing the arm), and the next `step` starts from the written values. Model joints without a drive move freely,
+except mimic joints: a joint equality (``<equality><joint joint1="follower" joint2="leader" polycoef=…/>``) ties a
+follower to a driven leader, and every start pose (`reset`) puts the follower where the coupling wants it, so the
+constraint does not snap a linkage (e.g. a gripper's second finger) into place on the first step.
 """
 
 from __future__ import annotations
@@ -25,6 +28,8 @@ from hild.cycle.transmission import Transmissions
 from hild.dynamics.model import SCALAR_JOINT_TYPES, joint_names, load_model, scalar_joint_addresses
 
 __all__ = ["TwinPlant"]
+
+_JOINT_EQUALITY = int(mujoco.mjtEq.mjEQ_JOINT)
 
 
 def _per_joint(value: float | Sequence[float], n: int, name: str) -> np.ndarray:
@@ -65,12 +70,18 @@ class TwinPlant:
             raise ValueError("reduction must be positive and direction ±1")
         self.transmissions = Transmissions(self.reduction, self.direction, self.offset)  # the daemon's maths
         own = set(self._qposadr.tolist())
+        self._mimics = _mimic_couplings(self.model, own)
+        followers = {int(self.model.jnt_qposadr[follower]) for follower, _, _ in self._mimics}
+        names = joint_names(self.model)
+        self.mimic_joints = {names[follower]: names[leader] for follower, leader, _ in self._mimics}
+        """Undriven model joints a joint equality ties to a driven one: follower → leader."""
         self.free_joints = [
             name
-            for i, name in enumerate(joint_names(self.model))
-            if int(self.model.jnt_type[i]) in SCALAR_JOINT_TYPES and int(self.model.jnt_qposadr[i]) not in own
+            for i, name in enumerate(names)
+            if int(self.model.jnt_type[i]) in SCALAR_JOINT_TYPES
+            and int(self.model.jnt_qposadr[i]) not in own | followers
         ]
-        """Model joints no drive acts on: they move freely."""
+        """Model joints no drive acts on, directly or through a mimic coupling: they move freely."""
         if not gravity:
             self.model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_GRAVITY)
         self.model_name = Path(model_path).name
@@ -102,9 +113,19 @@ class TwinPlant:
             if name not in self.joints:
                 raise ValueError(f"initial position for {name!r}, which is not one of {list(self.joints)}")
             d.qpos[self._qposadr[self.joints.index(name)]] = value
+        self._couple_mimics()
         d.qvel[:] = 0.0
         mujoco.mj_forward(m, d)
         self._publish()
+
+    def _couple_mimics(self) -> None:
+        """Each mimic follower to where its equality puts it: ``y − y0 = Σ cₖ·(x − x0)ᵏ`` (MuJoCo's joint equality,
+        ``x0``/``y0`` the reference pose qpos0)."""
+        qpos, qpos0 = self.data.qpos, self.model.qpos0
+        for follower, leader, coefficients in self._mimics:
+            x_adr, y_adr = int(self.model.jnt_qposadr[leader]), int(self.model.jnt_qposadr[follower])
+            dx = float(qpos[x_adr] - qpos0[x_adr])
+            qpos[y_adr] = qpos0[y_adr] + sum(c * dx**k for k, c in enumerate(coefficients))
 
     @property
     def time(self) -> float:
@@ -153,3 +174,18 @@ class TwinPlant:
         np.put(self._qpos, self._qposadr, q)
         self.transmissions.joint_velocities(self.velocities, q)
         np.put(self._qvel, self._dofadr, q)
+
+
+def _mimic_couplings(model: mujoco.MjModel, driven: set[int]) -> list[tuple[int, int, list[float]]]:
+    """(follower joint, leader joint, polynomial coefficients) for every active joint equality between two scalar
+    joints whose leader (``joint2``) is driven (its qpos address in ``driven``) and whose follower is not."""
+    couplings = []
+    for eq in range(model.neq):
+        follower, leader = int(model.eq_obj1id[eq]), int(model.eq_obj2id[eq])
+        if int(model.eq_type[eq]) != _JOINT_EQUALITY or not model.eq_active0[eq] or leader < 0:
+            continue
+        if not all(int(model.jnt_type[j]) in SCALAR_JOINT_TYPES for j in (follower, leader)):
+            continue
+        if int(model.jnt_qposadr[leader]) in driven and int(model.jnt_qposadr[follower]) not in driven:
+            couplings.append((follower, leader, [float(c) for c in model.eq_data[eq, :5]]))
+    return couplings
