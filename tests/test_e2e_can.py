@@ -1,4 +1,5 @@
-"""End to end over CAN without kernel CAN: `hild emulate` and `hild run` as two processes on 127.0.0.1.
+"""End to end over CAN without kernel CAN: `hild emulate` and `hild run` as two processes on 127.0.0.1 (arm6, and
+arm6 with its gripper).
 
 The emulator hosts the bus (python-can-remote, ``--serve-remote``) with Damiao firmware models and the MuJoCo twin
 behind them; the daemon runs configs/arm6_can_loopback.yaml (its bus channel patched to a free port) on the wall
@@ -12,6 +13,7 @@ import signal
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -96,3 +98,37 @@ def test_trajectory_over_zenoh_drives_the_emulated_arm(rig: CanProcesses) -> Non
     wait_for(lambda: not any(j["enabled"] for j in rig.status()["joints"]), 10.0, "the drives to be disabled")
     assert request(rig.control, {"op": "stop"}) == {"ok": True}
     assert rig.emulator.wait(30) == 0, rig.logs()
+
+
+class GripperProcesses(CanProcesses):
+    """The same rig on configs/arm6_gripper_can_loopback.yaml: seven drives, the DM4310 gripper motor among them."""
+
+    CONFIG = "arm6_gripper_can_loopback.yaml"
+    MODEL = "arm6_gripper.xml"
+
+
+def test_the_gripper_motor_moves_the_finger_over_the_loopback_bus(tmp_path: Path) -> None:
+    """The loopback variant over CAN-FD: the DM4310 answers and a command in metres turns it through 23.8 rad/m."""
+    rig = GripperProcesses(tmp_path)
+    try:
+
+        def gripper() -> dict[str, Any]:
+            (drive,) = [j for j in rig.drives() if j["name"] == "gripper"]
+            return drive
+
+        with rig.start_daemon() as arm:
+            assert all(j["enabled"] and j["fault"] == 0 for j in rig.drives()), rig.logs()
+            assert gripper()["actuator_position"] == pytest.approx(-1.0472, abs=2e-3)  # open: 0.044 m
+            arm.switch(activate=["gripper_position"])
+
+            def at(opening: float) -> bool:
+                arm.put("gripper_position", {"values": [opening]})  # a stream: the controller times out in 0.5 s
+                return bool(abs(gripper()["position"] - opening) < 2e-4)
+
+            wait_for(lambda: at(0.03), 20.0, "the finger at 3 cm", logs=rig.logs, every=0.05)
+            assert gripper()["actuator_position"] == pytest.approx(-0.03 * 1.0472 / 0.044, abs=5e-3)
+            assert arm.status()["ok"], rig.logs()
+        assert rig.run is not None
+        assert rig.run.stop(30, signal.SIGINT) == 0, rig.logs()
+    finally:
+        rig.close()

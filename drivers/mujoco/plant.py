@@ -10,7 +10,10 @@ config's transmission, mapped by the daemon's own :class:`hild.cycle.transmissio
   their own torque, so the model's actuatorfrcrange is not applied on top.
 
 Like `MotorPlant`, `positions` and `velocities` are the plant's state: a caller may overwrite them (a brake, a test
-placing the arm), and the next `step` starts from the written values. Model joints without a drive move freely.
+placing the arm), and the next `step` starts from the written values. Model joints without a drive move freely,
+except mimic joints: a joint equality (``<equality><joint joint1="follower" joint2="leader" polycoef=…/>``) ties a
+follower to a driven leader, and every start pose (`reset`) puts the follower where the coupling wants it, so the
+constraint does not snap a linkage (e.g. a gripper's second finger) into place on the first step.
 """
 
 from __future__ import annotations
@@ -72,10 +75,14 @@ class TwinPlant:
             raise ValueError("reduction must be positive and direction ±1")
         self.transmissions = Transmissions(self.reduction, self.direction, self.offset)  # the daemon's maths
         own = set(self._qposadr.tolist())
-        coupled = {c.follower for c in joint_couplings(self.model)}
+        names = joint_names(self.model)
+        couplings = joint_couplings(self.model)
+        self.mimic_joints = {names[c.follower]: names[c.leader] for c in couplings}
+        """Model joints a joint equality ties to another (mimic joints): follower → leader."""
+        coupled = {c.follower for c in couplings}
         self.free_joints = [
             name
-            for i, name in enumerate(joint_names(self.model))
+            for i, name in enumerate(names)
             if int(self.model.jnt_type[i]) in SCALAR_JOINT_TYPES
             and int(self.model.jnt_qposadr[i]) not in own
             and i not in coupled

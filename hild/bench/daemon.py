@@ -142,7 +142,8 @@ class HildRun(LoggedChild):
 
 class CanProcesses:
     """``hild emulate`` (Damiao drives and the arm6 twin behind them, holding brakes on) and ``hild run`` on
-    configs/arm6_can_loopback.yaml with free loopback ports: the emulator at once, daemons on demand
+    configs/arm6_can_loopback.yaml (``CONFIG``, ``MODEL``: a subclass may name another loopback config) with free
+    loopback ports: the emulator at once, daemons on demand
     (``start_daemon``). The emulator outlives a daemon, so one can be killed and restarted against an arm that
     stayed where it was.
 
@@ -153,6 +154,7 @@ class CanProcesses:
 
     HOST = "127.0.0.1"
     CONFIG = "arm6_can_loopback.yaml"
+    MODEL = "arm6.xml"  # the config's robot.model, made absolute in the copy the daemon runs
     EMULATOR_PRIORITY = 50
 
     def __init__(self, directory: Path, emulator_args: Sequence[str] = ()) -> None:
@@ -173,7 +175,7 @@ class CanProcesses:
             self.config = directory / self.CONFIG
             self.config.write_text(
                 text.replace("ws://127.0.0.1:54701/", f"ws://{bus}/").replace(
-                    "model: arm6.xml", f"model: {CONFIGS / 'arm6.xml'}"
+                    f"model: {self.MODEL}", f"model: {CONFIGS / self.MODEL}"
                 )
             )
         except BaseException:

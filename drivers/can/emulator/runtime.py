@@ -607,6 +607,9 @@ def _twin_plant(loaded: LoadedConfig, joints: Sequence[EmulatedJoint], opts: Run
     plant.reset(keyframe, opts.initial_positions)
     if plant.free_joints:
         log.warning("model joints without an emulated drive move freely: %s", ", ".join(plant.free_joints))
+    if plant.mimic_joints:
+        pairs = ", ".join(f"{follower} ← {leader}" for follower, leader in plant.mimic_joints.items())
+        log.info("mimic joints follow their driven leader in the model: %s", pairs)
     return plant
 
 
