@@ -2,9 +2,10 @@
 closes on the box (the fingers stall at its half-width), lifts it with a short arm motion, and the sensor carries
 what hangs below it.
 
-The gripper is driven by the config's `gripper_position` forward_command (a gripper controller replaces it later);
-the F/T sensor is read from MuJoCo's sensordata directly (`ft_force`, `ft_torque` at `ft_site`, in that site's frame:
-the force and torque the flange exerts on the sensor, z out of the flange).
+The gripper is driven by the config's `gripper_position` forward_command (streamed openings) and by its `gripper`
+controller (parallel_gripper goals); the F/T sensor is read from MuJoCo's sensordata directly (`ft_force`,
+`ft_torque` at `ft_site`, in that site's frame: the force and torque the flange exerts on the sensor, z out of the
+flange).
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from hild.api.goals import GoalEndpoint
 from hild.cycle.engine import Engine
 from tests.test_engine import JumpGuard, events, modes, send
 from tests.test_twin_engine import twin
@@ -157,3 +159,36 @@ def test_the_ft_sensor_carries_the_weight_below_it() -> None:
     np.testing.assert_allclose(torque, expected_torque, atol=5e-3)
     assert np.linalg.norm(force) > (0.9 + 0.2) * 9.81 - 0.05
     assert np.abs(torque).max() > 0.05  # tilted: the weight now has a lever arm about the flange
+
+
+def test_the_gripper_controller_grasps_the_box_and_the_arm_carries_it() -> None:
+    """`hild ctl gripper close` as the cycle sees it: parallel_gripper stalls on the box with its max_effort (20 N,
+    not the joint's 60), reports `stalled`, and the grasp holds through a trajectory and an e-stop."""
+    rig = Rig()
+    assert rig.engine.switch(["gripper", "joint_trajectory"], []).ok
+    goals = GoalEndpoint.of(rig.engine.manager.records["gripper"].instance.action_server())
+    reply = goals.submit({"position": "close"})
+    assert reply["ok"], reply
+    result = None
+    for _ in range(1500):
+        rig.run(1)
+        result = next((r for r in goals.collect() if r.goal_id == reply["goal_id"]), result)
+        if result is not None:
+            break
+    assert result is not None
+    fields = result.as_dict()
+    assert fields["status"] == "succeeded" and fields["stalled"] is True
+    assert BOX_HALF_WIDTH - 0.002 < fields["position"] < BOX_HALF_WIDTH
+    rig.run(250)
+    assert abs(rig.engine.state.effort[rig.gripper] + 20.0) < 1.0  # the goal's force, not the 60 N limit
+    box_start = rig.box()
+    trajectory = GoalEndpoint.of(rig.engine.manager.records["joint_trajectory"].instance.action_server())
+    target = rig.engine.state.position[rig.arm].copy()
+    target[1] += LIFT
+    assert trajectory.submit({"positions": target.tolist()})["ok"]
+    rig.run(1500)
+    assert rig.box()[2] - box_start[2] > 0.05  # carried
+    rig.engine.estop()
+    lifted = rig.box()
+    rig.run(1000)
+    assert np.abs(rig.box() - lifted).max() < 2e-3  # e-stopped: the gripper holds what it holds
