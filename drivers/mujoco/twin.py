@@ -38,6 +38,7 @@ from hild.dynamics.model import (
     linear_coupling,
     load_model,
     scalar_joint_addresses,
+    stiffen_couplings,
 )
 from hild.hardware import ALL_COMMAND_FIELDS, HardwareComponent, HardwareContext, HardwareError
 
@@ -183,6 +184,8 @@ class MujocoTwin(HardwareComponent):
         if p.impratio is not None:
             model.opt.impratio = p.impratio
         model.opt.timestep = self.context.period / p.substeps
+        if path.suffix.lower() == ".urdf":  # a URDF cannot give its <mimic> couplings a stiffness: make them rigid
+            stiffen_couplings(model, model.opt.timestep)
         if not p.gravity:
             model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_GRAVITY)
         self._keyframe = self._check_start(model, jid, path.name)

@@ -77,3 +77,28 @@ def body_contacts(path: Path, pose: Mapping[str, float]) -> list[BodyContact]:
         a, b = sorted((int(model.geom_bodyid[contact.geom1]), int(model.geom_bodyid[contact.geom2])))
         deepest[a, b] = max(deepest.get((a, b), 0.0), -float(contact.dist))
     return [BodyContact(model.body(a).name, model.body(b).name, depth) for (a, b), depth in sorted(deepest.items())]
+
+
+def finger_spread(path: Path, joint: str, positions: Sequence[float]) -> list[float]:
+    """How far apart the bodies ``joint`` moves are (with every joint a joint equality couples to it: a gripper's
+    mimic linkage), at each of ``positions`` of ``joint``, other joints at qpos0: the mean distance between their
+    centres of mass. A gripper's fingers are closest at the position that closes it — whichever end of its range
+    that is (a Robotiq knuckle closes toward its upper limit, a linear finger's opening toward its lower)."""
+    model = load_model(path)
+    data = mujoco.MjData(model)
+    _, qposadr, _ = scalar_joint_addresses(model, [joint])
+    centres = []
+    for position in positions:
+        data.qpos[:] = model.qpos0
+        data.qpos[qposadr[0]] = position
+        couple_joints(model, data)
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_comPos(model, data)
+        centres.append(np.array(data.xipos))
+    moved = [b for b in range(1, model.nbody) if any(np.linalg.norm(c[b] - centres[0][b]) > 1e-9 for c in centres)]
+    spreads = []
+    for c in centres:
+        points = c[moved]
+        pairs = [np.linalg.norm(points[i] - points[j]) for i in range(len(points)) for j in range(i + 1, len(points))]
+        spreads.append(float(np.mean(pairs)) if pairs else 0.0)
+    return spreads

@@ -205,3 +205,15 @@ def linear_coupling(model: mujoco.MjModel, follower: str) -> tuple[str, float, f
         multiplier *= a1
         jid = c.leader
     return model.joint(jid).name, multiplier, offset
+
+
+def stiffen_couplings(model: mujoco.MjModel, timestep: float) -> int:
+    """Hold every joint coupling (a URDF ``<mimic>``) as stiff as the physics step allows: MuJoCo's default
+    constraint time constant (0.02 s) lets a gripper's mimic finger yield by tenths of a radian under a grasp,
+    where the real linkage is rigid; 2 × timestep is the stiffest MuJoCo integrates stably. Returns how many."""
+    couplings = joint_couplings(model)
+    for c in couplings:
+        for eq in range(model.neq):
+            if int(model.eq_obj1id[eq]) == c.follower and int(model.eq_obj2id[eq]) == c.leader:
+                model.eq_solref[eq] = (2.0 * timestep, 1.0)
+    return len(couplings)

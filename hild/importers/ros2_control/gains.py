@@ -83,3 +83,41 @@ def hold_gains(
     kd = round4(2.0 * HOLD_DAMPING_RATIO * math.sqrt(kp * heavy))
     report.approximated(where, f"{joint}: no effort PID → hold kp {kp:g}, kd {kd:g} ({rule}, ζ = 1)")
     return kp, kd, f"default: {rule.split(':')[0]}, critically damped"
+
+
+GRASP_TRAVEL = 0.02  # of a gripper joint's range: how far from the object its force bound reaches max_effort
+GRIPPER_DEFAULT_EFFORT = 10.0  # parallel_gripper's (and ros2_controllers') default max_effort
+
+
+def grasp_gains(
+    joint: str,
+    kp: float,
+    lower: float,
+    upper: float,
+    limits: GainLimits,
+    inertia: JointInertia,
+    max_effort: float,
+    where: SourceRef,
+    controller: str,
+    report: Report,
+) -> tuple[float, float] | None:
+    """Gains stiff enough for a gripper to press with ``max_effort`` within ``GRASP_TRAVEL`` of its range from the
+    object (parallel_gripper bounds its force through the drive's spring: a soft spring never reaches it), within the
+    bandwidth ``hild check`` allows; None when ``kp`` already is. Reported either way it changes."""
+    travel = GRASP_TRAVEL * (upper - lower)
+    wanted = max_effort / travel
+    if kp >= wanted:
+        return None
+    heavy = inertia.heaviest
+    most = limits.bandwidth(heavy, HOLD_DAMPING_RATIO) if heavy > 0 else math.inf
+    new_kp = round4(min(wanted, heavy * most**2))
+    new_kd = round4(2.0 * HOLD_DAMPING_RATIO * math.sqrt(new_kp * heavy))
+    reach = max_effort / new_kp
+    text = (
+        f"{joint}: hold kp {kp:g} → {new_kp:g}, kd {new_kd:g} for {controller}: it presses with max_effort "
+        f"{max_effort:g} within {reach:.3g} of the object"
+    )
+    if new_kp < wanted:
+        text += f" (not {travel:.3g}: the most the effort limit {limits.effort:g} allows)"
+    report.approximated(where, text)
+    return new_kp, new_kd

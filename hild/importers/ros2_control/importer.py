@@ -23,10 +23,12 @@ from pathlib import Path
 
 from hild.config import ConfigError, load_config
 from hild.config.stop_review import check_with_model
+from hild.dynamics.inspection import finger_spread
 from hild.importers.ros2_control import controllers as ctl
 from hild.importers.ros2_control import mapping, twin, writer
 from hild.importers.ros2_control.can_template import read_can_facts
 from hild.importers.ros2_control.contacts import excluded_contacts
+from hild.importers.ros2_control.gains import GRIPPER_DEFAULT_EFFORT, GainLimits, grasp_gains
 from hild.importers.ros2_control.inertia import joint_inertias
 from hild.importers.ros2_control.packages import PackageRoots
 from hild.importers.ros2_control.report import ImportFailure, Report, SourceRef
@@ -100,6 +102,8 @@ def import_ros2_control(request: ImportRequest) -> ImportResult:
         start = {j.name: j.initial_position for j in joints if j.initial_position is not None}
         with _mujoco_refusal(robot, label, staging):
             exclusions = excluded_contacts(robot, staged_urdf, start, request.keep_self_contacts, report)
+        with _mujoco_refusal(robot, label, staging):
+            _complete_grippers(plan, joints, staged_urdf, report)
         substeps = mapping.choose_substeps(joints, plan.update_rate, report)
         _complete_effort_gains(plan, joints, report)
         doc = writer.build_document(
@@ -255,6 +259,48 @@ def _refused(exc: ValueError, robot: Robot, label: str, staging: Path) -> Import
 def _robot_name(name: str) -> str:
     """hild robot names are Zenoh key parts: letters, digits, _ and -."""
     return re.sub(r"[^A-Za-z0-9_\-]+", "_", name).strip("_") or "robot"
+
+
+def _complete_grippers(
+    plan: ctl.ControllersPlan, joints: list[mapping.JointPlan], twin_urdf: Path, report: Report
+) -> None:
+    """A gripper's open and closed ends (from the twin: where its fingers come together), its max_effort within its
+    joint's effort limit, and its joint stiff enough to press with it."""
+    by_name = {j.name: j for j in joints}
+    for controller in plan.controllers:
+        if controller.type != "parallel_gripper":
+            continue
+        params = controller.params
+        j = by_name[params["joint"]]
+        effort = params.get("max_effort", GRIPPER_DEFAULT_EFFORT)
+        if effort > j.effort:
+            effort = params["max_effort"] = j.effort
+            report.approximated(
+                controller.where,
+                f"{controller.name}: max_effort (given or parallel_gripper's default {GRIPPER_DEFAULT_EFFORT:g}) "
+                f"above {j.name}'s effort limit → {effort:g}",
+            )
+        if params.get("max_velocity", 0.1) > j.velocity:
+            params["max_velocity"] = j.velocity
+            report.approximated(controller.where, f"{controller.name}: max_velocity → {j.name}'s limit {j.velocity:g}")
+        lower, upper = j.lower + j.soft_margin, j.upper - j.soft_margin
+        at_lower, at_upper = finger_spread(twin_urdf, j.name, [lower, upper])
+        closed, opened = (upper, lower) if at_upper < at_lower else (lower, upper)
+        params["closed_position"], params["open_position"] = closed, opened
+        end = "upper" if closed == upper else "lower"
+        report.approximated(
+            controller.where,
+            f"{controller.name}: closes toward {j.name}'s {end} limit (on the twin its fingers come together there: "
+            f"{min(at_lower, at_upper) * 1000:.3g} mm apart against {max(at_lower, at_upper) * 1000:.3g}): "
+            f"closed_position {closed:g}, open_position {opened:g}",
+        )
+        limits = GainLimits(j.velocity, j.effort, j.soft_margin, 1.0 / plan.update_rate)
+        stiffer = grasp_gains(
+            j.name, j.kp, j.lower, j.upper, limits, j.inertia, effort, j.where, controller.name, report
+        )
+        if stiffer is not None:
+            j.kp, j.kd = stiffer
+            j.gains_from = f"stiff enough for {controller.name}'s max_effort"
 
 
 def _complete_effort_gains(plan: ctl.ControllersPlan, joints: list[mapping.JointPlan], report: Report) -> None:
