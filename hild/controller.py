@@ -32,6 +32,7 @@ from hild.config.model import JointLimits
 from hild.config.params import Params
 from hild.crossing.mailboxes import InProcess, Mailboxes
 from hild.crossing.ring import SampleRing
+from hild.sensors import SensorLayout, SensorView
 
 __all__ = [
     "Controller",
@@ -92,6 +93,9 @@ class ControllerContext:
     emit_event: Callable[[str, str], None]  # (level, message); events only, never per cycle
     notify: Callable[[], None]  # wakes the client domain after writing an output
     joint_modes: np.ndarray | None = None  # the supervisor's live JointMode per robot joint (read-only)
+    # The robot's sensors: their accepted values and fresh flags, read-only and live on the cycle (zeros in the
+    # client domain, where only the API half runs) — hild.sensors.SensorView.
+    sensors: SensorView = field(default_factory=lambda: SensorView(SensorLayout()))
     # The doors between the controller's API half and its cycle half: plain objects in one process, cells of the
     # shared region when the cycle runs in a process of its own (hild.crossing.mailboxes).
     mailboxes: Mailboxes = field(default_factory=InProcess)
@@ -143,13 +147,20 @@ class Controller:
         """What this controller needs from the robot's joint limits and does not find (checked at load)."""
         return []
 
+    @classmethod
+    def sensor_interfaces_for(cls, params: Params) -> list[str]:
+        """Sensor state interfaces (``<sensor>/force.x``, …) this controller reads with these params: the config is
+        refused when no sensor provides one (checked when it loads, like ``claims_for``)."""
+        return []
+
     def claims(self) -> list[str]:
         return self.claims_for(self.params)
 
     def state_interfaces(self) -> list[str]:
-        """The measured values this controller reads, as ``<joint>/<position|velocity|effort>``: what ros2_control
-        lists as a controller's required state interfaces (``list_controllers`` reports them). None by default:
-        a controller that reads the state says so. Must not change while the controller is loaded."""
+        """The measured values this controller reads, as ``<joint>/<position|velocity|effort>`` or a sensor's
+        ``<sensor>/<value>``: what ros2_control lists as a controller's required state interfaces
+        (``list_controllers`` reports them). None by default: a controller that reads the state says so. Must not
+        change while the controller is loaded."""
         return []
 
     def on_configure(self) -> None:
