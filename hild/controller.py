@@ -39,6 +39,7 @@ __all__ = [
     "ControllerContext",
     "ControllerState",
     "JointLimitArrays",
+    "ShapedOutput",
     "and_more",
     "unknown_keys",
 ]
@@ -106,6 +107,16 @@ class ControllerContext:
         if missing:
             raise ValueError(f"unknown joints {missing} (robot joints: {list(self.joints)})")
         return np.array([lookup[n] for n in names], dtype=np.intp)
+
+
+@dataclass(frozen=True)
+class ShapedOutput:
+    """An output published on a key of its controller's own, ``hild/<robot>/<controller>/<name>`` (two controllers
+    of one type never collide), as messages of its own shape: ``message(seq, stamp, fields)`` turns a ring sample
+    (``fields``: each field's values) into the JSON object sent."""
+
+    ring: SampleRing
+    message: Callable[[int, float, dict[str, list[float]]], dict[str, Any]]
 
 
 class Controller:
@@ -203,8 +214,9 @@ class Controller:
         (:class:`hild.api.goals.GoalEndpoint`) and its ``goal``/``cancel``/``result``/``feedback`` keys from it."""
         return None
 
-    def outputs(self) -> Mapping[str, SampleRing]:
-        """Named outputs the API publishes; the key is ``hild/<robot>/<name>``."""
+    def outputs(self) -> Mapping[str, SampleRing | ShapedOutput]:
+        """Named outputs the API publishes: a ring's key is ``hild/<robot>/<name>``, a :class:`ShapedOutput`'s
+        ``hild/<robot>/<controller>/<name>``."""
         return {}
 
 
