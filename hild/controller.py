@@ -27,12 +27,12 @@ from typing import Any, ClassVar
 import numpy as np
 
 from hild.action import ActionServer
-from hild.arrays import JointState, ServoCommand
+from hild.arrays import JointState, SensorView, ServoCommand
 from hild.config.model import JointLimits
 from hild.config.params import Params
 from hild.crossing.mailboxes import InProcess, Mailboxes
 from hild.crossing.ring import SampleRing
-from hild.sensors import SensorLayout, SensorView
+from hild.interfaces import SensorLayout
 
 __all__ = [
     "Controller",
@@ -95,7 +95,7 @@ class ControllerContext:
     notify: Callable[[], None]  # wakes the client domain after writing an output
     joint_modes: np.ndarray | None = None  # the supervisor's live JointMode per robot joint (read-only)
     # The robot's sensors: their accepted values and fresh flags, read-only and live on the cycle (zeros in the
-    # client domain, where only the API half runs) — hild.sensors.SensorView.
+    # client domain, where only the API half runs) — hild.arrays.SensorView.
     sensors: SensorView = field(default_factory=lambda: SensorView(SensorLayout()))
     # The doors between the controller's API half and its cycle half: plain objects in one process, cells of the
     # shared region when the cycle runs in a process of its own (hild.crossing.mailboxes).

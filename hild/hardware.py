@@ -5,7 +5,7 @@ drivers). The engine owns the lifecycle and calls the hooks in order, named as a
 ros2_control's): ``on_configure → read (once, so hold starts where the arm is) → on_activate → {read, write}* →
 on_deactivate → on_cleanup``.
 ``read`` and ``write`` run on the cycle thread: they must not block, log, or allocate needlessly. A component that
-reads sensors (``SENSOR_TYPES``, ``hild.sensors``) also fills their values in ``read_sensors``, called right after
+reads sensors (``SENSOR_TYPES``, ``hild.interfaces``) also fills their values in ``read_sensors``, called right after
 its ``read`` in the same cycle.
 """
 
@@ -18,9 +18,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import ClassVar
 
-from hild.arrays import JointState, ServoCommand
+from hild.arrays import JointState, SensorValues, ServoCommand
 from hild.config.params import Params
-from hild.sensors import SensorSpec, SensorValues
+from hild.interfaces import SensorSpec
 
 __all__ = [
     "ALL_COMMAND_FIELDS",

@@ -10,7 +10,7 @@ import pytest
 import yaml
 
 from hild.config import ConfigError, load_config
-from hild.sensors import SensorLayout
+from hild.interfaces import SensorLayout
 from tests.conftest import CONFIGS, mock_robot
 
 

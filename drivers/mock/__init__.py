@@ -17,10 +17,10 @@ from typing import Literal
 import numpy as np
 
 from drivers.glitch import ReadingGlitch
-from hild.arrays import JointState, ServoCommand
+from hild.arrays import JointState, SensorValues, ServoCommand
 from hild.config.params import Field, Params
 from hild.hardware import HardwareComponent, HardwareContext, HardwareError
-from hild.sensors import FORCE_TORQUE, IMU, SensorValues
+from hild.interfaces import FORCE_TORQUE, IMU
 
 
 class MockParams(Params):

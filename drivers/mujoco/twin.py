@@ -33,7 +33,7 @@ import mujoco
 import numpy as np
 
 from drivers.glitch import ReadingGlitch
-from hild.arrays import JointState, ServoCommand, contiguous_slice
+from hild.arrays import JointState, SensorValues, ServoCommand, contiguous_slice
 from hild.config.params import Field, Params
 from hild.dynamics.model import (
     SCALAR_JOINT_TYPES,
@@ -44,7 +44,7 @@ from hild.dynamics.model import (
     site_sensor_addresses,
 )
 from hild.hardware import ALL_COMMAND_FIELDS, HardwareComponent, HardwareContext, HardwareError
-from hild.sensors import FORCE_TORQUE, IMU, SensorSpec, SensorValues
+from hild.interfaces import FORCE_TORQUE, IMU, SensorSpec
 
 __all__ = ["MujocoTwin", "MujocoTwinParams", "MujocoTwinSensorParams"]
 

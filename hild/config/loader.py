@@ -26,8 +26,7 @@ from hild.config.model import ControllerSection, RobotConfig
 from hild.config.params import Params
 from hild.config.safety import review_safety
 from hild.hardware import BusUsage
-from hild.interfaces import FIELDS, ClaimError, interface_name, parse_interface
-from hild.sensors import SensorLayout
+from hild.interfaces import FIELDS, ClaimError, SensorLayout, interface_name, parse_interface
 
 Loc = tuple[str | int, ...]
 Report = Callable[[Loc, str], None]  # (where in the file, what is wrong)

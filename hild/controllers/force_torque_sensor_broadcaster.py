@@ -21,7 +21,7 @@ import numpy as np
 from hild.arrays import JointState, ServoCommand
 from hild.config.params import Field, Params, dynamic, model_validator
 from hild.controller import Controller, ControllerContext, ShapedOutput
-from hild.sensors import FORCE_TORQUE, SENSOR_INTERFACES, sensor_interface
+from hild.interfaces import FORCE_TORQUE, SENSOR_INTERFACES, sensor_interface
 
 OUTPUT = "wrench"
 AXES = ("x", "y", "z")

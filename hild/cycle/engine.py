@@ -25,7 +25,15 @@ from typing import Any
 import numpy as np
 
 from hild import plugins
-from hild.arrays import JointState, ServoCommand, contiguous_slice, gather_command, scatter_state
+from hild.arrays import (
+    JointState,
+    SensorValues,
+    SensorView,
+    ServoCommand,
+    contiguous_slice,
+    gather_command,
+    scatter_state,
+)
 from hild.config.loader import LoadedConfig
 from hild.config.tuning import MANAGER, ManagerParams
 from hild.controller import ControllerContext, ControllerState, JointLimitArrays
@@ -55,9 +63,8 @@ from hild.cycle.sensor_gate import SensorGate
 from hild.cycle.supervisor import Action, Fault, JointGains, SafetySettings, Supervisor, limit_names
 from hild.cycle.transmission import Transmissions
 from hild.hardware import HardwareComponent, HardwareContext, HardwareError, Lifecycle
-from hild.interfaces import ClaimError, interface_name
+from hild.interfaces import ClaimError, SensorLayout, interface_name
 from hild.modes import MODE_NAMES, JointMode
-from hild.sensors import SensorLayout, SensorValues, SensorView
 
 REQUEST_QUEUE = 64
 HEALTH_POLL_HZ = 20.0

@@ -22,7 +22,8 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from hild.sensors import SensorLayout, SensorValues
+from hild.arrays import SensorValues
+from hild.interfaces import SensorLayout
 
 NONE, NON_FINITE, OUT_OF_RANGE, FROZEN = 0, 1, 2, 3
 

@@ -21,12 +21,13 @@ from collections.abc import Callable, Iterable
 from typing import Any
 
 from hild import plugins
+from hild.arrays import SensorView
 from hild.config.loader import LoadedConfig
 from hild.controller import Controller, ControllerContext, JointLimitArrays
 from hild.crossing.mailboxes import Mailboxes, Shared
 from hild.crossing.region import RegionError
 from hild.crossing.requests import Load
-from hild.sensors import SensorLayout, SensorView
+from hild.interfaces import SensorLayout
 
 Emit = Callable[[str, str, str], None]  # (level, source, message)
 REUSE_AFTER = 1.0  # s before given-back cells serve another load: the API withdraws what read them within ms
