@@ -38,7 +38,7 @@ class MockSensorParams(Params):
         "acceleration z 9.81).",
     )
     noise: float = Field(default=0.01, ge=0.0, description="Std dev of the Gaussian noise added to each value.")
-    seed: int = Field(default=0, description="Seed of the noise.")
+    seed: int = Field(default=0, description="Seed of the noise (the sensor's index is added).")
 
 
 def _rest_values(kind: str, width: int) -> np.ndarray:
@@ -76,7 +76,7 @@ class MockHardware(HardwareComponent):
         self.sensor_silent: set[str] = set()
         self.sensor_error: str | None = None
         self._sensor_noise: list[tuple[slice, np.ndarray, np.random.Generator, np.ndarray]] = []
-        for spec in context.sensors:
+        for k, spec in enumerate(context.sensors):
             sp = context.sensor_params.get(spec.name)
             p = sp if isinstance(sp, MockSensorParams) else MockSensorParams()
             base = _rest_values(spec.type, spec.width) if p.values is None else np.array(p.values, dtype=float)
@@ -84,7 +84,7 @@ class MockHardware(HardwareComponent):
                 raise HardwareError(f"sensor {spec.name}: {len(base)} values, a {spec.type} sensor has {spec.width}")
             self.sensor_values[spec.name] = base
             mask = np.array([0.0 if v.startswith("orientation") else 1.0 for v in spec.values])
-            rng = np.random.default_rng(p.seed)
+            rng = np.random.default_rng(p.seed + k)  # two sensors never share a noise stream
             self._sensor_noise.append((spec.part, mask * p.noise, rng, np.zeros(spec.width)))
 
     def on_activate(self) -> None:

@@ -63,7 +63,7 @@ from hild.cycle.sensor_gate import SensorGate
 from hild.cycle.supervisor import Action, Fault, JointGains, SafetySettings, Supervisor, limit_names
 from hild.cycle.transmission import Transmissions
 from hild.hardware import HardwareComponent, HardwareContext, HardwareError, Lifecycle
-from hild.interfaces import ClaimError, SensorLayout, interface_name
+from hild.interfaces import ClaimError, SensorLayout, SensorSpec, interface_name
 from hild.modes import MODE_NAMES, JointMode
 
 REQUEST_QUEUE = 64
@@ -298,7 +298,7 @@ class Engine:
             slots.append(slot)
         return slots
 
-    def _sensors_of(self, hardware: str) -> tuple[tuple[Any, ...], SensorValues | None]:
+    def _sensors_of(self, hardware: str) -> tuple[tuple[SensorSpec, ...], SensorValues | None]:
         """Component ``hardware``'s sensors (offsets relative to its own part) and its part of the raw values."""
         mine = [k for k, s in enumerate(self.sensor_layout.sensors) if s.hardware == hardware]
         if not mine:
