@@ -1,4 +1,4 @@
-"""Joint state and servo command as preallocated struct-of-arrays.
+"""Joint state, servo command and sensor values as preallocated struct-of-arrays.
 
 Every backend, controller and the supervisor exchange these two shapes. They are allocated once at start-up
 and then only written in place (``arr[:] = …`` or ``np.copyto``), so the cycle thread never allocates for them.
@@ -12,12 +12,16 @@ from typing import Any
 
 import numpy as np
 
+from hild.interfaces import SensorLayout, SensorSpec
+
 __all__ = [
     "COMMAND_FIELDS",
     "STATE_FIELDS",
     "JointState",
     "MimicJoint",
     "MimicJoints",
+    "SensorValues",
+    "SensorView",
     "ServoCommand",
     "contiguous_slice",
     "gather_command",
@@ -179,3 +183,60 @@ class MimicJoints:
         """``out[k] = multiplier[k]·velocity[leader[k]]``."""
         np.take(velocity, self.leader, out=out)
         out *= self.multiplier
+
+
+@dataclass(slots=True)
+class SensorValues:
+    """Every sensor value (flat float64, sensors in config order) and, per sensor, whether it is a new reading.
+
+    Allocated once; a component writes its own part in place (``view``) in ``read_sensors``."""
+
+    values: np.ndarray
+    fresh: np.ndarray
+
+    @classmethod
+    def zeros(cls, width: int, sensors: int) -> SensorValues:
+        return cls(values=np.zeros(width), fresh=np.zeros(sensors, dtype=bool))
+
+    def view(self, values: slice, sensors: slice) -> SensorValues:
+        """A component's sensors as views of this array: what it writes lands here, with no copy."""
+        return SensorValues(self.values[values], self.fresh[sensors])
+
+
+class SensorView:
+    """What a controller sees of the sensors: the *accepted* values (a rejected or missing reading is replaced by
+    the last accepted one) and per sensor ``fresh``, read-only views of the engine's arrays, live on the cycle.
+
+    In the client domain (a controller's API half) the arrays are zeros: only the cycle half reads values."""
+
+    def __init__(self, layout: SensorLayout, values: np.ndarray | None = None, fresh: np.ndarray | None = None) -> None:
+        self.layout = layout
+        values = np.zeros(layout.width) if values is None else values
+        fresh = np.zeros(len(layout.sensors), dtype=bool) if fresh is None else fresh
+        self.values = values.view()
+        self.values.flags.writeable = False
+        self.fresh = fresh.view()
+        self.fresh.flags.writeable = False
+        self.names: tuple[str, ...] = layout.names
+        self.interfaces: tuple[str, ...] = tuple(layout.interfaces())
+        self._index = {name: i for i, name in enumerate(self.interfaces)}
+        self._sensor_of = [k for k, s in enumerate(layout.sensors) for _ in range(s.width)]
+
+    def spec(self, sensor: str) -> SensorSpec:
+        """The sensor named ``sensor``; KeyError naming the robot's sensors when there is none."""
+        try:
+            return self.layout.spec(sensor)
+        except KeyError:
+            raise KeyError(f"no sensor {sensor!r} (sensors: {', '.join(self.names) or 'none'})") from None
+
+    def index_of(self, interfaces: Sequence[str]) -> np.ndarray:
+        """Positions of ``interfaces`` in ``values``; ValueError naming those no sensor provides."""
+        missing = [n for n in interfaces if n not in self._index]
+        if missing:
+            known = ", ".join(self.interfaces) or "none"
+            raise ValueError(f"no sensor provides {missing} (sensor interfaces: {known})")
+        return np.array([self._index[n] for n in interfaces], dtype=np.intp)
+
+    def sensor_index(self, interface: str) -> int:
+        """The position in ``fresh`` of the sensor that provides ``interface``."""
+        return self._sensor_of[int(self.index_of([interface])[0])]

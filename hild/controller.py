@@ -27,11 +27,12 @@ from typing import Any, ClassVar
 import numpy as np
 
 from hild.action import ActionServer
-from hild.arrays import JointState, MimicJoints, ServoCommand
+from hild.arrays import JointState, MimicJoints, SensorView, ServoCommand
 from hild.config.model import JointLimits
 from hild.config.params import Params
 from hild.crossing.mailboxes import InProcess, Mailboxes
 from hild.crossing.ring import SampleRing
+from hild.interfaces import SensorLayout
 
 __all__ = [
     "Controller",
@@ -39,6 +40,7 @@ __all__ = [
     "ControllerState",
     "JointGainArrays",
     "JointLimitArrays",
+    "ShapedOutput",
     "and_more",
     "unknown_keys",
 ]
@@ -109,6 +111,9 @@ class ControllerContext:
     notify: Callable[[], None]  # wakes the client domain after writing an output
     joint_modes: np.ndarray | None = None  # the supervisor's live JointMode per robot joint (read-only)
     gains: JointGainArrays | None = None  # the robot's position gains per joint, in the robot's order
+    # The robot's sensors: their accepted values and fresh flags, read-only and live on the cycle (zeros in the
+    # client domain, where only the API half runs) — hild.arrays.SensorView.
+    sensors: SensorView = field(default_factory=lambda: SensorView(SensorLayout()))
     # The doors between the controller's API half and its cycle half: plain objects in one process, cells of the
     # shared region when the cycle runs in a process of its own (hild.crossing.mailboxes).
     mailboxes: Mailboxes = field(default_factory=InProcess)
@@ -121,6 +126,16 @@ class ControllerContext:
         if missing:
             raise ValueError(f"unknown joints {missing} (robot joints: {list(self.joints)})")
         return np.array([lookup[n] for n in names], dtype=np.intp)
+
+
+@dataclass(frozen=True)
+class ShapedOutput:
+    """An output published on a key of its controller's own, ``hild/<robot>/<controller>/<name>`` (two controllers
+    of one type never collide), as messages of its own shape: ``message(seq, stamp, fields)`` turns a ring sample
+    (``fields``: each field's values) into the JSON object sent."""
+
+    ring: SampleRing
+    message: Callable[[int, float, dict[str, list[float]]], dict[str, Any]]
 
 
 class Controller:
@@ -162,6 +177,12 @@ class Controller:
         """What this controller needs from the robot's joint limits and does not find (checked at load)."""
         return []
 
+    @classmethod
+    def sensor_interfaces_for(cls, params: Params) -> list[str]:
+        """Sensor state interfaces (``<sensor>/force.x``, …) this controller reads with these params: the config is
+        refused when no sensor provides one (checked when it loads, like ``claims_for``)."""
+        return []
+
     def claims(self) -> list[str]:
         return self.claims_for(self.params)
 
@@ -173,9 +194,10 @@ class Controller:
         return []
 
     def state_interfaces(self) -> list[str]:
-        """The measured values this controller reads, as ``<joint>/<position|velocity|effort>``: what ros2_control
-        lists as a controller's required state interfaces (``list_controllers`` reports them). None by default:
-        a controller that reads the state says so. Must not change while the controller is loaded."""
+        """The measured values this controller reads, as ``<joint>/<position|velocity|effort>`` or a sensor's
+        ``<sensor>/<value>``: what ros2_control lists as a controller's required state interfaces
+        (``list_controllers`` reports them). None by default: a controller that reads the state says so. Must not
+        change while the controller is loaded."""
         return []
 
     def on_configure(self) -> None:
@@ -218,8 +240,9 @@ class Controller:
         (:class:`hild.api.goals.GoalEndpoint`) and its ``goal``/``cancel``/``result``/``feedback`` keys from it."""
         return None
 
-    def outputs(self) -> Mapping[str, SampleRing]:
-        """Named outputs the API publishes; the key is ``hild/<robot>/<name>``."""
+    def outputs(self) -> Mapping[str, SampleRing | ShapedOutput]:
+        """Named outputs the API publishes: a ring's key is ``hild/<robot>/<name>``, a :class:`ShapedOutput`'s
+        ``hild/<robot>/<controller>/<name>``."""
         return {}
 
 

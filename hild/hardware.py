@@ -4,20 +4,23 @@ A component drives a fixed list of joints in *actuator space* (transmissions are
 drivers). The engine owns the lifecycle and calls the hooks in order, named as a controller's are (and as
 ros2_control's): ``on_configure → read (once, so hold starts where the arm is) → on_activate → {read, write}* →
 on_deactivate → on_cleanup``.
-``read`` and ``write`` run on the cycle thread: they must not block, log, or allocate needlessly.
+``read`` and ``write`` run on the cycle thread: they must not block, log, or allocate needlessly. A component that
+reads sensors (``SENSOR_TYPES``, ``hild.interfaces``) also fills their values in ``read_sensors``, called right after
+its ``read`` in the same cycle.
 """
 
 from __future__ import annotations
 
 import abc
 import enum
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import ClassVar
 
-from hild.arrays import JointState, MimicJoint, ServoCommand
+from hild.arrays import JointState, MimicJoint, SensorValues, ServoCommand
 from hild.config.params import Params
+from hild.interfaces import SensorSpec
 
 __all__ = [
     "ALL_COMMAND_FIELDS",
@@ -53,6 +56,8 @@ class HardwareContext:
     emit_event: Callable[[str, str], None]  # (level, message); never call it per cycle
     # The config's mimic joints that follow a joint of this component: a simulation couples them the same way.
     mimic_joints: tuple[MimicJoint, ...] = ()
+    sensors: tuple[SensorSpec, ...] = ()  # the sensors it reads, ``offset`` relative to its own part of the values
+    sensor_params: Mapping[str, Params] = field(default_factory=dict)  # per sensor: its validated SensorParams
 
     @property
     def period(self) -> float:
@@ -96,11 +101,15 @@ class HardwareComponent(abc.ABC):
     - ``Params``: its parameter model (validated when the config is loaded).
     - ``COMMAND_FIELDS``: the servo-command fields the drive really uses; controllers may only claim these.
     - ``SIMULATED``: True when no real drive is behind it (mock, twin); the config's safety rules then only warn.
+    - ``SENSOR_TYPES``: the sensor types it can read (``force_torque``, ``imu``); none by default, and a config that
+      gives it sensors is refused. ``SensorParams``: the parameter model of each sensor's ``params``.
     """
 
     Params: ClassVar[type[Params]] = Params
     COMMAND_FIELDS: ClassVar[frozenset[str]] = ALL_COMMAND_FIELDS
     SIMULATED: ClassVar[bool] = False
+    SENSOR_TYPES: ClassVar[frozenset[str]] = frozenset()
+    SensorParams: ClassVar[type[Params]] = Params
     APPLIES_GAINS: ClassVar[bool] = True
     """The drive applies the command's kp/kd in its own law, so ``kp·(p − q) + kd·(v − q̇) + ff`` predicts its
     torque and the supervisor may trim ``ff`` against it. False (ODrive in position mode: its own gains) leaves
@@ -168,6 +177,11 @@ class HardwareComponent(abc.ABC):
     @abc.abstractmethod
     def write(self, t: float, dt: float, command: ServoCommand) -> None:
         """Send ``command`` (actuator space) to the drives."""
+
+    def read_sensors(self, t: float, dt: float, values: SensorValues) -> None:
+        """Fill ``values`` (this component's sensors, in ``context.sensors`` order, each at its ``offset``) with the
+        newest readings, in place; set ``values.fresh[k] = False`` for a sensor with no new reading this cycle.
+        Called right after ``read`` in every cycle, only when the component has sensors."""
 
     # Reporting.
     def health(self) -> str | None:

@@ -3,6 +3,10 @@
 It mirrors the servo command into the state (optionally through a first-order lag) and reports the torque the
 drive law would produce. Fault-injection hooks make the supervisor's fault paths testable: silence a servo,
 raise a drive fault code, fail reads, report a component-level problem, or corrupt readings (``glitch``).
+
+Sensors (``force_torque``, ``imu``): each reads ``sensor_values[name]`` (settable; from its params at start) plus
+seeded Gaussian noise of ``noise`` (orientation excepted), so the frozen check has something to see; tests set
+values, silence a sensor (``sensor_silent``) or make ``read_sensors`` raise (``sensor_error``).
 """
 
 from __future__ import annotations
@@ -13,9 +17,10 @@ from typing import Literal
 import numpy as np
 
 from drivers.glitch import ReadingGlitch
-from hild.arrays import JointState, ServoCommand
+from hild.arrays import JointState, SensorValues, ServoCommand
 from hild.config.params import Field, Params
 from hild.hardware import HardwareComponent, HardwareContext, HardwareError
+from hild.interfaces import FORCE_TORQUE, IMU
 
 
 class MockParams(Params):
@@ -26,9 +31,28 @@ class MockParams(Params):
     time_constant: float = Field(default=0.02, gt=0.0, description="Seconds, for first_order dynamics.")
 
 
+class MockSensorParams(Params):
+    values: list[float] | None = Field(
+        default=None,
+        description="The sensor's values in interface order; default zeros (an IMU: orientation w 1, linear "
+        "acceleration z 9.81).",
+    )
+    noise: float = Field(default=0.01, ge=0.0, description="Std dev of the Gaussian noise added to each value.")
+    seed: int = Field(default=0, description="Seed of the noise (the sensor's index is added).")
+
+
+def _rest_values(kind: str, width: int) -> np.ndarray:
+    values = np.zeros(width)
+    if kind == IMU:
+        values[3], values[9] = 1.0, 9.81  # orientation.w, linear_acceleration.z
+    return values
+
+
 class MockHardware(HardwareComponent):
     Params = MockParams
     SIMULATED = True
+    SENSOR_TYPES = frozenset({FORCE_TORQUE, IMU})
+    SensorParams = MockSensorParams
 
     def __init__(self, context: HardwareContext, params: MockParams) -> None:
         super().__init__(context, params)
@@ -48,6 +72,20 @@ class MockHardware(HardwareComponent):
         self.write_error: str | None = None
         self.health_problem: str | None = None
         self.glitch = ReadingGlitch(n)  # corrupts reported positions only (drivers/glitch.py)
+        self.sensor_values: dict[str, np.ndarray] = {}
+        self.sensor_silent: set[str] = set()
+        self.sensor_error: str | None = None
+        self._sensor_noise: list[tuple[slice, np.ndarray, np.random.Generator, np.ndarray]] = []
+        for k, spec in enumerate(context.sensors):
+            sp = context.sensor_params.get(spec.name)
+            p = sp if isinstance(sp, MockSensorParams) else MockSensorParams()
+            base = _rest_values(spec.type, spec.width) if p.values is None else np.array(p.values, dtype=float)
+            if len(base) != spec.width:
+                raise HardwareError(f"sensor {spec.name}: {len(base)} values, a {spec.type} sensor has {spec.width}")
+            self.sensor_values[spec.name] = base
+            mask = np.array([0.0 if v.startswith("orientation") else 1.0 for v in spec.values])
+            rng = np.random.default_rng(p.seed + k)  # two sensors never share a noise stream
+            self._sensor_noise.append((spec.part, mask * p.noise, rng, np.zeros(spec.width)))
 
     def on_activate(self) -> None:
         self.enabled = True
@@ -70,6 +108,19 @@ class MockHardware(HardwareComponent):
         np.copyto(state.fault, self.fault_codes)
         if self.glitch.active:
             self.glitch.apply(state.position, fresh)
+
+    def read_sensors(self, t: float, dt: float, values: SensorValues) -> None:
+        if self.sensor_error:
+            raise HardwareError(self.sensor_error)
+        for k, spec in enumerate(self.context.sensors):
+            part, scale, rng, buf = self._sensor_noise[k]
+            if spec.name in self.sensor_silent:
+                values.fresh[k] = False
+                continue
+            rng.standard_normal(out=buf)
+            np.multiply(buf, scale, out=buf)
+            np.add(self.sensor_values[spec.name], buf, out=values.values[part])
+            values.fresh[k] = True
 
     def write(self, t: float, dt: float, command: ServoCommand) -> None:
         if self.write_error:

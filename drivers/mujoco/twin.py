@@ -16,6 +16,12 @@ physics keeps running (the arm falls under gravity while disabled, as a real unb
 Latency: with ``command_latency_cycles = N`` the command written in cycle k is applied during the physics of cycle
 k + N (a preallocated ring of N + 1 commands). The ring starts empty (zero torque) at every ``on_activate``, so an
 enabled drive applies zero torque for its first N cycles, as a drive that has not yet received a command.
+
+Sensors (``force_torque``, ``imu``; docs/drivers.md, "The twin's sensors"): each reads MuJoCo sensors at a site —
+a ``force``/``torque`` pair, or ``framequat``/``gyro``/``accelerometer`` — the model's own when it has them at that
+site, else added (with a site at the origin of the ``frame_id`` body when the sensor names none) before the model
+is compiled. Each value gets seeded Gaussian noise, so sim and real publish the same kind of signal and the frozen
+check stays meaningful.
 """
 
 from __future__ import annotations
@@ -27,22 +33,25 @@ import mujoco
 import numpy as np
 
 from drivers.glitch import ReadingGlitch
-from hild.arrays import JointState, ServoCommand, contiguous_slice
+from hild.arrays import JointState, SensorValues, ServoCommand, contiguous_slice
 from hild.config.params import Field, Params, model_validator
 from hild.dynamics.model import (
     SCALAR_JOINT_TYPES,
     SceneObject,
+    SensorMount,
     couple_joints,
     joint_couplings,
     joint_names,
     linear_coupling,
     load_model,
     scalar_joint_addresses,
+    site_sensor_addresses,
     stiffen_couplings,
 )
 from hild.hardware import ALL_COMMAND_FIELDS, HardwareComponent, HardwareContext, HardwareError
+from hild.interfaces import FORCE_TORQUE, IMU, SensorSpec
 
-__all__ = ["MujocoTwin", "MujocoTwinParams"]
+__all__ = ["MujocoTwin", "MujocoTwinParams", "MujocoTwinSensorParams"]
 
 _COMMAND_FIELDS = ("position", "velocity", "effort", "kp", "kd")
 _BAD_QACC = int(mujoco.mjtWarning.mjWARN_BADQACC)
@@ -123,6 +132,45 @@ class MujocoTwinParams(Params):
     )
 
 
+class MujocoTwinSensorParams(Params):
+    """A twin sensor's ``params`` (``hardware.<twin>.sensors.<name>.params``)."""
+
+    site: str | None = Field(
+        default=None,
+        description="The model's site the sensor sits at; default: a site added at the origin of the frame_id body.",
+    )
+    force_noise: NonNegative = Field(default=0.05, description="N: std dev of the noise on each force component.")
+    torque_noise: NonNegative = Field(default=0.002, description="N·m: std dev on each torque component.")
+    orientation_noise: NonNegative = Field(default=0.0, description="Std dev on each quaternion component.")
+    gyro_noise: NonNegative = Field(default=0.003, description="rad/s: std dev on each angular velocity component.")
+    accel_noise: NonNegative = Field(default=0.02, description="m/s²: std dev on each acceleration component.")
+    seed: int = Field(default=0, description="Seed of this sensor's noise (the sensor's index is added).")
+
+    def scales(self, kind: str) -> list[float]:
+        """Noise per value, in the order of the sensor type's interfaces."""
+        if kind == FORCE_TORQUE:
+            return [self.force_noise] * 3 + [self.torque_noise] * 3
+        return [self.orientation_noise] * 4 + [self.gyro_noise] * 3 + [self.accel_noise] * 3
+
+
+class TwinSensor:
+    """One sensor's way from ``sensordata`` to hild's values: addresses (hild's order), noise, preallocated."""
+
+    def __init__(self, spec: SensorSpec, params: MujocoTwinSensorParams, addresses: list[int], seed: int) -> None:
+        self.part = spec.part
+        if spec.type == IMU:  # framequat is (w, x, y, z); hild's orientation is x, y, z, w as ROS's
+            quat, gyro, accel = addresses
+            index = [quat + 1, quat + 2, quat + 3, quat, *range(gyro, gyro + 3), *range(accel, accel + 3)]
+        else:
+            force, torque = addresses
+            index = [*range(force, force + 3), *range(torque, torque + 3)]
+        self.index = np.array(index, dtype=np.intp)
+        self.scale = np.array(params.scales(spec.type))
+        self.rng = np.random.default_rng(seed)
+        self.noise = np.zeros(spec.width)
+        self.exact = np.zeros(spec.width)  # MuJoCo's own values, before the noise
+
+
 class MujocoTwin(HardwareComponent):
     """A MuJoCo simulation of the arm that speaks the servo command of every hild backend.
 
@@ -134,6 +182,8 @@ class MujocoTwin(HardwareComponent):
 
     COMMAND_FIELDS = ALL_COMMAND_FIELDS
     SIMULATED = True
+    SENSOR_TYPES = frozenset({FORCE_TORQUE, IMU})
+    SensorParams = MujocoTwinSensorParams
 
     @classmethod
     def files(cls, params: Params) -> dict[str, str]:
@@ -148,6 +198,7 @@ class MujocoTwin(HardwareComponent):
         self.data: mujoco.MjData | None = None
         self._active = False
         self._ring: dict[str, np.ndarray] = {}  # allocated at configure
+        self._sensors: list[TwinSensor] = []  # bound at configure
 
     # ------------------------------------------------------------------ lifecycle (non real-time)
 
@@ -156,7 +207,8 @@ class MujocoTwin(HardwareComponent):
         p = self.params
         path = self.context.config_dir / p.model
         try:
-            model = load_model(path, p.exclude_contacts, [o.scene_object() for o in p.objects])
+            objects = [o.scene_object() for o in p.objects]
+            model = load_model(path, p.exclude_contacts, sensors=self._mounts(), objects=objects)
         except ValueError as exc:
             raise HardwareError(f"{self.context.name}: {exc}") from None
         self._check_names()
@@ -192,6 +244,7 @@ class MujocoTwin(HardwareComponent):
 
         self.model, self.data = model, mujoco.MjData(model)
         self._qposadr, self._dofadr = qposadr, dofadr
+        self._bind_sensors(model)
         self._allocate()
         self.reset()
 
@@ -327,6 +380,17 @@ class MujocoTwin(HardwareComponent):
         if self.glitch.active:
             self.glitch.apply(state.position, state.fresh)
 
+    def read_sensors(self, t: float, dt: float, values: SensorValues) -> None:
+        """Each sensor's MuJoCo values (computed in the last physics step) plus its noise."""
+        data = self.data.sensordata
+        out = values.values
+        for k, sensor in enumerate(self._sensors):
+            np.take(data, sensor.index, out=sensor.exact)
+            sensor.rng.standard_normal(out=sensor.noise)
+            sensor.noise *= sensor.scale
+            np.add(sensor.exact, sensor.noise, out=out[sensor.part])
+            values.fresh[k] = True
+
     def write(self, t: float, dt: float, command: ServoCommand) -> None:
         """Queue ``command`` and advance the physics by one cycle, running the drive law in every substep."""
         m, d = self.model, self.data
@@ -381,6 +445,27 @@ class MujocoTwin(HardwareComponent):
             mujoco.mj_step(m, d)
 
     # ------------------------------------------------------------------ helpers
+
+    def _mounts(self) -> list[SensorMount]:
+        mounts = []
+        for spec in self.context.sensors:
+            params = self._sensor_params(spec.name)
+            mounts.append(SensorMount(spec.name, spec.type, spec.frame_id, params.site))
+        return mounts
+
+    def _sensor_params(self, name: str) -> MujocoTwinSensorParams:
+        params = self.context.sensor_params.get(name)
+        return params if isinstance(params, MujocoTwinSensorParams) else MujocoTwinSensorParams()
+
+    def _bind_sensors(self, model: mujoco.MjModel) -> None:
+        self._sensors = []
+        for k, (spec, mount) in enumerate(zip(self.context.sensors, self._mounts(), strict=True)):
+            params = self._sensor_params(spec.name)
+            try:
+                addresses = site_sensor_addresses(model, mount)
+            except ValueError as exc:
+                raise HardwareError(f"{self.context.name}: {exc}") from None
+            self._sensors.append(TwinSensor(spec, params, addresses, params.seed + k))
 
     def _check_names(self) -> None:
         known = set(self.joints)

@@ -293,6 +293,14 @@ class HildClient:
         ``events``, or any controller output). It runs on a Zenoh thread: keep it short and thread-safe."""
         return self._subscribe_key(self.keys.topic(check_chunk(topic, "topic")), callback)
 
+    def subscribe_controller(
+        self, controller: str, output: str, callback: Callable[[dict[str, Any]], None]
+    ) -> Subscription:
+        """Like :meth:`subscribe`, for an output published under its controller's name,
+        ``hild/<robot>/<controller>/<output>`` (a force_torque_sensor_broadcaster's ``wrench``)."""
+        key = self.keys.controller_topic(check_chunk(controller, "controller"), check_chunk(output, "output"))
+        return self._subscribe_key(key, callback)
+
     def next_message(self, topic: str, timeout: float | None = None) -> dict[str, Any]:
         """The next message on a topic (e.g. the current ``joint_states``), waiting at most ``timeout``."""
         box: list[dict[str, Any]] = []

@@ -73,6 +73,10 @@ class Keys:
         """A published topic: ``status``, ``events`` or a controller output such as ``joint_states``."""
         return f"{self.root}/{name}"
 
+    def controller_topic(self, controller: str, name: str) -> str:
+        """A controller's own published topic (``hild.controller.ShapedOutput``), e.g. a broadcaster's ``wrench``."""
+        return f"{self.root}/{controller}/{name}"
+
     def service(self, name: str) -> str:
         return f"{self.root}/srv/{name}"
 

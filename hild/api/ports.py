@@ -47,6 +47,7 @@ from hild.api.goals import GoalEndpoint
 from hild.api.keys import RESERVED, Keys, check_chunk
 from hild.api.queries import SHUTTING_DOWN, Admitted, LargePayloadWorker, QueryAdmission, clip, drop, reply_json
 from hild.api.session import declare_json_publisher
+from hild.controller import ShapedOutput
 from hild.crossing.ring import RingReader, SampleRing
 from hild.daemon.link import CycleLink
 
@@ -150,11 +151,15 @@ class OutputPort:
     reader: RingReader
     publisher: zenoh.Publisher
     names: list[str] | None
+    shape: Callable[[int, float, dict[str, list[float]]], dict[str, Any]] | None = None  # a ShapedOutput's
 
     def messages(self) -> list[dict[str, Any]]:
-        """New samples as messages: ``{"stamp", "seq", "name"?, <field>: [...]}``."""
+        """New samples as messages: ``{"stamp", "seq", "name"?, <field>: [...]}``, or a shaped output's own."""
         out = []
         for seq, stamp, fields in self.reader.read():
+            if self.shape is not None:
+                out.append(self.shape(seq, stamp, fields))
+                continue
             msg: dict[str, Any] = {"stamp": stamp, "seq": seq}
             if self.names is not None:
                 msg["name"] = self.names
@@ -277,11 +282,18 @@ class ControllerPorts:
             except (ValueError, zenoh.ZError) as exc:
                 self.engine.events.emit("error", "api", f"controller {name}: input {input_name!r} not declared: {exc}")
         taken = {p.topic for ep in self._controllers.values() for p in ep.outputs}
-        for output_name, ring in outputs.items():
+        for output_name, output in outputs.items():
+            shaped = output if isinstance(output, ShapedOutput) else None
+            ring = output.ring if isinstance(output, ShapedOutput) else output
             try:
                 check_chunk(output_name, "output name")
-                topic = self.keys.topic(output_name)
-                if output_name in RESERVED or topic in taken:
+                if shaped is not None:  # under the controller's own name: two of one type never collide
+                    topic = self.keys.controller_topic(name, output_name)
+                    reserved = name in RESERVED
+                else:
+                    topic = self.keys.topic(output_name)
+                    reserved = output_name in RESERVED
+                if reserved or topic in taken:
                     raise ValueError(f"{topic} is already used")
                 publisher = declare_json_publisher(self.session, topic, priority=zenoh.Priority.DATA_HIGH, express=True)
             except (ValueError, zenoh.ZError) as exc:
@@ -289,7 +301,8 @@ class ControllerPorts:
                     "error", "api", f"controller {name}: output {output_name!r} not published: {exc}"
                 )
                 continue
-            endpoints.outputs.append(OutputPort(topic, ring, RingReader(ring), publisher, self._names(ring)))
+            shape = shaped.message if shaped is not None else None
+            endpoints.outputs.append(OutputPort(topic, ring, RingReader(ring), publisher, self._names(ring), shape))
         try:
             server = instance.action_server()
             if server is not None:

@@ -207,10 +207,22 @@ class Services:
         return {"controllers": [dict(c) for c in self.engine.snapshot().controllers]}
 
     def _list_interfaces(self, request: dict[str, Any]) -> Reply:
-        return {"interfaces": [dict(i) for i in self.engine.snapshot().interfaces]}
+        snapshot = self.engine.snapshot()
+        sensors = [
+            {"name": name, "sensor": s["name"], "available": s["available"]}
+            for s in snapshot.sensors
+            for name in s["state_interfaces"]
+        ]
+        return {"interfaces": [dict(i) for i in snapshot.interfaces], "state_interfaces": sensors}
 
     def _list_hardware(self, request: dict[str, Any]) -> Reply:
-        return {"hardware": [dict(h) for h in self.engine.snapshot().hardware]}
+        snapshot = self.engine.snapshot()
+        return {
+            "hardware": [
+                {**h, "sensors": [dict(s) for s in snapshot.sensors if s["hardware"] == h["name"]]}
+                for h in snapshot.hardware
+            ]
+        }
 
     async def _switch(self, request: dict[str, Any]) -> Reply:
         activate = request.get("activate", [])

@@ -26,7 +26,7 @@ from hild.config.model import ControllerSection, RobotConfig
 from hild.config.params import Params
 from hild.config.safety import review_safety
 from hild.hardware import BusUsage
-from hild.interfaces import FIELDS, ClaimError, interface_name, parse_interface
+from hild.interfaces import FIELDS, ClaimError, SensorLayout, interface_name, parse_interface
 
 Loc = tuple[str | int, ...]
 Report = Callable[[Loc, str], None]  # (where in the file, what is wrong)
@@ -63,6 +63,7 @@ class LoadedConfig:
     driver_params: dict[str, Params] = field(default_factory=dict)
     controller_classes: dict[str, type] = field(default_factory=dict)
     controller_params: dict[str, Params] = field(default_factory=dict)
+    sensor_params: dict[str, dict[str, Params]] = field(default_factory=dict)  # component → sensor → its params
     notes: list[str] = field(default_factory=list)  # warnings and figures for `hild check` (e.g. bus load)
     # The file as it was named and where each key sits in it, kept so checks that run after loading (``hild
     # check``'s model review) name file:line as the loader's own findings do.
@@ -89,6 +90,9 @@ class LoadedConfig:
         ]
         for name, hw in c.hardware.items():
             lines.append(f"  hardware {name}: driver {hw.driver}, joints {', '.join(hw.joints)}")
+            for sensor, spec in hw.sensors.items():
+                ranges = ", ".join(f"{k} {v:g}" for k, v in spec.limits.ranges(spec.type).items())
+                lines.append(f"    sensor {sensor}: {spec.type} in {spec.frame_id} ({ranges})")
         for name, ctl in c.controllers.items():
             auto = " (autostart)" if ctl.autostart else ""
             lines.append(f"  controller {name}: {ctl.type}{auto}")
@@ -313,6 +317,28 @@ def _load_plugins(loaded: LoadedConfig, issues: list[ConfigIssue]) -> None:
                 params[name] = cls.Params.model_validate(raw)
             except ValidationError as exc:
                 issues.extend(_pydantic_issues(exc, cls.Params, (section, name, "params"), loaded.file, loaded.lines))
+    for name, hw in c.hardware.items():
+        if name in loaded.driver_classes:
+            _load_sensor_params(loaded, name, hw, issues)
+
+
+def _load_sensor_params(loaded: LoadedConfig, name: str, hw: Any, issues: list[ConfigIssue]) -> None:
+    """Each sensor of component ``name``: a type its driver reads, and params its driver's SensorParams take."""
+    cls = loaded.driver_classes[name]
+    types_ = frozenset(getattr(cls, "SENSOR_TYPES", frozenset()))
+    sensor_params = loaded.sensor_params.setdefault(name, {})
+    for sensor, spec in hw.sensors.items():
+        loc = ("hardware", name, "sensors", sensor)
+        if spec.type not in types_:
+            reads = f"it reads {', '.join(sorted(types_))} sensors only" if types_ else "it reads no sensors"
+            issues.append(
+                loaded.issue((*loc, "type"), f"driver {hw.driver!r} cannot read a {spec.type} sensor: {reads}")
+            )
+            continue
+        try:
+            sensor_params[sensor] = cls.SensorParams.model_validate(spec.params)
+        except ValidationError as exc:
+            issues.extend(_pydantic_issues(exc, cls.SensorParams, (*loc, "params"), loaded.file, loaded.lines))
 
 
 def _cross_check(loaded: LoadedConfig, issues: list[ConfigIssue]) -> None:
@@ -323,6 +349,7 @@ def _cross_check(loaded: LoadedConfig, issues: list[ConfigIssue]) -> None:
 
     owner = _joint_owners(loaded.config, report)
     _check_mimic_joints(loaded.config, report)
+    _check_sensor_names(loaded.config, report)
     _check_files(loaded, report)
     _check_controllers(loaded, owner, report)
 
@@ -365,6 +392,19 @@ def _check_mimic_joints(c: RobotConfig, report: Report) -> None:
             report(loc, f"{followed!r} is a mimic joint itself; a mimic joint follows a robot joint{hint}")
         else:
             report(loc, f"joint {followed!r} is not defined under joints (defined: {', '.join(c.joints)})")
+
+
+def _check_sensor_names(c: RobotConfig, report: Report) -> None:
+    """A sensor's name is unique across the robot and never a joint's: its interfaces share their namespace."""
+    seen: dict[str, str] = {}
+    for hw_name, hw in c.hardware.items():
+        for sensor in hw.sensors:
+            loc = ("hardware", hw_name, "sensors", sensor)
+            if sensor in c.joints:
+                report(loc, f"sensor {sensor!r} has a joint's name; sensors and joints need names of their own")
+            elif sensor in seen:
+                report(loc, f"sensor {sensor!r} is already declared under hardware {seen[sensor]!r}; names are unique")
+            seen.setdefault(sensor, hw_name)
 
 
 def _check_files(loaded: LoadedConfig, report: Report) -> None:
@@ -430,6 +470,12 @@ def _check_controller(
             report(("controllers", name, "params", "joints", i), f"unknown joint {joint!r}")
     for problem in cls.robot_problems(params, limits):
         report(("controllers", name, "params"), problem)
+    sensor_interfaces = set(SensorLayout.of(c).interfaces())
+    for read in cls.sensor_interfaces_for(params):
+        if read not in sensor_interfaces:
+            known = ", ".join(sorted(sensor_interfaces)) or "none: declare sensors under hardware.<component>.sensors"
+            report(("controllers", name, "params"), f"reads {read!r}, which no sensor provides (sensor interfaces: "
+                   f"{known})")  # fmt: skip
     claims = []
     for claim in cls.claims_for(params):
         try:

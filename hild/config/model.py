@@ -50,11 +50,61 @@ class Transmission(Params):
         return v
 
 
+SensorType = Literal["force_torque", "imu"]
+# The plausible range of each limited quantity, per sensor type (docs/config.md, "Sensors"): a typical wrist F/T
+# sensor's rating, and the usual full scale of a MEMS IMU (2000 °/s, 16 g).
+SENSOR_LIMITS: dict[str, dict[str, float]] = {
+    "force_torque": {"force": 500.0, "torque": 50.0},
+    "imu": {"angular_velocity": 35.0, "linear_acceleration": 160.0},
+}
+
+
+class SensorLimits(Params):
+    """The largest plausible magnitude of each component of a sensor's values; a reading beyond it is rejected."""
+
+    force: PositiveFloat | None = Field(default=None, description="N, force_torque only (default 500).")
+    torque: PositiveFloat | None = Field(default=None, description="N·m, force_torque only (default 50).")
+    angular_velocity: PositiveFloat | None = Field(default=None, description="rad/s, imu only (default 35).")
+    linear_acceleration: PositiveFloat | None = Field(default=None, description="m/s², imu only (default 160).")
+
+    def ranges(self, kind: str) -> dict[str, float]:
+        """This sensor type's limits, the defaults where none is given."""
+        return {key: getattr(self, key) or default for key, default in SENSOR_LIMITS[kind].items()}
+
+
+class SensorSection(Params):
+    type: SensorType = Field(description="force_torque (force.x … torque.z) or imu (orientation, angular_velocity, "
+                             "linear_acceleration).")  # fmt: skip
+    frame_id: str = Field(min_length=1, description="The link (frame) the values are expressed in.")
+    params: dict[str, Any] = Field(default_factory=dict, description="Driver parameters of this sensor.")
+    limits: SensorLimits = Field(default_factory=SensorLimits)
+    frozen_cycles: int = Field(
+        default=50,
+        ge=2,
+        le=100_000,
+        description="A reading bit-identical to the previous ones for this many readings in a row is rejected as "
+        "frozen (a real sensor's values carry noise).",
+    )
+
+    @model_validator(mode="after")
+    def _limits_of_its_type(self) -> SensorSection:
+        given = [key for key in SensorLimits.model_fields if getattr(self.limits, key) is not None]
+        foreign = [key for key in given if key not in SENSOR_LIMITS[self.type]]
+        if foreign:
+            allowed = ", ".join(SENSOR_LIMITS[self.type])
+            raise ValueError(f"limits {foreign} do not apply to {self.type} sensors (their limits: {allowed})")
+        return self
+
+
 class HardwareSection(Params):
     driver: str = Field(description="Name of a driver in the hild.drivers entry-point group (mock, mujoco, …).")
     params: dict[str, Any] = Field(default_factory=dict, description="Driver parameters; see the driver's docs.")
     joints: dict[str, Transmission] = Field(
         min_length=1, description="Joints this component drives, each with its transmission."
+    )
+    sensors: dict[Annotated[str, Field(pattern=r"^[A-Za-z0-9_\-]+$")], SensorSection] = Field(
+        default_factory=dict,
+        description="Sensors this component reads (state interfaces only); names unique across the robot.",
     )
 
 

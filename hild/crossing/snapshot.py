@@ -22,3 +22,5 @@ class Snapshot:
     interfaces: tuple[dict[str, Any], ...]  # list_interfaces' entries
     realtime: dict[str, str] = field(default_factory=dict)
     tuning: Any = None  # the daemon's own parameters as they are now (hild.config.tuning.ManagerParams)
+    # name, type, frame_id, hardware, state_interfaces, fault (None: healthy), available
+    sensors: tuple[dict[str, Any], ...] = ()

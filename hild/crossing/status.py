@@ -10,6 +10,7 @@ from hild.crossing.snapshot import Snapshot
 from hild.crossing.stats import LoopStats
 
 HARDWARE_STATUS_FIELDS = ("name", "driver", "state", "fault")
+SENSOR_STATUS_FIELDS = ("name", "type", "frame_id", "hardware", "fault")
 STATS_MAX_AGE = 0.1  # s: status polled at 200 Hz recomputes loop percentiles at most 10 times a second
 
 
@@ -35,4 +36,5 @@ def render_status(
         "hardware": [{k: h[k] for k in HARDWARE_STATUS_FIELDS} for h in snapshot.hardware],
         "loop": loop,
         "realtime": dict(snapshot.realtime),
+        "sensors": [{k: s[k] for k in SENSOR_STATUS_FIELDS} for s in snapshot.sensors],
     }

@@ -25,7 +25,16 @@ from typing import Any
 import numpy as np
 
 from hild import plugins
-from hild.arrays import JointState, MimicJoints, ServoCommand, contiguous_slice, gather_command, scatter_state
+from hild.arrays import (
+    JointState,
+    MimicJoints,
+    SensorValues,
+    SensorView,
+    ServoCommand,
+    contiguous_slice,
+    gather_command,
+    scatter_state,
+)
 from hild.config.loader import LoadedConfig
 from hild.config.tuning import MANAGER, ManagerParams
 from hild.controller import ControllerContext, ControllerState, JointGainArrays, JointLimitArrays
@@ -51,10 +60,11 @@ from hild.crossing.snapshot import Snapshot
 from hild.crossing.stats import LoopStats
 from hild.crossing.status import loop_status, render_status
 from hild.cycle.manager import ControllerManager, SwitchError, SwitchResult
+from hild.cycle.sensor_gate import SensorGate
 from hild.cycle.supervisor import Action, Fault, JointGains, SafetySettings, Supervisor, limit_names
 from hild.cycle.transmission import Transmissions
 from hild.hardware import HardwareComponent, HardwareContext, HardwareError, Lifecycle
-from hild.interfaces import ClaimError, interface_name
+from hild.interfaces import ClaimError, SensorLayout, SensorSpec, interface_name
 from hild.modes import MODE_NAMES, JointMode
 
 REQUEST_QUEUE = 64
@@ -89,6 +99,8 @@ class HardwareSlot:
     lifecycle: Lifecycle = Lifecycle.UNCONFIGURED
     fault: str = ""
     locked_out: bool = False  # set inactive by an operator: read and held, its command interfaces unavailable
+    sensors: SensorValues | None = None  # its sensors' part of the engine's raw sensor values; None: it has none
+    sensor_failure: str = ""  # read_sensors raised: why (reported once, until it reads again)
 
     def command_interfaces(self) -> list[str]:
         return [interface_name(j, f) for j in self.component.joints for f in sorted(self.component.COMMAND_FIELDS)]
@@ -159,7 +171,16 @@ class Engine:
             self._actuator_state, self._actuator_command = self.state, self.final
         else:
             self._actuator_state, self._actuator_command = JointState.zeros(n), ServoCommand.zeros(n)
+        self.sensor_layout = SensorLayout.of(cfg)
+        self.sensor_gate = SensorGate(
+            self.sensor_layout,
+            [cfg.hardware[s.hardware].sensors[s.name].frozen_cycles for s in self.sensor_layout.sensors],
+            cfg.safety.stale_feedback_cycles,
+            self.events.emit,
+        )
+        self.sensors = SensorView(self.sensor_layout, self.sensor_gate.accepted, self.sensor_gate.fresh)
         self.hardware = self._build_hardware(loaded, index)
+        self._has_sensors = bool(self.sensor_layout.sensors)
         self._joint_slot = np.zeros(n, dtype=np.intp)
         for k, slot in enumerate(self.hardware):
             self._joint_slot[slot.index] = k
@@ -257,6 +278,7 @@ class Engine:
         slots = []
         for name, hw in loaded.config.hardware.items():
             joints = tuple(hw.joints)
+            sensors, sensor_values = self._sensors_of(name)
             context = HardwareContext(
                 name=name,
                 joints=joints,
@@ -265,6 +287,8 @@ class Engine:
                 clock_source=self.clock_source,
                 emit_event=lambda level, msg, src=name: self.events.emit(level, src, msg),
                 mimic_joints=tuple(m for m in self.mimic_joints.joints if m.joint in hw.joints),
+                sensors=sensors,
+                sensor_params=dict(loaded.sensor_params.get(name, {})),
             )
             component = loaded.driver_classes[name](context, loaded.driver_params[name])
             joint_index = np.array([index[j] for j in joints], dtype=np.intp)
@@ -273,8 +297,21 @@ class Engine:
                 state, command = self._actuator_state.view(part), self._actuator_command.view(part)
             else:
                 state, command = JointState.zeros(len(joints)), ServoCommand.zeros(len(joints))
-            slots.append(HardwareSlot(name, hw.driver, component, joint_index, state, command, part is not None))
+            slot = HardwareSlot(name, hw.driver, component, joint_index, state, command, part is not None)
+            slot.sensors = sensor_values
+            slots.append(slot)
         return slots
+
+    def _sensors_of(self, hardware: str) -> tuple[tuple[SensorSpec, ...], SensorValues | None]:
+        """Component ``hardware``'s sensors (offsets relative to its own part) and its part of the raw values."""
+        mine = [k for k, s in enumerate(self.sensor_layout.sensors) if s.hardware == hardware]
+        if not mine:
+            return (), None
+        specs = [self.sensor_layout.sensors[k] for k in mine]
+        start = specs[0].offset
+        local = tuple(dataclasses.replace(s, offset=s.offset - start) for s in specs)
+        width = sum(s.width for s in specs)
+        return local, self.sensor_gate.raw.view(slice(start, start + width), slice(mine[0], mine[-1] + 1))
 
     def controller_context(self, name: str, doors: str = "") -> ControllerContext:
         """``doors``: the prefix of its cells in the shared region (the name, for those the config lists)."""
@@ -288,6 +325,7 @@ class Engine:
             notify=self._ring,
             joint_modes=self.supervisor.mode,
             gains=self._position_gains,
+            sensors=self.sensors,
             mailboxes=self.mailboxes.scoped(doors or name),
             mimic_joints=self.mimic_joints,
         )
@@ -597,10 +635,31 @@ class Engine:
             except Exception as exc:
                 slot.state.fresh.fill(False)
                 self._hardware_fault(slot, f"read failed: {type(exc).__name__}: {exc}")
+            if slot.sensors is not None:
+                self._read_sensors(slot, t, dt)
             if not slot.in_place:
                 scatter_state(slot.state, slot.index, act)
         if act is not self.state:
             self.transmissions.to_joint(act, self.state)
+        if self._has_sensors:
+            self.sensor_gate.filter()
+
+    def _read_sensors(self, slot: HardwareSlot, t: float, dt: float) -> None:
+        """The component's sensors, right after its joints; a failure leaves them not fresh (the sensor gate's
+        stale rule faults them) and is reported once, never a joint's fault."""
+        values = slot.sensors
+        assert values is not None
+        try:
+            slot.component.read_sensors(t, dt, values)
+        except Exception as exc:
+            values.fresh.fill(False)
+            if not slot.sensor_failure:
+                slot.sensor_failure = f"{type(exc).__name__}: {exc}"
+                self.events.emit("error", slot.name, f"reading its sensors failed: {slot.sensor_failure}")
+            return
+        if slot.sensor_failure:
+            slot.sensor_failure = ""
+            self.events.emit("info", slot.name, "reading its sensors works again")
 
     def _write(self, t: float, dt: float) -> None:
         if self._actuator_command is not self.final:
@@ -815,7 +874,7 @@ class Engine:
                 return {"cleared": [], "error": f"{slot.name} still faulted: {problem}"}
             slot.lifecycle, slot.fault = Lifecycle.ACTIVE, ""
         self.stats.consecutive_overruns = 0
-        return {"cleared": self.supervisor.reset()}
+        return {"cleared": self.supervisor.reset() + self.sensor_gate.reset()}
 
     def enable(self, joints: Sequence[str] = ()) -> dict[str, Any]:
         """Operator command (between cycles): enable drives a fault disabled; all when ``joints`` is empty.
@@ -891,7 +950,7 @@ class Engine:
     # ---- reading back (any thread) ----------------------------------------------------------------------------
     @property
     def change_seq(self) -> int:
-        return self.supervisor.change_seq + self.manager.change_seq
+        return self.supervisor.change_seq + self.manager.change_seq + self.sensor_gate.change_seq
 
     def overall_mode(self) -> str:
         sup = self.supervisor
@@ -942,7 +1001,16 @@ class Engine:
             ),
             realtime=dict(self.realtime_report),
             tuning=self.tuning,
+            sensors=tuple(
+                {**entry, "fault": self.sensor_gate.fault_text[k] or None, "available": self._sensor_available(k)}
+                for k, entry in enumerate(self.sensor_layout.describe())
+            ),
         )
+
+    def _sensor_available(self, k: int) -> bool:
+        """ros2_control's word for a state interface: its component is active or inactive (still read)."""
+        slot = next(s for s in self.hardware if s.name == self.sensor_layout.sensors[k].hardware)
+        return slot.lifecycle in (Lifecycle.ACTIVE, Lifecycle.INACTIVE)
 
     def status(self) -> dict[str, Any]:
         """The status reply, rendered as the client domain renders it for a cycle in another process."""

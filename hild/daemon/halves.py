@@ -21,12 +21,13 @@ from collections.abc import Callable, Iterable
 from typing import Any
 
 from hild import plugins
-from hild.arrays import MimicJoints
+from hild.arrays import MimicJoints, SensorView
 from hild.config.loader import LoadedConfig
 from hild.controller import Controller, ControllerContext, JointGainArrays, JointLimitArrays
 from hild.crossing.mailboxes import Mailboxes, Shared
 from hild.crossing.region import RegionError
 from hild.crossing.requests import Load
+from hild.interfaces import SensorLayout
 
 Emit = Callable[[str, str, str], None]  # (level, source, message)
 REUSE_AFTER = 1.0  # s before given-back cells serve another load: the API withdraws what read them within ms
@@ -54,6 +55,7 @@ def api_half(loaded: LoadedConfig, load: Load, mailboxes: Mailboxes, emit: Emit)
         update_rate=cfg.update_rate,
         emit_event=lambda level, message, source=load.name: emit(level, source, message),
         notify=lambda: None,  # the API half writes no output: the cycle half does, and rings
+        sensors=SensorView(SensorLayout.of(cfg)),  # names and frames; the values live in the cycle half only
         mailboxes=mailboxes.scoped(load.doors or load.name),
         mimic_joints=MimicJoints.of(cfg),
     )

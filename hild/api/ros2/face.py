@@ -2,7 +2,8 @@
 
 It shares the API's Zenoh session and reaches the robot only through what the JSON API uses: the broadcaster's
 output ring (``/joint_states``), a forward_command controller's ``inputs()`` callable (``<controller>/commands``:
-the same validation, the same refusals), the services layer (the controller manager's services and every node's
+the same validation, the same refusals), a force_torque_sensor_broadcaster's ``wrench`` ring
+(``<controller>/wrench``), the services layer (the controller manager's services and every node's
 parameters) and a joint_trajectory controller's action server (``action``). This module is the plumbing they share:
 the node's tokens, publishers, subscriptions and service queryables, and one more node per loaded controller
 (``/<controller>``, with its parameter services), as ros2_control's controllers are nodes. Anything a ROS peer
@@ -61,6 +62,7 @@ from hild.api.ros2.wire import (
 )
 from hild.api.services import Services
 from hild.config.model import Ros2Section
+from hild.controller import ShapedOutput
 from hild.crossing.ring import RingReader
 from hild.daemon.link import CycleLink
 
@@ -69,6 +71,8 @@ log = logging.getLogger("hild.api.ros2")
 JOINT_STATE = "sensor_msgs/msg/JointState"
 STRING = "std_msgs/msg/String"
 FLOAT64_ARRAY = "std_msgs/msg/Float64MultiArray"
+WRENCH_STAMPED = "geometry_msgs/msg/WrenchStamped"  # rosbags' Jazzy store holds it; its hash is Jazzy's
+WRENCH_BROADCASTER = "force_torque_sensor_broadcaster"
 SOURCE = "ros2"  # the source of hild events this face emits
 # joint_state_broadcaster's frame_id parameter defaults to this (ros2_controllers 4.42.1, jazzy); rviz needs a frame
 # to show the joints' efforts
@@ -80,6 +84,15 @@ class JointStatesOut:
     writer: Writer
     reader: RingReader
     names: list[str]
+
+
+@dataclass
+class WrenchOut:
+    """A force_torque_sensor_broadcaster's ``wrench`` ring, published as WrenchStamped in ``frame_id``."""
+
+    writer: Writer
+    reader: RingReader
+    frame_id: str
 
 
 def _undeclare(entities: list[Any]) -> None:
@@ -96,6 +109,7 @@ class Declared:
     tokens: list[Any] = field(default_factory=list)
     entities: list[Any] = field(default_factory=list)
     joint_states: JointStatesOut | None = None
+    wrench: WrenchOut | None = None
     action: RosAction | None = None
 
 
@@ -306,6 +320,10 @@ class RosFace:
             names = list(getattr(ring, "names", None) or self.engine.joints)
             writer = self.writer(self.name("joint_states"), JOINT_STATE)
             declared.joint_states = JointStatesOut(writer, RingReader(ring), names)
+        wrench = outputs.get("wrench")
+        if isinstance(wrench, ShapedOutput) and kind == WRENCH_BROADCASTER:
+            writer = self.writer(self.name(f"{controller}/wrench"), WRENCH_STAMPED)
+            declared.wrench = WrenchOut(writer, RingReader(wrench.ring), str(instance.frame_id))
         server = instance.action_server() if kind in ("joint_trajectory", "parallel_gripper") else None
         if server is not None and kind == "joint_trajectory":
             declared.action = TrajectoryAction(self, controller, server)
@@ -396,11 +414,35 @@ class RosFace:
                 )
                 with contextlib.suppress(zenoh.ZError):
                     out.writer.put(types.encode(msg, JOINT_STATE))
+        for wrench in (d.wrench for d in declared if d.wrench is not None):
+            self._flush_wrench(wrench)
         for action in (d.action for d in declared if d.action is not None):
             try:
                 action.flush()
             except Exception:  # a bug costs this flush of one action, not the daemon's publishing
                 log.exception("ROS action %s: flush failed", action.name)
+
+    def _flush_wrench(self, out: WrenchOut) -> None:
+        """Each fresh wrench sample as WrenchStamped; a sample whose sensor had no accepted reading is not sent
+        (ROS has no ``fresh``: the topic goes quiet while the sensor is stale, as the JSON's ``fresh`` says false)."""
+        assert self._clock is not None
+        for _seq, stamp, fields in out.reader.read():
+            if not fields["fresh"][0]:
+                continue
+            force, torque = fields["force"], fields["torque"]
+            msg = types.message(
+                WRENCH_STAMPED,
+                header=types.message(
+                    "std_msgs/msg/Header", stamp=ros_time(self._clock.sample_ns(stamp)), frame_id=out.frame_id
+                ),
+                wrench=types.message(
+                    "geometry_msgs/msg/Wrench",
+                    force=types.message("geometry_msgs/msg/Vector3", x=force[0], y=force[1], z=force[2]),
+                    torque=types.message("geometry_msgs/msg/Vector3", x=torque[0], y=torque[1], z=torque[2]),
+                ),
+            )
+            with contextlib.suppress(zenoh.ZError):
+                out.writer.put(types.encode(msg, WRENCH_STAMPED))
 
     # ---- commands (a Zenoh thread) ------------------------------------------------------------------------------
     def _commands_handler(self, controller: str, name: str, accept: Callable[[Any], None]) -> Callable[[Any], None]:

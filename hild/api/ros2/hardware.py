@@ -6,7 +6,8 @@ several joints and runs on the cycle: ``type`` ``system``, ``is_async`` false, `
 ``plugin_name`` ``hild/<driver>``. Its command interfaces are those ``list_interfaces`` names for its joints
 (``<joint>/<field>``, ``double``): ``is_claimed`` when a controller holds one (the JSON's ``claimed_by``),
 ``is_available`` while the component is active. Its state interfaces are every joint's ``position``, ``velocity``
-and ``effort``, available while it is active or inactive and never claimed (ros2_control claims none). Lifecycle states:
+and ``effort``, and its sensors' (``<sensor>/force.x``, …: ``list_hardware``'s ``sensors``), available while it is
+active or inactive and never claimed (ros2_control claims none). Lifecycle states:
 hild's ``unconfigured``, ``inactive`` and ``active`` are ROS's (ids 1, 2, 3); hild's ``fault`` has no ROS state and
 is reported as id 0 (unknown) with the label ``fault``.
 
@@ -91,7 +92,9 @@ class HardwareServices:
     @staticmethod
     def _state_interfaces(hardware: dict[str, Any]) -> list[Any]:
         available = hardware["state"] in ("active", "inactive")  # an inactive component is still read
-        return [interface(f"{j}/{f}", available, False) for j in hardware.get("joints", []) for f in STATE_FIELDS]
+        joints = [interface(f"{j}/{f}", available, False) for j in hardware.get("joints", []) for f in STATE_FIELDS]
+        sensors = [interface(i, available, False) for s in hardware.get("sensors", []) for i in s["state_interfaces"]]
+        return joints + sensors
 
     async def _components(self, request: Any) -> Any:
         hardware, claims = self._listing()

@@ -24,6 +24,7 @@ pyzeros = pytest.importorskip("pyzeros", reason="the ros2-verify extra (pyzeros)
 import asyncio_for_robotics as afor  # noqa: E402
 from ros2_pyterfaces.cyclone import idl  # noqa: E402
 from ros2_pyterfaces.cyclone.builtin_interfaces.msg import Duration, Time  # noqa: E402
+from ros2_pyterfaces.cyclone.geometry_msgs.msg import WrenchStamped  # noqa: E402
 from ros2_pyterfaces.cyclone.rosgraph_msgs.msg import Clock  # noqa: E402
 from ros2_pyterfaces.cyclone.sensor_msgs.msg import JointState  # noqa: E402
 from ros2_pyterfaces.cyclone.service_msgs.msg import ServiceEventInfo  # noqa: E402
@@ -244,6 +245,7 @@ def test_pyzeros_computes_the_same_service_hashes() -> None:
     assert SwitchController.hash_rihs01() == types.type_hash("controller_manager_msgs/srv/SwitchController")
     assert JointState.hash_rihs01() == types.type_hash("sensor_msgs/msg/JointState")
     assert Clock.hash_rihs01() == types.type_hash("rosgraph_msgs/msg/Clock")
+    assert WrenchStamped.hash_rihs01() == types.type_hash("geometry_msgs/msg/WrenchStamped")
 
 
 def test_pyzeros_computes_the_same_action_hashes() -> None:

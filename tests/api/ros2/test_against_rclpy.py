@@ -20,6 +20,7 @@ rclpy = pytest.importorskip("rclpy", reason="the ros2-verify extra (real ROS 2 J
 
 from action_msgs.msg import GoalInfo, GoalStatus, GoalStatusArray  # noqa: E402
 from builtin_interfaces.msg import Time  # noqa: E402
+from geometry_msgs.msg import WrenchStamped  # noqa: E402
 from rclpy.serialization import deserialize_message, serialize_message  # noqa: E402
 from rosgraph_msgs.msg import Clock  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
@@ -84,6 +85,24 @@ def ros_trajectory() -> Any:
     return JointTrajectory(joint_names=["a", "bb"], points=[point])
 
 
+def hild_wrench() -> Any:
+    header = m("std_msgs/msg/Header", stamp=m("builtin_interfaces/msg/Time", sec=5, nanosec=6), frame_id="tool0")
+    vector = "geometry_msgs/msg/Vector3"
+    wrench = m(
+        "geometry_msgs/msg/Wrench", force=m(vector, x=1.0, y=-2.0, z=9.81), torque=m(vector, x=0.1, y=0.0, z=-0.3)
+    )
+    return m("geometry_msgs/msg/WrenchStamped", header=header, wrench=wrench)
+
+
+def ros_wrench() -> Any:
+    msg = WrenchStamped()
+    msg.header.stamp = Time(sec=5, nanosec=6)
+    msg.header.frame_id = "tool0"
+    msg.wrench.force.x, msg.wrench.force.y, msg.wrench.force.z = 1.0, -2.0, 9.81
+    msg.wrench.torque.x, msg.wrench.torque.y, msg.wrench.torque.z = 0.1, 0.0, -0.3
+    return msg
+
+
 GOAL_ID = list(range(16))
 
 
@@ -111,6 +130,7 @@ CASES: dict[str, tuple[Callable[[], Any], Callable[[], Any], type]] = {
     ),
     "trajectory_msgs/msg/JointTrajectory": (hild_trajectory, ros_trajectory, JointTrajectory),
     "action_msgs/msg/GoalStatusArray": (hild_status, ros_status, GoalStatusArray),
+    "geometry_msgs/msg/WrenchStamped": (hild_wrench, ros_wrench, WrenchStamped),
     "rosgraph_msgs/msg/Clock": (
         lambda: m("rosgraph_msgs/msg/Clock", clock=m("builtin_interfaces/msg/Time", sec=7, nanosec=8_000_009)),
         lambda: Clock(clock=Time(sec=7, nanosec=8_000_009)),
