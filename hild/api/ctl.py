@@ -382,7 +382,7 @@ def _no_such_goal_controller(
     if found is None:
         reason = f"robot {client.robot!r} has no controller {name!r}"
     elif found != kind.type:
-        reason = f"controller {name!r} ({found}) takes no {kind.type} goals"
+        reason = f"controller {name!r} ({found}) takes no goals"
     else:
         return unreachable
     return HildError(f"{reason} ({kind.words}s: {of_kind}); {unreachable}")

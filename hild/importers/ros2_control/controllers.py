@@ -32,6 +32,7 @@ DEFAULT_PUBLISH_RATE = 100.0  # Hz: ROS 2's broadcaster publishes every update; 
 
 BROADCASTERS = ("joint_state_broadcaster/JointStateBroadcaster", "joint_state_controller/JointStateController")
 TRAJECTORY = "joint_trajectory_controller/JointTrajectoryController"
+FORCE_TORQUE_BROADCASTER = "force_torque_sensor_broadcaster/ForceTorqueSensorBroadcaster"
 FORWARD = "forward_command_controller/ForwardCommandController"
 # Group controllers (removed from ros2_controllers in 2026) and ROS 1 single-joint forwarders: one interface each.
 FORWARD_GROUPS = {
@@ -98,6 +99,7 @@ class JointCatalog:
     urdf: frozenset[str]
     mimic: Mapping[str, str]  # mimic joint → the joint it follows
     interfaces: Mapping[str, frozenset[str]]  # command interfaces <ros2_control> exports per joint
+    sensors: Mapping[str, str] = field(default_factory=dict)  # <sensor> name → hild sensor type (force_torque, imu)
 
     def check(self, controller: str, joint: Any, where: SourceRef) -> str:
         if not isinstance(joint, str):
@@ -310,6 +312,8 @@ class _Reader:
             return self.forward(c, FORWARD_GROUPS[c.ros_type], c.type_where, set())
         if c.ros_type in GRIPPERS:
             return self.gripper(c)
+        if c.ros_type == FORCE_TORQUE_BROADCASTER:
+            return self.wrench_broadcaster(c)
         self.report.dropped(c.type_where, f"controller {c.name!r}: type {c.ros_type} has no hild counterpart")
         return None
 
@@ -502,6 +506,42 @@ class _Reader:
         )
         self.leftovers(c, {"joint", "allow_stalling", *GRIPPER_NUMBERS}, GRIPPER_IGNORED)
         return ControllerPlan(c.name, "parallel_gripper", params, False, c.type_where, f"from {c.ros_type}")
+
+    def wrench_broadcaster(self, c: _Controller) -> ControllerPlan:
+        """force_torque_sensor_broadcaster → hild's, on the same sensor (or interfaces) and frame."""
+        p = c.params
+        params: dict[str, Any] = {}
+        sensor = p.get("sensor_name")
+        if sensor:
+            if self.catalog.sensors.get(str(sensor)) != "force_torque":
+                known = ", ".join(n for n, k in self.catalog.sensors.items() if k == "force_torque") or "none"
+                raise self.ref((*c.params_path, "sensor_name")).fail(
+                    f"controller {c.name!r}: sensor_name {sensor!r} is no force/torque <sensor> of <ros2_control> "
+                    f"(force/torque sensors: {known})"
+                )
+            params["sensor_name"] = str(sensor)
+        names = p.get("interface_names")
+        if isinstance(names, dict) and not sensor:
+            params["interface_names"] = {
+                part: {axis: str(value) for axis, value in (names.get(part) or {}).items() if value}
+                for part in ("force", "torque")
+            }
+        if "frame_id" in p:
+            params["frame_id"] = str(p["frame_id"])
+        self.report.mapped(c.type_where, f"{c.name} → force_torque_sensor_broadcaster: {c.name}/wrench (JSON, ROS 2)")
+        self.report.approximated(
+            c.type_where, f"{c.name}: published at {DEFAULT_PUBLISH_RATE:g} Hz (ROS publishes every update)"
+        )
+        why = {"sensor_filter_chain": "hild offers a first-order low_pass_cutoff instead (off)"}
+        self.leftovers(c, {"sensor_name", "interface_names", "frame_id"}, why)
+        return ControllerPlan(
+            c.name,
+            "force_torque_sensor_broadcaster",
+            {**params, "publish_rate": DEFAULT_PUBLISH_RATE},
+            True,
+            c.type_where,
+            f"from {c.ros_type}",
+        )
 
     def effort_position(self, c: _Controller) -> ControllerPlan:
         joints = self.joints(c, "joint" if "joint" in c.params else "joints")

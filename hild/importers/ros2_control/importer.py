@@ -87,6 +87,7 @@ def import_ros2_control(request: ImportRequest) -> ImportResult:
     can = read_can_facts(robot, report)
     mapping.report_hardware(robot, {name: facts.used for name, facts in can.items()}, report)
     mimics = mapping.plan_mimic_joints(robot, selected, report)
+    sensors = mapping.plan_sensors(robot, report)
     mapping.check_limits(selected)
     twin.check_inertias(robot)
     urdf_text = twin.build_twin_urdf(document, robot, request.urdf.resolve().parent, packages, report)
@@ -116,6 +117,7 @@ def import_ros2_control(request: ImportRequest) -> ImportResult:
             can,
             exclusions,
             mimics,
+            sensors,
         )
         staged_config.write_text(writer.render(doc))
         _relay_check_warnings(_hild_check(staged_config, config_path), joints, robot, report)

@@ -17,6 +17,7 @@ from hild.importers.ros2_control.inertia import JointInertia
 from hild.importers.ros2_control.report import Report, SourceRef
 from hild.importers.ros2_control.start_pose import initial_position
 from hild.importers.ros2_control.urdf import HardwareJoint, Joint, Robot, Ros2Control
+from hild.interfaces import SENSOR_INTERFACES
 
 # Planning limits a URDF does not carry: reach full speed in 0.5 s, but never ask for more than half the effort
 # limit to accelerate the joint's own inertia (the other half is left for gravity and the rest of the arm).
@@ -83,14 +84,57 @@ class MimicPlan:
     where: SourceRef  # its <mimic> element
 
 
+@dataclass(frozen=True)
+class SensorPlan:
+    """A ``<sensor>`` of ``<ros2_control>`` as a sensor of the twin (``hardware.twin.sensors``)."""
+
+    name: str
+    type: str  # force_torque | imu
+    frame_id: str
+    where: SourceRef
+
+
+def plan_sensors(robot: Robot, report: Report) -> list[SensorPlan]:
+    """Each ``<sensor>`` whose state interfaces are a force/torque sensor's or an IMU's, on the link its
+    ``frame_id`` param names (the twin reads it there from MuJoCo's own sensors); others are not supported."""
+    plans: list[SensorPlan] = []
+    for block in robot.ros2_control:
+        for sensor in block.sensors:
+            names = {i.name for i in sensor.state_interfaces}
+            kind = next((k for k, known in SENSOR_INTERFACES.items() if names and names <= set(known)), None)
+            if kind is None:
+                report.unsupported(
+                    sensor.where,
+                    f"<sensor> {sensor.name!r}: state interfaces {sorted(names)} are neither a force/torque sensor's "
+                    "nor an IMU's (hild reads those two kinds)",
+                )
+                continue
+            frame, frame_where = sensor.params.get("frame_id", (None, sensor.where))
+            if frame is None:
+                if sensor.name not in robot.links:
+                    raise sensor.where.fail(
+                        f'<sensor> {sensor.name!r} has no <param name="frame_id">: the twin needs the link it sits on'
+                    )
+                frame = sensor.name
+            if frame not in robot.links:
+                raise frame_where.fail(f"<sensor> {sensor.name!r}: frame_id {frame!r} is not a link of the URDF")
+            missing = [i for i in SENSOR_INTERFACES[kind] if i not in names]
+            text = f"<sensor> {sensor.name!r} → a {kind} sensor of the twin on {frame} (MuJoCo's own sensors there)"
+            if missing:
+                text += f"; it also offers {', '.join(missing)}"
+            report.mapped(sensor.where, text)
+            for key, (_, where) in sensor.params.items():
+                if key != "frame_id":
+                    report.unsupported(where, f"<sensor> {sensor.name!r}: param {key!r} is not used by hild")
+            plans.append(SensorPlan(sensor.name, kind, frame, sensor.where))
+    return plans
+
+
 def select_joints(robot: Robot, report: Report) -> list[Selected]:
     """The joints hild will command: those of the ``<ros2_control>`` blocks, in their order."""
     selected: list[Selected] = []
     seen: dict[str, SourceRef] = {}
     for block in robot.ros2_control:
-        if block.type.lower() == "sensor":
-            report.unsupported(block.where, f"<ros2_control> {block.name!r} is a sensor component")
-            continue
         for tag, name, where in block.others:
             report.unsupported(where, f"<{tag}> {name!r} in <ros2_control> {block.name!r} (hild has joints only)")
         for hw in block.joints:
@@ -143,7 +187,8 @@ def catalog(robot: Robot, selected: list[Selected]) -> JointCatalog:
         for hw in block.joints:
             if hw.mimic and hw.name not in mimic:
                 mimic[hw.name] = "(mimic in <ros2_control>)"
-    return JointCatalog(tuple(s.joint.name for s in selected), frozenset(robot.joints), mimic, interfaces)
+    sensors = {s.name: s.type for s in plan_sensors(robot, Report())}  # the import reports them once, elsewhere
+    return JointCatalog(tuple(s.joint.name for s in selected), frozenset(robot.joints), mimic, interfaces, sensors)
 
 
 def report_hardware(robot: Robot, read: Mapping[str, set[str]], report: Report) -> None:

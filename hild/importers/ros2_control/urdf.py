@@ -142,6 +142,16 @@ class Transmission:
 
 
 @dataclass(frozen=True)
+class HardwareSensor:
+    """A ``<sensor>`` of a ``<ros2_control>`` block: state interfaces only (``force.x`` …) and its params."""
+
+    name: str
+    where: SourceRef
+    state_interfaces: tuple[Interface, ...]
+    params: dict[str, tuple[str, SourceRef]]
+
+
+@dataclass(frozen=True)
 class Ros2Control:
     name: str
     type: str
@@ -150,7 +160,8 @@ class Ros2Control:
     plugin_where: SourceRef
     params: dict[str, tuple[str, SourceRef]]
     joints: tuple[HardwareJoint, ...]
-    others: tuple[tuple[str, str, SourceRef], ...]  # (tag, name, where) of <sensor>, <gpio>, ...
+    others: tuple[tuple[str, str, SourceRef], ...]  # (tag, name, where) of <gpio>, ...
+    sensors: tuple[HardwareSensor, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -317,6 +328,7 @@ def _ros2_control(element: XmlElement, ref: SourceRefFn) -> Ros2Control:
         plugin_element = hardware.find("classType") if hardware is not None else None
     joints = []
     others = []
+    sensors: list[HardwareSensor] = []
     for child in element.elements():
         if child.tag == "joint":
             params = _params(child, ref)
@@ -331,6 +343,15 @@ def _ros2_control(element: XmlElement, ref: SourceRefFn) -> Ros2Control:
                     {name: where for name, (_, where) in params.items()},
                 )
             )
+        elif child.tag == "sensor":
+            sensors.append(
+                HardwareSensor(
+                    _required(child, "name", ref),
+                    ref(child),
+                    tuple(_interface(i, ref) for i in child.elements("state_interface")),
+                    _params(child, ref),
+                )
+            )
         elif child.tag not in ("hardware", "transmission"):
             others.append((child.tag, child.attrib.get("name", ""), ref(child)))
     return Ros2Control(
@@ -342,6 +363,7 @@ def _ros2_control(element: XmlElement, ref: SourceRefFn) -> Ros2Control:
         params=_params(hardware, ref) if hardware is not None else {},
         joints=tuple(joints),
         others=tuple(others),
+        sensors=tuple(sensors),
     )
 
 

@@ -18,7 +18,7 @@ from typing import Any
 from hild.config.stop_review import SUGGESTED_DESCENT
 from hild.importers.ros2_control.can_template import CanFacts, template_lines
 from hild.importers.ros2_control.controllers import ControllerPlan, ControllersPlan
-from hild.importers.ros2_control.mapping import JointPlan, MimicPlan
+from hild.importers.ros2_control.mapping import JointPlan, MimicPlan, SensorPlan
 
 KeyPath = tuple[str, ...]
 _PLAIN = re.compile(r"^[A-Za-z_][A-Za-z0-9_\-./]*$")
@@ -46,6 +46,7 @@ def build_document(
     can: Mapping[str, CanFacts],  # what each <ros2_control> block says about its CAN drives
     exclude_contacts: Sequence[tuple[str, str]] = (),
     mimic_joints: Sequence[MimicPlan] = (),
+    sensors: Sequence[SensorPlan] = (),
 ) -> Document:
     twin_params: dict[str, Any] = {"model": urdf_name, "substeps": substeps}
     initial = {j.name: j.initial_position for j in joints if j.initial_position is not None}
@@ -59,7 +60,7 @@ def build_document(
             "update_rate": _whole(controllers.update_rate),
             "clock": {"source": "wall"},
             "safety": {"stop_descent": SUGGESTED_DESCENT},
-            "hardware": {"twin": {"driver": "mujoco", "params": twin_params, "joints": {j.name: {} for j in joints}}},
+            "hardware": {"twin": _twin(twin_params, joints, sensors)},
             "joints": {j.name: _joint(j) for j in joints},
             **({"mimic_joints": {m.name: _mimic(m) for m in mimic_joints}} if mimic_joints else {}),
             "controllers": {c.name: _controller(c) for c in controllers.controllers},
@@ -78,6 +79,8 @@ def build_document(
         c[("joints", j.name, "hold")] = j.gains_from
     for m in mimic_joints:
         c[("mimic_joints", m.name)] = m.where.short
+    for s in sensors:
+        c[("hardware", "twin", "sensors", s.name)] = f"{s.where.short}; the twin reads MuJoCo's sensors on {s.frame_id}"
     for plan in controllers.controllers:
         c[("controllers", plan.name)] = f"{plan.comment} ({plan.where.short})"
     doc.header = [
@@ -104,6 +107,13 @@ def render(doc: Document) -> str:
 
 def _whole(value: float) -> float | int:
     return int(value) if float(value).is_integer() else value
+
+
+def _twin(params: dict[str, Any], joints: Sequence[JointPlan], sensors: Sequence[SensorPlan]) -> dict[str, Any]:
+    twin: dict[str, Any] = {"driver": "mujoco", "params": params, "joints": {j.name: {} for j in joints}}
+    if sensors:
+        twin["sensors"] = {s.name: {"type": s.type, "frame_id": s.frame_id} for s in sensors}
+    return twin
 
 
 def _joint(j: JointPlan) -> dict[str, Any]:

@@ -186,17 +186,22 @@ def test_pyzeros_computes_the_same_parallel_gripper_hashes() -> None:
     assert FeedbackMessage.hash_rihs01() == types.type_hash(f"{PARALLEL}_FeedbackMessage")
 
 
-async def _grasp(position: float, effort: float) -> dict[str, Any]:
+async def grasp(
+    position: float, effort: float, velocity: float = 0.05, controller: str = "gripper", joint: str = "finger"
+) -> dict[str, Any]:
+    """From pyzeros: activate ``controller``, send a ParallelGripperCommand goal, take the first feedback and the
+    result (get_result answers when the goal has ended)."""
+    base = f"/{controller}/gripper_cmd/_action"
     switching = pyzeros.Client(SwitchController, "/controller_manager/switch_controller")
-    send_goal = pyzeros.Client(SendGoal, f"{BASE}/send_goal")
-    get_result = pyzeros.Client(GetResult, f"{BASE}/get_result")
-    feedback = pyzeros.Sub(FeedbackMessage, f"{BASE}/feedback")
+    send_goal = pyzeros.Client(SendGoal, f"{base}/send_goal")
+    get_result = pyzeros.Client(GetResult, f"{base}/get_result")
+    feedback = pyzeros.Sub(FeedbackMessage, f"{base}/feedback")
     for client in (switching, send_goal, get_result):
         await asyncio.wait_for(client.wait_for_service(), WAIT)
-    request_ = SwitchController_Request(activate_controllers=["gripper"], strictness=2)
+    request_ = SwitchController_Request(activate_controllers=[controller], strictness=2)
     switched = await asyncio.wait_for(switching.call_async(request_), WAIT)
     goal_id = UUID(uuid=bytes(range(1, 17)))
-    command = JointState(name=["finger"], position=[position], velocity=[0.05], effort=[effort])
+    command = JointState(name=[joint], position=[position], velocity=[velocity], effort=[effort])
     accepted = await asyncio.wait_for(send_goal.call_async(SendGoal_Request(goal_id=goal_id, goal=Goal(command))), WAIT)
     first_feedback = await asyncio.wait_for(feedback.wait_for_value(), WAIT)
     done = await asyncio.wait_for(get_result.call_async(GetResult_Request(goal_id=goal_id)), WAIT)
@@ -208,7 +213,7 @@ def test_pyzeros_closes_the_gripper_on_the_box(parallel_daemon: Daemon) -> None:
 
     @afor.scoped
     async def main() -> dict[str, Any]:
-        return await _grasp(0.0, 6.0)
+        return await grasp(0.0, 6.0)
 
     try:
         with pyzeros.auto_context(node="pyzeros_gripper_probe", zenoh_session=session, domain_id=0):
