@@ -29,6 +29,7 @@ PLUGIN_NAMES = {
     "forward_command": "forward_command_controller/ForwardCommandController",
     "joint_trajectory": "joint_trajectory_controller/JointTrajectoryController",
     "parallel_gripper": "parallel_gripper_action_controller/GripperActionController",
+    "force_torque_sensor_broadcaster": "force_torque_sensor_broadcaster/ForceTorqueSensorBroadcaster",
 }
 HILD_TYPES = {plugin: kind for kind, plugin in PLUGIN_NAMES.items()}
 HILD_PREFIX = "hild/"  # a type without a ros2_control plugin name: hild/<type>

@@ -103,7 +103,7 @@ def plan_sensors(robot: Robot, report: Report) -> list[SensorPlan]:
             names = {i.name for i in sensor.state_interfaces}
             kind = next((k for k, known in SENSOR_INTERFACES.items() if names and names <= set(known)), None)
             if kind is None:
-                report.unsupported(
+                report.dropped(
                     sensor.where,
                     f"<sensor> {sensor.name!r}: state interfaces {sorted(names)} are neither a force/torque sensor's "
                     "nor an IMU's (hild reads those two kinds)",

@@ -68,7 +68,7 @@ class Report:
         self.findings.append(Finding("tracking", where, text))
 
     def dropped(self, where: SourceRef, text: str) -> None:
-        """A controller or joint the source gives that the import leaves out: the import is partial."""
+        """A controller, joint or sensor the source gives that the import leaves out: the import is partial."""
         finding = Finding("unsupported", where, text)
         self.findings.append(finding)
         self.partial.append(finding)
@@ -77,7 +77,7 @@ class Report:
         """The error for a partial import the user did not accept (``--allow-partial``)."""
         listed = "\n".join(f"  {f.where}: {f.text}" for f in self.partial)
         return ImportFailure(
-            f"{len(self.partial)} controller(s) or joint(s) given cannot be imported:\n{listed}\n"
+            f"{len(self.partial)} controller(s), joint(s) or sensor(s) given cannot be imported:\n{listed}\n"
             "pass --allow-partial to import the rest without them"
         )
 
