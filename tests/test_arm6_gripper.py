@@ -55,6 +55,11 @@ class Rig:
     def wrench(self) -> tuple[np.ndarray, np.ndarray]:
         return np.array(self.data.sensor("ft_force").data), np.array(self.data.sensor("ft_torque").data)
 
+    def hild_wrench(self) -> np.ndarray:
+        """What hild's sensor wrist_ft reads (accepted values: MuJoCo's plus the twin's noise)."""
+        view = self.engine.sensors
+        return view.values[view.index_of([f"wrist_ft/{p}.{a}" for p in ("force", "torque") for a in "xyz"])]
+
     def expected_wrench(self, masses: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:
         """At rest, the sensor holds up the weight of ``masses`` (body → mass, each at its subtree's centre of mass):
         force m·g upwards and the torque of that weight about ft_site, both in the site's frame."""
@@ -149,6 +154,7 @@ def test_the_ft_sensor_carries_the_weight_below_it() -> None:
     assert force[2] < -8.8  # the tool points down: the flange holds the hand up, against the sensor's z
     np.testing.assert_allclose(torque, expected_torque, atol=2e-3)
     assert np.abs(torque).max() < 2e-3  # hanging straight down: no moment at the flange
+    np.testing.assert_allclose(rig.hild_wrench(), np.concatenate([force, torque]), atol=0.25)  # within 5σ of noise
 
     rig.close_on_the_box()
     rig.lift(gripper=0.0)
@@ -158,6 +164,9 @@ def test_the_ft_sensor_carries_the_weight_below_it() -> None:
     np.testing.assert_allclose(force, expected_force, atol=0.05)  # the box's 0.2 kg is there, tilted by the lift
     np.testing.assert_allclose(torque, expected_torque, atol=5e-3)
     assert np.linalg.norm(force) > (0.9 + 0.2) * 9.81 - 0.05
+    assert (
+        abs(np.linalg.norm(rig.hild_wrench()[:3]) - np.linalg.norm(force)) < 0.25
+    )  # hild's sensor sees the box's weight too
     assert np.abs(torque).max() > 0.05  # tilted: the weight now has a lever arm about the flange
 
 
