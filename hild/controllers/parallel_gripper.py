@@ -292,7 +292,7 @@ class ParallelGripperController(Controller):
             self._grasp_at = q
             self._squeeze = self._effort if self._target > q else -self._effort
             if self.params.allow_stalling:
-                self._end(GoalStatus.SUCCEEDED, ErrorCode.SUCCESSFUL, "stalled: holding", q, effort, stalled=True)
+                self._end(GoalStatus.SUCCEEDED, ErrorCode.SUCCESSFUL, "", q, effort, stalled=True)
             else:
                 text = "stalled short of the goal (allow_stalling is off); holding"
                 self._end(GoalStatus.ABORTED, ErrorCode.GOAL_TOLERANCE_VIOLATED, text, q, effort, stalled=True)
