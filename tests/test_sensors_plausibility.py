@@ -14,6 +14,7 @@ from drivers.mock import MockHardware
 from hild.cycle.engine import Engine
 from tests.api.conftest import engine_from
 from tests.conftest import mock_robot
+from tests.helpers import component
 
 STALE = 10  # safety.stale_feedback_cycles in these tests
 FROZEN = 5
@@ -38,9 +39,7 @@ def sensor_engine(tmp_path: Path, noise: float = 0.01, **ft: Any) -> Engine:
 
 
 def mock(engine: Engine) -> MockHardware:
-    component = engine.hardware[0].component
-    assert isinstance(component, MockHardware)
-    return component
+    return component(engine, MockHardware)
 
 
 def ft(engine: Engine) -> np.ndarray:

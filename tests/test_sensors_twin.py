@@ -17,6 +17,7 @@ from hild.cycle.engine import Engine
 from hild.dynamics.model import SensorMount, load_model
 from hild.hardware import HardwareError
 from tests.conftest import CONFIGS
+from tests.helpers import component
 
 FORCE_NOISE = 0.05  # N: the twin's default std dev per force component
 G = 9.81
@@ -45,9 +46,7 @@ def arm6(tmp_path: Path, sensors: dict[str, Any], model: str = "arm6.xml") -> En
 
 
 def twin(engine: Engine) -> MujocoTwin:
-    component = engine.hardware[0].component
-    assert isinstance(component, MujocoTwin)
-    return component
+    return component(engine, MujocoTwin)
 
 
 def mujoco_force(engine: Engine, site: str) -> np.ndarray:

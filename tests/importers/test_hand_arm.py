@@ -20,6 +20,7 @@ from hild.config import load_config
 from hild.crossing.ring import RingReader
 from hild.cycle.engine import Engine
 from hild.importers.ros2_control.importer import ImportResult
+from tests.api.conftest import running
 from tests.importers.helpers import ROBOTS, import_robot
 
 HAND_ARM = ROBOTS / "hand_arm"
@@ -159,28 +160,10 @@ def test_the_wrench_matches_mujocos_within_the_sensors_noise(result: ImportResul
 
 def test_it_answers_a_ros2_parallel_gripper_command_goal_from_pyzeros(result: ImportResult) -> None:
     pytest.importorskip("pyzeros", reason="the ros2-verify extra (pyzeros) is not installed")
-    import asyncio
-
-    import asyncio_for_robotics as afor
-    import pyzeros
-    import zenoh
-
-    from tests.api.conftest import running
-    from tests.api.ros2.conftest import peer_config
-    from tests.api.ros2.test_gripper_action import grasp
+    from tests.api.ros2.test_gripper_action import grasp_from_pyzeros  # pyzeros' message types: the extra
 
     with running(Engine(load_config(with_scene(result, ros2=True)))) as daemon:
-        session = zenoh.open(peer_config(daemon.endpoint))
-
-        @afor.scoped
-        async def main() -> dict[str, Any]:
-            return await grasp(0.8, 1.0, 0.5, "gripper_controller", "finger_joint")
-
-        try:
-            with pyzeros.auto_context(node="pyzeros_hand_arm", zenoh_session=session, domain_id=0):
-                got = asyncio.run(main())
-        finally:
-            session.close()
+        got = grasp_from_pyzeros(daemon, "pyzeros_hand_arm", 0.8, 1.0, 0.5, "gripper_controller", "finger_joint")
     assert got["switched"].ok and got["accepted"].accepted
     done = got["result"]
     assert done.status == 4 and done.result.stalled and not done.result.reached_goal  # SUCCEEDED: on the box

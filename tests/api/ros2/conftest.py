@@ -59,13 +59,18 @@ def peer_config(endpoint: str) -> zenoh.Config:
     return config
 
 
-@pytest.fixture
-def peer(ros_daemon: Daemon) -> Iterator[zenoh.Session]:
-    session = zenoh.open(peer_config(ros_daemon.endpoint))
+def peer_of(daemon: Daemon) -> Iterator[zenoh.Session]:
+    """A client session connected to ``daemon`` only (no scouting), closed on leaving: for fixtures."""
+    session = zenoh.open(peer_config(daemon.endpoint))
     try:
         yield session
     finally:
         session.close()
+
+
+@pytest.fixture
+def peer(ros_daemon: Daemon) -> Iterator[zenoh.Session]:
+    yield from peer_of(ros_daemon)
 
 
 def call(session: zenoh.Session, service: str, type_name: str, payload: bytes, sequence: int = 1) -> zenoh.Reply:

@@ -208,18 +208,23 @@ async def grasp(
     return {"switched": switched, "accepted": accepted, "feedback": first_feedback, "result": done}
 
 
-def test_pyzeros_closes_the_gripper_on_the_box(parallel_daemon: Daemon) -> None:
-    session = zenoh.open(peer_config(parallel_daemon.endpoint))
+def grasp_from_pyzeros(daemon: Daemon, node: str, *goal: Any) -> dict[str, Any]:
+    """:func:`grasp` (``goal``: its arguments) as a pyzeros node ``node`` on a session of its own to ``daemon``."""
+    session = zenoh.open(peer_config(daemon.endpoint))
 
     @afor.scoped
     async def main() -> dict[str, Any]:
-        return await grasp(0.0, 6.0)
+        return await grasp(*goal)
 
     try:
-        with pyzeros.auto_context(node="pyzeros_gripper_probe", zenoh_session=session, domain_id=0):
-            got = asyncio.run(main())
+        with pyzeros.auto_context(node=node, zenoh_session=session, domain_id=0):
+            return asyncio.run(main())
     finally:
         session.close()
+
+
+def test_pyzeros_closes_the_gripper_on_the_box(parallel_daemon: Daemon) -> None:
+    got = grasp_from_pyzeros(parallel_daemon, "pyzeros_gripper_probe", 0.0, 6.0)
     assert got["switched"].ok and got["accepted"].accepted
     assert list(got["feedback"].feedback.state.name) == ["finger"]
     done = got["result"]

@@ -12,7 +12,7 @@ import zenoh
 
 from hild.api.ros2 import types, wire
 from tests.api.conftest import WAIT, Daemon, engine_from, running
-from tests.api.ros2.conftest import ask, peer_config, ros_robot_config
+from tests.api.ros2.conftest import ask, peer_of, ros_robot_config
 from tests.api.ros2.test_face import Inbox
 from tests.helpers import wait_for
 
@@ -40,11 +40,7 @@ def sensor_daemon(tmp_path: Path) -> Iterator[Daemon]:
 
 @pytest.fixture
 def sensor_peer(sensor_daemon: Daemon) -> Iterator[zenoh.Session]:
-    session = zenoh.open(peer_config(sensor_daemon.endpoint))
-    try:
-        yield session
-    finally:
-        session.close()
+    yield from peer_of(sensor_daemon)
 
 
 def test_wrench_stamped_has_jazzys_type_hash() -> None:
