@@ -513,6 +513,9 @@ class Supervisor:
                         if kept != kept_all[i]:
                             kept_all[i] = kept
                             hold_effort[i] = kept
+                            out.hold_effort[i] = (
+                                kept  # what the joint's hold keeps: a controller activated next sees it
+                            )
                     else:  # a controller bug never reaches a drive: hold, and fail the controller
                         bad_owners = bad_owners or []
                         bad_owners.append(owner[i])
@@ -573,7 +576,6 @@ class Supervisor:
                 old_flags[i] = flags
                 self.change_seq += 1
         prev[:] = prev_all
-        np.copyto(out.hold_effort, hold_effort)  # what each joint's hold keeps: a controller activated next sees it
         self.bad_command_owners = bad_owners or []
         if left > 0.0:
             self._descent = (max(0.0, left - dt), total)
