@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hild.action import GoalRequest, GoalStatus
+from hild.action import GoalRejected, GoalRequest, GoalStatus
 from hild.config import load_config
 from hild.controllers.joint_trajectory import Constraints, JointTrajectoryController, JointTrajectoryParams
 from hild.cycle.engine import Engine
@@ -119,10 +119,15 @@ def _run(engine: Engine, name: str, params: JointTrajectoryParams) -> Tracking:
     jtc = engine.manager.records[name].instance
     assert isinstance(jtc, JointTrajectoryController)
     idx, joints = jtc.index, list(params.joints)
-    start = engine.state.position[idx].copy()
+    # Out and back to where the joints hold, inside the soft range (a joint resting a hair beyond a limit, as the
+    # plausibility margin allows, returns to the limit).
+    start = np.clip(engine.state.position[idx], engine.limits.soft_lower[idx], engine.limits.soft_upper[idx])
     offsets = _offsets(engine, jtc, start)
     points = [{"positions": (start + offsets).tolist()}, {"positions": start.tolist()}]
-    goal = jtc.action.parse({"trajectory": {"joint_names": joints, "points": points}})
+    try:
+        goal = jtc.action.parse({"trajectory": {"joint_names": joints, "points": points}})
+    except GoalRejected as exc:
+        return Tracking(name, 0.0, params.constraints.goal_time, None, (), f"no goal to check with: {exc}")
     jtc.action.requests.offer(GoalRequest(CHECK_ID, 1, goal))
     constraints = params.constraints
     per_joint = [constraints.joints.get(j) for j in joints]
