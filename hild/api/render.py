@@ -35,10 +35,16 @@ def _limits(joint: dict[str, Any]) -> str | None:
     return ",".join(joint.get("limits") or []) or None
 
 
+def _mode(joint: dict[str, Any]) -> str:
+    """The joint's mode, and the grasp its hold keeps (a gripper's hold effort) when it has one."""
+    kept = joint.get("hold_effort") or 0.0
+    return f"{joint['mode']} (grasp {kept:.3g})" if kept else str(joint["mode"])
+
+
 def status_text(status: dict[str, Any]) -> str:
     joints = table(
         ["JOINT", "MODE", "OWNER", "LIMITS", "FAULT"],
-        [[j["name"], j["mode"], j.get("owner"), _limits(j), j.get("fault")] for j in status.get("joints", [])],
+        [[j["name"], _mode(j), j.get("owner"), _limits(j), j.get("fault")] for j in status.get("joints", [])],
     )
     hardware = table(
         ["HARDWARE", "DRIVER", "STATE", "FAULT"],

@@ -980,6 +980,7 @@ class Engine:
                     "owner": names.get(int(owner[i])) if int(owner[i]) >= 0 else None,
                     "fault": sup.fault_text[i] or None,
                     "limits": limit_names(int(sup.limit_flags[i])),
+                    "hold_effort": float(sup.hold_effort[i]),
                 }
                 for i, name in enumerate(self.joints)
             ),

@@ -510,12 +510,11 @@ class Supervisor:
                     kept = c_hold[i]
                     if isfinite(p) and isfinite(v) and isfinite(ff) and isfinite(kept) and kp >= 0.0 and kd >= 0.0:
                         controlled = True
-                        if kept != kept_all[i]:
+                        if kept != kept_all[i]:  # a grasp taken or released: rare
                             kept_all[i] = kept
                             hold_effort[i] = kept
-                            out.hold_effort[i] = (
-                                kept  # what the joint's hold keeps: a controller activated next sees it
-                            )
+                            out.hold_effort[i] = kept  # in the final command: a controller activated next sees it
+                            self.change_seq += 1  # and status shows it
                     else:  # a controller bug never reaches a drive: hold, and fail the controller
                         bad_owners = bad_owners or []
                         bad_owners.append(owner[i])

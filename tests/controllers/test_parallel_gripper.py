@@ -15,12 +15,14 @@ import pytest
 import yaml
 
 from hild.action import GoalResult
+from hild.api import render
 from hild.api.goals import GoalEndpoint
 from hild.config import load_config
 from hild.controllers.parallel_gripper import ParallelGripperController
 from hild.cycle.engine import Engine
 from hild.cycle.supervisor import Fault
 from hild.modes import JointMode
+from tests.test_engine import events
 
 RIG = Path(__file__).parent / "gripper" / "rig.xml"
 BOX_HALF_WIDTH = 0.015
@@ -182,6 +184,10 @@ def test_a_grasp_is_kept_when_the_gripper_is_deactivated(tmp_path: Path) -> None
     assert engine.supervisor.mode[i] == JointMode.HOLD
     assert -engine.state.effort[i] == pytest.approx(MAX_EFFORT, rel=0.1)
     assert engine.state.position[i] == pytest.approx(BOX_HALF_WIDTH, abs=0.002)
+    joint = next(j for j in engine.status()["joints"] if j["name"] == "finger")
+    assert joint["hold_effort"] == -MAX_EFFORT  # an operator sees the grasp the hold keeps
+    assert "hold (grasp -10)" in render.status_text(engine.status())
+    assert any("joint finger holds its grasp" in e for e in events(engine))
     # Activated again, it takes the grasp over instead of letting go.
     assert engine.switch(["gripper"], []).ok
     engine.run_cycles(500)
