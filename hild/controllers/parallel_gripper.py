@@ -26,17 +26,18 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
+import numpy as np
+
 from hild.action import ActionServer, CancelRequest, ErrorCode, FeedbackShape, GoalRejected, GoalRequest, GoalStatus
 from hild.arrays import JointState, ServoCommand
 from hild.config.model import JointLimits
 from hild.config.params import Field, Params, dynamic
 from hild.controller import Controller, ControllerContext, and_more, unknown_keys
+from hild.controllers.motion_common import first_taken_over
 from hild.interfaces import interface_name
-from hild.modes import JointMode
 
 __all__ = ["GripperGoal", "ParallelGripperController", "ParallelGripperParams"]
 
-_TAKEN_OVER = int(JointMode.FAULT)  # FAULT and ESTOP: the supervisor decides the command
 GOAL_KEYS = ("position", "max_effort", "max_velocity")
 NAMED_POSITIONS = ("open", "close")
 FEEDBACK = ("position", "velocity", "effort", "stalled", "reached_goal")
@@ -104,7 +105,9 @@ class ParallelGripperController(Controller):
     def __init__(self, context: ControllerContext, params: ParallelGripperParams) -> None:
         super().__init__(context, params)
         self.params: ParallelGripperParams = params
-        self._i = int(context.index_of([params.joint])[0])
+        self._index = context.index_of([params.joint])
+        self._i = int(self._index[0])
+        self._mode = np.zeros(1, dtype=np.int64)  # scratch for first_taken_over
         i, lim = self._i, context.limits
         self._lower, self._upper = float(lim.soft_lower[i]), float(lim.soft_upper[i])
         self._effort_limit, self._velocity_limit = float(lim.effort[i]), float(lim.velocity[i])
@@ -240,8 +243,7 @@ class ParallelGripperController(Controller):
     def update(self, t: float, dt: float, state: JointState, command: ServoCommand) -> None:
         i = self._i
         q, qd, effort = state.position.item(i), state.velocity.item(i), state.effort.item(i)
-        modes = self.context.joint_modes
-        if modes is not None and modes.item(i) >= _TAKEN_OVER:
+        if first_taken_over(self.context.joint_modes, self._index, self._mode) >= 0:  # fault or e-stop
             self._taken_over_by_supervisor(q, effort)
             return
         if self._taken_over:  # back after a reset: stay where the finger is (a grasp is kept)

@@ -218,6 +218,7 @@ class JointCoupling:
     follower: int  # joint ids
     leader: int
     polycoef: tuple[float, float, float, float, float]
+    equality: int = -1  # the equality's id in the model (its solref, its data)
 
     def position(self, model: mujoco.MjModel, leader_position: float) -> float:
         """The follower's position the equality holds it at, for the leader at ``leader_position``."""
@@ -235,7 +236,9 @@ def joint_couplings(model: mujoco.MjModel) -> list[JointCoupling]:
     """The model's active joint-to-joint equalities, leaders before their followers (a chain of mimic joints is
     resolved link by link); an equality whose leader follows it back (a cycle) is left out."""
     found = [
-        JointCoupling(int(model.eq_obj1id[i]), int(model.eq_obj2id[i]), tuple(float(a) for a in model.eq_data[i, :5]))
+        JointCoupling(
+            int(model.eq_obj1id[i]), int(model.eq_obj2id[i]), tuple(float(a) for a in model.eq_data[i, :5]), i
+        )
         for i in range(model.neq)
         if int(model.eq_type[i]) == int(mujoco.mjtEq.mjEQ_JOINT) and model.eq_obj2id[i] >= 0 and model.eq_active0[i]
     ]
@@ -295,7 +298,5 @@ def stiffen_couplings(model: mujoco.MjModel, timestep: float) -> int:
     where the real linkage is rigid; 2 × timestep is the stiffest MuJoCo integrates stably. Returns how many."""
     couplings = joint_couplings(model)
     for c in couplings:
-        for eq in range(model.neq):
-            if int(model.eq_obj1id[eq]) == c.follower and int(model.eq_obj2id[eq]) == c.leader:
-                model.eq_solref[eq] = (2.0 * timestep, 1.0)
+        model.eq_solref[c.equality] = (2.0 * timestep, 1.0)
     return len(couplings)

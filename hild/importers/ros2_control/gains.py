@@ -48,6 +48,19 @@ class GainLimits:
         return 0.99 * min(surge, spring, margin)
 
 
+def critical_kd(kp: float, inertia: float) -> float:
+    """The kd that damps ``kp`` on ``inertia`` critically (ζ = HOLD_DAMPING_RATIO), rounded as derived numbers are."""
+    return round4(2.0 * HOLD_DAMPING_RATIO * math.sqrt(kp * inertia))
+
+
+def raised_gains(needed: float, inertia: float, limits: GainLimits) -> tuple[float, float, bool]:
+    """``(kp, kd, capped)``: kp ``needed``, or the most ``hild check``'s rules allow on ``inertia`` (``capped``),
+    with its critically damped kd — how the importer raises gains it chose itself (never a user's PID)."""
+    most = inertia * limits.bandwidth(inertia, HOLD_DAMPING_RATIO) ** 2 if inertia > 0 else math.inf
+    kp = round4(min(needed, most))
+    return kp, critical_kd(kp, inertia), most < needed
+
+
 def hold_gains(
     joint: str, where: SourceRef, limits: GainLimits, inertia: JointInertia, pid: tuple[str, Pid] | None, report: Report
 ) -> tuple[float, float, str]:
@@ -58,7 +71,7 @@ def hold_gains(
         kp, kd = gains.p, gains.d
         source = f"PID of {controller} ({gains.where.short})"
         if kd <= 0:
-            kd = round4(2.0 * HOLD_DAMPING_RATIO * math.sqrt(kp * heavy))
+            kd = critical_kd(kp, heavy)
             report.approximated(gains.where, f"{joint}: hold kp {kp:g} from {source}, no d → kd {kd:g} (ζ = 1)")
             return kp, kd, f"kp: {source}; kd: critical damping"
         report.mapped(gains.where, f"{joint}: hold gains kp {kp:g}, kd {kd:g} from {source}")
@@ -80,7 +93,7 @@ def hold_gains(
             f"for a collision at {limits.velocity:g} rad/s"
         )
     kp = round4(kp)
-    kd = round4(2.0 * HOLD_DAMPING_RATIO * math.sqrt(kp * heavy))
+    kd = critical_kd(kp, heavy)
     report.approximated(where, f"{joint}: no effort PID → hold kp {kp:g}, kd {kd:g} ({rule}, ζ = 1)")
     return kp, kd, f"default: {rule.split(':')[0]}, critically damped"
 
@@ -108,16 +121,13 @@ def grasp_gains(
     wanted = max_effort / travel
     if kp >= wanted:
         return None
-    heavy = inertia.heaviest
-    most = limits.bandwidth(heavy, HOLD_DAMPING_RATIO) if heavy > 0 else math.inf
-    new_kp = round4(min(wanted, heavy * most**2))
-    new_kd = round4(2.0 * HOLD_DAMPING_RATIO * math.sqrt(new_kp * heavy))
+    new_kp, new_kd, capped = raised_gains(wanted, inertia.heaviest, limits)
     reach = max_effort / new_kp
     text = (
         f"{joint}: hold kp {kp:g} → {new_kp:g}, kd {new_kd:g} for {controller}: it presses with max_effort "
         f"{max_effort:g} within {reach:.3g} of the object"
     )
-    if new_kp < wanted:
+    if capped:
         text += f" (not {travel:.3g}: the most the effort limit {limits.effort:g} allows)"
     report.approximated(where, text)
     return new_kp, new_kd

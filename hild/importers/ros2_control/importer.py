@@ -82,12 +82,13 @@ def import_ros2_control(request: ImportRequest) -> ImportResult:
     selected = mapping.select_joints(robot, report)
     if not selected:
         raise robot.where.fail("no joint to command: <ros2_control> lists no movable, non-mimic joint")
+    sensors = mapping.plan_sensors(robot, report)
     files = request.controller_files
-    plan = ctl.read_controllers(files, mapping.catalog(robot, selected), report, request.args, request.namespace)
+    catalog = mapping.catalog(robot, selected, sensors)
+    plan = ctl.read_controllers(files, catalog, report, request.args, request.namespace)
     can = read_can_facts(robot, report)
     mapping.report_hardware(robot, {name: facts.used for name, facts in can.items()}, report)
     mimics = mapping.plan_mimic_joints(robot, selected, report)
-    sensors = mapping.plan_sensors(robot, report)
     mapping.check_limits(selected)
     twin.check_inertias(robot)
     urdf_text = twin.build_twin_urdf(document, robot, request.urdf.resolve().parent, packages, report)

@@ -176,7 +176,7 @@ def select_joints(robot: Robot, report: Report) -> list[Selected]:
     return [Selected(j, None, None) for j in chosen]
 
 
-def catalog(robot: Robot, selected: list[Selected]) -> JointCatalog:
+def catalog(robot: Robot, selected: list[Selected], sensors: list[SensorPlan]) -> JointCatalog:
     interfaces = {
         s.joint.name: frozenset(i.name for i in s.hardware.command_interfaces)
         for s in selected
@@ -187,8 +187,8 @@ def catalog(robot: Robot, selected: list[Selected]) -> JointCatalog:
         for hw in block.joints:
             if hw.mimic and hw.name not in mimic:
                 mimic[hw.name] = "(mimic in <ros2_control>)"
-    sensors = {s.name: s.type for s in plan_sensors(robot, Report())}  # the import reports them once, elsewhere
-    return JointCatalog(tuple(s.joint.name for s in selected), frozenset(robot.joints), mimic, interfaces, sensors)
+    kinds = {s.name: s.type for s in sensors}
+    return JointCatalog(tuple(s.joint.name for s in selected), frozenset(robot.joints), mimic, interfaces, kinds)
 
 
 def report_hardware(robot: Robot, read: Mapping[str, set[str]], report: Report) -> None:

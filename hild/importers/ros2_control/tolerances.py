@@ -16,7 +16,7 @@ import math
 from dataclasses import dataclass
 
 from hild.importers.ros2_control.controllers import ControllerPlan, ControllersPlan
-from hild.importers.ros2_control.gains import HOLD_DAMPING_RATIO, GainLimits, round4
+from hild.importers.ros2_control.gains import GainLimits, raised_gains
 from hild.importers.ros2_control.mapping import JointPlan
 from hild.importers.ros2_control.report import Report
 
@@ -86,19 +86,17 @@ def _raise_default(joint: JointPlan, demand: Demand, needed: float, update_rate:
     """The importer's own gains: raised to what the tolerance needs, or to the most the gain rules allow."""
     friction, heavy = joint.inertia.friction, joint.inertia.heaviest
     limits = GainLimits(joint.velocity, joint.effort, joint.soft_margin, 1.0 / update_rate)
-    most = heavy * limits.bandwidth(heavy, HOLD_DAMPING_RATIO) ** 2 if heavy > 0 else math.inf
-    kp = round4(min(needed, most))
+    kp, kd, capped = raised_gains(needed, heavy, limits)
     if kp > joint.kp:
         old = joint.kp
-        joint.kp = kp
-        joint.kd = round4(2.0 * HOLD_DAMPING_RATIO * math.sqrt(kp * heavy))
+        joint.kp, joint.kd = kp, kd
         joint.gains_from = f"raised for friction {friction:g} N·m vs the {_tolerance(joint, demand)}, critically damped"
         report.approximated(
             joint.where,
             f"{joint.name}: hold kp {old:g} → {kp:g}, kd {joint.kd:g}: friction {friction:g} N·m rested up to "
             f"{friction / old:.3g} rad off, more than {FRICTION_SHARE:g} × the {_tolerance(joint, demand)}",
         )
-    if needed > most:
+    if capped:
         rest = friction / joint.kp
         report.tracking(
             demand.controller.where,
