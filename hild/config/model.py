@@ -152,6 +152,31 @@ class VelocityGains(Params):
     kd: float = Field(ge=0.0)
 
 
+class FrictionModel(Params):
+    """A joint's identified friction and effort offset (``hild identify`` writes it): what teach mode compensates
+    and the contact observer subtracts before it calls a torque external (docs/safety.md, "Contact")."""
+
+    viscous: float = Field(default=0.0, ge=0.0, description="N·m·s/rad (N·s/m): torque per unit of speed.")
+    coulomb: float = Field(default=0.0, ge=0.0, description="N·m (N): torque against the motion at any speed.")
+    offset: float = Field(
+        default=0.0, description="N·m (N): a constant torque the drive reports or needs at rest (cogging, bias)."
+    )
+    band: float = Field(
+        default=0.02,
+        gt=0.0,
+        le=1.0,
+        description="rad/s (m/s): speed over which the Coulomb term rises from 0 to full (tanh), so it never "
+        "chatters around zero speed.",
+    )
+
+    @field_validator("viscous", "coulomb", "offset", "band")
+    @classmethod
+    def _finite(cls, v: float) -> float:
+        if not math.isfinite(v):
+            raise ValueError("must be a finite number")
+        return v
+
+
 class JointSection(Params):
     limits: JointLimits
     hold: Gains = Field(description="Gains used while the joint is held (no controller commands it).")
@@ -160,6 +185,9 @@ class JointSection(Params):
     )
     velocity_gains: VelocityGains | None = Field(
         default=None, description="Default kd for a velocity claim; the hold kd when not given."
+    )
+    friction: FrictionModel | None = Field(
+        default=None, description="Identified friction and effort offset (hild identify); none: not compensated."
     )
 
 
