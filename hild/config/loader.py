@@ -95,7 +95,8 @@ class LoadedConfig:
                 lines.append(f"    sensor {sensor}: {spec.type} in {spec.frame_id} ({ranges})")
         for name, ctl in c.controllers.items():
             auto = " (autostart)" if ctl.autostart else ""
-            lines.append(f"  controller {name}: {ctl.type}{auto}")
+            chain = f", chained to {ctl.chain_to}" if ctl.chain_to else ""
+            lines.append(f"  controller {name}: {ctl.type}{chain}{auto}")
         lines.append(f"  zenoh: {c.zenoh.mode}, listen {c.zenoh.listen or '[]'}, connect {c.zenoh.connect or '[]'}")
         lines.extend(f"  {note}" for note in self.notes)
         return "\n".join(lines)
