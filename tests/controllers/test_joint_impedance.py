@@ -192,7 +192,7 @@ def test_on_an_odrive_the_law_runs_in_hild_and_reaches_the_drive_as_torque() -> 
         assert engine.switch(["imp"], []).ok
         rig.seconds(0.05)
         home = engine.state.position.copy()
-        target = home + [0.1, 0.0]
+        target = home + np.array([0.1, 0.0])
         torques = []
         for _ in range(1500):
             imp.accept({"positions": target.tolist()})
