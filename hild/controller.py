@@ -32,7 +32,7 @@ from hild.config.model import JointLimits
 from hild.config.params import Params
 from hild.crossing.mailboxes import InProcess, Mailboxes
 from hild.crossing.ring import SampleRing
-from hild.interfaces import SensorLayout
+from hild.interfaces import ClaimMasks, SensorLayout
 
 __all__ = [
     "Controller",
@@ -119,6 +119,10 @@ class ControllerContext:
     mailboxes: Mailboxes = field(default_factory=InProcess)
     # Joints nothing commands that follow a robot joint (the config's mimic_joints): reported, never commanded.
     mimic_joints: MimicJoints = field(default_factory=lambda: MimicJoints((), ()))
+    # Per robot joint: does its drive apply the command's kp and kd (``HardwareComponent.APPLIES_GAINS``)? False for
+    # an ODrive, which runs its own gains: a controller that wants a spring there computes it itself on the effort
+    # path. None where nothing filled it (the client domain's API half): take every drive as applying them.
+    applies_gains: np.ndarray | None = None
 
     def index_of(self, names: Sequence[str]) -> np.ndarray:
         lookup = {j: i for i, j in enumerate(self.joints)}
@@ -147,6 +151,9 @@ class Controller:
         self.context = context
         self.params = params
         self._active = context.mailboxes.flag("active")
+        # A chainable controller's references (see reference_interfaces_for): allocated at construction over the
+        # robot's joints, written by the controllers chained to it each cycle before its own update.
+        self.references: ServoCommand | None = None
 
     @property
     def name(self) -> str:
@@ -185,6 +192,26 @@ class Controller:
 
     def claims(self) -> list[str]:
         return self.claims_for(self.params)
+
+    # ---- chaining (ros2_control's chainable controllers; docs/controllers.md, "Chained controllers") ----------
+    @classmethod
+    def reference_interfaces_for(cls, params: Params) -> list[str]:
+        """The reference interfaces this controller exports with these params, as ``<joint>/<field>`` (the manager
+        names them ``<controller>/<joint>/<field>``): another controller configured with ``chain_to: <this one>``
+        claims them instead of the hardware's, and what it writes lands in ``self.references``, which this one reads
+        in its own update of the same cycle. None by default: a controller that exports some is *chainable* and
+        allocates ``self.references`` (a :class:`ServoCommand` over the robot's joints) in its constructor."""
+        return []
+
+    def reference_interfaces(self) -> list[str]:
+        return self.reference_interfaces_for(self.params)
+
+    def set_chained(self, claimed: ClaimMasks | None) -> None:
+        """The manager's, between two cycles, whenever the active controllers chained to this one change: which of
+        its references they write, per joint and field (``claimed.position[i]``, …), or None when none is chained
+        to it any more. A joint whose reference is claimed takes its targets from ``self.references`` (those with
+        ``references.written`` set this cycle); the others keep what the controller does unchained. Must not step
+        the command: a reference nobody wrote yet is the controller's current target."""
 
     def gravity_joints(self) -> list[str]:
         """Joints on which the supervisor adds the robot model's gravity torque (``robot.model``) to this controller's

@@ -57,7 +57,14 @@ class ControllerLifecycle:
         if "type" not in section:
             raise RequestError('give the controller\'s type: {"name": NAME, "type": TYPE, "params": {...}}')
         checked = self.checked(name, section, loaded, "request")
-        load = Load(name, checked.type, checked.params, checked.fallbacks, source=f"by {request.get('by', 'a client')}")
+        load = Load(
+            name,
+            checked.type,
+            checked.params,
+            checked.fallbacks,
+            chain_to=checked.chain_to,
+            source=f"by {request.get('by', 'a client')}",
+        )
         return dict(await self.on_cycle(load))
 
     async def _configure(self, request: dict[str, Any]) -> Reply:
@@ -82,10 +89,21 @@ class ControllerLifecycle:
         if section is None:
             raise RequestError(f"{path} has no controller {name!r}: nothing to reload it from")
         loaded = loaded_names(self.engine)
-        raw = {"type": section.type, "params": section.params, "fallback_controllers": section.fallback_controllers}
+        raw = {
+            "type": section.type,
+            "params": section.params,
+            "fallback_controllers": section.fallback_controllers,
+            "chain_to": section.chain_to,
+        }
         checked = self.checked(name, raw, loaded, str(path))
         load = Load(
-            name, checked.type, checked.params, checked.fallbacks, replaces=name in loaded, source=f"from {path}"
+            name,
+            checked.type,
+            checked.params,
+            checked.fallbacks,
+            replaces=name in loaded,
+            chain_to=checked.chain_to,
+            source=f"from {path}",
         )
         return dict(await self.on_cycle(load))
 

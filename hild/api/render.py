@@ -55,12 +55,29 @@ def status_text(status: dict[str, Any]) -> str:
 
 def controllers_text(controllers: Sequence[dict[str, Any]]) -> str:
     return table(
-        ["CONTROLLER", "TYPE", "STATE", "CLAIMED", "ERROR"],
+        ["CONTROLLER", "TYPE", "STATE", "CHAIN", "CLAIMED", "ERROR"],
         [
-            [c["name"], c["type"], c["state"], ",".join(c.get("claimed") or []) or None, c.get("error") or None]
+            [
+                c["name"],
+                c["type"],
+                c["state"],
+                _chain(c),
+                ",".join(c.get("claimed") or []) or None,
+                c.get("error") or None,
+            ]
             for c in controllers
         ],
     )
+
+
+def _chain(controller: dict[str, Any]) -> str | None:
+    """``→ F`` for a controller chained to F; ``chainable`` (``, chained`` while one is) for one that exports
+    references."""
+    if controller.get("chain_to"):
+        return f"→ {controller['chain_to']}"
+    if controller.get("is_chainable"):
+        return "chainable, chained" if controller.get("is_chained") else "chainable"
+    return None
 
 
 def parameters_text(parameters: Sequence[dict[str, Any]]) -> str:

@@ -17,6 +17,7 @@ from hild.interfaces import parse_interface
 STREAMED: Mapping[str, Mapping[str, str]] = {
     "forward_command": {"commands": "values"},  # {"values": [...]}: positions, velocities or efforts
     "servo": {"target": "positions"},  # {"positions": [...]}: tracked jerk-limited
+    "joint_impedance": {"target": "positions"},  # {"positions": [...]}: spring targets, the configured gains
 }
 
 
@@ -64,7 +65,10 @@ def resolve(controllers: Sequence[Mapping[str, Any]], name: str, input_name: str
             f"controller {name!r} is {state}, not active: it would drop every sample "
             f"(hild ctl switch --activate {name})"
         )
-    joints = tuple(dict.fromkeys(parse_interface(claim)[0] for claim in entry.get("claimed") or ()))
+    prefix = f"{entry['chain_to']}/" if entry.get("chain_to") else ""  # a chained one claims references
+    joints = tuple(
+        dict.fromkeys(parse_interface(claim.removeprefix(prefix))[0] for claim in entry.get("claimed") or ())
+    )
     if count != len(joints):
         raise StreamInputError(
             f"controller {name!r} takes {len(joints)} value{'s' * (len(joints) != 1)} on {input_name}, one per joint "

@@ -95,7 +95,8 @@ class LoadedConfig:
                 lines.append(f"    sensor {sensor}: {spec.type} in {spec.frame_id} ({ranges})")
         for name, ctl in c.controllers.items():
             auto = " (autostart)" if ctl.autostart else ""
-            lines.append(f"  controller {name}: {ctl.type}{auto}")
+            chain = f", chained to {ctl.chain_to}" if ctl.chain_to else ""
+            lines.append(f"  controller {name}: {ctl.type}{chain}{auto}")
         lines.append(f"  zenoh: {c.zenoh.mode}, listen {c.zenoh.listen or '[]'}, connect {c.zenoh.connect or '[]'}")
         lines.extend(f"  {note}" for note in self.notes)
         return "\n".join(lines)
@@ -432,7 +433,9 @@ def _check_controllers(loaded: LoadedConfig, owner: dict[str, str], report: Repo
         cls, params = loaded.controller_classes.get(name), loaded.controller_params.get(name)
         if cls is None or params is None:
             continue
-        claims = _check_controller(loaded, name, cls, params, available, report)
+        claims = _check_controller(loaded, name, cls, params, available, report, chained=spec.chain_to is not None)
+        if spec.chain_to is not None:
+            claims = _check_chain(loaded, name, spec.chain_to, claims, report)
         if spec.autostart:
             for claim in claims:
                 other = autostart_claims.setdefault(claim, name)
@@ -451,7 +454,14 @@ def _available_claims(loaded: LoadedConfig, owner: dict[str, str]) -> set[str]:
 
 
 def _check_controller(
-    loaded: LoadedConfig, name: str, cls: Any, params: Params, available: set[str], report: Report
+    loaded: LoadedConfig,
+    name: str,
+    cls: Any,
+    params: Params,
+    available: set[str],
+    report: Report,
+    *,
+    chained: bool = False,
 ) -> list[str]:
     """One controller's joints, limits and claims against the robot; its claims that parse."""
     c = loaded.config
@@ -484,10 +494,41 @@ def _check_controller(
             report(("controllers", name, "params"), str(exc))
             continue
         claims.append(claim)
-        if joint in c.joints and claim not in available:
+        if joint in c.joints and claim not in available and not chained:  # a chained one claims references
             driver = c.hardware[owner[joint]].driver if joint in owner else "?"
             report(("controllers", name, "params"), f"claims {claim!r}, which driver {driver!r} does not offer")
     return claims
+
+
+def _check_chain(loaded: LoadedConfig, name: str, following: str, claims: list[str], report: Report) -> list[str]:
+    """``controllers.<name>.chain_to``: a chainable controller of this config, no loop, and every claim of ``name``
+    one of its reference interfaces. Returns the claims as the manager names them (``<following>/<joint>/<field>``)."""
+    c, loc = loaded.config, ("controllers", name, "chain_to")
+    redirected = [f"{following}/{claim}" for claim in claims]
+    if following == name:
+        report(loc, "a controller cannot chain to itself")
+        return redirected
+    if following not in c.controllers:
+        report(loc, f"unknown controller {following!r}")
+        return redirected
+    seen, hop = {name}, following
+    while (hop := c.controllers[hop].chain_to) is not None and hop in c.controllers:
+        if hop in seen:
+            report(loc, f"the chain from {name} through {following} comes back to {hop}: a chain cannot loop")
+            return redirected
+        seen.add(hop)
+    cls, params = loaded.controller_classes.get(following), loaded.controller_params.get(following)
+    if cls is None or params is None:
+        return redirected
+    exported = set(cls.reference_interfaces_for(params))
+    if not exported:
+        report(
+            loc, f"{following} ({c.controllers[following].type}) exports no reference interfaces: it is not chainable"
+        )
+        return redirected
+    if missing := [claim for claim in claims if claim not in exported]:
+        report(loc, f"{following} exports no reference interfaces {missing} (it exports {sorted(exported)})")
+    return redirected
 
 
 def _check_fallbacks(name: str, fallbacks: list[str], known: set[str], report: Report) -> None:
@@ -507,6 +548,7 @@ class CheckedController:
     type: str
     params: Params
     fallbacks: tuple[str, ...]
+    chain_to: str = ""  # the controller whose reference interfaces it claims (``chain_to``), or none
 
 
 def check_controller(
@@ -541,11 +583,16 @@ def check_controller(
             issues + _pydantic_issues(exc, cls.Params, ("controllers", name, "params"), source, {})
         ) from None
     owner = {joint: hw for hw, section_ in loaded.config.hardware.items() for joint in section_.joints}
-    _check_controller(loaded, name, cls, params, _available_claims(loaded, owner), report)
+    chained = spec.chain_to is not None
+    _check_controller(loaded, name, cls, params, _available_claims(loaded, owner), report, chained=chained)
     _check_fallbacks(name, spec.fallback_controllers, loaded_controllers, report)
+    if spec.chain_to == name:
+        report(("controllers", name, "chain_to"), "a controller cannot chain to itself")
+    elif chained and spec.chain_to not in loaded_controllers:
+        report(("controllers", name, "chain_to"), f"unknown controller {spec.chain_to!r}")
     if issues:
         raise ConfigError(issues)
-    return CheckedController(name, spec.type, params, tuple(spec.fallback_controllers))
+    return CheckedController(name, spec.type, params, tuple(spec.fallback_controllers), spec.chain_to or "")
 
 
 BUS_LOAD_WARNING = 0.70

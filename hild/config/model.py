@@ -214,6 +214,12 @@ class ControllerSection(Params):
     fallback_controllers: list[str] = Field(
         default_factory=list, description="Activated when this controller fails in update()."
     )
+    chain_to: str | None = Field(
+        default=None,
+        description="A chainable controller (joint_impedance) whose reference interfaces this one claims instead of "
+        "the hardware's: what it commands becomes that controller's targets (docs/controllers.md, "
+        '"Chained controllers").',
+    )
 
 
 class PlausibilitySection(Params):

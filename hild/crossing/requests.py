@@ -71,6 +71,7 @@ class Load:
     doors: str = ""
     replaces: bool = False
     keeps_fallbacks: bool = False  # a replacement keeps the fallbacks of the one it replaces (new parameters)
+    chain_to: str = ""  # the chainable controller whose reference interfaces it claims (config: ``chain_to``)
     source: str = field(default="", compare=False)  # for the event: "from <file>", "by <user@host>"
 
 

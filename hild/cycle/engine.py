@@ -185,6 +185,7 @@ class Engine:
         for k, slot in enumerate(self.hardware):
             self._joint_slot[slot.index] = k
 
+        self.applies_gains = self._applies_gains()  # per joint; controllers see it in their context
         self.supervisor = self._build_supervisor(loaded)
         s = cfg.safety
         self.max_consecutive_overruns = s.max_consecutive_overruns
@@ -214,7 +215,9 @@ class Engine:
         self.tuning = ManagerParams.of(cfg)  # the daemon's own parameters (hold gains): set_parameters changes them
         self.tuning_floor = [j.soft_margin for j in self.tuning.joints.values()]  # the config's soft margins
         for name, spec in cfg.controllers.items():
-            self.load_controller(name, spec.type, loaded.controller_params[name], spec.fallback_controllers)
+            self.load_controller(
+                name, spec.type, loaded.controller_params[name], spec.fallback_controllers, spec.chain_to or ""
+            )
 
     # ---- construction ---------------------------------------------------------------------------------------
     def _build_supervisor(self, loaded: LoadedConfig) -> Supervisor:
@@ -243,7 +246,7 @@ class Engine:
             self.events,
             gravity=gravity,
             describe_fault=self._describe_fault,
-            applies_gains=self._applies_gains(),
+            applies_gains=self.applies_gains,
         )
 
     @staticmethod
@@ -328,20 +331,25 @@ class Engine:
             sensors=self.sensors,
             mailboxes=self.mailboxes.scoped(doors or name),
             mimic_joints=self.mimic_joints,
+            applies_gains=self.applies_gains,
         )
 
     def controllers(self) -> dict[str, Any]:
         """Each loaded controller by name: the instance whose inputs and action server the API exposes."""
         return {name: record.instance for name, record in list(self.manager.records.items())}
 
-    def load_controller(self, name: str, type_name: str, params: Any, fallbacks: Sequence[str] = ()) -> None:
+    def load_controller(
+        self, name: str, type_name: str, params: Any, fallbacks: Sequence[str] = (), chain_to: str = ""
+    ) -> None:
         """Load and configure a controller (before start; at runtime a :class:`Load` request does it)."""
-        self._loaded(Load(name, type_name, params, tuple(fallbacks)))
+        self._loaded(Load(name, type_name, params, tuple(fallbacks), chain_to=chain_to))
         self.manager.configure(name)
 
-    def add_controller(self, name: str, type_name: str, controller: Any, fallbacks: Sequence[str] = ()) -> None:
+    def add_controller(
+        self, name: str, type_name: str, controller: Any, fallbacks: Sequence[str] = (), chain_to: str = ""
+    ) -> None:
         """Load and configure an already built controller instance (tests and tools that build their own)."""
-        self.manager.load(name, type_name, controller, fallbacks)
+        self.manager.load(name, type_name, controller, fallbacks, chain_to)
         self.manager.configure(name)
 
     def _build(self, load: Load) -> Any:
@@ -357,10 +365,11 @@ class Engine:
             raise SwitchError(f"{load.name}: building a {load.type} failed: {type(exc).__name__}: {exc}") from None
         if load.replaces:
             if load.keeps_fallbacks and load.name in self.manager.records:
-                load = dataclasses.replace(load, fallbacks=self.manager.records[load.name].fallbacks)
-            state = self.manager.replace(load.name, load.type, controller, load.fallbacks)
+                kept = self.manager.records[load.name]
+                load = dataclasses.replace(load, fallbacks=kept.fallbacks, chain_to=kept.chain_to)
+            state = self.manager.replace(load.name, load.type, controller, load.fallbacks, load.chain_to)
         else:
-            self.manager.load(load.name, load.type, controller, load.fallbacks)
+            self.manager.load(load.name, load.type, controller, load.fallbacks, load.chain_to)
             state = "unconfigured"
         self.loads[load.name] = load
         self.loads_seq += 1

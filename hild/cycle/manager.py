@@ -5,6 +5,19 @@ applies queued requests at the start of a cycle), so a switch is atomic: no cycl
 A switch is validated in full before anything changes; in strict mode any problem refuses the whole switch,
 in best-effort mode the failing controllers are dropped. If an ``on_activate`` raises mid-switch, everything the
 switch did is rolled back (strict) or that controller alone is dropped (best effort).
+
+**Chains** (ros2_control's chainable controllers; docs/controllers.md, "Chained controllers"). A controller loaded
+with ``chain_to: F`` claims F's *reference interfaces* ``F/<joint>/<field>`` instead of the hardware's: its update
+gets F's reference buffer (``F.references``) as its ``command``, so it needs no code of its own to be chained, and
+F reads that buffer in its own update of the same cycle. The rules:
+
+* update order: every controller chained to F runs before F, each cycle (the active list is kept in that order);
+* a reference interface is an exclusive claim, like a hardware one, and all fields of one joint go to one claimant;
+* a chained controller is activated only if F is active after the switch (already, or activated in the same
+  switch, F first); deactivating F while a controller chained to it stays active is refused in strict mode, and
+  takes that controller along in best effort; a switch activates and deactivates whole chains or nothing (strict);
+* when F fails (or is stopped by an e-stop or an inactive component), the controllers chained to it are deactivated
+  too: their joints are F's, and the supervisor holds them.
 """
 
 from __future__ import annotations
@@ -30,9 +43,13 @@ class ControllerRecord:
     fallbacks: tuple[str, ...]
     reads: tuple[str, ...] = ()  # the state interfaces it reads
     gravity: tuple[str, ...] = ()  # joints whose effort command gets the gravity torque on top (gravity_joints)
+    chain_to: str = ""  # the controller whose reference interfaces it claims; "" for the hardware's
+    references: tuple[str, ...] = ()  # the reference interfaces it exports, ``<name>/<joint>/<field>``
     state: ControllerState = ControllerState.UNCONFIGURED
     error: str = ""
     joint_index: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.intp))
+    output: ServoCommand | None = None  # where its update writes while active: its following controller's references
+    chained_claims: frozenset[str] = frozenset()  # of its references, what active chained controllers claim
 
 
 @dataclass(frozen=True)
@@ -46,6 +63,9 @@ class ControllerInfo:
     claimed: tuple[str, ...]
     error: str
     reads: tuple[str, ...] = ()
+    chain_to: str = ""
+    references: tuple[str, ...] = ()  # the reference interfaces it exports (chainable when any)
+    chained: bool = False  # an active controller claims some of its references
 
     def as_dict(self) -> dict[str, object]:
         return {
@@ -55,6 +75,13 @@ class ControllerInfo:
             "claimed": list(self.claimed),
             "error": self.error,
             "state_interfaces": list(self.reads),
+            "chain_to": self.chain_to or None,
+            "is_chainable": bool(self.references),
+            "is_chained": self.chained,
+            "reference_interfaces": list(self.references),
+            "chain_connections": (
+                [{"name": self.chain_to, "reference_interfaces": list(self.claimed)}] if self.chain_to else []
+            ),
         }
 
 
@@ -86,7 +113,8 @@ class ControllerManager:
         self.events = events
         self.records: dict[str, ControllerRecord] = {}
         self._slots = 0
-        self.active: list[ControllerRecord] = []  # in load order: the update order
+        self.active: list[ControllerRecord] = []  # the update order: chained ones before theirs, else load order
+        self._chained_references: list[ServoCommand] = []  # the references of active controllers chained to
         self.masks = ClaimMasks.empty(len(self.joints))
         self.snapshot: tuple[ControllerInfo, ...] = ()
         self.change_seq = 0
@@ -94,10 +122,12 @@ class ControllerManager:
         self.on_claims: Callable[[ClaimMasks], None] = lambda masks: None  # the supervisor listens here
 
     # ---- lifecycle ------------------------------------------------------------------------------------------
-    def load(self, name: str, type_name: str, controller: Controller, fallbacks: Sequence[str] = ()) -> None:
+    def load(
+        self, name: str, type_name: str, controller: Controller, fallbacks: Sequence[str] = (), chain_to: str = ""
+    ) -> None:
         if name in self.records:
             raise SwitchError(f"controller {name!r} is already loaded")
-        self.records[name] = self._record(self._slots, name, type_name, controller, fallbacks)
+        self.records[name] = self._record(self._slots, name, type_name, controller, fallbacks, chain_to)
         self._slots += 1
         self._changed()
 
@@ -146,14 +176,16 @@ class ControllerManager:
         del self.records[name]
         self._changed()
 
-    def replace(self, name: str, type_name: str, controller: Controller, fallbacks: Sequence[str] = ()) -> str:
+    def replace(
+        self, name: str, type_name: str, controller: Controller, fallbacks: Sequence[str] = (), chain_to: str = ""
+    ) -> str:
         """Swap a loaded controller that is not active for a new instance (a reload), keeping its place in the
         update order. The new one is configured if the old one was; if that fails, the old one stays as it was.
         Returns the new one's state."""
         old = self._get(name)
         if old.state is ControllerState.ACTIVE:
             raise SwitchError(f"controller {name!r} is active; deactivate it before reloading it")
-        record = self._record(old.slot, name, type_name, controller, fallbacks)
+        record = self._record(old.slot, name, type_name, controller, fallbacks, chain_to)
         configured = old.state is not ControllerState.UNCONFIGURED
         if configured:
             try:
@@ -169,16 +201,46 @@ class ControllerManager:
         return str(record.state)
 
     def _record(
-        self, slot: int, name: str, type_name: str, controller: Controller, fallbacks: Sequence[str]
+        self,
+        slot: int,
+        name: str,
+        type_name: str,
+        controller: Controller,
+        fallbacks: Sequence[str],
+        chain_to: str = "",
     ) -> ControllerRecord:
-        """A record for ``controller``, unconfigured; ClaimError if it claims what the drives do not offer."""
-        claims = tuple(controller.claims())
-        check_claims(name, claims, self.available)
+        """A record for ``controller``, unconfigured; ClaimError if it claims what the drives do not offer (chained:
+        its claims are ``chain_to``'s references, checked when it is switched on, where that one must be active)."""
+        own = tuple(controller.claims())
         gravity = tuple(controller.gravity_joints())
-        if stray := [j for j in gravity if f"{j}/effort" not in claims]:
+        if stray := [j for j in gravity if f"{j}/effort" not in own]:
             raise ClaimError(
                 f"{name}: gravity on top of its effort asked for on {stray}, whose effort it does not claim"
             )
+        if chain_to == name:
+            raise ClaimError(f"{name}: a controller cannot chain to itself")
+        if chain_to:
+            for claim in own:
+                parse_interface(claim)
+            if gravity:
+                raise ClaimError(
+                    f"{name}: chained to {chain_to}, it asks for gravity on top of its effort on {list(gravity)}; "
+                    f"gravity is added to the effort {chain_to} sends (turn it off here)"
+                )
+            claims = tuple(f"{chain_to}/{c}" for c in own)
+        else:
+            check_claims(name, own, self.available)
+            claims = own
+        references = tuple(f"{name}/{r}" for r in controller.reference_interfaces())
+        if references:
+            buffer = controller.references
+            if not isinstance(buffer, ServoCommand) or len(buffer) != len(self.joints):
+                raise ClaimError(
+                    f"{name}: it exports reference interfaces but its references are not a ServoCommand over the "
+                    f"robot's {len(self.joints)} joints"
+                )
+            for reference in references:
+                parse_interface(reference.removeprefix(f"{name}/"))
         return ControllerRecord(
             slot=slot,
             name=name,
@@ -188,7 +250,9 @@ class ControllerManager:
             fallbacks=tuple(fallbacks),
             reads=tuple(controller.state_interfaces()),
             gravity=gravity,
-            joint_index=self._joints_of(claims),
+            chain_to=chain_to,
+            references=references,
+            joint_index=self._joints_of(own),
         )
 
     def _cleanup(self, rec: ControllerRecord) -> None:
@@ -224,6 +288,9 @@ class ControllerManager:
             self._deactivate(rec)
         started: list[ControllerRecord] = []
         for rec in to_start:
+            if rec.chain_to and self.records[rec.chain_to].state is not ControllerState.ACTIVE:
+                dropped.append(rec.name)  # best effort: the controller it chains to did not start
+                continue
             try:
                 rec.instance.on_activate(state, last_command)
             except Exception as exc:  # a plugin's bug must not take the daemon down
@@ -243,7 +310,7 @@ class ControllerManager:
             rec.instance.set_active(True)
             started.append(rec)
             self.active.append(rec)
-        self.active.sort(key=lambda r: r.slot)
+        self._order()
         self._apply_claims()
         result = SwitchResult(
             ok=bool(started or to_stop) or not (activate or deactivate),
@@ -262,6 +329,7 @@ class ControllerManager:
     def _plan(
         self, activate: list[str], deactivate: list[str], strict: bool, refuse_activation: str
     ) -> tuple[list[ControllerRecord], list[ControllerRecord]]:
+        """What to stop and what to start (following controllers before those chained to them), or SwitchError."""
         problems: list[str] = []
         to_stop: list[ControllerRecord] = []
         for name in deactivate:
@@ -286,30 +354,103 @@ class ControllerManager:
             elif blocked := [c for c in rec.claims if c in self.unavailable]:
                 owners = sorted({self.unavailable[c] for c in blocked})
                 problems.append(f"{name} claims {blocked}, of inactive hardware {owners} (set it active first)")
+            elif rec.chain_to and rec.chain_to not in self.records:
+                problems.append(f"{name} chains to {rec.chain_to!r}, which is not loaded")
             else:
                 candidates.append(rec)
+        # A following controller stopped while one chained to it stays active: refused, or taken along.
+        for rec in list(to_stop):
+            staying = [d for d in self._dependents(rec) if d not in to_stop]
+            if staying and strict:
+                names = [d.name for d in staying]
+                problems.append(f"{rec.name} cannot be deactivated while {names} chain to it (deactivate them too)")
+            elif staying:
+                to_stop.extend(d for d in staying if d not in to_stop)
         if strict and problems:
             raise SwitchError("; ".join(problems))
 
         remaining = [r for r in self.active if r not in to_stop]
         to_start: list[ControllerRecord] = []
-        for rec in candidates:
+        for rec in sorted(candidates, key=self._depth):  # following controllers first
             trial = remaining + to_start + [rec]
-            try:
-                build_masks(
-                    self._joint_index,
-                    {r.slot: r.claims for r in trial},
-                    {r.slot: r.name for r in trial},
-                    {r.slot: r.gravity for r in trial},
-                )
-            except ClaimError as exc:
+            problem = self._chain_problem(rec, trial) or self._claims_problem(trial)
+            if problem:
                 if strict:
-                    raise SwitchError(str(exc)) from None
+                    raise SwitchError(problem)
                 continue
             to_start.append(rec)
         if not strict and not to_start and not to_stop and (activate or deactivate):
             raise SwitchError("nothing to switch: " + ("; ".join(problems) or "claims conflict"))
         return to_stop, to_start
+
+    def _chain_problem(self, rec: ControllerRecord, trial: list[ControllerRecord]) -> str:
+        """Why ``rec`` cannot run among ``trial`` (the active set after the switch), or "": a chained controller needs
+        the one it chains to active, and claims only references that one exports."""
+        if not rec.chain_to:
+            return ""
+        following = self.records[rec.chain_to]
+        if following not in trial:
+            return (
+                f"{rec.name} chains to {following.name}, which would not be active after the switch "
+                f"(activate {following.name} in the same switch, or first)"
+            )
+        if missing := [c for c in rec.claims if c not in following.references]:
+            return f"{rec.name} claims {missing}, which {following.name} does not export"
+        return ""
+
+    def _claims_problem(self, trial: list[ControllerRecord]) -> str:
+        """The first conflict among ``trial``'s claims, or "": hardware interfaces and reference interfaces alike are
+        exclusive, and all fields of one joint (of the hardware, or of one controller's references) go to one."""
+        try:
+            self._hardware_masks(trial)
+        except ClaimError as exc:
+            return str(exc)
+        taken: dict[tuple[str, str], str] = {}  # (following, joint) → the controller chained to it there
+        for rec in trial:
+            if not rec.chain_to:
+                continue
+            for claim in rec.claims:
+                joint, _ = parse_interface(claim.removeprefix(f"{rec.chain_to}/"))
+                other = taken.setdefault((rec.chain_to, joint), rec.name)
+                if other != rec.name:
+                    return f"{rec.chain_to}'s references of joint {joint} are claimed by both {other} and {rec.name}"
+        return ""
+
+    def _hardware_masks(self, records: Sequence[ControllerRecord]) -> ClaimMasks:
+        """The hardware claims of ``records`` (chained ones claim references instead) as masks; ClaimError on a
+        conflict."""
+        direct = [r for r in records if not r.chain_to]
+        return build_masks(
+            self._joint_index,
+            {r.slot: r.claims for r in direct},
+            {r.slot: r.name for r in direct},
+            {r.slot: r.gravity for r in direct},
+        )
+
+    def _dependents(self, rec: ControllerRecord) -> list[ControllerRecord]:
+        """The active controllers chained to ``rec``, directly or through others (those nearest it last)."""
+        found: list[ControllerRecord] = []
+        frontier = [rec.name]
+        while frontier:
+            name = frontier.pop()
+            for other in self.active:
+                if other.chain_to == name and other not in found:
+                    found.append(other)
+                    frontier.append(other.name)
+        return found[::-1]
+
+    def _depth(self, rec: ControllerRecord) -> int:
+        """How many controllers ``rec`` chains through to reach the hardware: 0 for one that commands it."""
+        depth, hop, seen = 0, rec, {rec.name}
+        while hop.chain_to and hop.chain_to in self.records and hop.chain_to not in seen:
+            seen.add(hop.chain_to)
+            hop = self.records[hop.chain_to]
+            depth += 1
+        return depth
+
+    def _order(self) -> None:
+        """The update order: every controller before the one it chains to, otherwise load order."""
+        self.active.sort(key=lambda r: (-self._depth(r), r.slot))
 
     def _deactivate(self, rec: ControllerRecord, new_state: ControllerState = ControllerState.INACTIVE) -> None:
         rec.instance.set_active(False)  # first: the API half refuses inputs from now on
@@ -330,7 +471,7 @@ class ControllerManager:
         rec.state = ControllerState.ACTIVE
         rec.instance.set_active(True)
         self.active.append(rec)
-        self.active.sort(key=lambda r: r.slot)
+        self._order()
 
     def deactivate_commanding(self, reason: str) -> list[str]:
         """Stop every active controller that claims command interfaces (e-stop); broadcasters keep running."""
@@ -348,7 +489,10 @@ class ControllerManager:
         return stopped
 
     def _deactivate_each(self, records: list[ControllerRecord]) -> list[str]:
-        """Deactivate ``records`` (their joints to hold) and recompute the claims once; their names."""
+        """Deactivate ``records`` and the controllers chained to them (their joints to hold) and recompute the
+        claims once; their names."""
+        for rec in list(records):
+            records.extend(d for d in self._dependents(rec) if d not in records)
         for rec in records:
             self._deactivate(rec)
         if records:
@@ -370,32 +514,44 @@ class ControllerManager:
 
     # ---- the cycle ---------------------------------------------------------------------------------------------
     def update(self, t: float, dt: float, state: JointState, command: ServoCommand) -> None:
+        """Every active controller's update, in the order of ``self.active``: a chained one writes into the
+        references of the one it chains to (cleared here first), which runs after it in the same cycle."""
         command.written.fill(False)
         command.hold_effort.fill(0.0)
+        for references in self._chained_references:
+            references.written.fill(False)
         failed: list[tuple[ControllerRecord, BaseException]] | None = None
         for rec in self.active:
+            out = command if rec.output is None else rec.output
             try:
-                rec.instance.update(t, dt, state, command)
+                rec.instance.update(t, dt, state, out)
             except Exception as exc:
                 failed = failed or []
                 failed.append((rec, exc))
-                command.written[rec.joint_index] = False  # nothing it wrote this cycle is used
-                command.hold_effort[rec.joint_index] = 0.0
+                out.written[rec.joint_index] = False  # nothing it wrote this cycle is used
+                out.hold_effort[rec.joint_index] = 0.0
         if failed:
             for rec, exc in failed:
-                self.fail(rec, f"update raised {type(exc).__name__}: {exc}", state, command)
+                if rec.state is ControllerState.ACTIVE:  # not already taken along by a failed one it chains to
+                    self.fail(rec, f"update raised {type(exc).__name__}: {exc}", state, command)
 
     def fail_slots(self, slots: Sequence[int], reason: str, state: JointState, command: ServoCommand) -> None:
         for rec in [r for r in self.active if r.slot in slots]:
             self.fail(rec, reason, state, command)
 
     def fail(self, rec: ControllerRecord, reason: str, state: JointState, command: ServoCommand) -> None:
-        """Deactivate a failed controller, hold its joints (they go unwritten), then start its fallbacks."""
+        """Deactivate a failed controller and the controllers chained to it, hold its joints (they go unwritten), then
+        start its fallbacks."""
+        dependents = self._dependents(rec)
         self._deactivate(rec, ControllerState.FAILED)
         rec.error = reason
+        for dependent in dependents:
+            self._deactivate(dependent)
+            dependent.error = f"deactivated: {rec.name}, which it chains to, failed ({reason})"
         self._apply_claims()
         joints = [self.joints[i] for i in rec.joint_index]
-        self.events.emit("error", rec.name, f"{reason}; deactivated, joints {joints} held")
+        along = f"; {[d.name for d in dependents]}, chained to it, deactivated too" if dependents else ""
+        self.events.emit("error", rec.name, f"{reason}; deactivated, joints {joints} held{along}")
         if rec.fallbacks:
             result = self.switch(list(rec.fallbacks), [], True, state, command)
             level = "info" if result.ok and not result.error else "error"
@@ -407,18 +563,53 @@ class ControllerManager:
 
     # ---- bookkeeping -------------------------------------------------------------------------------------------
     def _apply_claims(self) -> None:
-        self.masks = build_masks(
-            self._joint_index,
-            {r.slot: r.claims for r in self.active},
-            {r.slot: r.name for r in self.active},
-            {r.slot: r.gravity for r in self.active},
-        )
+        """After every change of the active set: the supervisor's masks (hardware claims), where each chained
+        controller writes, and what each chainable one learns of the controllers chained to it."""
+        self.masks = self._hardware_masks(self.active)
+        chained: dict[str, list[str]] = {}
+        for rec in self.active:
+            rec.output = None
+            if rec.chain_to:
+                following = self.records[rec.chain_to]
+                rec.output = following.instance.references
+                chained.setdefault(following.name, []).extend(rec.claims)
+        self._chained_references = [
+            r.instance.references for r in self.active if r.name in chained and r.instance.references is not None
+        ]
+        for rec in self.records.values():
+            claims = frozenset(chained.get(rec.name, ())) if rec.state is ControllerState.ACTIVE else frozenset()
+            if claims == rec.chained_claims:
+                continue
+            rec.chained_claims = claims
+            self._tell_chained(rec, claims)
         self.on_claims(self.masks)
         self._changed()
 
+    def _tell_chained(self, rec: ControllerRecord, claims: frozenset[str]) -> None:
+        """``rec.instance.set_chained`` with its claimed references as masks over the robot's joints (None: none)."""
+        masks = None
+        if claims:
+            prefix = f"{rec.name}/"
+            masks = build_masks(self._joint_index, {0: [c.removeprefix(prefix) for c in claims]}, {0: rec.name})
+        try:
+            rec.instance.set_chained(masks)
+        except Exception as exc:  # a plugin's bug must not take the daemon down; it shows in its update
+            self.events.emit("error", rec.name, f"set_chained raised {type(exc).__name__}: {exc}")
+
     def _changed(self) -> None:
         self.snapshot = tuple(
-            ControllerInfo(r.slot, r.name, r.type, str(r.state), r.claims, r.error, r.reads)
+            ControllerInfo(
+                r.slot,
+                r.name,
+                r.type,
+                str(r.state),
+                r.claims,
+                r.error,
+                r.reads,
+                r.chain_to,
+                r.references,
+                bool(r.chained_claims),
+            )
             for r in self.records.values()
         )
         self.change_seq += 1

@@ -7,7 +7,10 @@ What ros2_control's fields mean here (its controller_manager.cpp, 4.46.0): ``sta
 ``claimed_interfaces`` are the command interfaces an active controller holds (none when inactive);
 ``required_command_interfaces`` what its configuration claims when active, ``required_state_interfaces`` what it
 reads, both empty while it is unconfigured, as ros2_control reports them; every hild controller runs on the cycle,
-so ``is_async`` is false and ``update_rate`` is the cycle's rate.
+so ``is_async`` is false and ``update_rate`` is the cycle's rate. Chains as ros2_control reports them:
+``is_chainable`` for a controller that exports ``reference_interfaces`` (``<controller>/<joint>/<field>``),
+``is_chained`` while an active controller claims some of them, and a chained controller's ``chain_connections``
+name the controller it chains to and the references it claims (its ``claimed_interfaces`` too).
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ from hild.api.services import Services
 LIST_CONTROLLERS = "controller_manager_msgs/srv/ListControllers"
 SWITCH_CONTROLLER = "controller_manager_msgs/srv/SwitchController"
 CONTROLLER_STATE = "controller_manager_msgs/msg/ControllerState"
+CHAIN_CONNECTION = "controller_manager_msgs/msg/ChainConnection"
 # hild controller type → the ros2_control plugin a ROS tool expects to see
 PLUGIN_NAMES = {
     "joint_state_broadcaster": "joint_state_broadcaster/JointStateBroadcaster",
@@ -37,8 +41,8 @@ UINT16_MAX = 65535
 # strictness → what hild cannot do instead, said in the reply (ros2_control 4.46 itself runs both as BEST_EFFORT,
 # with a log line: a client that asked for them would get something else without knowing)
 UNSUPPORTED = {
-    AUTO: "strictness AUTO (3) is not supported: hild has no controller chains to resolve; "
-    "use STRICT (2) or BEST_EFFORT (1)",
+    AUTO: "strictness AUTO (3) is not supported: hild activates no chain by itself (name every controller of a "
+    "chain); use STRICT (2) or BEST_EFFORT (1)",
     FORCE_AUTO: "strictness FORCE_AUTO (4) is not supported: hild deactivates only the controllers named in "
     "deactivate_controllers; name the ones holding the joints (list_controllers shows their claimed interfaces)",
 }
@@ -75,11 +79,14 @@ class ControllerManager:
             claimed_interfaces=claims if state == "active" else [],
             required_command_interfaces=claims if configured else [],
             required_state_interfaces=list(controller.get("state_interfaces", [])) if configured else [],
-            is_chainable=False,
-            is_chained=False,
+            is_chainable=bool(controller.get("is_chainable", False)),
+            is_chained=bool(controller.get("is_chained", False)),
             exported_state_interfaces=[],
-            reference_interfaces=[],
-            chain_connections=[],
+            reference_interfaces=list(controller.get("reference_interfaces", [])),
+            chain_connections=[
+                types.message(CHAIN_CONNECTION, name=c["name"], reference_interfaces=list(c["reference_interfaces"]))
+                for c in controller.get("chain_connections", [])
+            ],
         )
 
     async def _switch_controller(self, request: Any) -> Any:

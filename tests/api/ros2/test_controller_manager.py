@@ -110,7 +110,7 @@ def test_a_refused_switch_carries_hilds_reason(ros_daemon: Daemon, peer: zenoh.S
 @pytest.mark.parametrize(
     ("strictness", "reason"),
     [
-        (3, "strictness AUTO (3) is not supported: hild has no controller chains to resolve"),
+        (3, "strictness AUTO (3) is not supported: hild activates no chain by itself"),
         (4, "strictness FORCE_AUTO (4) is not supported: hild deactivates only the controllers named"),
         (7, "unknown strictness 7"),
         (-1, "unknown strictness -1"),
