@@ -119,6 +119,9 @@ class ControllerContext:
     mailboxes: Mailboxes = field(default_factory=InProcess)
     # Joints nothing commands that follow a robot joint (the config's mimic_joints): reported, never commanded.
     mimic_joints: MimicJoints = field(default_factory=lambda: MimicJoints((), ()))
+    # The contact observer's external torque estimate per robot joint (safety.contact), live on the cycle: NaN
+    # while it cannot run; None when it is off, and in the client domain.
+    external_torque: np.ndarray | None = None
 
     def index_of(self, names: Sequence[str]) -> np.ndarray:
         lookup = {j: i for i, j in enumerate(self.joints)}
