@@ -285,7 +285,7 @@ class ContactSection(Params):
         description="On collision: hold compliantly where the arm is, or retract along the recent path first.",
     )
     reflex_stiffness: float = Field(
-        default=0.1,
+        default=0.25,
         ge=0.0,
         le=1.0,
         description="The reflex's kp as a fraction of each joint's hold kp (kd stays the hold kd).",

@@ -320,13 +320,17 @@ class Supervisor:
         """A collision (hild/cycle/contact.py): every joint not already faulted latches ``Fault.COLLISION`` at its
         last accepted position (where the arm is: it never pushes on toward its old target) and gets the reflex —
         hold with kp lowered to ``stiffness`` × its hold kp, hold kd, zero velocity, gravity feed-forward — until
-        ``reset``. An e-stop's action wins over the reflex."""
+        ``reset``. The setpoint steps back to the measured position in one cycle, the one exception to the slew
+        limit: a trajectory's setpoint leads the shaft (by kd·q̇/kp at speed), and slewing it back would keep the
+        spring pulling toward the obstacle for tens of cycles. An e-stop's action wins over the reflex."""
         self._reflex_kp = [kp * stiffness for kp in self._hold_kp]
         for i in range(len(self.joints)):
             if self.fault[i] == Fault.NONE:
                 self.trip(i, Fault.COLLISION, text)
                 if not self.estop:
                     self._safe_action[i] = _REFLEX
+                    if math.isfinite(self.latched[i]):  # the setpoint goes back to the shaft at once, not slewed:
+                        self._prev_position[i] = self.latched[i]  # a spring toward where it is pushes nothing
 
     def trip_all(self, kind: Fault, text: str) -> None:
         for i in range(len(self.joints)):

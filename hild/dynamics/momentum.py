@@ -78,7 +78,9 @@ class MomentumObserver:
         self.momentum = np.zeros(n)  # p = M(q)·q̇ at the last update
         self._estimate = np.zeros(n)  # p̂
         self._mass = np.zeros((n, n))
+        self._mass_flat = self._mass.reshape(-1)  # a view, prebuilt: reshape makes a new one each call
         self._mass_prev = np.zeros((n, n))
+        self._mass_prev_flat = self._mass_prev.reshape(-1)
         self._mass_step = np.zeros((n, n))
         self._known = np.zeros(n)  # qfrc_bias − qfrc_passive at this reading
         self._known_prev = np.zeros(n)
@@ -124,6 +126,7 @@ class MomentumObserver:
         self.residual *= self.gain
         # This reading is the next interval's start.
         self._mass_prev, self._mass = self._mass, self._mass_prev
+        self._mass_prev_flat, self._mass_flat = self._mass_flat, self._mass_prev_flat
         self._known_prev, self._known = self._known, self._known_prev
         np.copyto(self._qd_prev, qd)
         return self.residual
@@ -144,7 +147,7 @@ class MomentumObserver:
         mujoco.mj_passive(m, d)
         mujoco.mj_rne(m, d, 0, self._rne)  # without acceleration: C q̇ + g, i.e. qfrc_bias
         self._dense_mass()
-        np.take(self._full, self._flat, out=self._mass.reshape(-1))
+        np.take(self._full, self._flat, out=self._mass_flat)
         np.dot(self._mass, qd, out=self.momentum)
         np.take(self._rne, self._dofadr, out=self._known)
         np.take(self._passive_all, self._dofadr, out=self._tmp)
