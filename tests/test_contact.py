@@ -3,6 +3,7 @@ uses (robot.model is the shipped arm6.xml; the twin loads a copy whose masses an
 
 from __future__ import annotations
 
+import math
 import re
 from pathlib import Path
 from typing import Any
@@ -13,11 +14,14 @@ import pytest
 import yaml
 
 from drivers.mujoco.twin import MujocoTwin
+from hild.arrays import JointState, ServoCommand
 from hild.config import load_config
 from hild.config.loader import ConfigError
 from hild.crossing.ring import RingReader
+from hild.cycle.contact import ContactMonitor, ContactSettings
 from hild.cycle.engine import Engine
 from hild.cycle.supervisor import Fault
+from hild.dynamics.friction import FrictionArrays
 from hild.modes import JointMode
 from tests.conftest import CONFIGS
 from tests.helpers import component
@@ -251,3 +255,74 @@ def test_without_the_observer_tau_ext_is_null(tmp_path: Path) -> None:
 def test_bad_contact_settings_are_refused(tmp_path: Path, contact: dict[str, Any], words: str) -> None:
     with pytest.raises(ConfigError, match=re.escape(words)):
         load_config(config(tmp_path, contact))
+
+
+class Recorder:
+    """A stand-in observer that keeps the torque it is told acted."""
+
+    def __init__(self, n: int) -> None:
+        self.residual = np.zeros(n)
+        self.told: list[list[float]] = []
+
+    def reset(self, q: np.ndarray, qd: np.ndarray) -> None:
+        self.residual.fill(0.0)
+
+    def update(self, q: np.ndarray, qd: np.ndarray, tau: np.ndarray, dt: float) -> np.ndarray:
+        self.told.append(tau.tolist())
+        return self.residual
+
+
+def monitor(use_reply: bool, friction: FrictionArrays) -> tuple[ContactMonitor, Recorder]:
+    settings = ContactSettings(
+        gain=100.0,
+        use_reply=use_reply,
+        contact=np.full(2, 1.0),
+        collision=np.full(2, 2.0),
+        model_margin=0.0,
+        retract=False,
+        reflex_stiffness=0.25,
+        retract_distance=0.005,
+        retract_time=0.2,
+    )
+    recorder = Recorder(2)
+    found = ContactMonitor(
+        ("a", "b"),
+        settings,
+        recorder,
+        effort_limit=np.array([10.0, 10.0]),
+        applies_gains=np.array([True, False]),
+        friction=friction,
+        emit=lambda *_: None,
+        update_rate=500.0,
+    )
+    return found, recorder
+
+
+def test_the_observer_is_told_the_reply_or_the_predicted_command_torque_minus_friction() -> None:
+    friction = FrictionArrays(np.array([0.5, 0.0]), np.array([1.0, 0.0]), np.array([0.1, 0.0]), np.full(2, 0.02))
+    state, last = JointState.zeros(2), ServoCommand.zeros(2)
+    state.velocity[:] = [1.0, 1.0]
+    last.position[:], last.velocity[:], last.effort[:] = [0.1, 5.0], [0.0, 0.0], [2.0, 3.0]
+    last.kp[:], last.kd[:] = [100.0, 100.0], [1.0, 1.0]
+    for use_reply, reply, expected in (
+        # a: the reply (4) minus friction (0.5·1 + 1·tanh(50) + 0.1 = 1.6); b: the reply, no friction
+        (True, [4.0, -3.0], [4.0 - 1.6, -3.0]),
+        # a: no reply → kp·(0.1 − 0) + kd·(0 − 1) + 2 = 11, saturated at 10, minus friction; b: ff only (own gains)
+        (True, [math.nan, math.nan], [10.0 - 1.6, 3.0]),
+        (False, [4.0, -3.0], [10.0 - 1.6, 3.0]),  # torque: command ignores the reply
+    ):
+        found, recorder = monitor(use_reply, friction)
+        state.effort[:] = reply
+        found.observe(state, last, True, 0.002)  # starts the observer
+        found.observe(state, last, True, 0.002)
+        assert np.allclose(recorder.told[-1], expected, atol=1e-9)
+
+
+def test_an_untrusted_cycle_restarts_the_observer_and_publishes_nan() -> None:
+    found, recorder = monitor(True, FrictionArrays.zeros(2))
+    state, last = JointState.zeros(2), ServoCommand.zeros(2)
+    found.observe(state, last, True, 0.002)
+    found.observe(state, last, True, 0.002)
+    assert np.isfinite(found.tau_ext).all() and len(recorder.told) == 1
+    found.observe(state, last, False, 0.002)  # a reading missing, a drive fault, an e-stop
+    assert np.isnan(found.tau_ext).all() and len(recorder.told) == 1
