@@ -106,6 +106,7 @@ class ContactMonitor:
         self._rows = list(self._history)  # prebuilt row views: no view object per cycle
         self._head = 0
         self._filled = 0
+        self._keeps_path = settings.retract  # only the retract needs the recent path
         self._retract: tuple[np.ndarray, np.ndarray] | None = None  # (from, to) while the reflex retracts
         self._retract_t = 0.0
         self._step = np.zeros(n)
@@ -118,16 +119,15 @@ class ContactMonitor:
         ``last``: the final command sent at the interval's start. ``trusted``: every reading fresh and accepted, no
         joint faulted but by a collision, no e-stop and no stop descent: the torque the observer is told acted."""
         q, qd = state.position, state.velocity
-        if self._history_due:
+        if self._keeps_path:
             np.copyto(self._rows[self._head], q)
             self._head = (self._head + 1) % len(self._rows)
             self._filled = min(self._filled + 1, len(self._rows))
         if not trusted or dt <= 0.0:
             self._restart(q, qd)
             return -1
-        if not self.running:
+        if not self.running:  # the first trusted reading: the observer starts here
             self._restart(q, qd)
-            self.running = True
             return -1
         self._motor_torque(state, last, dt)
         r = self.observer.update(q, qd, self._tau, dt)
@@ -135,10 +135,6 @@ class ContactMonitor:
         np.copyto(self._q_prev, q)
         np.copyto(self._qd_prev, qd)
         return self._classify(r.tolist(), dt)
-
-    @property
-    def _history_due(self) -> bool:
-        return self.settings.retract
 
     def _restart(self, q: np.ndarray, qd: np.ndarray) -> None:
         self.running = False
