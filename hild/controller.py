@@ -123,6 +123,9 @@ class ControllerContext:
     # an ODrive, which runs its own gains: a controller that wants a spring there computes it itself on the effort
     # path. None where nothing filled it (the client domain's API half): take every drive as applying them.
     applies_gains: np.ndarray | None = None
+    # The contact observer's external torque estimate per robot joint (safety.contact), live on the cycle: NaN
+    # while it cannot run; None when it is off, and in the client domain.
+    external_torque: np.ndarray | None = None
 
     def index_of(self, names: Sequence[str]) -> np.ndarray:
         lookup = {j: i for i, j in enumerate(self.joints)}

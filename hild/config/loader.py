@@ -353,6 +353,25 @@ def _cross_check(loaded: LoadedConfig, issues: list[ConfigIssue]) -> None:
     _check_sensor_names(loaded.config, report)
     _check_files(loaded, report)
     _check_controllers(loaded, owner, report)
+    _check_contact(loaded.config, report)
+
+
+def _check_contact(c: RobotConfig, report: Report) -> None:
+    """safety.contact names robot joints, needs a model, and its observer must be stable at the update rate."""
+    contact = c.safety.contact
+    for joint in contact.joints:
+        if joint not in c.joints:
+            report(("safety", "contact", "joints", joint), f"joint {joint!r} is not defined under joints")
+    if not contact.enabled:
+        return
+    if not c.robot.model:
+        report(("safety", "contact", "enabled"), "the contact observer needs robot.model (the arm's dynamics)")
+    if contact.observer_gain / c.update_rate >= 1.0:
+        report(
+            ("safety", "contact", "observer_gain"),
+            f"{contact.observer_gain:g}/s at {c.update_rate:g} Hz: gain × period must stay below 1 "
+            f"(use a gain below {c.update_rate:g}/s)",
+        )
 
 
 def _joint_owners(c: RobotConfig, report: Report) -> dict[str, str]:

@@ -240,6 +240,81 @@ class PlausibilitySection(Params):
     )
 
 
+class ContactThresholds(Params):
+    """A joint's two levels of external torque (N·m; N for a prismatic joint), as the observer estimates it."""
+
+    contact: float = Field(gt=0.0, description="Above it: a contact event (no stop).")
+    collision: float = Field(gt=0.0, description="Above it: the collision reflex and a latched fault.")
+
+    @model_validator(mode="after")
+    def _ordered(self) -> ContactThresholds:
+        if not (math.isfinite(self.contact) and math.isfinite(self.collision)):
+            raise ValueError("thresholds must be finite")
+        if self.contact > self.collision:
+            raise ValueError(f"contact threshold {self.contact:g} is above the collision threshold {self.collision:g}")
+        return self
+
+
+class ContactSection(Params):
+    """The external torque estimate and the collision reflex (docs/safety.md, "Contact")."""
+
+    enabled: bool = Field(
+        default=False,
+        description="Run the momentum observer on robot.model every cycle, publish tau_ext and react to contacts.",
+    )
+    observer_gain: float = Field(
+        default=150.0,
+        gt=0.0,
+        le=5000.0,
+        description="1/s: the observer's bandwidth K (tau_ext follows a step in the external torque as "
+        "1 − e^(−K·t)); K × the cycle period must stay below 1.",
+    )
+    torque: Literal["reply", "command"] = Field(
+        default="reply",
+        description="The motor torque the observer uses: the drive's torque reply where it reports one (else the "
+        "command's predicted torque), or always the torque predicted from the servo command.",
+    )
+    contact: float = Field(default=5.0, gt=0.0, description="N·m: the default contact threshold of every joint.")
+    collision: float = Field(default=10.0, gt=0.0, description="N·m: the default collision threshold of every joint.")
+    joints: dict[str, ContactThresholds] = Field(
+        default_factory=dict, description="Per-joint thresholds, overriding the defaults."
+    )
+    model_margin: float = Field(
+        default=0.1,
+        ge=0.0,
+        le=1.0,
+        description="Both thresholds rise by this fraction of the joint's (low-passed) motor torque: the model's "
+        "relative error (masses ±10 %: 0.1), so fast motion and abrupt stops do not read as contacts.",
+    )
+    reflex: Literal["hold", "retract"] = Field(
+        default="hold",
+        description="On collision: hold compliantly where the arm is, or retract along the recent path first.",
+    )
+    reflex_stiffness: float = Field(
+        default=0.25,
+        ge=0.0,
+        le=1.0,
+        description="The reflex's kp as a fraction of each joint's hold kp (kd stays the hold kd).",
+    )
+    retract_distance: float = Field(
+        default=0.005, gt=0.0, le=0.1, description="m the tool goes back along its recent path (reflex: retract)."
+    )
+    retract_time: float = Field(default=0.2, gt=0.0, le=2.0, description="s the retract takes.")
+    tool_site: str | None = Field(
+        default=None,
+        description="The model's site whose path the retract measures; default: the origin of the last joint's body.",
+    )
+
+    @model_validator(mode="after")
+    def _ordered(self) -> ContactSection:
+        if self.contact > self.collision:
+            raise ValueError(f"contact threshold {self.contact:g} is above the collision threshold {self.collision:g}")
+        return self
+
+    def thresholds(self, joint: str) -> ContactThresholds:
+        return self.joints.get(joint) or ContactThresholds(contact=self.contact, collision=self.collision)
+
+
 class SafetySection(Params):
     stale_feedback_cycles: int = Field(
         default=10,
@@ -283,6 +358,7 @@ class SafetySection(Params):
         description="Add gravity feed-forward from robot.model in hold and position modes, and on top of the effort "
         "of controllers that ask for it (joint_trajectory gravity_compensation).",
     )
+    contact: ContactSection = Field(default_factory=ContactSection)
 
 
 class ZenohSection(Params):

@@ -4,6 +4,8 @@ It claims nothing, so it runs alongside any controller and survives an e-stop. S
 ring; the API publishes them on ``hild/<robot>/joint_states`` from the asyncio side. ``fresh`` (1 or 0 per joint)
 says whether the sample is a new accepted reading; 0 means the drive's reading was missing or rejected as
 implausible and the values are the last accepted ones (hild.cycle.plausibility), never the bad reading.
+``tau_ext`` is the contact observer's external torque estimate per joint (docs/safety.md, "Contact"): NaN (JSON
+null) when ``safety.contact`` is off or the observer cannot run, and for mimic joints.
 
 Mimic joints (the config's ``mimic_joints``) follow the robot's joints in each sample, as ros2_control reports them
 (hardware_interface's mimic joints, Jazzy): position = multiplier·q + offset, velocity = multiplier·q̇ of the joint
@@ -23,7 +25,7 @@ from hild.controller import Controller, ControllerContext
 from hild.crossing.ring import SampleRing
 from hild.interfaces import interface_name
 
-PUBLISHED_FIELDS = ("position", "velocity", "effort", "fresh")
+PUBLISHED_FIELDS = ("position", "velocity", "effort", "fresh", "tau_ext")
 STATE_FIELDS = ("position", "velocity", "effort")  # the published fields that are state interfaces
 
 
@@ -42,6 +44,7 @@ class JointStateBroadcaster(Controller):
         self.ring.names = [*context.joints, *self._mimics.names]  # type: ignore[attr-defined]  # what the API names
         self._interval = 1.0 / min(params.publish_rate, context.update_rate)
         self._next = 0.0
+        self._tau_ext = context.external_torque  # the cycle's live array, or None: then NaN
 
     @classmethod
     def joints_for(cls, params: Params) -> list[str]:
@@ -75,6 +78,10 @@ class JointStateBroadcaster(Controller):
             ring.data["velocity"][i] = state.velocity
             ring.data["effort"][i] = state.effort
             ring.data["fresh"][i] = state.fresh
+            if self._tau_ext is not None:
+                ring.data["tau_ext"][i] = self._tau_ext
+            else:
+                ring.data["tau_ext"][i].fill(np.nan)
         ring.commit(t)
         self.context.notify()
 
@@ -95,6 +102,12 @@ class JointStateBroadcaster(Controller):
         mimics.velocities(state.velocity, velocity[n:])
         effort[n:] = np.nan
         np.take(fresh[:n], mimics.leader, out=fresh[n:])
+        tau_ext = data["tau_ext"][i]
+        if self._tau_ext is not None:
+            tau_ext[:n] = self._tau_ext
+        else:
+            tau_ext[:n] = np.nan
+        tau_ext[n:] = np.nan
 
     def outputs(self) -> Mapping[str, SampleRing]:
         return {"joint_states": self.ring}

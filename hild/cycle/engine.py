@@ -59,10 +59,12 @@ from hild.crossing.requests import (
 from hild.crossing.snapshot import Snapshot
 from hild.crossing.stats import LoopStats
 from hild.crossing.status import loop_status, render_status
+from hild.cycle.contact import ContactMonitor, ContactSettings
 from hild.cycle.manager import ControllerManager, SwitchError, SwitchResult
 from hild.cycle.sensor_gate import SensorGate
 from hild.cycle.supervisor import Action, Fault, JointGains, SafetySettings, Supervisor, limit_names
 from hild.cycle.transmission import Transmissions
+from hild.dynamics.friction import FrictionArrays
 from hild.hardware import HardwareComponent, HardwareContext, HardwareError, Lifecycle
 from hild.interfaces import ClaimError, SensorLayout, SensorSpec, interface_name
 from hild.modes import MODE_NAMES, JointMode
@@ -187,6 +189,7 @@ class Engine:
 
         self.applies_gains = self._applies_gains()  # per joint; controllers see it in their context
         self.supervisor = self._build_supervisor(loaded)
+        self.contact = self._build_contact(loaded)  # None unless safety.contact.enabled
         s = cfg.safety
         self.max_consecutive_overruns = s.max_consecutive_overruns
         self._max_step = MAX_STEP_PERIODS * self.period
@@ -248,6 +251,58 @@ class Engine:
             describe_fault=self._describe_fault,
             applies_gains=self.applies_gains,
         )
+
+    def _build_contact(self, loaded: LoadedConfig) -> ContactMonitor | None:
+        """The momentum observer and the collision reflex (``safety.contact``; docs/safety.md, "Contact")."""
+        cfg = loaded.config
+        c = cfg.safety.contact
+        if not c.enabled:
+            return None
+        if not cfg.robot.model:
+            raise ValueError("safety.contact needs robot.model: the observer runs on the arm's dynamics")
+        from hild.dynamics.momentum import MomentumObserver  # mujoco stays behind this seam
+        from hild.dynamics.tool import ToolPoint
+
+        path = loaded.directory / cfg.robot.model
+        thresholds = [c.thresholds(j) for j in self.joints]
+        settings = ContactSettings(
+            gain=c.observer_gain,
+            use_reply=c.torque == "reply",
+            contact=np.array([t.contact for t in thresholds]),
+            collision=np.array([t.collision for t in thresholds]),
+            model_margin=c.model_margin,
+            retract=c.reflex == "retract",
+            reflex_stiffness=c.reflex_stiffness,
+            retract_distance=c.retract_distance,
+            retract_time=c.retract_time,
+        )
+        return ContactMonitor(
+            self.joints,
+            settings,
+            MomentumObserver(path, self.joints, c.observer_gain, self.period),
+            effort_limit=self.limits.effort,
+            applies_gains=self.applies_gains,
+            friction=FrictionArrays.of(cfg),
+            emit=self.events.emit,
+            update_rate=self.update_rate,
+            tool=ToolPoint(path, self.joints, c.tool_site).position if c.reflex == "retract" else None,
+        )
+
+    def _observe_contact(self, dt: float, dt_control: float) -> None:
+        """The external torque estimate, and on a collision the reflex: every joint faults into it and every
+        commanding controller is deactivated (as an e-stop does), so nothing pushes on."""
+        contact, sup = self.contact, self.supervisor
+        assert contact is not None
+        trusted = not (sup.estop or sup.descent_started) and bool(self.state.fresh.all())
+        if trusted and sup.fault.any():  # any fault but a collision's own: the torques are not the model's
+            trusted = bool(((sup.fault == Fault.NONE) | (sup.fault == Fault.COLLISION)).all())
+        joint = contact.observe(self.state, self.final, trusted, dt)
+        if joint >= 0:
+            words = contact.describe(joint) + contact.begin_reflex(self.state.position)
+            sup.collide(words, contact.settings.reflex_stiffness)
+            self.manager.deactivate_commanding("collision")
+        if contact.retracting:
+            contact.reflex_step(dt_control, sup.latched)
 
     @staticmethod
     def _gains(cfg: Any) -> JointGains:
@@ -332,6 +387,7 @@ class Engine:
             mailboxes=self.mailboxes.scoped(doors or name),
             mimic_joints=self.mimic_joints,
             applies_gains=self.applies_gains,
+            external_torque=self.contact.tau_ext if self.contact is not None else None,
         )
 
     def controllers(self) -> dict[str, Any]:
@@ -539,6 +595,8 @@ class Engine:
             self._poll_health()
         if self.max_consecutive_overruns and self.stats.consecutive_overruns >= self.max_consecutive_overruns:
             sup.trip_all(Fault.OVERRUN, f"{self.stats.consecutive_overruns} consecutive overruns")
+        if self.contact is not None:
+            self._observe_contact(dt, dt_control)
         self.manager.update(self.control_t, dt_control, self.state, self.command)
         sup.command(dt_control, self.state, self.command, self.final)
         if sup.bad_command_owners:
@@ -883,6 +941,8 @@ class Engine:
                 return {"cleared": [], "error": f"{slot.name} still faulted: {problem}"}
             slot.lifecycle, slot.fault = Lifecycle.ACTIVE, ""
         self.stats.consecutive_overruns = 0
+        if self.contact is not None:
+            self.contact.clear()
         return {"cleared": self.supervisor.reset() + self.sensor_gate.reset()}
 
     def enable(self, joints: Sequence[str] = ()) -> dict[str, Any]:

@@ -62,6 +62,7 @@ class Fault(enum.IntEnum):
     OVERSPEED = 5
     INVALID_FEEDBACK = 6
     OVERRUN = 7
+    COLLISION = 8  # the contact observer's collision level (hild/cycle/contact.py): every joint, the reflex
 
 
 class Action(enum.IntEnum):
@@ -78,6 +79,7 @@ _LIMIT_WORDS = ((LIMIT_POSITION, "position"), (LIMIT_VELOCITY, "velocity"), (LIM
 _FAULT, _CONTROLLED, _HOLD_MODE = int(JointMode.FAULT), int(JointMode.CONTROLLED), int(JointMode.HOLD)
 _HOLD, _DAMP = int(Action.HOLD), int(Action.DAMP)
 _DAMP_GRAVITY = -1  # not configurable: what a hold becomes when no position can be trusted
+_REFLEX = -2  # a collision's: hold at the latched position with the reflex's lowered kp, never pushing on
 
 
 def limit_names(flags: int) -> list[str]:
@@ -188,6 +190,7 @@ class Supervisor:
         self._g = np.zeros(n)
         self._pose = np.zeros(n)  # where gravity is computed: the accepted positions (0 where none is known)
         self._descent = (0.0, 0.0)  # (s left, s total) of a stop descent; (0, 0) when none runs
+        self._reflex_kp = [0.0] * n  # the collision reflex's hold kp (collide)
         self.descent_started = False
 
     # ---- configuration (between cycles) -------------------------------------------------------------------
@@ -312,6 +315,22 @@ class Supervisor:
         self.latched[i] = self.gate.accepted_position.item(i)
         self.change_seq += 1
         self.events.emit("error", "supervisor", f"joint {self.joints[i]} fault: {text}")
+
+    def collide(self, text: str, stiffness: float) -> None:
+        """A collision (hild/cycle/contact.py): every joint not already faulted latches ``Fault.COLLISION`` at its
+        last accepted position (where the arm is: it never pushes on toward its old target) and gets the reflex —
+        hold with kp lowered to ``stiffness`` × its hold kp, hold kd, zero velocity, gravity feed-forward — until
+        ``reset``. The setpoint steps back to the measured position in one cycle, the one exception to the slew
+        limit: a trajectory's setpoint leads the shaft (by kd·q̇/kp at speed), and slewing it back would keep the
+        spring pulling toward the obstacle for tens of cycles. An e-stop's action wins over the reflex."""
+        self._reflex_kp = [kp * stiffness for kp in self._hold_kp]
+        for i in range(len(self.joints)):
+            if self.fault[i] == Fault.NONE:
+                self.trip(i, Fault.COLLISION, text)
+                if not self.estop:
+                    self._safe_action[i] = _REFLEX
+                    if math.isfinite(self.latched[i]):  # the setpoint goes back to the shaft at once, not slewed:
+                        self._prev_position[i] = self.latched[i]  # a spring toward where it is pushes nothing
 
     def trip_all(self, kind: Fault, text: str) -> None:
         for i in range(len(self.joints)):
@@ -485,13 +504,15 @@ class Supervisor:
                 action = safe_action[i]
                 if descent >= 0.0:
                     action, ff_gravity = _DAMP_GRAVITY, ff_gravity * descent
-                elif action == _HOLD and (cause[i] != NONE or not known or untrusted_fault[i]):
+                elif action in (_HOLD, _REFLEX) and (cause[i] != NONE or not known or untrusted_fault[i]):
                     # No position to hold with a spring: damp and carry the arm's weight, until reset (a spring
                     # back to the old latch once readings recover would pull the arm the way it drifted).
                     action = _DAMP_GRAVITY
                     untrusted_fault[i] = True
                 if action == _HOLD:  # a grasp is kept: an e-stopped gripper holds what it holds
                     p, v, ff, kp, kd = latched.item(i), 0.0, ff_gravity + kept_all[i], hold_kp[i], hold_kd[i]
+                elif action == _REFLEX:  # a collision: compliant, at the latched (or retracting) position
+                    p, v, ff, kp, kd = latched.item(i), 0.0, ff_gravity + kept_all[i], self._reflex_kp[i], hold_kd[i]
                 else:  # damp or disable: no stiffness, position field where the arm last was
                     p = q if known else prev_all[i]
                     v, kp = 0.0, 0.0

@@ -89,8 +89,9 @@ def test_joint_states_samples(client: HildClient) -> None:
         wait_for(lambda: len(inbox.snapshot()) >= 5, what="joint states")
     samples = inbox.snapshot()
     first = samples[0]
-    assert set(first) == {"stamp", "seq", "name", "position", "velocity", "effort", "fresh"}
+    assert set(first) == {"stamp", "seq", "name", "position", "velocity", "effort", "fresh", "tau_ext"}
     assert first["name"] == ["a", "b", "c"]
+    assert first["tau_ext"] == [None, None, None]  # no contact observer on this robot (safety.contact)
     assert first["fresh"] == [1.0, 1.0, 1.0]
     assert all(len(first[f]) == 3 for f in ("position", "velocity", "effort"))
     assert first["position"] == pytest.approx([0.1, -0.1, 0.0])  # initial actuator -0.2 on b, reduction 2

@@ -84,6 +84,8 @@ class JointStatesOut:
     writer: Writer
     reader: RingReader
     names: list[str]
+    # <broadcaster>/external_joint_torques: the contact observer's tau_ext in ``effort`` (safety.contact on)
+    external: Writer | None = None
 
 
 @dataclass
@@ -319,7 +321,10 @@ class RosFace:
         if ring is not None:
             names = list(getattr(ring, "names", None) or self.engine.joints)
             writer = self.writer(self.name("joint_states"), JOINT_STATE)
-            declared.joint_states = JointStatesOut(writer, RingReader(ring), names)
+            external = None
+            if self.engine.loaded.config.safety.contact.enabled and "tau_ext" in getattr(ring, "fields", ()):
+                external = self.writer(self.name(f"{controller}/external_joint_torques"), JOINT_STATE)
+            declared.joint_states = JointStatesOut(writer, RingReader(ring), names, external)
         wrench = outputs.get("wrench")
         if isinstance(wrench, ShapedOutput) and kind == WRENCH_BROADCASTER:
             writer = self.writer(self.name(f"{controller}/wrench"), WRENCH_STAMPED)
@@ -414,6 +419,8 @@ class RosFace:
                 )
                 with contextlib.suppress(zenoh.ZError):
                     out.writer.put(types.encode(msg, JOINT_STATE))
+                if out.external is not None:
+                    self._flush_external(out.external, msg, fields)
         for wrench in (d.wrench for d in declared if d.wrench is not None):
             self._flush_wrench(wrench)
         for action in (d.action for d in declared if d.action is not None):
@@ -421,6 +428,21 @@ class RosFace:
                 action.flush()
             except Exception:  # a bug costs this flush of one action, not the daemon's publishing
                 log.exception("ROS action %s: flush failed", action.name)
+
+    @staticmethod
+    def _flush_external(writer: Writer, joint_state: Any, fields: dict[str, list[float]]) -> None:
+        """The same sample's external torque estimate as a JointState whose ``effort`` is ``tau_ext`` (position and
+        velocity empty), as franka_ros2's ``external_joint_torques``; NaN while the observer cannot run."""
+        msg = types.message(
+            JOINT_STATE,
+            header=joint_state.header,
+            name=joint_state.name,
+            position=np.zeros(0),
+            velocity=np.zeros(0),
+            effort=np.asarray(fields["tau_ext"], dtype=np.float64),
+        )
+        with contextlib.suppress(zenoh.ZError):
+            writer.put(types.encode(msg, JOINT_STATE))
 
     def _flush_wrench(self, out: WrenchOut) -> None:
         """Each fresh wrench sample as WrenchStamped; a sample whose sensor had no accepted reading is not sent
