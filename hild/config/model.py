@@ -309,6 +309,14 @@ class WallsSection(Params):
         "so it brakes to a stop on the wall instead of hitting it.",
     )
 
+    lead_time: float = Field(
+        default=0.15,
+        ge=0.0,
+        le=1.0,
+        description="s: each wall is pulled in by this × the measured tool's speed toward it, since the arm runs "
+        'behind its command and carries on past a command that stops (docs/safety.md, "Virtual walls").',
+    )
+
     @field_validator("tool_offset")
     @classmethod
     def _finite(cls, v: Vector3) -> Vector3:

@@ -63,6 +63,7 @@ from hild.cycle.manager import ControllerManager, SwitchError, SwitchResult
 from hild.cycle.sensor_gate import SensorGate
 from hild.cycle.supervisor import Action, Fault, JointGains, SafetySettings, Supervisor, limit_names
 from hild.cycle.transmission import Transmissions
+from hild.cycle.walls import WallGuard, Walls
 from hild.hardware import HardwareComponent, HardwareContext, HardwareError, Lifecycle
 from hild.interfaces import ClaimError, SensorLayout, SensorSpec, interface_name
 from hild.modes import MODE_NAMES, JointMode
@@ -186,6 +187,7 @@ class Engine:
             self._joint_slot[slot.index] = k
 
         self.supervisor = self._build_supervisor(loaded)
+        self.walls = self._build_walls(loaded)
         s = cfg.safety
         self.max_consecutive_overruns = s.max_consecutive_overruns
         self._max_step = MAX_STEP_PERIODS * self.period
@@ -244,6 +246,30 @@ class Engine:
             gravity=gravity,
             describe_fault=self._describe_fault,
             applies_gains=self._applies_gains(),
+        )
+
+    def _build_walls(self, loaded: LoadedConfig) -> WallGuard | None:
+        """The virtual walls of ``safety.walls`` on the tool point of ``robot.model`` (docs/safety.md)."""
+        cfg = loaded.config
+        spec = cfg.safety.walls
+        if not spec.enabled:
+            return None
+        if not cfg.robot.model:
+            raise ValueError("safety.walls: virtual walls need the arm's model (robot.model) for the tool point")
+        from hild.dynamics.tool import ToolPoint  # mujoco stays behind this seam
+
+        tool = ToolPoint(
+            loaded.directory / cfg.robot.model, self.joints, site=spec.site, body=spec.body, offset=spec.tool_offset
+        )
+        return WallGuard(
+            tool,
+            Walls.of(spec),
+            margin=spec.margin,
+            deceleration=spec.deceleration,
+            lead_time=spec.lead_time,
+            limits=self.limits,
+            update_rate=self.update_rate,
+            emit=self.events.emit,
         )
 
     @staticmethod
@@ -531,6 +557,8 @@ class Engine:
         if self.max_consecutive_overruns and self.stats.consecutive_overruns >= self.max_consecutive_overruns:
             sup.trip_all(Fault.OVERRUN, f"{self.stats.consecutive_overruns} consecutive overruns")
         self.manager.update(self.control_t, dt_control, self.state, self.command)
+        if self.walls is not None:  # the tool's commanded point kept inside the virtual walls, before the supervisor
+            self.walls.apply(dt_control, self.state, self.command, self.final, self.manager.masks, sup.mode)
         sup.command(dt_control, self.state, self.command, self.final)
         if sup.bad_command_owners:
             self.manager.fail_slots(
@@ -950,7 +978,8 @@ class Engine:
     # ---- reading back (any thread) ----------------------------------------------------------------------------
     @property
     def change_seq(self) -> int:
-        return self.supervisor.change_seq + self.manager.change_seq + self.sensor_gate.change_seq
+        walls = self.walls.change_seq if self.walls is not None else 0
+        return self.supervisor.change_seq + self.manager.change_seq + self.sensor_gate.change_seq + walls
 
     def overall_mode(self) -> str:
         sup = self.supervisor
@@ -1006,6 +1035,7 @@ class Engine:
                 {**entry, "fault": self.sensor_gate.fault_text[k] or None, "available": self._sensor_available(k)}
                 for k, entry in enumerate(self.sensor_layout.describe())
             ),
+            walls=self.walls.status() if self.walls is not None else None,
         )
 
     def _sensor_available(self, k: int) -> bool:
