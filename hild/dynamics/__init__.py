@@ -4,6 +4,7 @@
 - :mod:`hild.dynamics.model`       loading a model (MJCF or URDF, MuJoCo's own loader) and finding its joints:
   what the twin, the emulator's plant and everything below share, so they always agree on the same file;
 - :mod:`hild.dynamics.gravity`     the gravity feed-forward of hold and controllers (runs on the cycle);
+- :mod:`hild.dynamics.tool`        the tool point's position and Jacobian for the virtual walls (runs on the cycle);
 - :mod:`hild.dynamics.kinematics`  body poses and shapes for the telemetry's 3D view;
 - :mod:`hild.dynamics.inspection`  what the importer and ``hild check`` ask of a model: joint inertia over poses,
   contacts at a pose.
