@@ -211,6 +211,17 @@ def test_the_tool_point_and_its_jacobian_agree_with_finite_differences() -> None
     assert ToolPoint(CONFIGS / "arm6.xml", JOINTS[:3]).frame == "site tool"
 
 
+def test_the_tool_reach_bounds_every_jacobian_column() -> None:
+    # The guard skips the measured-speed lead when even this bound cannot bring a wall near: it must hold.
+    tool = ToolPoint(CONFIGS / "arm6.xml", JOINTS, offset=(0.0, 0.1, 0.05))
+    jac = np.zeros((3, 6))
+    for q in np.random.default_rng(3).uniform(-3.0, 3.0, (500, 6)):
+        tool.position(q)
+        tool.jacobian(jac)
+        assert (np.linalg.norm(jac, axis=0) <= tool.reach + 1e-12).all()
+    assert tool.reach[0] > tool.reach[5] > 0.0
+
+
 @pytest.mark.parametrize(
     ("walls", "message"),
     [

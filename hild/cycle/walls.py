@@ -52,6 +52,7 @@ _CONTROLLED = int(JointMode.CONTROLLED)
 
 class ToolKinematics(Protocol):
     frame: str
+    reach: np.ndarray
 
     def __len__(self) -> int: ...
     def position(self, q: np.ndarray, out: np.ndarray | None = None) -> np.ndarray: ...
@@ -115,6 +116,8 @@ class WallGuard:
         self.margin, self.deceleration, self.lead_time = margin, deceleration, lead_time
         self.emit = emit
         self._bound = walls.offsets - margin
+        self._bound_list = self._bound.tolist()
+        self._reach = tool.reach.tolist()  # per joint: the most the tool moves per rad (m) or per m
         self._soft_lower, self._soft_upper = limits.soft_lower.tolist(), limits.soft_upper.tolist()
         self._vmax = limits.velocity.tolist()
         self._q, self._prev = np.zeros(n), np.zeros(n)
@@ -176,15 +179,28 @@ class WallGuard:
             else:
                 prev[i] = q[i] = lo[i] = hi[i] = measured
                 ours[i] = ours_v[i] = 0.0
-        if not found or not (math.isfinite(q.sum()) and math.isfinite(prev.sum())):
+        if not found or not math.isfinite(sum(q_meas)):
             self._quiet_cycle()
             return
-        self._lead(state)
-        self._bounds(dt)
-        self._measure(q)
-        if not self._excess.max() > 0.0:
+        qd_meas = state.velocity.tolist()
+        speed = sum(abs(v) * r for v, r in zip(qd_meas, self._reach, strict=True))  # ≥ the measured tool's speed
+        if not math.isfinite(speed):
+            speed = 0.0
+        normals, tool = self.walls.normals, self.tool
+        np.matmul(normals, tool.position(prev), out=self._along_prev)
+        np.matmul(normals, tool.position(q), out=self._along)
+        # Fast path: with every wall pulled in by the most the lead could take, nothing is beyond a bound.
+        self._bounds(dt, self.lead_time * speed, None)
+        if not self._beyond():
             self._quiet_cycle()
             return
+        if self.lead_time > 0.0 and speed > 0.0:
+            self._lead(state)
+            self._bounds(dt, 0.0, self._toward.tolist())
+            self._measure(q)  # back to the command's pose (the lead moved the private pose)
+            if not self._beyond():
+                self._quiet_cycle()
+                return
         hit = self._excess > 0.0
         self._project()
         self._limit_velocity(command.velocity, hit)
@@ -193,31 +209,32 @@ class WallGuard:
         self._engage(hit)
 
     def _lead(self, state: JointState) -> None:
-        """Pull each wall in by ``lead_time`` × the measured tool's speed toward it: the arm runs behind its
-        command by about that, and would carry on that far past a command that stopped on the wall."""
-        np.copyto(self._effective, self._bound)
-        if self.lead_time <= 0.0 or not math.isfinite(state.position.sum() + state.velocity.sum()):
-            return
+        """The measured tool's speed toward each wall (``_toward``, ≥ 0): the arm runs behind its command by about
+        ``lead_time`` × that, and would carry on that far past a command that stopped on the wall."""
         self.tool.position(state.position)
         self.tool.jacobian(self._jac)
         np.matmul(self._jac, state.velocity, out=self._speed)
         np.matmul(self.walls.normals, self._speed, out=self._toward)
         np.maximum(self._toward, 0.0, out=self._toward)
-        self._effective -= self.lead_time * self._toward
 
-    def _bounds(self, dt: float) -> None:
-        """Each wall's bound on ``normal · point`` this cycle: the wall (minus margin), or less (the envelope)."""
-        normals = self.walls.normals
-        np.matmul(normals, self.tool.position(self._prev), out=self._along_prev)
+    def _bounds(self, dt: float, lead: float, toward: list[float] | None) -> None:
+        """Each wall's bound on ``normal · point`` this cycle (``_upper``): the wall minus the margin, pulled in by
+        ``lead`` (m) or by ``lead_time`` × ``toward`` (m/s per wall), then the braking envelope from the last
+        command. The bound only grows with the distance left, so the largest pull-in gives the smallest bounds."""
         two_a_dt2 = 2.0 * self.deceleration * dt * dt
-        upper = self._upper
-        effective = self._effective.tolist()
+        upper, effective, bound, lead_time = self._upper, self._effective, self._bound_list, self.lead_time
         for k, along in enumerate(self._along_prev.tolist()):
-            inside = effective[k] - along
+            wall = bound[k] - (lead if toward is None else lead_time * toward[k])
+            effective[k] = wall
+            inside = wall - along
             if inside <= 0.0:  # the last command is beyond (or on) it: no deeper
                 upper[k] = along
             else:
                 upper[k] = along + min(inside, math.sqrt(two_a_dt2 * inside))
+
+    def _beyond(self) -> bool:
+        np.subtract(self._along, self._upper, out=self._excess)
+        return bool(self._excess.max() > 0.0)
 
     def _measure(self, q: np.ndarray) -> None:
         np.matmul(self.walls.normals, self.tool.position(q), out=self._along)

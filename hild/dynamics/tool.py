@@ -52,6 +52,7 @@ class ToolPoint:
             self.frame = f"body {m.body(self.body).name}"
             self._origin, self._rotation = d.xpos[self.body], d.xmat[self.body].reshape(3, 3)
         self.offset = np.array(offset, dtype=float)
+        self.reach = self._reach(m, jids)
         self.point = np.zeros(3)  # the last position computed (world frame)
         self._rotated = np.zeros(3)
         self._jacp = np.zeros((3, m.nv))
@@ -81,6 +82,25 @@ class ToolPoint:
         bodies = [int(m.jnt_bodyid[j]) for j in jids]
         return -1, max(bodies, key=lambda b: (_depth(m, b), b))
 
+    def _reach(self, m: mujoco.MjModel, jids: np.ndarray) -> np.ndarray:
+        """Per joint, an upper bound on how fast the tool point moves per unit of its speed (m/rad, or 1 for a
+        slide joint): the distance from its axis to the tool is at most the sum of the offsets along the chain
+        from the joint's anchor to the tool (rotations keep lengths). 0 for a joint that does not move the tool."""
+        tail = float(np.linalg.norm(self.offset))
+        if self.site >= 0:
+            tail += float(np.linalg.norm(m.site_pos[self.site]))
+        reach = np.zeros(len(jids))
+        for k, j in enumerate(jids.tolist()):
+            if int(m.jnt_type[j]) == int(mujoco.mjtJoint.mjJNT_SLIDE):
+                reach[k] = 1.0 if _descends(m, self.body, int(m.jnt_bodyid[j])) else 0.0
+                continue
+            home, body, length = int(m.jnt_bodyid[j]), self.body, tail + float(np.linalg.norm(m.jnt_pos[j]))
+            while body > 0 and body != home:
+                length += float(np.linalg.norm(m.body_pos[body]))
+                body = int(m.body_parentid[body])
+            reach[k] = length if body == home else 0.0
+        return reach
+
     def __len__(self) -> int:
         return len(self._qposadr)
 
@@ -106,6 +126,12 @@ class ToolPoint:
         mujoco.mj_jac(m, d, self._jacp, None, self.point, self.body)
         np.take(self._jacp, self._dofadr, axis=1, out=out)
         return out
+
+
+def _descends(m: mujoco.MjModel, body: int, ancestor: int) -> bool:
+    while body > 0 and body != ancestor:
+        body = int(m.body_parentid[body])
+    return body == ancestor
 
 
 def _depth(m: mujoco.MjModel, body: int) -> int:
