@@ -98,7 +98,7 @@ def test_a_streamed_command_through_a_floor_is_held_on_it_without_a_step_and_eng
     texts = wall_events(engine)
     assert texts == ["virtual wall box z_min engaged: the tool's command (site tool) is held inside it"]
     status = engine.status()
-    assert status["walls"] == {"tool": "site tool", "engaged": ["box z_min"]}
+    assert status["walls"] == {"tool": "site tool", "engaged": ["box z_min"], "self_collision": []}
 
 
 def test_motion_along_the_wall_goes_on_and_leaving_it_releases_it() -> None:
@@ -254,3 +254,86 @@ def test_hild_check_names_the_tool_frame_of_good_walls(tmp_path: Path) -> None:
     loaded = load_config(path)
     check_with_model(loaded)
     assert any("virtual walls: 6 on the tool at site tool" in note for note in loaded.notes)
+
+
+FOLD3 = """<mujoco model="fold3">
+  <compiler angle="radian" autolimits="true"/>
+  <option timestep="0.001" gravity="0 0 -9.81"/>
+  <default>
+    <joint type="hinge" axis="0 0 1" damping="0.05" armature="0.01" actuatorfrclimited="true"
+           actuatorfrcrange="-20 20"/>
+    <geom type="capsule" size="0.02"/>
+  </default>
+  <worldbody>
+    <geom name="floor" type="plane" pos="0 0 -0.1" size="1 1 0.05"/>
+    <body name="link1">
+      <joint name="j1" range="-3 3"/>
+      <geom fromto="0 0 0 0.3 0 0" mass="1"/>
+      <body name="link2" pos="0.3 0 0">
+        <joint name="j2" range="-3 3"/>
+        <geom fromto="0 0 0 0.3 0 0" mass="0.5"/>
+        <body name="link3" pos="0.3 0 0">
+          <joint name="j3" range="-3 3"/>
+          <geom fromto="0 0 0 0.3 0 0" mass="0.3"/>
+          <site name="tool" pos="0.3 0 0"/>
+        </body>
+      </body>
+    </body>
+  </worldbody>
+</mujoco>
+"""
+
+FOLD3_CONFIG = """robot: {name: fold3, model: fold3.xml}
+update_rate: 500
+clock: {source: sim, real_time_factor: 0}
+hardware:
+  twin: {driver: mujoco, params: {model: fold3.xml, substeps: 2}, joints: {j1: {}, j2: {}, j3: {}}}
+joints:
+  j1: {limits: {position: {lower: -3, upper: 3}, velocity: 3, effort: 20}, hold: {kp: 50, kd: 2}}
+  j2: {limits: {position: {lower: -3, upper: 3}, velocity: 3, effort: 20}, hold: {kp: 50, kd: 2}}
+  j3: {limits: {position: {lower: -3, upper: 3}, velocity: 3, effort: 20}, hold: {kp: 50, kd: 2}}
+controllers:
+  forward_position:
+    type: forward_command
+    params: {joints: [j1, j2, j3], interface: position, command_timeout: 5.0}
+safety:
+  walls: {enabled: true, self_collision: true}
+"""
+
+
+def test_self_collision_refuses_a_folding_command_holds_the_last_safe_one_and_lets_it_out(tmp_path: Path) -> None:
+    (tmp_path / "fold3.xml").write_text(FOLD3)
+    (tmp_path / "fold3.yaml").write_text(FOLD3_CONFIG)
+    loaded = load_config(tmp_path / "fold3.yaml")
+    check_with_model(loaded)
+    assert any("self-collision checked" in note for note in loaded.notes)
+    engine = Engine(loaded)
+    engine.start()
+    walls = guard(engine)
+    assert walls.collision is not None
+    assert walls.collision.touching(np.array([0.0, 2.6, 2.0])) == ("link1", "link3")  # the fold below
+    assert walls.collision.touching(np.array([0.0, 2.6, 0.0])) is None
+    assert engine.switch(["forward_position"], []).ok
+    watch = JumpGuard(engine)
+
+    def go(target: list[float], cycles: int) -> None:
+        for _ in range(cycles):
+            send(engine, "forward_position", target)
+            watch.run(1)
+            assert walls.collision is not None and walls.collision.touching(engine.final.position) is None
+
+    go([0.0, 2.6, 0.0], 1000)  # folded, link3 pointing away: no contact
+    wall_events(engine)
+    go([0.0, 2.6, 2.0], 1000)  # swinging link3 into link1: stopped short of the touch, every cycle
+    assert walls.refusals > 0
+    stopped = engine.final.position.copy()
+    assert 0.5 < stopped[2] < 2.0
+    assert wall_events(engine) == [
+        "self-collision: link1 and link3 would touch at the commanded pose; the command is refused and the joints "
+        "hold the last safe command"
+    ]
+    assert engine.status()["walls"]["self_collision"] == ["link1", "link3"]
+    go([0.0, 2.6, 0.0], 1000)  # back out: accepted, released once
+    np.testing.assert_allclose(engine.state.position, [0.0, 2.6, 0.0], atol=5e-3)
+    assert wall_events(engine) == ["self-collision: commands are accepted again"]
+    assert engine.status()["walls"]["self_collision"] == []

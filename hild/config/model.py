@@ -317,6 +317,13 @@ class WallsSection(Params):
         'behind its command and carries on past a command that stops (docs/safety.md, "Virtual walls").',
     )
 
+    self_collision: bool = Field(
+        default=False,
+        description="Also refuse a commanded pose where two of the arm's bodies would touch (the model's collision "
+        "geometry and its own filters: contype/conaffinity, parent-child, <exclude>): the joints hold the last "
+        "safe command.",
+    )
+
     @field_validator("tool_offset")
     @classmethod
     def _finite(cls, v: Vector3) -> Vector3:
@@ -326,8 +333,8 @@ class WallsSection(Params):
     def _has_walls(self) -> WallsSection:
         if self.site is not None and self.body is not None:
             raise ValueError("give the tool frame as a site or a body, not both")
-        if self.enabled and self.box is None and not self.planes:
-            raise ValueError("walls are enabled but none is given: add a box or planes")
+        if self.enabled and self.box is None and not self.planes and not self.self_collision:
+            raise ValueError("walls are enabled but none is given: add a box or planes (or self_collision: true)")
         return self
 
 

@@ -34,7 +34,9 @@ def review_walls(loaded: LoadedConfig) -> list[SafetyFinding]:
     except ValueError as exc:
         return [SafetyFinding("error", where, str(exc))]
     count = (6 if spec.box is not None else 0) + len(spec.planes)
+    collision = ", self-collision checked" if spec.self_collision else ""
     loaded.notes.append(
         f"virtual walls: {count} on the tool at {tool.frame} + {list(spec.tool_offset)} m, margin {spec.margin:g} m"
+        + collision
     )
     return []

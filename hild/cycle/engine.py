@@ -256,11 +256,11 @@ class Engine:
             return None
         if not cfg.robot.model:
             raise ValueError("safety.walls: virtual walls need the arm's model (robot.model) for the tool point")
-        from hild.dynamics.tool import ToolPoint  # mujoco stays behind this seam
+        from hild.dynamics.collision import SelfCollision  # mujoco stays behind this seam
+        from hild.dynamics.tool import ToolPoint
 
-        tool = ToolPoint(
-            loaded.directory / cfg.robot.model, self.joints, site=spec.site, body=spec.body, offset=spec.tool_offset
-        )
+        model = loaded.directory / cfg.robot.model
+        tool = ToolPoint(model, self.joints, site=spec.site, body=spec.body, offset=spec.tool_offset)
         return WallGuard(
             tool,
             Walls.of(spec),
@@ -270,6 +270,7 @@ class Engine:
             limits=self.limits,
             update_rate=self.update_rate,
             emit=self.events.emit,
+            collision=SelfCollision(model, self.joints) if spec.self_collision else None,
         )
 
     @staticmethod

@@ -21,6 +21,11 @@ half-space ``n·p ≤ b`` (``n`` its outward unit normal, ``b`` the wall pulled 
 4. **Velocity.** The velocity feed-forward of the corrected joints loses its component toward each engaged wall
    beyond the envelope's speed there (zero on the wall itself): the drive is never told to keep moving into it.
 
+With ``self_collision`` (``hild.dynamics.collision.SelfCollision``), the command that results is then checked
+against the model's collision geometry: a pose where two of the arm's bodies would touch, reached from a last
+command where they did not, is refused — the corrected joints repeat their last command, with no velocity
+feed-forward — and that is an event too (once per refusal, released after ``RELEASE_TIME`` without one).
+
 A held joint, a faulted one and a joint commanded without a position are never moved: a hold never fights a wall.
 Engagement and release are events, once per wall: engaged when it first corrects a command, released when it has
 corrected nothing for ``RELEASE_TIME``. Allocation: none while no wall corrects; a few arrays of at most
@@ -57,6 +62,10 @@ class ToolKinematics(Protocol):
     def __len__(self) -> int: ...
     def position(self, q: np.ndarray, out: np.ndarray | None = None) -> np.ndarray: ...
     def jacobian(self, out: np.ndarray) -> np.ndarray: ...
+
+
+class Collider(Protocol):
+    def touching(self, q: np.ndarray) -> tuple[str, str] | None: ...
 
 
 @dataclass(frozen=True)
@@ -109,6 +118,7 @@ class WallGuard:
         limits: JointLimitArrays,
         update_rate: float,
         emit: Callable[[str, str, str], None],
+        collision: Collider | None = None,
     ) -> None:
         """Everything the cycle touches is allocated here. ``emit(level, source, text)``: the engine's events."""
         n, k = len(tool), len(walls.names)
@@ -134,6 +144,11 @@ class WallGuard:
         self.engaged: tuple[str, ...] = ()  # published: the walls engaged now, for status
         self.change_seq = 0
         self.corrections = 0  # cycles in which a command was corrected (tests, the bench)
+        self._count = k
+        self.collision = collision  # safety.walls.self_collision: refuse commanded poses where the arm touches itself
+        self.refused: tuple[str, ...] = ()  # published: the pair of bodies of the refusal going on, else ()
+        self._refused_quiet = 0
+        self.refusals = 0  # cycles in which a command was refused (tests, the bench)
 
     @property
     def frame(self) -> str:
@@ -145,7 +160,7 @@ class WallGuard:
         return self.walls.depth(self.tool.position(q))
 
     def status(self) -> dict[str, Any]:
-        return {"tool": self.tool.frame, "engaged": list(self.engaged)}
+        return {"tool": self.tool.frame, "engaged": list(self.engaged), "self_collision": list(self.refused)}
 
     # ---- the cycle --------------------------------------------------------------------------------------------
     def apply(
@@ -181,13 +196,22 @@ class WallGuard:
                 ours[i] = ours_v[i] = 0.0
         if not found or not math.isfinite(sum(q_meas)):
             self._quiet_cycle()
+            self._accepted()
             return
+        if self._count:
+            self._keep_inside(dt, state, command)
+        if self.collision is not None:
+            self._refuse_collisions(command)
+
+    def _keep_inside(self, dt: float, state: JointState, command: ServoCommand) -> None:
+        """Steps 2–5 of the module docstring on ``_q`` (the command, limited as the supervisor will limit it)."""
+        q, ours = self._q, self._ours
         qd_meas = state.velocity.tolist()
         speed = sum(abs(v) * r for v, r in zip(qd_meas, self._reach, strict=True))  # ≥ the measured tool's speed
         if not math.isfinite(speed):
             speed = 0.0
         normals, tool = self.walls.normals, self.tool
-        np.matmul(normals, tool.position(prev), out=self._along_prev)
+        np.matmul(normals, tool.position(self._prev), out=self._along_prev)
         np.matmul(normals, tool.position(q), out=self._along)
         # Fast path: with every wall pulled in by the most the lead could take, nothing is beyond a bound.
         self._bounds(dt, self.lead_time * speed, None)
@@ -207,6 +231,38 @@ class WallGuard:
         np.copyto(command.position, q, where=ours > 0.0)
         self.corrections += 1
         self._engage(hit)
+
+    def _refuse_collisions(self, command: ServoCommand) -> None:
+        """A command that would make the arm touch itself, from a last command that did not, is not sent: the
+        corrected joints repeat their last command with no velocity feed-forward (a stop). A last command already
+        in collision (the arm was pushed there while held) is not held against: the arm may move out of it."""
+        assert self.collision is not None
+        pair = self.collision.touching(self._q)
+        if pair is None or self.collision.touching(self._prev) is not None:
+            self._accepted()
+            return
+        np.copyto(command.position, self._prev, where=self._ours > 0.0)
+        np.copyto(command.velocity, 0.0, where=self._ours_v > 0.0)
+        np.copyto(self._q, self._prev)
+        self.refusals += 1
+        self._refused_quiet = 0
+        if not self.refused:
+            self.refused = pair
+            self.emit(
+                "warning",
+                SOURCE,
+                f"self-collision: {pair[0]} and {pair[1]} would touch at the commanded pose; the command is refused "
+                "and the joints hold the last safe command",
+            )
+            self.change_seq += 1
+
+    def _accepted(self) -> None:
+        if self.refused:
+            self._refused_quiet += 1
+            if self._refused_quiet >= self._release_after:
+                self.refused = ()
+                self.emit("info", SOURCE, "self-collision: commands are accepted again")
+                self.change_seq += 1
 
     def _lead(self, state: JointState) -> None:
         """The measured tool's speed toward each wall (``_toward``, ≥ 0): the arm runs behind its command by about
