@@ -8,17 +8,20 @@ half-space ``n·p ≤ b`` (``n`` its outward unit normal, ``b`` the wall pulled 
 
 1. The command is first limited as the supervisor will limit it (soft limits, then at most ``velocity · dt`` from
    the last command), so the pose checked is the pose sent.
-2. **Braking envelope.** From the last command's tool point at distance ``h`` inside a wall, the new one may come
+2. **Lead.** Each wall is pulled in by ``lead_time`` × the measured tool's speed toward it: a position-controlled
+   arm runs behind its command and carries on past a command that stops. (Skipped when even the largest speed the
+   joints' measured velocities allow, ``ToolPoint.reach``, could not bring a bound to the command.)
+3. **Braking envelope.** From the last command's tool point at distance ``h`` inside a wall, the new one may come
    at most ``min(h, dt·√(2·deceleration·h))`` closer: the commanded tool's speed toward a wall never exceeds
-   ``√(2·deceleration·h)``, so it brakes to a stop *on* the wall rather than stopping dead at full speed (which the
-   arm, lagging its command, would overshoot). A last command already beyond a wall (the arm was pushed there, or
-   a controller took over there) may not go deeper, only back.
-3. **Projection.** A command beyond those bounds is moved back by the minimum-norm joint correction of the
+   ``√(2·deceleration·h)``, so it brakes to a stop *on* the wall rather than stopping dead at full speed. A last
+   command already beyond a wall (the arm was pushed there, or a controller took over there) may not go deeper,
+   only back.
+4. **Projection.** A command beyond those bounds is moved back by the minimum-norm joint correction of the
    violated rows ``Δq = −Aᵀ(AAᵀ + λI)⁻¹·excess`` (``A = N·J``: the walls' normals times the tool's position
    Jacobian, columns of the corrected joints only), re-limited to the slew bound and iterated (``ITERATIONS``);
    what is still beyond by more than ``TOLERANCE`` then is not sent: the last command is repeated (a stop).
    Every correction stays within the supervisor's slew bound (step 1), so the corrected command never jumps.
-4. **Velocity.** The velocity feed-forward of the corrected joints loses its component toward each engaged wall
+5. **Velocity.** The velocity feed-forward of the corrected joints loses its component toward each engaged wall
    beyond the envelope's speed there (zero on the wall itself): the drive is never told to keep moving into it.
 
 With ``self_collision`` (``hild.dynamics.collision.SelfCollision``), the command that results is then checked
@@ -28,8 +31,9 @@ feed-forward — and that is an event too (once per refusal, released after ``RE
 
 A held joint, a faulted one and a joint commanded without a position are never moved: a hold never fights a wall.
 Engagement and release are events, once per wall: engaged when it first corrects a command, released when it has
-corrected nothing for ``RELEASE_TIME``. Allocation: none while no wall corrects; a few arrays of at most
-walls × joints while one does.
+corrected nothing for ``RELEASE_TIME``. Allocation: the per-cycle lists of the joints' values (as in the supervisor)
+while a position controller runs; a few arrays of at most walls × joints more while a wall corrects, and the
+contact list while MuJoCo finds a contact.
 """
 
 from __future__ import annotations
