@@ -146,6 +146,37 @@ def test_a_trajectory_at_full_speed_with_the_smallest_safe_margin_passes_the_wal
     ]
 
 
+def random_approaches(count: int, seed: int) -> list[tuple[np.ndarray, list[float], list[float]]]:
+    """Seeded full-speed moves from home and a plane across each, halfway, facing the way the tool goes."""
+    tool = ToolPoint(CONFIGS / "arm6.xml", JOINTS)
+    home = np.array([0.0, 1.0, -1.6, -0.9708, 1.5708, 0.0])  # arm6's keyframe home, where the twin starts
+    rng = np.random.default_rng(seed)
+    found = []
+    while len(found) < count:
+        delta = rng.uniform(-1.0, 1.0, 6) * np.array([2.5, 1.5, 1.5, 1.5, 1.5, 1.5])
+        start, middle = tool.position(home).copy(), tool.position(home + 0.5 * delta).copy()
+        normal = rng.normal(size=3)
+        normal /= np.linalg.norm(normal)
+        if normal @ (middle - start) < 0.0:
+            normal = -normal
+        if normal @ (middle - start) >= 0.05:  # the wall is at least 5 cm ahead
+            found.append((delta, middle.tolist(), normal.tolist()))
+    return found
+
+
+@pytest.mark.parametrize(("delta", "point", "normal"), random_approaches(4, seed=7))
+def test_random_full_speed_approaches_pass_a_plane_by_at_most_5_mm(
+    delta: np.ndarray, point: list[float], normal: list[float]
+) -> None:
+    engine = walled({"planes": [{"point": point, "normal": normal}], "margin": SAFE_MARGIN})
+    assert engine.switch(["joint_trajectory"], []).ok
+    submit(engine, {"positions": (engine.state.position + delta).tolist()})
+    watch = Watch(engine)
+    watch.run(1500)
+    assert guard(engine).corrections > 0  # the wall really was in the way
+    assert watch.measured <= TARGET
+
+
 def test_a_hold_never_fights_a_wall_and_a_command_beyond_one_may_only_come_back() -> None:
     # The arm starts 0.143 m above z = 0: a floor at 0.2 m leaves the tool beyond it from the start.
     engine = walled({"box": {"min": [-2.0, -2.0, 0.2], "max": [2.0, 2.0, 2.0]}, "margin": 0.0})
