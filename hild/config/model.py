@@ -315,6 +315,110 @@ class ContactSection(Params):
         return self.joints.get(joint) or ContactThresholds(contact=self.contact, collision=self.collision)
 
 
+Vector3 = tuple[float, float, float]
+
+
+def _finite3(v: Vector3) -> Vector3:
+    if not all(math.isfinite(x) for x in v):
+        raise ValueError(f"must be three finite numbers, got {list(v)}")
+    return v
+
+
+class WallBox(Params):
+    """The box the tool must stay inside, in the model's world frame (the robot's base frame for a fixed arm)."""
+
+    min: Vector3 = Field(description="m: the box's lowest corner (x, y, z).")
+    max: Vector3 = Field(description="m: the box's highest corner (x, y, z).")
+
+    @field_validator("min", "max")
+    @classmethod
+    def _finite(cls, v: Vector3) -> Vector3:
+        return _finite3(v)
+
+    @model_validator(mode="after")
+    def _not_empty(self) -> WallBox:
+        empty = [axis for axis, lo, hi in zip("xyz", self.min, self.max, strict=True) if not lo < hi]
+        if empty:
+            raise ValueError(f"the box is empty along {', '.join(empty)}: min must be below max on every axis")
+        return self
+
+
+class WallPlane(Params):
+    """A half-space wall: the tool stays on the side its normal points away from."""
+
+    name: str | None = Field(default=None, min_length=1, description="Named in events and status; plane[i] if not.")
+    point: Vector3 = Field(description="m: a point on the wall, in the world frame.")
+    normal: Vector3 = Field(description="The wall's outward normal: it points to where the tool must not go.")
+
+    @field_validator("point", "normal")
+    @classmethod
+    def _finite(cls, v: Vector3) -> Vector3:
+        return _finite3(v)
+
+    @field_validator("normal")
+    @classmethod
+    def _non_zero(cls, v: Vector3) -> Vector3:
+        if math.hypot(*v) < 1e-9:
+            raise ValueError("the normal must not be zero: it says which side of the wall is out")
+        return v
+
+
+class WallsSection(Params):
+    """Virtual walls for the tool point on the commanded pose (docs/safety.md, "Virtual walls")."""
+
+    enabled: bool = Field(default=False, description="Check every position command against the walls.")
+    site: str | None = Field(
+        default=None, min_length=1, description="The tool frame: a site of robot.model (default: site tool or flange)."
+    )
+    body: str | None = Field(
+        default=None,
+        min_length=1,
+        description="The tool frame as a body of robot.model instead of a site (default when the model has no tool "
+        "or flange site: the body of the deepest configured joint).",
+    )
+    tool_offset: Vector3 = Field(default=(0.0, 0.0, 0.0), description="m: the tool point in that frame.")
+    box: WallBox | None = Field(default=None, description="The box the tool stays inside.")
+    planes: list[WallPlane] = Field(default_factory=list, description="Half-spaces the tool stays out of.")
+    margin: float = Field(
+        default=0.01, ge=0.0, le=0.5, description="m: the commanded tool point is kept this far inside every wall."
+    )
+    deceleration: float = Field(
+        default=20.0,
+        gt=0.0,
+        le=1000.0,
+        description="m/s²: the commanded tool's speed toward a wall is kept within sqrt(2·deceleration·distance), "
+        "so it brakes to a stop on the wall instead of hitting it.",
+    )
+
+    lead_time: float = Field(
+        default=0.15,
+        ge=0.0,
+        le=1.0,
+        description="s: each wall is pulled in by this × the measured tool's speed toward it, since the arm runs "
+        'behind its command and carries on past a command that stops (docs/safety.md, "Virtual walls").',
+    )
+
+    self_collision: bool = Field(
+        default=False,
+        description="Also refuse a commanded pose where two of the arm's bodies would touch (the model's collision "
+        "geometry and its own filters: contype/conaffinity, parent-child, <exclude>): the joints hold the last "
+        "safe command.",
+    )
+
+    @field_validator("tool_offset")
+    @classmethod
+    def _finite(cls, v: Vector3) -> Vector3:
+        return _finite3(v)
+
+    @model_validator(mode="after")
+    def _has_walls(self) -> WallsSection:
+        if self.site is not None and self.body is not None:
+            raise ValueError("give the tool frame as a site or a body, not both")
+        if self.enabled and self.box is None and not self.planes and not self.self_collision:
+            raise ValueError("walls are enabled but none is given: add a box or planes (or self_collision: true)")
+        return self
+
+
 class SafetySection(Params):
     stale_feedback_cycles: int = Field(
         default=10,
@@ -359,6 +463,9 @@ class SafetySection(Params):
         "of controllers that ask for it (joint_trajectory gravity_compensation).",
     )
     contact: ContactSection = Field(default_factory=ContactSection)
+    walls: WallsSection = Field(
+        default_factory=WallsSection, description="Virtual walls for the tool (needs robot.model)."
+    )
 
 
 class ZenohSection(Params):

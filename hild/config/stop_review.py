@@ -20,6 +20,7 @@ import numpy as np
 
 from hild.config.loader import ConfigError, LoadedConfig
 from hild.config.safety import SafetyFinding
+from hild.config.walls_review import review_walls
 
 LOADED_SHARE = 0.02
 SAMPLE_POSES = 16
@@ -28,7 +29,7 @@ SUGGESTED_DESCENT = 2.0  # s: what the shipped CAN configs use
 
 def check_with_model(loaded: LoadedConfig) -> None:
     """Raise ``ConfigError`` on errors; add warnings to ``loaded.notes`` (printed by ``summary``)."""
-    findings = review_model(loaded)
+    findings = review_model(loaded) + review_walls(loaded)
     errors = [loaded.issue(f.loc, f.message) for f in findings if f.level == "error"]
     if errors:
         raise ConfigError(errors)

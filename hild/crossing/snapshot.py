@@ -24,3 +24,4 @@ class Snapshot:
     tuning: Any = None  # the daemon's own parameters as they are now (hild.config.tuning.ManagerParams)
     # name, type, frame_id, hardware, state_interfaces, fault (None: healthy), available
     sensors: tuple[dict[str, Any], ...] = ()
+    walls: dict[str, Any] | None = None  # safety.walls on: the tool frame and the walls engaged now

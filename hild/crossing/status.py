@@ -37,4 +37,5 @@ def render_status(
         "loop": loop,
         "realtime": dict(snapshot.realtime),
         "sensors": [{k: s[k] for k in SENSOR_STATUS_FIELDS} for s in snapshot.sensors],
+        "walls": snapshot.walls,
     }

@@ -228,7 +228,7 @@ class ContactMonitor:
         if self.tool is None or self._filled < 2:
             return q.copy(), 0.0
         size, want = len(self._rows), self.settings.retract_distance
-        here = self.tool(q)
+        here = self.tool(q).copy()  # the tool function may answer in one buffer it reuses
         ages = list(range(1, self._filled))  # 1 = the newest before now
         stride = max(1, len(ages) // SEARCH_POINTS)
 

@@ -64,6 +64,7 @@ from hild.cycle.manager import ControllerManager, SwitchError, SwitchResult
 from hild.cycle.sensor_gate import SensorGate
 from hild.cycle.supervisor import Action, Fault, JointGains, SafetySettings, Supervisor, limit_names
 from hild.cycle.transmission import Transmissions
+from hild.cycle.walls import WallGuard, Walls
 from hild.dynamics.friction import FrictionArrays
 from hild.hardware import HardwareComponent, HardwareContext, HardwareError, Lifecycle
 from hild.interfaces import ClaimError, SensorLayout, SensorSpec, interface_name
@@ -190,6 +191,7 @@ class Engine:
         self.applies_gains = self._applies_gains()  # per joint; controllers see it in their context
         self.supervisor = self._build_supervisor(loaded)
         self.contact = self._build_contact(loaded)  # None unless safety.contact.enabled
+        self.walls = self._build_walls(loaded)
         s = cfg.safety
         self.max_consecutive_overruns = s.max_consecutive_overruns
         self._max_step = MAX_STEP_PERIODS * self.period
@@ -285,7 +287,7 @@ class Engine:
             friction=FrictionArrays.of(cfg),
             emit=self.events.emit,
             update_rate=self.update_rate,
-            tool=ToolPoint(path, self.joints, c.tool_site).position if c.reflex == "retract" else None,
+            tool=ToolPoint(path, self.joints, site=c.tool_site).position if c.reflex == "retract" else None,
         )
 
     def _observe_contact(self, dt: float, dt_control: float) -> None:
@@ -303,6 +305,31 @@ class Engine:
             self.manager.deactivate_commanding("collision")
         if contact.retracting:
             contact.reflex_step(dt_control, sup.latched)
+
+    def _build_walls(self, loaded: LoadedConfig) -> WallGuard | None:
+        """The virtual walls of ``safety.walls`` on the tool point of ``robot.model`` (docs/safety.md)."""
+        cfg = loaded.config
+        spec = cfg.safety.walls
+        if not spec.enabled:
+            return None
+        if not cfg.robot.model:
+            raise ValueError("safety.walls: virtual walls need the arm's model (robot.model) for the tool point")
+        from hild.dynamics.collision import SelfCollision  # mujoco stays behind this seam
+        from hild.dynamics.tool import ToolPoint
+
+        model = loaded.directory / cfg.robot.model
+        tool = ToolPoint(model, self.joints, site=spec.site, body=spec.body, offset=spec.tool_offset)
+        return WallGuard(
+            tool,
+            Walls.of(spec),
+            margin=spec.margin,
+            deceleration=spec.deceleration,
+            lead_time=spec.lead_time,
+            limits=self.limits,
+            update_rate=self.update_rate,
+            emit=self.events.emit,
+            collision=SelfCollision(model, self.joints) if spec.self_collision else None,
+        )
 
     @staticmethod
     def _gains(cfg: Any) -> JointGains:
@@ -598,6 +625,8 @@ class Engine:
         if self.contact is not None:
             self._observe_contact(dt, dt_control)
         self.manager.update(self.control_t, dt_control, self.state, self.command)
+        if self.walls is not None:  # the tool's commanded point kept inside the virtual walls, before the supervisor
+            self.walls.apply(dt_control, self.state, self.command, self.final, self.manager.masks, sup.mode)
         sup.command(dt_control, self.state, self.command, self.final)
         if sup.bad_command_owners:
             self.manager.fail_slots(
@@ -1019,7 +1048,8 @@ class Engine:
     # ---- reading back (any thread) ----------------------------------------------------------------------------
     @property
     def change_seq(self) -> int:
-        return self.supervisor.change_seq + self.manager.change_seq + self.sensor_gate.change_seq
+        walls = self.walls.change_seq if self.walls is not None else 0
+        return self.supervisor.change_seq + self.manager.change_seq + self.sensor_gate.change_seq + walls
 
     def overall_mode(self) -> str:
         sup = self.supervisor
@@ -1075,6 +1105,7 @@ class Engine:
                 {**entry, "fault": self.sensor_gate.fault_text[k] or None, "available": self._sensor_available(k)}
                 for k, entry in enumerate(self.sensor_layout.describe())
             ),
+            walls=self.walls.status() if self.walls is not None else None,
         )
 
     def _sensor_available(self, k: int) -> bool:

@@ -5,8 +5,10 @@
   what the twin, the emulator's plant and everything below share, so they always agree on the same file;
 - :mod:`hild.dynamics.gravity`     the gravity feed-forward of hold and controllers (runs on the cycle);
 - :mod:`hild.dynamics.momentum`    the momentum observer: the external torque estimate of the contact check (cycle);
-- :mod:`hild.dynamics.tool`        the tool's position, for the collision reflex's retract along the path;
 - :mod:`hild.dynamics.friction`    the identified friction model (plain numpy);
+- :mod:`hild.dynamics.tool`        the tool point's position and Jacobian: the virtual walls (on the cycle) and the
+  collision reflex's retract;
+- :mod:`hild.dynamics.collision`   the arm touching itself at a commanded pose (the walls' option, on the cycle);
 - :mod:`hild.dynamics.kinematics`  body poses and shapes for the telemetry's 3D view;
 - :mod:`hild.dynamics.inspection`  what the importer and ``hild check`` ask of a model: joint inertia over poses,
   contacts at a pose.
