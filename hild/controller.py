@@ -32,6 +32,7 @@ from hild.config.model import JointLimits
 from hild.config.params import Params
 from hild.crossing.mailboxes import InProcess, Mailboxes
 from hild.crossing.ring import SampleRing
+from hild.dynamics.friction import FrictionArrays
 from hild.interfaces import SensorLayout
 
 __all__ = [
@@ -119,6 +120,8 @@ class ControllerContext:
     mailboxes: Mailboxes = field(default_factory=InProcess)
     # Joints nothing commands that follow a robot joint (the config's mimic_joints): reported, never commanded.
     mimic_joints: MimicJoints = field(default_factory=lambda: MimicJoints((), ()))
+    # The robot's identified joint friction (joints.<j>.friction), in the robot's order: what teach mode compensates.
+    friction: FrictionArrays | None = None
 
     def index_of(self, names: Sequence[str]) -> np.ndarray:
         lookup = {j: i for i, j in enumerate(self.joints)}

@@ -63,6 +63,7 @@ from hild.cycle.manager import ControllerManager, SwitchError, SwitchResult
 from hild.cycle.sensor_gate import SensorGate
 from hild.cycle.supervisor import Action, Fault, JointGains, SafetySettings, Supervisor, limit_names
 from hild.cycle.transmission import Transmissions
+from hild.dynamics.friction import FrictionArrays
 from hild.hardware import HardwareComponent, HardwareContext, HardwareError, Lifecycle
 from hild.interfaces import ClaimError, SensorLayout, SensorSpec, interface_name
 from hild.modes import MODE_NAMES, JointMode
@@ -163,6 +164,7 @@ class Engine:
         self.limits = JointLimitArrays.of(cfg)
         self._position_gains = JointGainArrays.of(cfg)
         self.mimic_joints = MimicJoints.of(cfg)
+        self.friction = FrictionArrays.of(cfg)  # joints.<j>.friction: controllers compensate it (teach)
         self.state = JointState.zeros(n)  # joint space, what controllers see
         self.command = ServoCommand.zeros(n)  # controllers' output
         self.final = ServoCommand.zeros(n)  # the supervisor's output, joint space
@@ -328,6 +330,7 @@ class Engine:
             sensors=self.sensors,
             mailboxes=self.mailboxes.scoped(doors or name),
             mimic_joints=self.mimic_joints,
+            friction=self.friction,
         )
 
     def controllers(self) -> dict[str, Any]:
