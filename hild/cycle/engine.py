@@ -972,6 +972,7 @@ class Engine:
         controllers = self.manager.snapshot
         owner = self.manager.masks.owner
         names = {c.slot: c.name for c in controllers}
+        types = {c.slot: c.type for c in controllers}
         owner_of = {c: info.name for info in controllers if info.state == "active" for c in info.claimed}
         return Snapshot(
             change_seq=self.change_seq,
@@ -984,6 +985,8 @@ class Engine:
                     "fault": sup.fault_text[i] or None,
                     "limits": limit_names(int(sup.limit_flags[i])),
                     "hold_effort": float(sup.hold_effort[i]),
+                    # hand-guided now: commanded by a teach controller (a joint it released is held)
+                    "teach": int(sup.mode[i]) == JointMode.CONTROLLED and types.get(int(owner[i])) == "teach",
                 }
                 for i, name in enumerate(self.joints)
             ),
