@@ -27,10 +27,9 @@ from collections.abc import Callable, Mapping
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import model_validator
 
 from hild.arrays import JointState, ServoCommand
-from hild.config.params import Field, Params, dynamic
+from hild.config.params import Field, Params, dynamic, model_validator
 from hild.controller import Controller, ControllerContext, and_more, unknown_keys
 from hild.crossing.mailboxes import LatestNumbers
 from hild.dynamics.friction import FrictionArrays
