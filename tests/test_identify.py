@@ -81,7 +81,7 @@ def test_a_joint_without_room_to_sweep_is_reported_not_written(
     config = yaml.safe_load(path.read_text())
     config["joints"]["wrist_1"]["limits"]["position"] = {"lower": -1.05, "upper": -0.9}  # home -0.97: soft ±0.025
     path.write_text(yaml.safe_dump(config, sort_keys=False))
-    assert main(["identify", str(path), "--joints", "wrist_1", "wrist_2", "--speeds", "0.2"]) == 1
+    assert main(["identify", str(path), "--joints", "wrist_1", "wrist_2", "--speeds", "0.1", "0.2"]) == 1
     out = capsys.readouterr().out
     assert "wrist_1         not identified: no room to sweep" in out
     copy = load_config(tmp_path / "robot.identified.yaml")
@@ -100,5 +100,7 @@ def test_the_fit_recovers_the_model_it_fits_and_pins_negative_friction_at_zero()
     assert pushing.viscous == 0.0 and pushing.coulomb == 0.0
     with pytest.raises(ValueError, match="one direction only"):
         fit_friction(np.abs(v), tau)
+    with pytest.raises(ValueError, match="two speeds or more"):
+        fit_friction(np.array([0.3, 0.31, -0.3, -0.3]), np.array([1.0, 1.0, -1.0, -1.0]))
     with pytest.raises(ValueError, match="at least 3"):
         fit_friction(np.array([0.1, -0.1]), np.array([0.0, 0.0]))

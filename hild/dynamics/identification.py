@@ -14,6 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+SPEED_SPREAD = 1.5  # the fastest sample at least this many times the slowest: viscous and Coulomb apart
+
 
 @dataclass(frozen=True)
 class FrictionFit:
@@ -39,8 +41,8 @@ class FrictionFit:
 def fit_friction(velocity: np.ndarray, torque: np.ndarray, band: float = 0.02) -> FrictionFit:
     """The friction model that best explains ``torque`` at ``velocity`` (samples at steady speeds, both ways).
 
-    Raises ValueError when the samples cannot tell the terms apart: fewer than 3 of them, or speeds in one
-    direction only (then Coulomb and offset are the same column)."""
+    Raises ValueError when the samples cannot tell the terms apart: fewer than 3 of them, speeds in one direction
+    only (Coulomb and offset are then the same column), or at one speed (viscous and Coulomb the same)."""
     v = np.asarray(velocity, dtype=float)
     tau = np.asarray(torque, dtype=float)
     keep = np.isfinite(v) & np.isfinite(tau)
@@ -49,6 +51,12 @@ def fit_friction(velocity: np.ndarray, torque: np.ndarray, band: float = 0.02) -
         raise ValueError(f"{v.size} samples at a steady speed: at least 3 are needed")
     if not ((v > 0).any() and (v < 0).any()):
         raise ValueError("samples in one direction only: Coulomb friction and an offset cannot be told apart")
+    speeds = np.abs(v)
+    if speeds.max() < SPEED_SPREAD * speeds.min():
+        raise ValueError(
+            f"speeds {speeds.min():.3g}–{speeds.max():.3g} only: at one speed viscous and Coulomb friction cannot be "
+            "told apart; sweep at two speeds or more"
+        )
     columns = np.column_stack([v, np.tanh(v / band), np.ones_like(v)])
     free = [0, 1, 2]
     coef = np.zeros(3)
@@ -64,7 +72,6 @@ def fit_friction(velocity: np.ndarray, torque: np.ndarray, band: float = 0.02) -
     residual = tau - columns @ coef
     spread = float(np.sum((tau - tau.mean()) ** 2))
     r2 = 1.0 - float(np.sum(residual**2)) / spread if spread > 0.0 else 1.0
-    speeds = np.abs(v)
     return FrictionFit(
         viscous=float(coef[0]),
         coulomb=float(coef[1]),
