@@ -127,6 +127,9 @@ class Phase(enum.IntEnum):
     RELEASED = 2  # not written: the supervisor holds it where it stopped
 
 
+_TEACH, _RELEASING, _RELEASED = int(Phase.TEACH), int(Phase.RELEASING), int(Phase.RELEASED)
+
+
 class TeachController(Controller):
     Params = TeachParams
 
@@ -139,9 +142,11 @@ class TeachController(Controller):
         self._identified = FrictionArrays(
             whole.viscous[self._index], whole.coulomb[self._index], whole.offset[self._index], whole.band[self._index]
         )
-        self._phase = np.zeros(n, dtype=np.int64)
-        self._released_at = np.zeros(n)  # cycle time a release began
-        self._settled = np.zeros(n)  # s below release_speed while releasing
+        # Per joint, plain lists: the cycle's loop reads and writes them without numpy scalars.
+        self._phase = [int(Phase.TEACH)] * n
+        self._released_at = [0.0] * n  # cycle time a release began
+        self._settled = [0.0] * n  # s below release_speed while releasing
+        self._rows: list[tuple[int, float, float, float, float, float, float]] = []  # _derive
         self._friction_torque = np.zeros(n)
         self._q = np.zeros(n)
         self._v = np.zeros(n)
@@ -183,6 +188,18 @@ class TeachController(Controller):
             ident.viscous * share, ident.coulomb * share, ident.offset.copy(), np.maximum(ident.band, p.stiction_band)
         )
         self._via_effort = p.damping_via == "effort"
+        self._rows = list(  # one swap between cycles: update reads either the old rows or the new
+            zip(
+                self._index.tolist(),
+                self.damping.tolist(),
+                self.brake.tolist(),
+                self.speed_limit.tolist(),
+                self.wall_lower.tolist(),
+                self.wall_upper.tolist(),
+                self.wall_stiffness.tolist(),
+                strict=True,
+            )
+        )
 
     # ---- API side -------------------------------------------------------------------------------------------------
     def inputs(self) -> Mapping[str, Callable[[Any], None]]:
@@ -218,61 +235,69 @@ class TeachController(Controller):
     def on_activate(self, state: JointState, last_command: ServoCommand) -> None:
         self._slot.clear()
         start = Phase.RELEASED if self.params.start_released else Phase.TEACH  # type: ignore[attr-defined]
-        self._phase[:] = start
-        self._settled[:] = 0.0
+        self._phase[:] = [int(start)] * len(self._phase)
+        self._settled[:] = [0.0] * len(self._settled)
 
     def update(self, t: float, dt: float, state: JointState, command: ServoCommand) -> None:
+        phase, settled = self._phase, self._settled
         asked = self._slot.take()
-        phase = self._phase
         if asked is not None:
             for k, on in enumerate(asked.tolist()):
                 if on != on:  # NaN: as it is
                     continue
-                if on and phase[k] != Phase.TEACH:
-                    phase[k] = Phase.TEACH
-                elif not on and phase[k] == Phase.TEACH:
-                    phase[k] = Phase.RELEASING
+                if on and phase[k] != _TEACH:
+                    phase[k] = _TEACH
+                elif not on and phase[k] == _TEACH:
+                    phase[k] = _RELEASING
                     self._released_at[k] = t
-                    self._settled[k] = 0.0
-        idx = self._index
-        np.take(state.position, idx, out=self._q)
-        np.take(state.velocity, idx, out=self._v)
-        tau = self.friction.torque(self._v, self._friction_torque)
-        p: TeachParams = self.params  # type: ignore[assignment]
+                    settled[k] = 0.0
+        np.take(state.position, self._index, out=self._q)
+        np.take(state.velocity, self._index, out=self._v)
+        tau_all = self.friction.torque(self._v, self._friction_torque).tolist()
         q_all, v_all = self._q.tolist(), self._v.tolist()
-        for k, i in enumerate(idx.tolist()):
+        p: TeachParams = self.params  # type: ignore[assignment]
+        release_speed, release_time, via_effort = p.release_speed, p.release_time, self._via_effort
+        o_pos, o_vel, o_eff, o_kp, o_kd, written = (
+            command.position,
+            command.velocity,
+            command.effort,
+            command.kp,
+            command.kd,
+            command.written,
+        )
+        for k, (i, damping, brake, speed_limit, wall_lower, wall_upper, wall_k) in enumerate(self._rows):
             ph = phase[k]
-            if ph == Phase.RELEASED:
+            if ph == _RELEASED:
                 continue
             q, v = q_all[k], v_all[k]
-            kd = self.damping[k]
-            speed = abs(v)
-            if speed > self.speed_limit[k]:  # a thrown arm: the damping rises to the brake's
-                rise = min(1.0, (speed / self.speed_limit[k] - 1.0) / BRAKE_RAMP)
-                kd += (self.brake[k] - kd) * rise
-            effort = tau[k]
-            if q < self.wall_lower[k]:
-                effort += self.wall_stiffness[k] * (self.wall_lower[k] - q)
-                kd = self.brake[k]
-            elif q > self.wall_upper[k]:
-                effort -= self.wall_stiffness[k] * (q - self.wall_upper[k])
-                kd = self.brake[k]
-            if ph == Phase.RELEASING:
-                kd = self.brake[k]
-                self._settled[k] = self._settled[k] + dt if speed < p.release_speed else 0.0
-                if self._settled[k] >= SETTLED_TIME or t - self._released_at[k] >= p.release_time:
-                    phase[k] = Phase.RELEASED  # from this cycle on the supervisor holds it where it is
+            kd = damping
+            speed = v if v >= 0.0 else -v
+            if speed > speed_limit:  # a thrown arm: the damping rises to the brake's
+                rise = min(1.0, (speed / speed_limit - 1.0) / BRAKE_RAMP)
+                kd += (brake - kd) * rise
+            effort = tau_all[k]
+            if q < wall_lower:
+                effort += wall_k * (wall_lower - q)
+                kd = brake
+            elif q > wall_upper:
+                effort -= wall_k * (q - wall_upper)
+                kd = brake
+            if ph == _RELEASING:
+                kd = brake
+                settled[k] = settled[k] + dt if speed < release_speed else 0.0
+                if settled[k] >= SETTLED_TIME or t - self._released_at[k] >= release_time:
+                    phase[k] = _RELEASED  # from this cycle on the supervisor holds it where it is
                     continue
-            if self._via_effort:
+            if via_effort:
                 effort -= kd * v
                 kd = 0.0
-            command.position[i] = q
-            command.velocity[i] = 0.0
-            command.effort[i] = effort
-            command.kp[i] = 0.0
-            command.kd[i] = kd
-            command.written[i] = True
+            o_pos[i] = q
+            o_vel[i] = 0.0
+            o_eff[i] = effort
+            o_kp[i] = 0.0
+            o_kd[i] = kd
+            written[i] = True
 
     def phases(self) -> list[str]:
         """Each joint's phase on the cycle half: ``teach``, ``releasing`` or ``released`` (tests, the bench)."""
-        return [Phase(int(ph)).name.lower() for ph in self._phase]
+        return [Phase(ph).name.lower() for ph in self._phase]
