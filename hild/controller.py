@@ -32,6 +32,7 @@ from hild.config.model import JointLimits
 from hild.config.params import Params
 from hild.crossing.mailboxes import InProcess, Mailboxes
 from hild.crossing.ring import SampleRing
+from hild.dynamics.friction import FrictionArrays
 from hild.interfaces import ClaimMasks, SensorLayout
 
 __all__ = [
@@ -126,6 +127,8 @@ class ControllerContext:
     # The contact observer's external torque estimate per robot joint (safety.contact), live on the cycle: NaN
     # while it cannot run; None when it is off, and in the client domain.
     external_torque: np.ndarray | None = None
+    # The robot's identified joint friction (joints.<j>.friction), in the robot's order: what teach mode compensates.
+    friction: FrictionArrays | None = None
 
     def index_of(self, names: Sequence[str]) -> np.ndarray:
         lookup = {j: i for i, j in enumerate(self.joints)}

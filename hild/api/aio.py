@@ -103,6 +103,9 @@ class AsyncHildClient:
     async def gripper(self, controller: str, position: float | str, **options: Any) -> dict[str, Any]:
         return await asyncio.to_thread(self.sync.gripper, controller, position, **options)
 
+    async def teach(self, on: bool, joints: Iterable[str] = (), **options: Any) -> dict[str, Any]:
+        return await asyncio.to_thread(self.sync.teach, on, list(joints), **options)
+
     async def cancel(self, controller: str, goal_id: str) -> dict[str, Any]:
         return await asyncio.to_thread(self.sync.cancel, controller, goal_id)
 

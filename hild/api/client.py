@@ -39,6 +39,7 @@ from hild.api.goal_senders import client_token_key, new_client_id
 from hild.api.keys import ALIVE_ANY, Keys, check_chunk, robot_of_alive_key
 from hild.api.session import DEFAULT_CONNECT, client_config, declare_json_publisher, open_session, zenoh_error_text
 
+TEACH_WAIT = 5.0  # s a teach request may take: off brakes each joint to a stop before it holds
 log = logging.getLogger("hild.api.client")
 
 
@@ -227,6 +228,16 @@ class HildClient:
         if fallback_controllers:
             request["fallback_controllers"] = list(fallback_controllers)
         return self.call("load_controller", request)
+
+    def teach(
+        self, on: bool, joints: Iterable[str] = (), *, check: bool = True, timeout: float | None = None
+    ) -> dict[str, Any]:
+        """Hand-guiding on (``joints`` in teach mode, all by default; the controllers commanding them are deactivated,
+        the reply's ``deactivated``) or off (each brakes to a stop and holds where it stopped; the reply comes once
+        they hold). The reply's ``teach``: the joints in teach now. Waits at least 5 s: a release brakes first."""
+        request = {"on": on, "joints": list(joints), "by": self.sender}
+        wait = max(self.timeout, TEACH_WAIT) if timeout is None else timeout
+        return self.call("teach", request, check=check, timeout=wait)
 
     def configure_controller(self, name: str) -> dict[str, Any]:
         return self.call("configure_controller", {"name": name})

@@ -126,6 +126,13 @@ def add_ctl_parser(subparsers: Any) -> None:
     sub.add_parser("reset", parents=[common], help="clear latched faults and the e-stop")
     enable = sub.add_parser("enable", parents=[common], help="enable drives a fault disabled (after reset)")
     enable.add_argument("joints", nargs="*", metavar="JOINT", help="default: every joint")
+    teach = sub.add_parser(
+        "teach",
+        parents=[common],
+        help="hand-guiding: on puts joints in teach mode (limp, weightless), off brakes them and holds them there",
+    )
+    teach.add_argument("state", choices=("on", "off"))
+    teach.add_argument("joints", nargs="*", metavar="JOINT", help="default: every joint (off: every joint in teach)")
     zero = sub.add_parser("set-zero", parents=[common], help="make a held joint's current position its drive zero")
     zero.add_argument("joint")
     zero.add_argument("--confirm", action="store_true", help="required: the joint's position origin moves")
@@ -255,6 +262,27 @@ def _hardware_state_request(args: argparse.Namespace) -> dict[str, Any]:
 def _hardware_state_text(reply: dict[str, Any]) -> str:
     held = f"; deactivated {', '.join(reply['deactivated'])}, their joints held" if reply.get("deactivated") else ""
     return f"{reply['name']}: {reply['state']}{held}"
+
+
+def _teach(client: HildClient, args: argparse.Namespace, as_json: bool) -> int:
+    reply = client.teach(args.state == "on", args.joints, check=False)
+    if as_json:
+        print(json.dumps(reply, indent=2))
+    elif reply.get("ok"):
+        print(_teach_text(reply))
+    else:
+        print(f"hild ctl: teach: {reply.get('error')}", file=sys.stderr)
+    return EXIT_OK if reply.get("ok") else EXIT_SERVICE
+
+
+def _teach_text(reply: dict[str, Any]) -> str:
+    """What the switch did: the joints in teach now, who gave them up, who was handed to hold."""
+    parts = [f"in teach: {', '.join(reply.get('teach') or []) or 'none'}"]
+    if reply.get("released"):
+        parts.append(f"held where released: {', '.join(reply['released'])}")
+    if reply.get("deactivated"):
+        parts.append(f"deactivated {', '.join(reply['deactivated'])}")
+    return "; ".join(parts)
 
 
 def _switch_request(args: argparse.Namespace) -> dict[str, Any]:
@@ -578,6 +606,7 @@ COMMANDS: dict[str, Callable[[HildClient, argparse.Namespace, bool], int]] = {
         "enable", lambda r: f"enabled {r.get('enabled') or []}; each holds once its drive confirms", _enable_request
     ),
     "load": _load,
+    "teach": _teach,
     "param": _param,
     "params": _params_save,
     "configure": _service("configure_controller", lambda r: f"{r['name']}: {r['state']}", _named),

@@ -33,6 +33,7 @@ SERVICES = (
     "get_parameters",
     "set_parameters",
     "tuned_config",
+    "teach",
 )
 # Second-level chunks the API itself uses; a controller output may not take one of these names.
 RESERVED = frozenset(

@@ -36,7 +36,9 @@ def _limits(joint: dict[str, Any]) -> str | None:
 
 
 def _mode(joint: dict[str, Any]) -> str:
-    """The joint's mode, and the grasp its hold keeps (a gripper's hold effort) when it has one."""
+    """The joint's mode (``teach`` when hand-guided), and the grasp its hold keeps (a gripper's hold effort)."""
+    if joint.get("teach"):
+        return "teach"
     kept = joint.get("hold_effort") or 0.0
     return f"{joint['mode']} (grasp {kept:.3g})" if kept else str(joint["mode"])
 

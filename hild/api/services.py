@@ -40,6 +40,7 @@ from hild.api.fields import (
 from hild.api.lifecycle import ControllerLifecycle, loaded_names
 from hild.api.parameters import ControllerParameters
 from hild.api.queries import LargePayloadWorker, clip
+from hild.api.teach import TeachService
 from hild.crossing.requests import Enable, Refused, Request, Reset, SetHardwareState, SetZero, Switch
 from hild.daemon.link import CycleLink
 
@@ -94,6 +95,7 @@ class Services:
         lifecycle = ControllerLifecycle(engine, self.on_cycle)
         self.table.update(lifecycle.services())
         self.table.update(ControllerParameters(engine, self.on_cycle, lifecycle.checked).services())
+        self.table.update(TeachService(engine, self.on_cycle, lifecycle).services())
 
     async def handle(self, name: str, raw: bytes, *, timeout: float | None = None) -> Reply:
         """Serve one request on the asyncio thread; always returns a reply with ``ok`` and ``error``. ``timeout``:

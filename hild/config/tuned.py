@@ -64,3 +64,29 @@ def _set(node: Any, parts: list[str], value: Any) -> None:
     for part in parts[:-1]:
         node = node.setdefault(part, CommentedMap())
     node[parts[-1]] = value
+
+
+def friction_copy(path: Path, frictions: Mapping[str, Mapping[str, float]]) -> tuple[str, list[str]]:
+    """The config file at ``path`` with ``joints.<j>.friction`` set to ``frictions`` (joint → viscous, coulomb,
+    offset, band; ``hild identify``'s fit), everything else as the file has it: its text, and the dotted keys that
+    changed. ConfigError if the file on disk does not load; ValueError for a joint it does not have."""
+    on_disk = load_config(path)
+    unknown = [j for j in frictions if j not in on_disk.config.joints]
+    if unknown:
+        raise ValueError(f"{path} has no joints {unknown}")
+    yaml = YAML()
+    yaml.width = 120
+    document = yaml.load(path.read_text(encoding="utf-8"))
+    changed: list[str] = []
+    for joint, values in frictions.items():
+        node = document["joints"][joint]
+        section = node.get("friction")
+        if section is None:
+            node["friction"] = section = CommentedMap()
+        for key, value in values.items():
+            if section.get(key) != value:
+                section[key] = value
+                changed.append(f"joints.{joint}.friction.{key}")
+    out = io.StringIO()
+    yaml.dump(document, out)
+    return out.getvalue(), changed

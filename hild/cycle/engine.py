@@ -166,6 +166,7 @@ class Engine:
         self.limits = JointLimitArrays.of(cfg)
         self._position_gains = JointGainArrays.of(cfg)
         self.mimic_joints = MimicJoints.of(cfg)
+        self.friction = FrictionArrays.of(cfg)  # joints.<j>.friction: controllers compensate it (teach)
         self.state = JointState.zeros(n)  # joint space, what controllers see
         self.command = ServoCommand.zeros(n)  # controllers' output
         self.final = ServoCommand.zeros(n)  # the supervisor's output, joint space
@@ -284,7 +285,7 @@ class Engine:
             MomentumObserver(path, self.joints, c.observer_gain, self.period),
             effort_limit=self.limits.effort,
             applies_gains=self.applies_gains,
-            friction=FrictionArrays.of(cfg),
+            friction=self.friction,
             emit=self.events.emit,
             update_rate=self.update_rate,
             tool=ToolPoint(path, self.joints, site=c.tool_site).position if c.reflex == "retract" else None,
@@ -415,6 +416,7 @@ class Engine:
             mimic_joints=self.mimic_joints,
             applies_gains=self.applies_gains,
             external_torque=self.contact.tau_ext if self.contact is not None else None,
+            friction=self.friction,
         )
 
     def controllers(self) -> dict[str, Any]:
@@ -1068,6 +1070,7 @@ class Engine:
         controllers = self.manager.snapshot
         owner = self.manager.masks.owner
         names = {c.slot: c.name for c in controllers}
+        types = {c.slot: c.type for c in controllers}
         owner_of = {c: info.name for info in controllers if info.state == "active" for c in info.claimed}
         return Snapshot(
             change_seq=self.change_seq,
@@ -1080,6 +1083,8 @@ class Engine:
                     "fault": sup.fault_text[i] or None,
                     "limits": limit_names(int(sup.limit_flags[i])),
                     "hold_effort": float(sup.hold_effort[i]),
+                    # hand-guided now: commanded by a teach controller (a joint it released is held)
+                    "teach": int(sup.mode[i]) == JointMode.CONTROLLED and types.get(int(owner[i])) == "teach",
                 }
                 for i, name in enumerate(self.joints)
             ),

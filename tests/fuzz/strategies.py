@@ -370,6 +370,7 @@ SERVICE_FIELDS: dict[str, tuple[str, ...]] = {
     "get_parameters": ("controller", "names"),
     "set_parameters": ("controller", "values", "by"),
     "tuned_config": (),
+    "teach": ("on", "joints", "by"),
 }
 
 

@@ -29,6 +29,7 @@ from hild.api.fields import (
 )
 from hild.api.keys import SERVICES
 from hild.api.queries import clip
+from hild.api.teach import joint_names
 from tests.fuzz import strategies, tally
 from tests.fuzz.checks import refused, unharmed
 from tests.fuzz.daemon import FuzzDaemon, wait_for
@@ -49,6 +50,7 @@ FIELDS = {
     "list_parameters": {"controller": controller_name},
     "get_parameters": {"controller": controller_name, "names": names},
     "set_parameters": {"controller": controller_name, "values": mapping, "by": sender},
+    "teach": {"on": boolean, "joints": joint_names, "by": sender},
 }
 TOO_DEEP = "malformed JSON: nested too deeply"
 
