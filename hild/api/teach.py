@@ -78,7 +78,9 @@ class TeachService:
         taught = self._joints_of(record)
         if record is not None and record["state"] == "active" and set(wanted) <= set(taught):
             self._half().set_teach(dict.fromkeys(wanted, True))
-            return {"teach": self._order(set(in_teach(snapshot)) | set(wanted)), "deactivated": [], "loaded": False}
+            # Through its input: answer once the cycle shows them in teach, so the reply (and whatever the client
+            # asks next, e.g. a wider set built from the joints in teach) sees what the arm does.
+            return {"teach": await self._taught(wanted), "deactivated": [], "loaded": False}
         joints = self._order(set(wanted) | (set(in_teach(snapshot)) if record is not None else set()))
         released: list[str] = []
         if record is not None and record["state"] == "active":  # a wider set: hand the old one's joints to hold
@@ -136,6 +138,15 @@ class TeachService:
                 raise RequestError(f"{joints} were not handed to hold in time; is the cycle running?")
             await asyncio.sleep(POLL)
         return joints
+
+    async def _taught(self, joints: list[str]) -> list[str]:
+        """The joints in teach once ``joints`` are among them (the cycle took the teach controller's input)."""
+        deadline = time.monotonic() + SLACK
+        while not set(joints) <= set(taught := in_teach(self.engine.snapshot())):
+            if time.monotonic() > deadline:
+                raise RequestError(f"{joints} did not go into teach in time; is the cycle running?")
+            await asyncio.sleep(POLL)
+        return taught
 
     # ---- helpers ----------------------------------------------------------------------------------------------------
     async def _switch(self, activate: tuple[str, ...], deactivate: tuple[str, ...]) -> None:
