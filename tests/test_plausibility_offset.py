@@ -199,7 +199,7 @@ def test_property_random_reply_losses_never_let_an_offset_in(
             continue
         # The first true reading after the offset.
         window = SPEED * (blind + DT) + TOL
-        gap = last_bad[1] + DT
+        gap = last_bad[1]  # s since the last offset reading, this cycle included
         unambiguous = abs(shaft - drive.accepted) <= window and abs(shaft - last_bad[0]) > SPEED * gap + TOL
         if unambiguous:
             assert drive.cycle(shaft), (k, shaft, drive.accepted)
