@@ -5,9 +5,20 @@ A drive's reading is input like any other. A reading is **plausible** when
 * its position and velocity are finite,
 * its position lies inside the hard limits widened by ``margin`` (a joint may rest on its end stop), and
 * its position is no further from the last *accepted* reading than the joint could have moved since:
-  ``factor · velocity_limit · elapsed + tolerance``. ``elapsed`` is the wall time since that reading, grown only
-  by cycles that brought *no* reading: a rejected reading is evidence too, so a persistent jump never becomes
-  acceptable just because time passed (it stays rejected until an operator ``reset`` re-anchors the joint);
+  ``factor · velocity_limit · (elapsed + dt) + tolerance``, ``dt`` the reading's own cycle. ``elapsed`` is the
+  wall time since that reading over cycles that brought *no* reading, and only until a reading is rejected: a
+  rejected reading is evidence too, and a missing reply during a rejection streak is no evidence that the shaft
+  moved — were the window to widen over a streak, any persistent jump would fit at last (issue 28: a +0.3 rad
+  offset accepted after 35 rejected readings with lost replies between them). So a persistent jump never becomes
+  acceptable because time passed, however many replies go missing; it stays rejected until an operator ``reset``
+  re-anchors the joint;
+* and, while readings are being rejected as a jump, it does not *continue* that jump: a reading no further from
+  the last rejected one than the joint could have moved since (same bound, over the time since that one) is the
+  same jump — the offset reading of a sensor whose offset stays, however long the gap between the two — even
+  where it would pass the check above (a late cycle's long ``dt``). When the offset goes away, the step back from
+  the last rejected reading is itself a jump and the true reading is accepted; only after a gap so long that the
+  step back could be motion (or after the shaft itself moved beyond the window) does it stay rejected — steady
+  readings, which ``reset`` re-anchors on;
 * and it is not a **frozen** position: one that stays bit-identical while the velocity reported beside it adds up
   to more than ``FROZEN_TRAVEL`` of motion. Once caught, the same value stays suspect until the reading moves
   (a frozen encoder whose drive then reports standstill is still frozen).
@@ -32,6 +43,7 @@ from hild.arrays import JointState
 FROZEN_TRAVEL = 0.02  # rad: motion the reported velocity may claim while the position does not change at all
 FROZEN_MIN_SPEED = 0.05  # rad/s: below this a reported velocity is noise and says nothing about a frozen encoder
 STEADY_READINGS = 10  # rejected readings in a row, each a plausible step from the one before: a moved frame
+# (a plausible step: within factor · velocity_limit · the time between the two + tolerance, lost replies included)
 
 # Why the current episode began (the words are built only when an episode starts).
 NONE, NON_FINITE, BEYOND_LIMITS, JUMP, FROZEN = 0, 1, 2, 3, 4
@@ -75,6 +87,8 @@ class FeedbackGate:
         self._last_raw = [math.nan] * n
         self._frozen_travel = [0.0] * n
         self._steady = [0] * n  # rejected readings in a row that move plausibly among themselves
+        self._raw_age = [0.0] * n  # s since ``_last_raw`` arrived (before this cycle)
+        self._on_jump = [False] * n  # ``_last_raw`` is a rejected jump: a reading within its reach is the same one
 
     # ---- between cycles ------------------------------------------------------------------------------------
     def start(self, state: JointState) -> None:
@@ -89,9 +103,10 @@ class FeedbackGate:
         self._anchor[i] = True
 
     def steady(self, i: int) -> bool:
-        """Joint ``i``'s rejected readings agree among themselves (each a plausible step from the one before, inside
-        the limits, not frozen): the sensor works and the shaft is where it says, only far from where it was last
-        accepted — a drive's frame that moved (a reboot, a lost turn count) or motion while readings were rejected."""
+        """Joint ``i``'s rejected readings agree among themselves (each a plausible step from the one before over
+        the time between them, inside the limits, not frozen): the sensor works and the shaft is where it says, only
+        far from where it was last accepted — a drive's frame that moved (a reboot, a lost turn count), a steady
+        offset, or motion while readings were rejected. Only ``reset`` makes such readings the truth."""
         return self._steady[i] >= STEADY_READINGS
 
     def untrusted(self, i: int) -> bool:
@@ -107,10 +122,13 @@ class FeedbackGate:
         accepted, accepted_v, elapsed, anchor = self._accepted, self._accepted_v, self._elapsed, self._anchor
         lower, upper, speed, tol = self._lower, self._upper, self._speed, self.tolerance
         last_raw, travel, cause, rejected = self._last_raw, self._frozen_travel, self.cause, self.rejected
+        raw_age, on_jump = self._raw_age, self._on_jump
         isfinite = math.isfinite
         for i, q in enumerate(q_all):
-            if not fresh_all[i]:  # no reading: the joint may have moved meanwhile
-                elapsed[i] += dt
+            if not fresh_all[i]:  # no reading: the joint may have moved meanwhile…
+                if cause[i] == NONE:  # …but during a rejection streak that never widens the window (docstring)
+                    elapsed[i] += dt
+                raw_age[i] += dt
                 self._stand_in(i, pos, vel, rejected_now=False)
                 continue
             qd = qd_all[i]
@@ -121,6 +139,8 @@ class FeedbackGate:
                 why = BEYOND_LIMITS
             elif not anchor[i] and abs(q - accepted[i]) > speed[i] * (elapsed[i] + dt) + tol:
                 why = JUMP
+            elif not anchor[i] and on_jump[i] and abs(q - last_raw[i]) <= speed[i] * (raw_age[i] + dt) + tol:
+                why = JUMP  # it continues the rejected jump: the same offset, not the shaft coming back
             elif cause[i] == FROZEN and q == last_raw[i]:
                 why = FROZEN  # once caught, a frozen encoder stays suspect until its reading moves again
             else:
@@ -132,6 +152,8 @@ class FeedbackGate:
                     travel[i] = 0.0
             if why == NONE:
                 last_raw[i] = q
+                raw_age[i] = 0.0
+                on_jump[i] = False
                 accepted[i] = q
                 accepted_v[i] = qd
                 elapsed[i] = 0.0
@@ -142,12 +164,16 @@ class FeedbackGate:
                 if rejected[i]:
                     rejected[i] = False
                 continue
-            if why == JUMP and abs(q - last_raw[i]) <= speed[i] * dt + tol:
+            if why == JUMP and abs(q - last_raw[i]) <= speed[i] * (raw_age[i] + dt) + tol:
                 self._steady[i] += 1
             else:
                 self._steady[i] = 0
             if isfinite(q):
                 last_raw[i] = q
+                raw_age[i] = 0.0
+                on_jump[i] = why == JUMP
+            else:
+                raw_age[i] += dt
             if cause[i] == NONE:
                 self._begin_episode(i, why, q, qd, dt)
             self._rejections[i] += 1
