@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from drivers.can.protocol.mit import TORQUE_BITS, quantize
 from hild.bench import contact as contact_bench
 from hild.bench.cli import bench, selected
 from hild.bench.contact import ContactSettings, contact_targets, run_contact, target
@@ -178,3 +179,31 @@ def test_the_rig_steps_the_emulated_arm_in_lockstep_deterministically() -> None:
     first, second = run(), run()
     np.testing.assert_array_equal(first, second)
     assert len(JOINTS) == 6
+
+
+def test_the_drives_report_the_torque_the_plant_got_quantised_to_12_bits() -> None:
+    """What the observer will see: each Damiao reply carries the torque its law applied to the plant in the last
+    step before the command arrived, through the MIT frame's 12 bits, and the engine reads exactly that."""
+    with ContactRig() as rig:
+        engine, runtime = rig.engine, rig.runtime
+        assert engine is not None and runtime is not None
+        rig.activate(JTC)
+        rig.move(engine.state.position + np.array([0.4, -0.3, 0.3, 0.2, -0.2, 0.3]))
+        steps = []
+        for _ in range(50):
+            rig.cycle(7)
+            drives = runtime.rigs[0].joints
+            applied = np.array([d.firmware.applied_torque for d in drives])
+            wire = np.array(
+                [quantize(d.firmware.applied_torque, -d.firmware.ranges.t_max, d.firmware.ranges.t_max, TORQUE_BITS)
+                 for d in drives]
+            )  # fmt: skip
+            expected, exact = np.empty(6), np.empty(6)
+            rig.plant.transmissions.joint_efforts(wire, expected)
+            rig.plant.transmissions.joint_efforts(applied, exact)
+            engine.run_cycles(1)  # reads the replies sent with that torque
+            np.testing.assert_allclose(engine.state.effort, expected, rtol=0, atol=1e-9)
+            steps.append(np.abs(engine.state.effort - exact).max())
+            rig.now = engine.t
+            runtime.service(rig.now)
+        assert max(steps) > 1e-3  # quantised: not the float the plant used

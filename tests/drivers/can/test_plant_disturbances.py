@@ -3,13 +3,21 @@
 from __future__ import annotations
 
 import math
+import uuid
+from collections.abc import Callable
+from pathlib import Path
 
 import mujoco
 import numpy as np
 import pytest
+import yaml
 
+from drivers.can.emulator.cli import _options as emulate_options
 from drivers.can.emulator.disturbances import Obstacle, PlantMismatch, Push, parse_obstacle, parse_push, push_force
+from drivers.can.emulator.runtime import RuntimeOptions, build_runtime, describe
 from drivers.mujoco.plant import TwinPlant
+from hild.cli import build_parser
+from hild.config import load_config
 from tests.conftest import CONFIGS
 
 ARM6 = CONFIGS / "arm6.xml"
@@ -130,3 +138,64 @@ def test_the_command_line_forms_parse_and_bad_ones_say_why() -> None:
         parse_obstacle("sphere:0,0,0:0.1,0.2")
     with pytest.raises(ValueError, match="positive factor"):
         PlantMismatch(mass=0.0)
+
+
+# ---- through `hild emulate`'s runtime and command line ----------------------------------------------------------
+def arm6_vcan(write_config: Callable[..., Path]) -> Path:
+    data = yaml.safe_load((CONFIGS / "arm6_vcan.yaml").read_text())
+    data["robot"]["model"] = str(CONFIGS / "arm6.xml")
+    data["clock"] = {"source": "sim", "real_time_factor": 0}
+    data["hardware"]["arm"]["params"]["bus"] = {"interface": "virtual", "channel": f"dist-{uuid.uuid4().hex[:10]}"}
+    return write_config(data)
+
+
+def test_the_runtime_builds_the_twin_with_the_disturbances_and_pushes_on_request(
+    write_config: Callable[..., Path],
+) -> None:
+    wall = Obstacle("wall", "box", (0.05, 0.05, 0.05), (1.0, 1.0, 1.0))
+    options = RuntimeOptions(mismatch=PlantMismatch(mass=0.9), obstacles=[wall], max_step=0.001)
+    runtime = build_runtime(load_config(arm6_vcan(write_config)), options)
+    twin = runtime.twin
+    assert twin is not None and twin.obstacles == ("wall",)
+    assert twin.model.body_mass[2] == pytest.approx(0.9 * 8.393)  # upper_arm_link
+    assert "mass ×0.9" in describe(runtime)[-1] and "obstacles wall" in describe(runtime)[-1]
+    reply = runtime.handle({"op": "push", "force": [0, 0, -20], "duration": 0.5, "ramp": 0.1, "delay": 0.2})
+    assert reply["ok"] and twin.pushes == [Push((0.0, 0.0, -20.0), twin.time + 0.2, 0.5, 0.1)]
+    status = runtime.status()
+    assert status["push"] == [0.0, 0.0, 0.0] and status["contact_force"] == [0.0, 0.0, 0.0]
+    assert status["peak_contact_force"] == 0.0
+    assert runtime.handle({"op": "push", "clear": True}) == {"ok": True, "pushes": 0} and not twin.pushes
+    for bad in ({"op": "push"}, {"op": "push", "force": [1, 2]}, {"op": "push", "force": [1, 2, 3], "ramp": "x"}):
+        assert runtime.handle(bad)["ok"] is False
+
+
+def test_the_motor_plant_refuses_what_needs_the_model(write_config: Callable[..., Path]) -> None:
+    loaded = load_config(arm6_vcan(write_config))
+    with pytest.raises(ValueError, match=r"mismatch act on the twin.s model: they need --plant twin"):
+        build_runtime(loaded, RuntimeOptions(plant="motors", mismatch=PlantMismatch(friction=1.3)))
+    runtime = build_runtime(loaded, RuntimeOptions(plant="motors", mismatch=PlantMismatch()))  # identity: fine
+    assert runtime.handle({"op": "push", "force": [0, 0, 1]}) == {
+        "ok": False,
+        "error": "push needs the twin plant (--plant twin)",
+    }
+
+
+def test_the_command_line_carries_the_contact_options() -> None:
+    args = build_parser().parse_args(
+        [
+            "emulate",
+            "robot.yaml",
+            "--mass-scale", "1.1",
+            "--friction-scale", "0.7",
+            "--mismatch-spread", "0.05",
+            "--mismatch-seed", "9",
+            "--obstacle", "sphere:0.4,0,0.3:0.05",
+            "--push", "0,0,-20@1+0.5",
+        ]
+    )  # fmt: skip
+    options = emulate_options(args, 1000.0)
+    assert options.mismatch == PlantMismatch(1.1, 0.7, 0.05, 9)
+    assert options.obstacles == [Obstacle("obstacle0", "sphere", (0.05,), (0.4, 0.0, 0.3))]
+    assert options.pushes == [Push((0.0, 0.0, -20.0), 1.0, 0.5)]
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["emulate", "robot.yaml", "--push", "1,2"])
