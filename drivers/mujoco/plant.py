@@ -85,6 +85,11 @@ class TwinPlant:
         self._obstacle_geoms = frozenset(
             mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_GEOM, o.name) for o in obstacles
         )
+        for obstacle in obstacles:
+            if obstacle.stiffness > 0.0:  # padded: direct solref, and its parameters win over the arm's
+                geom = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_GEOM, obstacle.name)
+                self.model.geom_solref[geom] = (-obstacle.stiffness, -obstacle.damping)
+                self.model.geom_priority[geom] = 1
         self.pushes: list[Push] = list(pushes)
         """Scheduled forces at ``force_site`` (plant time); append to push while running."""
         site = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_SITE, force_site)

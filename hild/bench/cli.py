@@ -13,7 +13,7 @@ Two sections run only when named, after the rest: ``motion`` (tracking on the lo
 servo latency over Zenoh: ``hild.bench.motion``) and ``soak`` (``hild run`` on the twin at 1 kHz under random
 goals, servo streams and faults for 3 min, ``--quick`` 20 s, or ``--seconds``: ``hild.bench.soak``), and
 ``contact`` (the [contact] targets on the emulated Damiao arm6 in lockstep, group ``contact`` in the targets:
-``hild.bench.contact``; ``--quick`` a smoke run).
+``hild.bench.contact``; ``--quick`` a smoke run, ``--seconds`` the no-false-positive run's sim time).
 See docs/performance.md for what each figure means.
 """
 
@@ -232,7 +232,7 @@ def run_named(name: str, settings: Settings) -> dict[str, Any]:
     if name == "contact":
         from hild.bench.contact import ContactSettings, run_contact
 
-        return run_contact(ContactSettings.make(settings.quick, settings.seed))
+        return run_contact(ContactSettings.make(settings.quick, settings.seed, settings.soak_seconds))
     from hild.bench.soak import run_soak
 
     seconds = settings.soak_seconds or (SOAK_QUICK_SECONDS if settings.quick else SOAK_SECONDS)

@@ -125,8 +125,9 @@ def register(subparsers: Any) -> None:
         action="append",
         type=obstacle_arg,
         default=[],
-        metavar="SHAPE:X,Y,Z:SIZES",
-        help="a fixed box/sphere/cylinder the arm collides with, e.g. box:0.5,0,0.2:0.05,0.2,0.2 (half-sizes, m)",
+        metavar="SHAPE:X,Y,Z:SIZES[:K[,B]]",
+        help="a fixed box/sphere/cylinder the arm collides with, e.g. box:0.5,0,0.2:0.05,0.2,0.2 (half-sizes, m); "
+        "K,B pad it (N/m, N·s/m)",
     )
     contact.add_argument(
         "--push",
@@ -220,7 +221,10 @@ def _options(args: argparse.Namespace, rate: float) -> RuntimeOptions:
         gravity=args.gravity,
         max_step=min(0.0005, 1.0 / rate),
         mismatch=PlantMismatch(args.mass_scale, args.friction_scale, args.mismatch_spread, args.mismatch_seed),
-        obstacles=[Obstacle(f"obstacle{k}", o.shape, o.size, o.pos) for k, o in enumerate(args.obstacle)],
+        obstacles=[
+            Obstacle(f"obstacle{k}", o.shape, o.size, o.pos, o.stiffness, o.damping)
+            for k, o in enumerate(args.obstacle)
+        ],
         pushes=args.push,
         force_site=args.force_site,
     )

@@ -8,7 +8,9 @@ twin plant (`drivers.mujoco.plant.TwinPlant`) applies them:
   model hild computes gravity and the contact observer with (``robot.model``) as a real arm does.
 * `Push` — a force (N, world frame) on the tool site from ``start`` for ``duration`` seconds of plant time, ramped
   up and down over ``ramp`` seconds (MuJoCo ``xfrc_applied``: a scripted hand, a collision with a soft object).
-* `Obstacle` — a fixed box, sphere or cylinder in the world that the arm's links collide with.
+* `Obstacle` — a fixed box, sphere or cylinder in the world that the arm's links collide with; ``stiffness``
+  (N/m) and ``damping`` (N·s/m) make it padded (MuJoCo's direct ``solref`` = (−stiffness, −damping), the
+  obstacle's contact parameters winning by geom priority); 0 keeps MuJoCo's default, nearly rigid contact.
 """
 
 from __future__ import annotations
@@ -104,8 +106,16 @@ class Obstacle:
     shape: str
     size: tuple[float, ...]
     pos: tuple[float, float, float]
+    stiffness: float = 0.0
+    """N/m of a padded obstacle (0: MuJoCo's default contact)."""
+    damping: float = 0.0
+    """N·s/m with ``stiffness``."""
 
     def __post_init__(self) -> None:
+        if not (math.isfinite(self.stiffness) and self.stiffness >= 0.0):
+            raise ValueError(f"an obstacle's stiffness must be ≥ 0 N/m, got {self.stiffness}")
+        if not (math.isfinite(self.damping) and self.damping >= 0.0):
+            raise ValueError(f"an obstacle's damping must be ≥ 0 N·s/m, got {self.damping}")
         if self.shape not in SHAPE_SIZES:
             raise ValueError(f"obstacle shape must be one of {', '.join(SHAPE_SIZES)}, got {self.shape!r}")
         if len(self.size) != SHAPE_SIZES[self.shape] or not all(math.isfinite(s) and s > 0.0 for s in self.size):
@@ -125,14 +135,22 @@ def _numbers(text: str, what: str) -> tuple[float, ...]:
 
 
 def parse_obstacle(text: str, index: int = 0) -> Obstacle:
-    """``SHAPE:X,Y,Z:SIZES`` (e.g. ``box:0.5,0,0.2:0.05,0.2,0.2``) → an Obstacle named ``obstacle<index>``."""
+    """``SHAPE:X,Y,Z:SIZES[:STIFFNESS[,DAMPING]]`` (e.g. ``box:0.5,0,0.2:0.05,0.2,0.2:5000,100``) → an Obstacle
+    named ``obstacle<index>``."""
     parts = text.split(":")
-    if len(parts) != 3:
-        raise ValueError(f"expected SHAPE:X,Y,Z:HALF-SIZES (e.g. box:0.5,0,0.2:0.05,0.2,0.2), got {text!r}")
+    if len(parts) not in (3, 4):
+        raise ValueError(
+            f"expected SHAPE:X,Y,Z:HALF-SIZES[:STIFFNESS[,DAMPING]] (e.g. box:0.5,0,0.2:0.05,0.2,0.2), got {text!r}"
+        )
     pos = _numbers(parts[1], "obstacle position")
     if len(pos) != 3:
         raise ValueError(f"an obstacle's position is X,Y,Z, got {parts[1]!r}")
-    return Obstacle(f"obstacle{index}", parts[0], _numbers(parts[2], "obstacle size"), (pos[0], pos[1], pos[2]))
+    padding = _numbers(parts[3], "obstacle stiffness") if len(parts) == 4 else (0.0,)
+    if len(padding) > 2:
+        raise ValueError(f"an obstacle's padding is STIFFNESS[,DAMPING], got {parts[3]!r}")
+    stiffness, damping = padding[0], padding[1] if len(padding) == 2 else 0.0
+    size = _numbers(parts[2], "obstacle size")
+    return Obstacle(f"obstacle{index}", parts[0], size, (pos[0], pos[1], pos[2]), stiffness, damping)
 
 
 def parse_push(text: str) -> Push:

@@ -75,26 +75,48 @@ def test_a_push_at_the_tool_moves_a_compliant_joint_and_stops_when_it_ends() -> 
     assert not plant.push_now.any() and not plant.data.xfrc_applied.any()
 
 
+def ball_under_the_tool(stiffness: float = 0.0) -> Obstacle:
+    """A 2 cm ball 3 cm under the tool flange at home (the tool points down there): clear of the arm at start."""
+    tool = TwinPlant(ARM6, JOINTS, initial_positions=HOME, gravity=False).tool_position()
+    return Obstacle("ball", "sphere", (0.02,), (float(tool[0]), float(tool[1]), float(tool[2]) - 0.05), stiffness, 50.0)
+
+
 def test_an_obstacle_in_the_way_pushes_back_with_a_measurable_force() -> None:
-    plant = TwinPlant(ARM6, JOINTS, initial_positions=HOME, gravity=False)
-    tool = plant.tool_position()
-    wall = Obstacle("wall", "box", (0.02, 0.3, 0.3), (tool[0] + 0.06, tool[1], tool[2]))
-    plant = TwinPlant(ARM6, JOINTS, initial_positions=HOME, gravity=False, obstacles=[wall])
+    plant = TwinPlant(ARM6, JOINTS, initial_positions=HOME, gravity=False, obstacles=[ball_under_the_tool()])
     free = TwinPlant(ARM6, JOINTS, initial_positions=HOME, gravity=False)
-    push = Push((40.0, 0.0, 0.0), start=0.0, duration=1.0)
+    assert plant.data.ncon == 0  # clear at the start
+    push = Push((0.0, 0.0, -40.0), start=0.0, duration=1.0)
     plant.pushes.append(push)
     free.pushes.append(push)
     zero = np.zeros(6)
-    for _ in range(400):
+    for _ in range(300):
         plant.step(zero, 0.001)
         free.step(zero, 0.001)
     force = plant.contact_force()
-    assert force[0] < -10.0  # the wall pushes the arm back against the push
+    assert force[2] > 10.0  # the ball pushes the arm up, against the push
     assert plant.peak_contact_force >= np.linalg.norm(force) > 10.0
-    assert plant.tool_position()[0] < free.tool_position()[0] - 0.01  # the free arm went further
+    assert plant.tool_position()[2] > free.tool_position()[2] + 0.01  # the free arm went further down
     assert free.peak_contact_force == 0.0
     plant.reset_peak()
     assert plant.peak_contact_force == 0.0
+
+
+def test_a_padded_obstacle_gives_way_more_than_a_rigid_one() -> None:
+    def depth(stiffness: float) -> tuple[float, float]:
+        plant = TwinPlant(
+            ARM6, JOINTS, initial_positions=HOME, gravity=False, obstacles=[ball_under_the_tool(stiffness)]
+        )
+        plant.pushes.append(Push((0.0, 0.0, -40.0)))
+        deepest = 0.0
+        for _ in range(600):
+            plant.step(np.zeros(6), 0.001)
+            for i in range(plant.data.ncon):
+                deepest = max(deepest, -float(plant.data.contact[i].dist))
+        assert np.linalg.norm(plant.contact_force()) == pytest.approx(40.0, rel=0.05)  # at rest on it: the push
+        return deepest, plant.peak_contact_force
+
+    (rigid, rigid_peak), (padded, padded_peak) = depth(0.0), depth(500.0)
+    assert padded > 2.0 * rigid and padded_peak < 0.8 * rigid_peak  # gives way, softens the impact
 
 
 def test_the_same_disturbances_give_the_same_motion() -> None:
@@ -130,6 +152,8 @@ def test_the_command_line_forms_parse_and_bad_ones_say_why() -> None:
     assert parse_obstacle("box:0.5,0,0.2:0.05,0.2,0.2", 1) == Obstacle(
         "obstacle1", "box", (0.05, 0.2, 0.2), (0.5, 0.0, 0.2)
     )
+    assert parse_obstacle("sphere:0,0,1:0.1:5000,80").stiffness == 5000.0
+    assert parse_obstacle("sphere:0,0,1:0.1:5000,80").damping == 80.0
     with pytest.raises(ValueError, match="FX,FY,FZ"):
         parse_push("1,2")
     with pytest.raises(ValueError, match="ramp"):
