@@ -143,7 +143,11 @@ def test_the_obstacle_sweep_touches_the_sphere_and_reports_the_force_around_dete
     result = contact_bench.measure_obstacle(TINY, doubles)
     (hit,) = result["hits"]
     assert hit["contact_ms"] is not None and hit["detected_ms"] is not None
-    assert hit["detected_ms"] >= hit["contact_ms"] and result["peak_to_reflex_n"] >= 5.0 and result["peak_n"] >= result["peak_to_reflex_n"]
+    assert (
+        hit["detected_ms"] >= hit["contact_ms"]
+        and result["peak_to_reflex_n"] >= 5.0
+        and result["peak_n"] >= result["peak_to_reflex_n"]
+    )
     assert hit["after_minus_at_detection_n"] is not None
 
 

@@ -105,7 +105,9 @@ def register(subparsers: Any) -> None:
     p.add_argument("--inertia", type=float, default=0.05, help="motors plant: kg·m² per motor (actuator side)")
     p.add_argument("--damping", type=float, default=0.05, help="motors plant: N·m·s/rad per motor")
     p.add_argument("--gravity", type=float, default=0.0, help="motors plant: m·g·l load amplitude per motor (N·m)")
-    contact = p.add_argument_group('contact bench (twin plant only; docs/drivers.md, "Model mismatch and pushes")')
+    contact = p.add_argument_group(
+        'contact bench (twin plant only; docs/drivers.md, "Model mismatch, pushes and obstacles")'
+    )
     contact.add_argument(
         "--mass-scale", type=float, default=1.0, metavar="F", help="plant masses and inertias ×F (robot.model kept)"
     )
