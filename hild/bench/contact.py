@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 
 from drivers.can.emulator.disturbances import Obstacle, Push
-from hild.bench.contact_adapters import ContactAdapters
+from hild.bench.contact_adapters import TEACH_CONTROLLER, ContactAdapters
 from hild.bench.contact_rig import DEFAULT_MISMATCH, JOINTS, JTC, RATE, ContactRig, RigSpec, tool_at
 from hild.bench.report import rise_pct, summarize_ns
 
@@ -105,12 +105,21 @@ class ContactSettings:
 
 
 def target(
-    name: str, measured: float | None, limit: float, unit: str, basis: str, missing: str | None = None
+    name: str,
+    measured: float | None,
+    limit: float,
+    unit: str,
+    basis: str,
+    missing: str | None = None,
+    error: str | None = None,
 ) -> dict[str, Any]:
-    """One contact row: PASS/MISS on the measured figure, or MISS "not available: <piece>" when a piece is missing
-    (also when nothing could be measured: never n/a, never a PASS by default)."""
+    """One contact row: PASS/MISS on the measured figure, or MISS "not available: <piece>" when a piece is missing,
+    MISS "error: …" when its measurement failed (also when nothing could be measured: never n/a, never a PASS by
+    default)."""
     if missing is not None:
         status, detail, measured = "MISS", f"not available: {missing}", None
+    elif error is not None:
+        status, detail, measured = "MISS", f"error: {error}", None
     elif measured is None or not math.isfinite(measured):
         status, detail = "MISS", f"{name}: nothing measured ({basis})"
         measured = None
@@ -397,8 +406,6 @@ def measure_guiding(settings: ContactSettings, adapters: ContactAdapters) -> dic
 
 
 def _guide(rig: ContactRig, direction: np.ndarray) -> dict[str, Any]:
-    from hild.bench.contact_adapters import TEACH_CONTROLLER
-
     engine = rig.engine
     assert engine is not None
     rig.cycle(100)
@@ -475,25 +482,53 @@ def run_contact(settings: ContactSettings, adapters: ContactAdapters | None = No
         },
     }
     if observer is None:
-        report["detection"] = measure_detection(settings, adapters)
-        report["quiet"] = measure_quiet(settings, adapters)
-        report["obstacle"] = measure_obstacle(settings, adapters)
+        report["detection"] = guarded(measure_detection, settings, adapters)
+        report["quiet"] = guarded(measure_quiet, settings, adapters)
+        report["obstacle"] = guarded(measure_obstacle, settings, adapters)
     if walls is None:
-        report["walls"] = measure_walls(settings, adapters)
+        report["walls"] = guarded(measure_walls, settings, adapters)
     if teach is None:
-        report["guiding"] = measure_guiding(settings, adapters)
-    report["cost"] = measure_cost(settings, adapters, with_observer=observer is None)
+        report["guiding"] = guarded(measure_guiding, settings, adapters)
+    report["cost"] = guarded(measure_cost, settings, adapters, observer is None)
     report["targets"] = contact_targets(report, adapters)
     report["seconds_total"] = round(time.monotonic() - started, 1)
     return report
+
+
+def guarded(measure: Callable[..., dict[str, Any]], *args: Any) -> dict[str, Any]:
+    """A measurement's figures, or ``{"error": …}`` when it failed (a piece refusing the bench's config, a bug):
+    its rows become MISS "error: …" and the other measurements still run."""
+    try:
+        return measure(*args)
+    except Exception as exc:
+        return {"error": f"{type(exc).__name__}: {exc}"}
 
 
 def contact_targets(report: dict[str, Any], adapters: ContactAdapters) -> list[dict[str, Any]]:
     observer, walls, teach = adapters.observer_missing(), adapters.walls_missing(), adapters.teach_missing()
     d, q, o = report.get("detection", {}), report.get("quiet", {}), report.get("obstacle", {})
     w, g, c = report.get("walls", {}), report.get("guiding", {}), report.get("cost", {})
+    rows = _rows(d, q, o, w, g, c, adapters.collision_force_threshold(), observer, walls, teach)
+    errors = [d, d, q, o, o, w, g, g, c]  # the part each row is measured in, in row order
+    for row, part in zip(rows, errors, strict=True):
+        if "error" in part and not row["detail"].startswith("not available: "):
+            row.update(target(row["target"], None, row["limit"], row["unit"], row["basis"], error=part["error"]))
+    return rows
+
+
+def _rows(
+    d: dict[str, Any],
+    q: dict[str, Any],
+    o: dict[str, Any],
+    w: dict[str, Any],
+    g: dict[str, Any],
+    c: dict[str, Any],
+    threshold: float,
+    observer: str | None,
+    walls: str | None,
+    teach: str | None,
+) -> list[dict[str, Any]]:
     latency = d.get("latency_ms") or {}
-    threshold = adapters.collision_force_threshold()
     hits = f"{d.get('detected', 0)} of {d.get('hits', 0)} hits detected"
     return [
         target(

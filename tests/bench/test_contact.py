@@ -211,3 +211,23 @@ def test_the_drives_report_the_torque_the_plant_got_quantised_to_12_bits() -> No
             rig.now = engine.t
             runtime.service(rig.now)
         assert max(steps) > 1e-3  # quantised: not the float the plant used
+
+
+def test_a_measurement_that_fails_misses_its_rows_with_the_error_and_the_rest_still_run(
+    doubles: DoubleAdapters, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    class Refusing(DoubleAdapters):
+        def walls_safety(self, lower: Any, upper: Any) -> dict[str, Any]:
+            return {"walls": {"no such key": True}}  # as a guess at a piece's config that it refuses
+
+    def nothing(*args: Any) -> dict[str, Any]:
+        return {}
+
+    for name in ("detection", "quiet", "obstacle", "guiding"):
+        monkeypatch.setattr(contact_bench, f"measure_{name}", nothing)
+    report = run_contact(TINY, Refusing())
+    rows = {t["target"]: t for t in report["targets"]}
+    wall = rows["wall overshoot at full speed"]
+    assert wall["status"] == "MISS" and wall["detail"].startswith("error: ConfigError") and "walls" in wall["detail"]
+    assert report["cost"]["observer_on"]["n"] == TINY.cost_cycles  # measured all the same
+    assert rows["cycle p99 rise with the observer"]["measured"] is not None
