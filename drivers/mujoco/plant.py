@@ -14,6 +14,12 @@ placing the arm), and the next `step` starts from the written values. Model join
 except mimic joints: a joint equality (``<equality><joint joint1="follower" joint2="leader" polycoef=…/>``) ties a
 follower to a driven leader, and every start pose (`reset`) puts the follower where the coupling wants it, so the
 constraint does not snap a linkage (e.g. a gripper's second finger) into place on the first step.
+
+For the contact bench (`drivers.can.emulator.disturbances`): ``mismatch`` scales the plant's masses, inertias and
+joint friction away from the model file (hild keeps the file's values), ``obstacles`` adds fixed primitives the
+links collide with, and `pushes` (a list, appendable while running) apply scheduled forces at ``force_site``
+through ``xfrc_applied``. `contact_force` is the true force the obstacles exert on the arm (``mj_contactForce``),
+and `peak_contact_force` its largest norm over every physics step since `reset_peak`.
 """
 
 from __future__ import annotations
@@ -24,9 +30,11 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from drivers.can.emulator.disturbances import Obstacle, PlantMismatch, Push, push_force
 from hild.cycle.transmission import Transmissions
 from hild.dynamics.model import (
     SCALAR_JOINT_TYPES,
+    SceneObject,
     couple_joints,
     joint_couplings,
     joint_names,
@@ -62,9 +70,40 @@ class TwinPlant:
         keyframe: str | None = None,
         initial_positions: Mapping[str, float] | None = None,
         gravity: bool = True,
+        mismatch: PlantMismatch | None = None,
+        obstacles: Sequence[Obstacle] = (),
+        pushes: Sequence[Push] = (),
+        force_site: str = "tool",
     ) -> None:
-        self.model = load_model(Path(model_path))
+        objects = [SceneObject(o.name, o.shape, tuple(o.size), o.pos, fixed=True) for o in obstacles]
+        self.model = load_model(Path(model_path), objects=objects)
         self.data = mujoco.MjData(self.model)
+        self.mismatch = mismatch or PlantMismatch()
+        if not self.mismatch.identity:
+            self._apply_mismatch(self.mismatch)
+        self.obstacles = tuple(o.name for o in obstacles)
+        self._obstacle_geoms = frozenset(
+            mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_GEOM, o.name) for o in obstacles
+        )
+        for obstacle in obstacles:
+            if obstacle.stiffness > 0.0:  # padded: direct solref, and its parameters win over the arm's
+                geom = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_GEOM, obstacle.name)
+                self.model.geom_solref[geom] = (-obstacle.stiffness, -obstacle.damping)
+                self.model.geom_priority[geom] = 1
+        self.pushes: list[Push] = list(pushes)
+        """Scheduled forces at ``force_site`` (plant time); append to push while running."""
+        site = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_SITE, force_site)
+        if site < 0 and (self.pushes or force_site != "tool"):
+            raise ValueError(f"model {Path(model_path).name} has no site {force_site!r} to push on")
+        self._site = site
+        self._site_body = int(self.model.site_bodyid[site]) if site >= 0 else -1
+        self.push_now = np.zeros(3)
+        """The force (N, world) the pushes applied in the latest step."""
+        self._force = np.zeros(6)
+        self._contact = np.zeros(3)
+        self._contact6 = np.zeros(6)
+        self.peak_contact_force = 0.0
+        """Largest norm of `contact_force` over every step since `reset_peak` (N)."""
         self.joints = tuple(joints)
         n = len(self.joints)
         _, self._qposadr, self._dofadr = scalar_joint_addresses(self.model, self.joints)
@@ -152,8 +191,64 @@ class TwinPlant:
         np.put(self._qfrc, self._dofadr, self._joint_torque)
         if self.model.opt.timestep != dt:
             self.model.opt.timestep = dt
+        if self.pushes or self.push_now.any():
+            self._push()
         mujoco.mj_step(self.model, self.data)
+        if self._obstacle_geoms and self.data.ncon:
+            peak = float(np.linalg.norm(self.contact_force()))
+            if peak > self.peak_contact_force:
+                self.peak_contact_force = peak
         self._publish()
+
+    def contact_force(self, out: np.ndarray | None = None) -> np.ndarray:
+        """The total force (N, world frame) the obstacles exert on the arm now, from MuJoCo's contact forces."""
+        out = self._contact if out is None else out
+        out[:] = 0.0
+        m, d, f = self.model, self.data, self._contact6
+        for i in range(d.ncon):
+            contact = d.contact[i]
+            g1, g2 = int(contact.geom1), int(contact.geom2)
+            first, second = g1 in self._obstacle_geoms, g2 in self._obstacle_geoms
+            if first == second:
+                continue  # not between an obstacle and the arm
+            mujoco.mj_contactForce(m, d, i, f)
+            world = contact.frame.reshape(3, 3).T @ f[:3]  # the force geom1 exerts on geom2
+            if second:
+                out -= world  # the arm is geom1: it feels the opposite
+            else:
+                out += world
+        return out
+
+    def reset_peak(self) -> None:
+        """Start a new peak of the contact force."""
+        self.peak_contact_force = 0.0
+
+    def tool_position(self, out: np.ndarray | None = None) -> np.ndarray:
+        """World position (m) of the push site as of the latest step."""
+        out = np.empty(3) if out is None else out
+        out[:] = self.data.site_xpos[self._site]
+        return out
+
+    def _push(self) -> None:
+        """``xfrc_applied`` on the site's body: the pushes' force, and the torque of it acting at the site."""
+        d, body = self.data, self._site_body
+        if body < 0:
+            raise ValueError(f"model {self.model_name} has no site to push on")
+        push_force(self.pushes, float(d.time), self.push_now)
+        self._force[:3] = self.push_now
+        self._force[3:] = np.cross(d.site_xpos[self._site] - d.xipos[body], self.push_now)
+        d.xfrc_applied[body] = self._force
+
+    def _apply_mismatch(self, mismatch: PlantMismatch) -> None:
+        """Scale masses, inertias and joint friction away from the file (hild keeps the file's values)."""
+        m = self.model
+        body, dof = mismatch.factors(m.nbody, m.nv)
+        body[0] = 1.0  # the world
+        m.body_mass[:] *= body
+        m.body_inertia[:] *= body[:, None]
+        m.dof_frictionloss[:] *= dof
+        m.dof_damping[:] *= dof
+        mujoco.mj_setConst(m, self.data)
 
     def _publish(self) -> None:
         """Joint-space state → actuator-space arrays (and remember them, to notice outside writes)."""

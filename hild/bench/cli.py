@@ -11,7 +11,9 @@ after the other (never two daemons at once); the interference windows; targets f
 with the cycle in a process of its own; ``--one-process`` runs them as before, the cycle a thread of the daemon.
 Two sections run only when named, after the rest: ``motion`` (tracking on the lockstep twin, goal acceptance and
 servo latency over Zenoh: ``hild.bench.motion``) and ``soak`` (``hild run`` on the twin at 1 kHz under random
-goals, servo streams and faults for 3 min, ``--quick`` 20 s, or ``--seconds``: ``hild.bench.soak``).
+goals, servo streams and faults for 3 min, ``--quick`` 20 s, or ``--seconds``: ``hild.bench.soak``), and
+``contact`` (the [contact] targets on the emulated Damiao arm6 in lockstep, group ``contact`` in the targets:
+``hild.bench.contact``; ``--quick`` a smoke run, ``--seconds`` the no-false-positive run's sim time).
 See docs/performance.md for what each figure means.
 """
 
@@ -46,7 +48,7 @@ from hild.config.model import RealtimeSection
 PACKAGES = ("hild", "numpy", "eclipse-zenoh", "python-can", "mujoco", "ruckig", "rerun-sdk", "pydantic")
 FLOOR_RATES = (500.0, 1000.0)
 SECTIONS = ("floor", *(s.name for s in SCENARIOS), "interference")
-NAMED_ONLY = ("motion", "soak")  # not part of a whole run: they measure the motion paths and endurance
+NAMED_ONLY = ("motion", "soak", "contact")  # not part of a whole run: motion paths, endurance, contact safety
 SOAK_SECONDS = 180.0
 SOAK_QUICK_SECONDS = 20.0
 
@@ -217,6 +219,7 @@ def bench(settings: Settings, sections: list[str], workdir: Path) -> dict[str, A
     report["machine"]["busy"] = busy(report["machine"])
     report["bench"]["seconds_total"] = round(time.monotonic() - started, 1)
     report["targets"] = evaluate_targets(report) if set(sections) & set(SECTIONS) else []  # none for motion, soak
+    report["targets"] += report.get("contact", {}).get("targets", [])  # group "contact"
     return report
 
 
@@ -226,6 +229,10 @@ def run_named(name: str, settings: Settings) -> dict[str, Any]:
         from hild.bench.motion import MotionSettings, run_motion
 
         return run_motion(MotionSettings.quick() if settings.quick else MotionSettings())
+    if name == "contact":
+        from hild.bench.contact import ContactSettings, run_contact
+
+        return run_contact(ContactSettings.make(settings.quick, settings.seed, settings.soak_seconds))
     from hild.bench.soak import run_soak
 
     seconds = settings.soak_seconds or (SOAK_QUICK_SECONDS if settings.quick else SOAK_SECONDS)
@@ -240,6 +247,11 @@ def format_named(report: dict[str, Any]) -> list[str]:
 
         motion = report["motion"]
         texts.append(f"MOTION error: {motion['error']}" if "error" in motion else format_motion(motion))
+    if "contact" in report:
+        from hild.bench.contact import format_contact
+
+        contact = report["contact"]
+        texts.append(f"CONTACT error: {contact['error']}" if "error" in contact else format_contact(contact))
     if "soak" in report:
         from hild.bench.soak import Report
 

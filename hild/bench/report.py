@@ -677,6 +677,7 @@ def _hild_lines(report: dict[str, Any]) -> list[str]:
         groups = (
             (RT, "TARGETS [rt-split] (1 kHz, 6 joints, trajectory, broadcaster, telemetry; floor from this run)"),
             ("earlier", "EARLIER TARGETS (docs/performance.md, Targets)"),
+            ("contact", "TARGETS [contact] (emulated Damiao arm6, 1 kHz, mass ×1.1, friction ×1.3; lockstep)"),
         )
         w = (36, 17, 9, 9, 6, 6)
         for group, heading in groups:

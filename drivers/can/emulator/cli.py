@@ -20,6 +20,7 @@ import signal
 import sys
 from typing import Any
 
+from drivers.can.emulator.disturbances import Obstacle, PlantMismatch, Push, parse_obstacle, parse_push
 from drivers.can.emulator.runtime import EmulatorRuntime, RuntimeOptions, build_runtime, describe
 from hild.config import ConfigError, load_config
 from hild.hardware import HardwareError
@@ -45,6 +46,20 @@ def joint_value(text: str) -> tuple[str, float]:
         if math.isfinite(number):
             return name, number
     raise argparse.ArgumentTypeError(f"expected JOINT=RADIANS, got {text!r}")
+
+
+def push_arg(text: str) -> Push:
+    try:
+        return parse_push(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def obstacle_arg(text: str) -> Obstacle:
+    try:
+        return parse_obstacle(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def register(subparsers: Any) -> None:
@@ -90,6 +105,41 @@ def register(subparsers: Any) -> None:
     p.add_argument("--inertia", type=float, default=0.05, help="motors plant: kg·m² per motor (actuator side)")
     p.add_argument("--damping", type=float, default=0.05, help="motors plant: N·m·s/rad per motor")
     p.add_argument("--gravity", type=float, default=0.0, help="motors plant: m·g·l load amplitude per motor (N·m)")
+    contact = p.add_argument_group(
+        'contact bench (twin plant only; docs/drivers.md, "Model mismatch, pushes and obstacles")'
+    )
+    contact.add_argument(
+        "--mass-scale", type=float, default=1.0, metavar="F", help="plant masses and inertias ×F (robot.model kept)"
+    )
+    contact.add_argument(
+        "--friction-scale", type=float, default=1.0, metavar="F", help="plant joint frictionloss and damping ×F"
+    )
+    contact.add_argument(
+        "--mismatch-spread",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="each body and joint also ×U[1-S, 1+S] (seeded by --mismatch-seed)",
+    )
+    contact.add_argument("--mismatch-seed", type=int, default=0, metavar="N", help="seed of the per-body factors")
+    contact.add_argument(
+        "--obstacle",
+        action="append",
+        type=obstacle_arg,
+        default=[],
+        metavar="SHAPE:X,Y,Z:SIZES[:K[,B]]",
+        help="a fixed box/sphere/cylinder the arm collides with, e.g. box:0.5,0,0.2:0.05,0.2,0.2 (half-sizes, m); "
+        "K,B pad it (N/m, N·s/m)",
+    )
+    contact.add_argument(
+        "--push",
+        action="append",
+        type=push_arg,
+        default=[],
+        metavar="FX,FY,FZ[@T[+D[~R]]]",
+        help="a force on the tool (N, world) from T s for D s ramped over R s, e.g. 0,0,-20@2+0.5~0.02",
+    )
+    contact.add_argument("--force-site", default="tool", metavar="SITE", help="the model site pushes act on")
     p.add_argument(
         "--priority",
         type=int,
@@ -133,7 +183,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     priority = apply_priority(args.priority)  # before any thread starts: the server threads inherit it
     try:
-        runtime = build_runtime(loaded, _options(args, rate))
+        runtime = build_runtime(loaded, _options(args, rate))  # ValueError: a bad mismatch factor too
         runtime.open(args.serve_remote)
     except (ValueError, HardwareError, OSError) as exc:
         print(f"hild emulate: {exc}", file=sys.stderr)
@@ -172,6 +222,13 @@ def _options(args: argparse.Namespace, rate: float) -> RuntimeOptions:
         damping=args.damping,
         gravity=args.gravity,
         max_step=min(0.0005, 1.0 / rate),
+        mismatch=PlantMismatch(args.mass_scale, args.friction_scale, args.mismatch_spread, args.mismatch_seed),
+        obstacles=[
+            Obstacle(f"obstacle{k}", o.shape, o.size, o.pos, o.stiffness, o.damping)
+            for k, o in enumerate(args.obstacle)
+        ],
+        pushes=args.push,
+        force_site=args.force_site,
     )
 
 

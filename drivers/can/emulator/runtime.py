@@ -34,6 +34,11 @@ every emulated joint.
   the transceiver, send the next N replies one byte short.
 * ``{"op": "bus_off", "duration": S}`` — every emulated bus goes off for S seconds (an error frame of the bus-off
   class first, then no frame either way).
+* ``{"op": "push", "force": [FX, FY, FZ], "duration": S?, "ramp": S?, "delay": S?}`` — twin plant only: push the
+  tool (N, world frame; `drivers.can.emulator.disturbances.Push`) from ``delay`` s of plant time on, for
+  ``duration`` s (default: until cleared), ramped over ``ramp`` s; ``{"op": "push", "clear": true}`` ends every
+  push. The twin's status adds ``contact_force`` (N, world: what the obstacles exert on the arm),
+  ``peak_contact_force`` and ``push`` (the force applied now).
 * ``{"op": "stop"}`` — end the emulator (the process exits 0).
 
 `request(address, payload)` is a small client for it.
@@ -61,6 +66,7 @@ import numpy as np
 from drivers.can.bus import BusSpec, open_bus
 from drivers.can.emulator.base import MotorFirmware
 from drivers.can.emulator.core import Emulator
+from drivers.can.emulator.disturbances import Obstacle, PlantMismatch, Push
 from drivers.can.emulator.mit_firmware import DamiaoFirmware, MitFirmware, MyActuatorFirmware, TMotorFirmware
 from drivers.can.emulator.odrive_firmware import ODriveFirmware
 from drivers.can.emulator.plant import MotorPlant, Plant
@@ -122,6 +128,20 @@ class RuntimeOptions:
     gravity: float = 0.0
     max_step: float = 0.0005
     """Longest plant step (s): the drives' control law is evaluated at least this often."""
+    mismatch: PlantMismatch | None = None
+    """Twin plant only: masses and joint friction scaled away from robot.model (hild keeps the file's values)."""
+    obstacles: Sequence[Obstacle] = ()
+    """Twin plant only: fixed primitives the arm collides with."""
+    pushes: Sequence[Push] = ()
+    """Twin plant only: scheduled forces at ``force_site``."""
+    force_site: str = "tool"
+    """The model site pushes act on."""
+
+    def contact_options(self) -> list[str]:
+        """The twin-only options this asks for (for the error when the plant is not the twin)."""
+        given = {"mismatch": self.mismatch is not None and not self.mismatch.identity}
+        given |= {"obstacles": bool(self.obstacles), "pushes": bool(self.pushes)}
+        return [name for name, on in given.items() if on]
 
 
 def build_firmware(params: MitCanParams | ODriveCanParams, joints: Sequence[str]) -> list[MotorFirmware]:
@@ -384,9 +404,11 @@ class EmulatorRuntime:
                 return self._bus_off(payload)
             if op == "glitch":
                 return self._glitch(payload)
+            if op == "push":
+                return self._push(payload)
         except (ValueError, TypeError) as exc:
             return {"ok": False, "error": str(exc)}
-        ops = "status, fault, clear, reboot, set, glitch, bus_off, stop"
+        ops = "status, fault, clear, reboot, set, glitch, bus_off, push, stop"
         return {"ok": False, "error": f"unknown op {op!r} (ops: {ops})"}
 
     def _select(self, payload: Mapping[str, Any], *, required: bool = False) -> list[EmulatedJoint]:
@@ -464,6 +486,32 @@ class EmulatorRuntime:
             glitch.flip(0, payload["sign_flip"])
         return {"ok": True, "joints": [joint.name]}
 
+    def _push(self, payload: Mapping[str, Any]) -> dict[str, Any]:
+        """A force on the tool of the twin plant, from now (+ ``delay``) in plant time (see the module docstring)."""
+        if self.twin is None:
+            raise ValueError("push needs the twin plant (--plant twin)")
+        keys = set(payload) - {"op"}
+        unknown = keys - {"force", "duration", "ramp", "delay", "clear"}
+        if unknown or not keys:
+            raise ValueError("push takes force, duration, ramp, delay, or clear")
+        if "clear" in keys:
+            if payload["clear"] is not True or len(keys) > 1:
+                raise ValueError("push clear takes only clear: true")
+            self.twin.pushes.clear()
+            return {"ok": True, "pushes": 0}
+        force = payload.get("force")
+        if not isinstance(force, list) or len(force) != 3 or any(isinstance(f, bool) for f in force):
+            raise ValueError("push needs 'force': [FX, FY, FZ] in N")
+        for key in keys - {"force"}:
+            value = payload[key]
+            if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+                raise ValueError(f"{key} must be a finite number of seconds")
+        start = self.twin.time + float(payload.get("delay", 0.0))
+        duration = float(payload.get("duration", math.inf))
+        push = Push((float(force[0]), float(force[1]), float(force[2])), start, duration, float(payload.get("ramp", 0)))
+        self.twin.pushes.append(push)
+        return {"ok": True, "pushes": len(self.twin.pushes), "start": start}
+
     def _bus_off(self, payload: Mapping[str, Any]) -> dict[str, Any]:
         duration = payload.get("duration")
         if isinstance(duration, bool) or not isinstance(duration, int | float) or not 0.0 < duration < math.inf:
@@ -507,7 +555,12 @@ class EmulatorRuntime:
             for rig in self.rigs
         ]
         loop = {**self.loop_stats, **{k: round(self.loop_stats[k], 3) for k in ("max_late_ms", "max_gap_ms")}}
-        return {"time": self.time, "plant": self.plant_kind, "loop": loop, "buses": buses, "joints": joints}
+        status = {"time": self.time, "plant": self.plant_kind, "loop": loop, "buses": buses, "joints": joints}
+        if self.twin is not None:
+            status["contact_force"] = [round(float(f), 3) for f in self.twin.contact_force()]
+            status["peak_contact_force"] = round(float(self.twin.peak_contact_force), 3)
+            status["push"] = [round(float(f), 3) for f in self.twin.push_now]
+        return status
 
 
 def request(address: tuple[str, int], payload: Mapping[str, Any], timeout: float = 5.0) -> dict[str, Any]:
@@ -577,6 +630,8 @@ def build_runtime(loaded: LoadedConfig, options: RuntimeOptions | None = None) -
     else:
         if opts.keyframe is not None:
             raise ValueError("a keyframe is a pose of the twin's model: it needs --plant twin")
+        if opts.contact_options():
+            raise ValueError(f"{', '.join(opts.contact_options())} act on the twin's model: they need --plant twin")
         for spec, joints in by_bus.values():
             start = [j.to_actuator(opts.initial_positions.get(j.name, j.offset)) for j in joints]
             plant = MotorPlant(
@@ -600,6 +655,10 @@ def _twin_plant(loaded: LoadedConfig, joints: Sequence[EmulatedJoint], opts: Run
         reduction=[j.reduction for j in joints],
         direction=[j.direction for j in joints],
         offset=[j.offset for j in joints],
+        mismatch=opts.mismatch,
+        obstacles=opts.obstacles,
+        pushes=opts.pushes,
+        force_site=opts.force_site,
     )
     keyframe = opts.keyframe
     if keyframe is None and "home" in plant.keyframes:
@@ -622,6 +681,12 @@ def describe(runtime: EmulatorRuntime) -> list[str]:
     plant = runtime.plant_kind
     if runtime.twin is not None:
         plant += f" ({runtime.twin.model_name})"
+        mismatch = runtime.twin.mismatch
+        if not mismatch.identity:
+            plant += f", mass ×{mismatch.mass:g}, friction ×{mismatch.friction:g}"
+            plant += f" ±{mismatch.spread:g} (seed {mismatch.seed})" if mismatch.spread else ""
+        if runtime.twin.obstacles:
+            plant += f", obstacles {', '.join(runtime.twin.obstacles)}"
     brakes = any(isinstance(rig.plant, BrakedPlant) for rig in runtime.rigs)
     lines.append(f"plant: {plant}, holding brakes {'on' if brakes else 'off'}")
     return lines
