@@ -84,7 +84,7 @@ class ContactAdapters:
         return None if have else WALLS_PIECE
 
     def walls_safety(self, lower: Sequence[float], upper: Sequence[float]) -> dict[str, Any]:
-        return {"walls": {"box": {"lower": [float(v) for v in lower], "upper": [float(v) for v in upper]}}}
+        return {"walls": {"enabled": True, "box": {"min": [float(v) for v in lower], "max": [float(v) for v in upper]}}}
 
     # ---- teach mode [D] -------------------------------------------------------------------------------------------
     def teach_missing(self) -> str | None:
