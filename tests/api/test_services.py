@@ -36,7 +36,19 @@ def test_status_reply_has_modes_joints_controllers_hardware_and_loop(client: Hil
         "fwd": "inactive",
         "fwd_a": "inactive",
     }
-    assert set(status["controllers"][0]) == {"name", "type", "state", "claimed", "error", "state_interfaces"}
+    assert set(status["controllers"][0]) == {
+        "name",
+        "type",
+        "state",
+        "claimed",
+        "error",
+        "state_interfaces",
+        "chain_to",
+        "is_chainable",
+        "is_chained",
+        "reference_interfaces",
+        "chain_connections",
+    }
     assert status["hardware"] == [{"name": "bus", "driver": "mock", "state": "active", "fault": None}]
     assert {"update_rate", "clock", "cycles", "overruns", "duration_us", "period_error_us"} <= set(status["loop"])
 
@@ -52,6 +64,11 @@ def test_list_services(client: HildClient) -> None:
         "claimed": ["a/position", "b/position", "c/position"],
         "error": "",
         "state_interfaces": [],  # forward_command reads nothing
+        "chain_to": None,  # not chained: it commands the hardware
+        "is_chainable": False,
+        "is_chained": False,
+        "reference_interfaces": [],
+        "chain_connections": [],
     }
     jsb = next(c for c in controllers if c["name"] == "jsb")
     assert jsb["state_interfaces"] == [f"{j}/{f}" for j in "abc" for f in ("position", "velocity", "effort")]
