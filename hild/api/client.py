@@ -221,12 +221,20 @@ class HildClient:
         return list(self.call("list_controller_types")["types"])
 
     def load_controller(
-        self, name: str, type: str, params: dict[str, Any] | None = None, fallback_controllers: Iterable[str] = ()
+        self,
+        name: str,
+        type: str,
+        params: dict[str, Any] | None = None,
+        fallback_controllers: Iterable[str] = (),
+        chain_to: str | None = None,
     ) -> dict[str, Any]:
-        """Load a controller (unconfigured) from params checked as the config's are; configure, then switch it."""
+        """Load a controller (unconfigured) from params checked as the config's are; configure, then switch it.
+        ``chain_to``: the chainable controller whose reference interfaces it claims (docs/controllers.md)."""
         request: dict[str, Any] = {"name": name, "type": type, "params": params or {}, "by": self.sender}
         if fallback_controllers:
             request["fallback_controllers"] = list(fallback_controllers)
+        if chain_to:
+            request["chain_to"] = chain_to
         return self.call("load_controller", request)
 
     def teach(

@@ -91,6 +91,11 @@ def add_ctl_parser(subparsers: Any) -> None:
     load.add_argument("--params", metavar="FILE", help="YAML/JSON mapping of its params (as under params: in a config)")
     load.add_argument("--fallback", nargs="+", default=[], metavar="NAME", help="fallback_controllers")
     load.add_argument(
+        "--chain-to",
+        metavar="NAME",
+        help="chain_to: claim that (chainable) controller's reference interfaces instead of the hardware's",
+    )
+    load.add_argument(
         "--state",
         choices=STATES,
         default="inactive",
@@ -463,6 +468,7 @@ def _load(client: HildClient, args: argparse.Namespace, as_json: bool) -> int:
                 "type": args.type,
                 "params": params,
                 "fallback_controllers": args.fallback,
+                **({"chain_to": args.chain_to} if args.chain_to else {}),
                 "by": client.sender,
             },
             "loaded",

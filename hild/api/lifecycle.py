@@ -30,7 +30,13 @@ class ControllerLifecycle:
         self.on_cycle = on_cycle
 
     def services(self) -> dict[str, Service]:
-        load_fields = {"name": controller_name, "type": text, "params": mapping, "fallback_controllers": names}
+        load_fields = {
+            "name": controller_name,
+            "type": text,
+            "params": mapping,
+            "fallback_controllers": names,
+            "chain_to": controller_name,
+        }
         return {
             "list_controller_types": Service({}, read=self._list_controller_types),
             "load_controller": Service({**load_fields, "by": sender}, self._load),

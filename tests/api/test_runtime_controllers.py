@@ -245,3 +245,28 @@ def test_hild_ctl_load_refuses_a_params_file_that_is_not_a_mapping(
     assert "expected a mapping of params, found list" in capsys.readouterr().err
     assert ctl(daemon, "load", "x", "--type", "forward_command", "--params", str(tmp_path / "none.yaml")) == 1
     assert "none.yaml" in capsys.readouterr().err
+
+
+def test_hild_ctl_load_chains_a_controller_to_one_loaded_at_runtime(
+    daemon: Daemon, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    impedance = tmp_path / "imp.yaml"
+    impedance.write_text(
+        "joints: [a, b]\nstiffness: [50, 50]\ndamping: [1, 1]\nmax_stiffness: [100, 100]\n"
+        "max_damping: [5, 5]\ngravity_compensation: false\n"
+    )
+    fwd = tmp_path / "fwd.yaml"
+    fwd.write_text("joints: [a, b]\ninterface: position\n")
+    assert ctl(daemon, "load", "imp", "--type", "joint_impedance", "--params", str(impedance)) == EXIT_OK
+    assert (
+        ctl(daemon, "load", "fwd_chained", "--type", "forward_command", "--params", str(fwd), "--chain-to", "imp") == 0
+    )
+    assert ctl(daemon, "switch", "--activate", "fwd_chained") == EXIT_SERVICE  # imp is not active: refused
+    assert "chains to imp, which would not be active after the switch" in capsys.readouterr().err
+    assert ctl(daemon, "switch", "--activate", "fwd_chained", "imp") == EXIT_OK  # one switch, the chain whole
+    capsys.readouterr()
+    assert ctl(daemon, "--json", "controllers") == EXIT_OK
+    listing = {c["name"]: c for c in json.loads(capsys.readouterr().out)["controllers"]}
+    assert listing["fwd_chained"]["chain_to"] == "imp" and listing["fwd_chained"]["state"] == "active"
+    assert listing["fwd_chained"]["claimed"] == ["imp/a/position", "imp/b/position"]
+    assert listing["imp"]["is_chained"] is True and listing["imp"]["state"] == "active"
