@@ -450,7 +450,7 @@ class TeachController(Controller):
                     learning[k] += dt
                     hold += limit * (g if g >= 0.0 else -g) * math.exp(-learning[k] / learn_time)
                     rate = dt / learn_time if adapt_time > 0.0 else 0.0
-                if walled or ph == _RELEASING:  # in a wall zone the wall decides; releasing, the brake then hold
+                if walled:  # in a wall zone the wall, not the anchor, decides
                     still[k] = 0.0
                     grip[k] = max(0.0, grip[k] - ramp)
                 elif learn:
