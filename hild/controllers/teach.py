@@ -3,26 +3,20 @@ identified friction, so a hand moves the arm and it stays where it is left (docs
 
 Holding where left, although the model is never exact (docs/safety.md, "Teach mode"): a **virtual stiction** and a
 **gravity-error adaptation**. A joint still (below ``anchor_speed``) for ``anchor_time`` is anchored: a spring
-(``anchor_stiffness_scale`` × its position kp) toward the anchor whose torque is capped at the breakaway torque
-τ_s = ``breakaway_force`` × the tool's lever about the joint at this pose (the norm of its column of the tool
-Jacobian; never below ``breakaway_floor`` × its effort limit), less the joint's identified Coulomb friction (the
-joint's own stiction, which teach leaves in place at rest, is part of the breakaway). A hand pushing harder drags the anchor along (it
-follows so |spring| ≤ τ_s), and once the joint moves the anchor's grip fades out over ``ANCHOR_RAMP``: above
-breakaway the arm moves freely, below it the arm stays. While anchored, the torque the spring holds is moved, at
-the rate 1/``gravity_adaptation_time``, into a per-joint scale of the model's gravity torque (bounded by
-``gravity_adaptation_limit``), the anchor shifting with it so the command does not change: the spring is freed
-again for the hand, and the learned scale follows the pose as the arm is guided. For the first ``LEARN_SPAN``
-learning times a joint is anchored after entering teach, the rate is 1/``gravity_learning_time`` and the grip
-exceeds τ_s by the error not yet learned (``gravity_adaptation_limit`` × |gravity|, fading at the same rate), so
-the arm neither sags nor slips while the model's error is learned. Entering teach, the spring starts with the
-torque the previous command held beyond teach's own feed-forward (no step), and it grows and fades continuously:
-no step in the command when anchoring or breaking away.
-
-What stays enforced (docs/safety.md, "Teach mode"): above ``speed_limit`` the damping rises so a thrown arm brakes;
-within ``wall_zone`` of a soft position limit a virtual spring pushes back (with the brake's damping); the
-supervisor's own limits, faults and e-stop apply as to any controller. Releasing a joint (``teach off``) brakes it to
-a stop, within ``release_time``, before it is handed to hold: the supervisor latches the position at the cycle this
-controller stops writing the joint, so a joint still moving then would be pulled back by the hold spring.
+(``anchor_stiffness_scale`` × its position kp) toward the anchor, its torque capped at the breakaway torque τ_s =
+``breakaway_force`` × the tool's lever about the joint at this pose (the norm of its column of the tool Jacobian;
+never below ``breakaway_floor`` × its effort limit), less the joint's identified Coulomb friction (its own stiction,
+which teach leaves in place at rest, is part of the breakaway). A hand pushing harder drags the anchor along (it
+follows so |spring| ≤ τ_s), and once the joint moves faster than ``anchor_speed`` the grip fades out over
+``ANCHOR_RAMP``: above breakaway the arm moves, below it the arm stays. While anchored, the torque the spring holds
+is moved, at the rate 1/``gravity_adaptation_time``, into a per-joint scale of the model's gravity torque (bounded
+by ``gravity_adaptation_limit``), the anchor shifting with it so the command does not change: the spring is free
+again for the hand, and the learned scale follows the pose as the arm is guided. For ``LEARN_SPAN`` learning times
+after a joint enters teach, it is held (anchored whatever its speed), the rate is 1/``gravity_learning_time`` and
+the grip exceeds τ_s by the error not yet learned (``gravity_adaptation_limit`` × |gravity|, fading at that rate):
+the arm neither sags nor slips while the model's error is learned — and a hand on the arm then is learned too.
+Entering teach, the spring starts with the torque the previous command held beyond teach's own feed-forward, and it
+grows, fades and is dragged continuously: no step in the command when anchoring or breaking away.
 
 Friction: the config's ``joints.<j>.friction`` (``hild.dynamics.friction``) is compensated with its offset in full
 but only ``friction_compensation`` of its viscous and Coulomb terms, and the Coulomb term through a tanh at least
