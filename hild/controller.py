@@ -22,6 +22,7 @@ import enum
 import itertools
 from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
@@ -129,6 +130,12 @@ class ControllerContext:
     external_torque: np.ndarray | None = None
     # The robot's identified joint friction (joints.<j>.friction), in the robot's order: what teach mode compensates.
     friction: FrictionArrays | None = None
+    # The supervisor's gravity feed-forward per robot joint (robot.model), live on the cycle: the torque it computed
+    # in the last cycle at the accepted pose. None without a gravity model, and in the client domain.
+    gravity_torque: np.ndarray | None = None
+    # The robot's model file (robot.model, resolved), for a controller that needs the arm's kinematics on the cycle
+    # (teach: the tool's lever about each joint). None without one, and in the client domain.
+    model_path: Path | None = None
 
     def index_of(self, names: Sequence[str]) -> np.ndarray:
         lookup = {j: i for i, j in enumerate(self.joints)}

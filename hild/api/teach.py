@@ -95,7 +95,10 @@ class TeachService:
             if c["state"] == "active" and c["name"] != TEACH and any(i.startswith(tuple(mine)) for i in c["claimed"])
         )
         await self._switch((TEACH,), conflicting)
-        return {"teach": joints, "deactivated": list(conflicting), "loaded": True, "released": released}
+        # Once the cycle shows them in teach: a request right after this reply (teach off for one of them) reads the
+        # snapshot, and one from before the switch would show none of them in teach.
+        taught = await self._taught(joints)
+        return {"teach": taught, "deactivated": list(conflicting), "loaded": True, "released": released}
 
     async def _load(self, joints: list[str], *, replaces: bool, by: str | None) -> None:
         section = self.engine.loaded.config.controllers.get(TEACH)

@@ -1,11 +1,22 @@
 """teach: hand-guiding. The joints go limp (kp = 0) with light damping, carried by the model's gravity and the
 identified friction, so a hand moves the arm and it stays where it is left (docs/controllers.md, "teach").
 
-What stays enforced (docs/safety.md, "Teach mode"): above ``speed_limit`` the damping rises so a thrown arm brakes;
-within ``wall_zone`` of a soft position limit a virtual spring pushes back (with the brake's damping); the
-supervisor's own limits, faults and e-stop apply as to any controller. Releasing a joint (``teach off``) brakes it to
-a stop, within ``release_time``, before it is handed to hold: the supervisor latches the position at the cycle this
-controller stops writing the joint, so a joint still moving then would be pulled back by the hold spring.
+Holding where left, although the model is never exact (docs/safety.md, "Teach mode"): a **virtual stiction** and a
+**gravity-error adaptation**. A joint still (below ``anchor_speed``) for ``anchor_time`` is anchored: a spring
+(``anchor_stiffness_scale`` × its position kp) toward the anchor, its torque capped at the breakaway torque τ_s =
+``breakaway_force`` × the tool's lever about the joint at this pose (the norm of its column of the tool Jacobian;
+never below ``breakaway_floor`` × its effort limit), less the joint's identified Coulomb friction (its own stiction,
+which teach leaves in place at rest, is part of the breakaway). A hand pushing harder drags the anchor along (it
+follows so |spring| ≤ τ_s), and once the joint moves faster than ``anchor_speed`` the grip fades out over
+``ANCHOR_RAMP``: above breakaway the arm moves, below it the arm stays. While anchored, the torque the spring holds
+is moved, at the rate 1/``gravity_adaptation_time``, into a per-joint scale of the model's gravity torque (bounded
+by ``gravity_adaptation_limit``), the anchor shifting with it so the command does not change: the spring is free
+again for the hand, and the learned scale follows the pose as the arm is guided. For ``LEARN_SPAN`` learning times
+after a joint enters teach, it is held (anchored whatever its speed), the rate is 1/``gravity_learning_time`` and
+the grip exceeds τ_s by the error not yet learned (``gravity_adaptation_limit`` × |gravity|, fading at that rate):
+the arm neither sags nor slips while the model's error is learned — and a hand on the arm then is learned too.
+Entering teach, the spring starts with the torque the previous command held beyond teach's own feed-forward, and it
+grows, fades and is dragged continuously: no step in the command when anchoring or breaking away.
 
 Friction: the config's ``joints.<j>.friction`` (``hild.dynamics.friction``) is compensated with its offset in full
 but only ``friction_compensation`` of its viscous and Coulomb terms, and the Coulomb term through a tanh at least
@@ -37,6 +48,9 @@ from hild.interfaces import FIELDS, interface_name
 
 BRAKE_RAMP = 0.25  # of speed_limit: the damping reaches brake damping at (1 + BRAKE_RAMP) x speed_limit
 SETTLED_TIME = 0.02  # s a releasing joint must stay below release_speed before it is handed to hold
+ANCHOR_RAMP = 0.1  # s for the anchor's grip to grow from none to full (still) or fade back (moving): no step
+LEARN_SPAN = 5.0  # gravity_learning_time's: how long after entering teach the fast learning and extra grip last
+GRAVITY_FLOOR = 0.01  # of the effort limit: below this gravity torque the scale is learned more slowly
 
 
 class TeachParams(Params):
@@ -107,6 +121,63 @@ class TeachParams(Params):
     start_released: bool = Field(
         default=False, description="Activate with every joint held (released); the teach input turns joints on."
     )
+    breakaway_force: float = dynamic(
+        default=1.0,
+        ge=0.0,
+        le=50.0,
+        description="N at the tool: a still joint is held up to this force's torque about it at the pose (the tool's "
+        "lever, from the model's Jacobian); a harder push breaks it away. 0: no anchor (limp, as without stiction).",
+    )
+    breakaway_floor: float = dynamic(
+        default=0.002,
+        ge=0.0,
+        le=0.1,
+        description="The breakaway torque's floor as a fraction of the joint's effort limit: what holds a joint the "
+        "tool has no lever about (and every joint when the robot has no model).",
+    )
+    anchor_speed: float = dynamic(
+        default=0.1,
+        gt=0.0,
+        le=1.0,
+        description="rad/s (m/s): below this a joint counts as still and is anchored after anchor_time; above it the "
+        "anchor fades. Well above the drives' velocity resolution (a DM8009 through 2:1: ~0.01 rad/s) and above the "
+        "speed a residual error of τ_s slides a joint at (τ_s / damping), so such a slide is caught and learned.",
+    )
+    anchor_time: float = dynamic(
+        default=0.05, gt=0.0, le=2.0, description="s a joint must stay still before it is anchored."
+    )
+    anchor_stiffness_scale: float = dynamic(
+        default=1.0,
+        gt=0.0,
+        le=5.0,
+        description="The anchor spring as a fraction of the joint's position kp: how little the arm gives before it "
+        "breaks away (breakaway torque / stiffness).",
+    )
+    gravity_adaptation_time: float = dynamic(
+        default=2.0,
+        ge=0.0,
+        le=60.0,
+        description="s: the time constant at which the torque an anchored joint holds becomes a learned scale of "
+        "the model's gravity (slow, so a hand's push is not learned away); 0: no adaptation.",
+    )
+    gravity_learning_time: float = dynamic(
+        default=0.1,
+        gt=0.0,
+        le=5.0,
+        description="s: the same, right after a joint enters teach (for LEARN_SPAN of these while anchored), with "
+        "the grip raised by the error not yet learned: the model's error is learned before the arm is let go.",
+    )
+    gravity_adaptation_limit: float = dynamic(
+        default=0.2,
+        ge=0.0,
+        le=1.0,
+        description="The learned gravity scale's bound (0.2: the model's gravity torque may be 20 % off either way).",
+    )
+    tool_site: str | None = Field(
+        default=None,
+        description="The model's site the breakaway force is applied at; default: a site named tool, flange, tool0 "
+        "or tcp, else the last joint's body.",
+    )
 
     @model_validator(mode="after")
     def _consistent(self) -> TeachParams:
@@ -146,11 +217,33 @@ class TeachController(Controller):
         self._phase = [int(Phase.TEACH)] * n
         self._released_at = [0.0] * n  # cycle time a release began
         self._settled = [0.0] * n  # s below release_speed while releasing
-        self._rows: list[tuple[int, float, float, float, float, float, float]] = []  # _derive
+        self._anchor = [0.0] * n  # where the virtual stiction holds the joint
+        self._grip = [0.0] * n  # 0–1: how much of the breakaway torque the anchor holds (ramps, never steps)
+        self._still = [0.0] * n  # s below anchor_speed
+        self._learning = [0.0] * n  # s anchored since entering teach (fast learning while < LEARN_SPAN × its time)
+        self.gravity_scale = [0.0] * n  # learned: the model's gravity torque is off by this share (kept across uses)
+        self._rows: list[tuple[int, float, float, float, float, float, float, float, float, float]] = []  # _derive
         self._friction_torque = np.zeros(n)
         self._q = np.zeros(n)
         self._v = np.zeros(n)
+        self._g = np.zeros(n)
+        self._tool = self._tool_point(context, params)
+        self._jacobian = np.zeros((3, len(context.joints)))
+        self._squares = np.zeros((3, len(context.joints)))
+        self._lever_all = np.zeros(len(context.joints))
+        self.lever = np.zeros(n)  # m: the tool's lever about each joint at the last pose (0 without a model)
+        self.breakaway = np.zeros(n)  # N·m: τ_s at the last pose
         self._derive()
+
+    @staticmethod
+    def _tool_point(context: ControllerContext, params: TeachParams) -> Any:
+        """The tool point's Jacobian on the cycle (hild.dynamics.tool), when the robot has a model: None in the
+        client domain, where no model path is given and only the API half runs."""
+        if context.model_path is None:
+            return None
+        from hild.dynamics.tool import ToolPoint  # mujoco stays behind this seam
+
+        return ToolPoint(context.model_path, context.joints, site=params.tool_site)
 
     @classmethod
     def claims_for(cls, params: Params) -> list[str]:
@@ -188,6 +281,10 @@ class TeachController(Controller):
             ident.viscous * share, ident.coulomb * share, ident.offset.copy(), np.maximum(ident.band, p.stiction_band)
         )
         self._via_effort = p.damping_via == "effort"
+        effort = lim.effort[idx]
+        self.anchor_stiffness = p.anchor_stiffness_scale * kp
+        self.breakaway_floor = p.breakaway_floor * effort
+        self._gravity_floor_sq = (GRAVITY_FLOOR * effort) ** 2
         self._rows = list(  # one swap between cycles: update reads either the old rows or the new
             zip(
                 self._index.tolist(),
@@ -197,6 +294,9 @@ class TeachController(Controller):
                 self.wall_lower.tolist(),
                 self.wall_upper.tolist(),
                 self.wall_stiffness.tolist(),
+                self.anchor_stiffness.tolist(),
+                self.breakaway_floor.tolist(),
+                self._gravity_floor_sq.tolist(),
                 strict=True,
             )
         )
@@ -237,26 +337,79 @@ class TeachController(Controller):
         start = Phase.RELEASED if self.params.start_released else Phase.TEACH  # type: ignore[attr-defined]
         self._phase[:] = [int(start)] * len(self._phase)
         self._settled[:] = [0.0] * len(self._settled)
+        self._grip[:] = [0.0] * len(self._grip)
+        if start != Phase.TEACH:
+            return
+        self._measure(state)
+        applies = self.context.applies_gains
+        offset = self.friction.offset
+        for k, i in enumerate(self._index.tolist()):
+            # What the previous command held beyond teach's own feed-forward (gravity, the friction offset, the
+            # learned scale): the anchor spring starts with it, so activating steps nothing and the arm neither sags
+            # nor jumps while the rest of the model's error is learned.
+            held = float(last_command.effort[i])
+            if applies is None or applies[i]:
+                held += float(last_command.kp[i]) * (float(last_command.position[i]) - float(self._q[k]))
+            g = float(self._g[k])
+            self._enter(k, held - g * (1.0 + self.gravity_scale[k]) - float(offset[k]))
+
+    def _measure(self, state: JointState) -> None:
+        """Positions, speeds, the model's gravity and the breakaway torques at this pose (into the arrays)."""
+        np.take(state.position, self._index, out=self._q)
+        np.take(state.velocity, self._index, out=self._v)
+        gravity = self.context.gravity_torque
+        if gravity is not None:
+            np.take(gravity, self._index, out=self._g)
+        tool, pos = self._tool, state.position
+        if tool is not None and math.isfinite(float(np.add.reduce(pos))):  # a joint never read: keep the last levers
+            tool.position(pos)
+            tool.jacobian(self._jacobian)
+            np.multiply(self._jacobian, self._jacobian, out=self._squares)
+            np.add.reduce(self._squares, axis=0, out=self._lever_all)
+            np.sqrt(self._lever_all, out=self._lever_all)
+            np.take(self._lever_all, self._index, out=self.lever)
+        np.multiply(self.lever, self.params.breakaway_force, out=self.breakaway)  # type: ignore[attr-defined]
+        np.maximum(self.breakaway, self.breakaway_floor, out=self.breakaway)
+        np.subtract(self.breakaway, self._identified.coulomb, out=self.breakaway)  # the joint's own stiction counts
+        np.maximum(self.breakaway, 0.0, out=self.breakaway)
+
+    def _enter(self, k: int, held: float = 0.0) -> None:
+        """Joint ``k`` enters teach: anchored at once (held while it learns), its spring preloaded with ``held``
+        (N·m, within the grip); the anchor is dragged along continuously should the joint be moving."""
+        p: TeachParams = self.params  # type: ignore[assignment]
+        q = float(self._q[k])
+        self._grip[k] = 1.0 if p.breakaway_force > 0.0 else 0.0
+        self._still[k] = p.anchor_time
+        self._learning[k] = 0.0
+        stiffness = float(self.anchor_stiffness[k])
+        bound = self._grip[k] * (float(self.breakaway[k]) + p.gravity_adaptation_limit * abs(float(self._g[k])))
+        spring = min(max(held, -bound), bound) if math.isfinite(held) else 0.0
+        self._anchor[k] = q + spring / stiffness if stiffness > 0.0 else q
 
     def update(self, t: float, dt: float, state: JointState, command: ServoCommand) -> None:
         phase, settled = self._phase, self._settled
+        self._measure(state)
         asked = self._slot.take()
         if asked is not None:
             for k, on in enumerate(asked.tolist()):
                 if on != on:  # NaN: as it is
                     continue
                 if on and phase[k] != _TEACH:
+                    if phase[k] == _RELEASED:
+                        self._enter(k)
                     phase[k] = _TEACH
                 elif not on and phase[k] == _TEACH:
                     phase[k] = _RELEASING
                     self._released_at[k] = t
                     settled[k] = 0.0
-        np.take(state.position, self._index, out=self._q)
-        np.take(state.velocity, self._index, out=self._v)
         tau_all = self.friction.torque(self._v, self._friction_torque).tolist()
-        q_all, v_all = self._q.tolist(), self._v.tolist()
+        q_all, v_all, g_all, hold_all = self._q.tolist(), self._v.tolist(), self._g.tolist(), self.breakaway.tolist()
+        anchor, grip, still, learning, scale = self._anchor, self._grip, self._still, self._learning, self.gravity_scale
         p: TeachParams = self.params  # type: ignore[assignment]
         release_speed, release_time, via_effort = p.release_speed, p.release_time, self._via_effort
+        anchoring, anchor_speed, anchor_time = p.breakaway_force > 0.0, p.anchor_speed, p.anchor_time
+        adapt_time, learn_time, limit = p.gravity_adaptation_time, p.gravity_learning_time, p.gravity_adaptation_limit
+        learn_span, ramp = LEARN_SPAN * learn_time, dt / ANCHOR_RAMP
         o_pos, o_vel, o_eff, o_kp, o_kd, written = (
             command.position,
             command.velocity,
@@ -265,7 +418,8 @@ class TeachController(Controller):
             command.kd,
             command.written,
         )
-        for k, (i, damping, brake, speed_limit, wall_lower, wall_upper, wall_k) in enumerate(self._rows):
+        for k, row in enumerate(self._rows):
+            i, damping, brake, speed_limit, wall_lower, wall_upper, wall_k, stiffness, _, g_floor_sq = row
             ph = phase[k]
             if ph == _RELEASED:
                 continue
@@ -276,12 +430,51 @@ class TeachController(Controller):
                 rise = min(1.0, (speed / speed_limit - 1.0) / BRAKE_RAMP)
                 kd += (brake - kd) * rise
             effort = tau_all[k]
+            walled = False
             if q < wall_lower:
                 effort += wall_k * (wall_lower - q)
-                kd = brake
+                kd, walled = brake, True
             elif q > wall_upper:
                 effort -= wall_k * (q - wall_upper)
-                kd = brake
+                kd, walled = brake, True
+            if anchoring:  # the virtual stiction and the gravity-error adaptation (module docstring)
+                g, hold, rate = g_all[k], hold_all[k], dt / adapt_time if adapt_time > 0.0 else 0.0
+                learn = learning[k] < learn_span
+                if learn:  # just entered: held while it learns fast, beyond τ_s by what is not learned yet
+                    learning[k] += dt
+                    hold += limit * (g if g >= 0.0 else -g) * math.exp(-learning[k] / learn_time)
+                    rate = dt / learn_time if adapt_time > 0.0 else 0.0
+                if walled:  # in a wall zone the wall, not the anchor, decides
+                    still[k] = 0.0
+                    grip[k] = max(0.0, grip[k] - ramp)
+                elif learn:
+                    still[k] = anchor_time
+                    grip[k] = min(1.0, grip[k] + ramp)
+                elif speed <= anchor_speed:
+                    still[k] += dt
+                    if still[k] >= anchor_time:
+                        grip[k] = min(1.0, grip[k] + ramp)
+                else:
+                    still[k] = 0.0
+                    grip[k] = max(0.0, grip[k] - ramp)
+                w = grip[k]
+                a = anchor[k]
+                reach = w * hold / stiffness if stiffness > 0.0 else 0.0
+                if a - q > reach:  # pushed past breakaway: the anchor is dragged along
+                    a = q + reach
+                elif q - a > reach:
+                    a = q - reach
+                spring = stiffness * (a - q)
+                if rate > 0.0 and w > 0.0 and stiffness > 0.0:  # the held torque moves into the gravity scale
+                    old = scale[k]
+                    new = old + rate * w * spring * g / (g * g + g_floor_sq)
+                    new = limit if new > limit else -limit if new < -limit else new
+                    scale[k] = new
+                    moved = (new - old) * g
+                    a -= moved / stiffness  # the spring lets go of what the scale now carries: the sum is unchanged
+                    spring -= moved
+                anchor[k] = a
+                effort += scale[k] * g + spring
             if ph == _RELEASING:
                 kd = brake
                 settled[k] = settled[k] + dt if speed < release_speed else 0.0

@@ -166,6 +166,7 @@ class Engine:
         self.limits = JointLimitArrays.of(cfg)
         self._position_gains = JointGainArrays.of(cfg)
         self.mimic_joints = MimicJoints.of(cfg)
+        self._model_path = loaded.directory / cfg.robot.model if cfg.robot.model else None  # controllers' kinematics
         self.friction = FrictionArrays.of(cfg)  # joints.<j>.friction: controllers compensate it (teach)
         self.state = JointState.zeros(n)  # joint space, what controllers see
         self.command = ServoCommand.zeros(n)  # controllers' output
@@ -417,6 +418,10 @@ class Engine:
             applies_gains=self.applies_gains,
             external_torque=self.contact.tau_ext if self.contact is not None else None,
             friction=self.friction,
+            gravity_torque=self.supervisor.gravity_torque if self.supervisor.gravity is not None else None,
+            model_path=self.loaded.directory / self.loaded.config.robot.model
+            if self.loaded.config.robot.model
+            else None,
         )
 
     def controllers(self) -> dict[str, Any]:

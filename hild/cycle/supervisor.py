@@ -188,6 +188,7 @@ class Supervisor:
         self._follow = [0] * n  # cycles left during which hold follows the measured position (after set-zero)
         self._prev_position = np.zeros(n)
         self._g = np.zeros(n)
+        self.gravity_torque = self._g  # read-only view for controllers: the last cycle's gravity feed-forward
         self._pose = np.zeros(n)  # where gravity is computed: the accepted positions (0 where none is known)
         self._descent = (0.0, 0.0)  # (s left, s total) of a stop descent; (0, 0) when none runs
         self._reflex_kp = [0.0] * n  # the collision reflex's hold kp (collide)

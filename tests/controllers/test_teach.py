@@ -15,7 +15,7 @@ import yaml
 from drivers.mujoco.twin import MujocoTwin
 from hild.bench.hand import ScriptedHand, run_with_hand
 from hild.config import load_config
-from hild.controllers.teach import TeachController, TeachParams
+from hild.controllers.teach import LEARN_SPAN, TeachController, TeachParams
 from hild.cycle.engine import Engine
 from hild.modes import JointMode
 from tests.conftest import CONFIGS
@@ -30,6 +30,7 @@ POSES = [  # a sampled workspace: home, reaching out, folded back, twisted
     [1.4, 0.5, -0.7, -1.6, 0.9, 1.1],
 ]
 HAND = 5.0  # N at the tool: the target's bound
+LEARNED = LEARN_SPAN * TeachParams.model_fields["gravity_learning_time"].default  # s after teach starts
 RATE = 500
 TWIN_FRICTION = {"big": 1.0, "wrist": 0.2}  # N·m of Coulomb friction in the twin (MuJoCo frictionloss)
 TWIN_DAMPING = {"big": 0.3, "wrist": 0.05}  # N·m·s/rad, arm6.xml's own
@@ -74,6 +75,7 @@ def teaching(tmp_path: Path, pose: list[float] | None = None, **kwargs: Any) -> 
     engine = engine_of(tmp_path, arm6_config(pose, **kwargs))
     engine.run_cycles(50)
     assert engine.switch(["teach"], []).ok
+    engine.run_cycles(round(LEARNED * RATE))  # teach learns the model's error first: a hand then would be learned too
     return engine, ScriptedHand(component(engine, MujocoTwin))
 
 
