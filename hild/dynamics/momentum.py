@@ -16,7 +16,18 @@ ends (trapezoid); ``τ`` is what the caller says acted over the interval. ``p̂`
 interval's start, so the error obeys ``e_k = (1 − K·dt)·e_{k−1} + τ_ext·dt``: exact for a constant ``τ_ext``,
 second-order in ``dt`` for the model terms, and stable without ringing for ``K·dt < 1`` (checked at construction).
 
-Runs on the cycle thread: every array is allocated here, and ``update`` allocates nothing.
+How it runs it cheaply (it is on the cycle: docs/performance.md, "Contact safety"). With ``e = p − p̂`` the same
+recursion reads, exactly,
+
+    e_k = (1 − K·dt)·e_{k−1} + ½(M_k + M_{k−1})·(q̇_k − q̇_{k−1}) − (τ − ½(known_k + known_{k−1}))·dt,   r = K·e
+
+(``known = qfrc_bias − qfrc_passive``), so no dense mass matrix is formed: two ``MjData`` take turns holding the
+reading, and ``mj_mulM`` multiplies the velocity step by the new reading's ``M`` and by the previous one's, which its
+``MjData`` still holds. When the model's passive force is its joint damping alone (checked at construction),
+``−D·q̇`` is added here instead of calling ``mj_passive``. The 6–14 per-joint sums are plain Python floats: a numpy
+call on a 6-element array costs about a microsecond, more than the arithmetic (the supervisor does the same).
+
+Runs on the cycle thread: every array is allocated here, and ``update`` allocates no array.
 """
 
 from __future__ import annotations
@@ -29,6 +40,41 @@ import numpy as np
 
 from hild.arrays import contiguous_slice
 from hild.dynamics.model import load_model, scalar_joint_addresses
+
+CHECK_STATES = 3  # random readings the damping-only passive force is checked at
+
+
+class _Reading:
+    """One ``MjData`` holding a reading: its kinematics, mass matrix (``qM``) and ``qfrc_bias`` at (q, q̇)."""
+
+    def __init__(self, model: mujoco.MjModel, qposadr: np.ndarray, dofadr: np.ndarray) -> None:
+        self.model = model
+        self.data = d = mujoco.MjData(model)
+        d.qpos[:] = model.qpos0
+        d.qvel[:] = 0.0
+        self.qpos, self.qvel, self.passive = d.qpos, d.qvel, d.qfrc_passive  # cached: MjData builds views per access
+        self.qposadr, self.dofadr = qposadr, dofadr
+        qb, db = contiguous_slice(qposadr), contiguous_slice(dofadr)
+        self.qpos_view = self.qpos[qb] if qb is not None else None
+        self.qvel_view = self.qvel[db] if db is not None else None
+        self.bias = np.zeros(model.nv)
+        self.mass_step = np.zeros(model.nv)  # M of this reading × the velocity step
+
+    def evaluate(self, q: np.ndarray, qd: np.ndarray, passive: bool) -> None:
+        m, d = self.model, self.data
+        if self.qpos_view is not None and self.qvel_view is not None:
+            np.copyto(self.qpos_view, q)
+            np.copyto(self.qvel_view, qd)
+        else:
+            np.put(self.qpos, self.qposadr, q)
+            np.put(self.qvel, self.dofadr, qd)
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_comPos(m, d)
+        mujoco.mj_makeM(m, d)  # composite rigid bodies plus armature, into qM
+        mujoco.mj_comVel(m, d)
+        if passive:
+            mujoco.mj_passive(m, d)
+        mujoco.mj_rne(m, d, 0, self.bias)  # without acceleration: C q̇ + g, i.e. qfrc_bias
 
 
 class MomentumObserver:
@@ -54,51 +100,35 @@ class MomentumObserver:
             _, qposadr, dofadr = scalar_joint_addresses(self.model, self.joint_names)
         except ValueError as exc:
             raise ValueError(f"model {model_path}: {exc}") from None
-        m, n, nv = self.model, len(self.joint_names), self.model.nv
-        self._data = d = mujoco.MjData(m)
-        d.qpos[:] = m.qpos0
-        d.qvel[:] = 0.0
-        # Cached views: attribute access on MjData builds a new ndarray each time.
-        self._qpos, self._qvel = d.qpos, d.qvel
-        self._bias_all, self._passive_all = d.qfrc_bias, d.qfrc_passive
-        self._qposadr, self._dofadr = qposadr, dofadr
-        qb, db = contiguous_slice(qposadr), contiguous_slice(dofadr)
-        self._qpos_view = self._qpos[qb] if qb is not None else None
-        self._qvel_view = self._qvel[db] if db is not None else None
-        self._full = np.zeros((nv, nv))
-        self._flat = (dofadr[:, None] * nv + dofadr[None, :]).ravel()  # the joints' block of the full matrix
-        self._rne = np.zeros(nv)
-        if hasattr(d, "qM"):  # MuJoCo 3: mj_fullM(m, dst, qM)
-            qm, full = d.qM, self._full
-            self._dense_mass = lambda: mujoco.mj_fullM(m, full, qm)
-        else:  # MuJoCo 4: mj_fullM(m, d, dst)
-            self._dense_mass = lambda: mujoco.mj_fullM(m, d, self._full)
+        m, n = self.model, len(self.joint_names)
+        self._dofs = [int(a) for a in dofadr]
+        self._damping = [float(m.dof_damping[a]) for a in self._dofs]
+        self._damping_only = _passive_is_damping(m, qposadr, dofadr)  # else mj_passive every reading
+        self._now = _Reading(m, qposadr, dofadr)  # this reading
+        self._prev = _Reading(m, qposadr, dofadr)  # the previous one: the interval's start
+        self._step = np.zeros(m.nv)  # q̇_k − q̇_{k−1} over every dof (0 where not a joint of ours)
 
         self.residual = np.zeros(n)
-        self.momentum = np.zeros(n)  # p = M(q)·q̇ at the last update
-        self._estimate = np.zeros(n)  # p̂
-        self._mass = np.zeros((n, n))
-        self._mass_flat = self._mass.reshape(-1)  # a view, prebuilt: reshape makes a new one each call
-        self._mass_prev = np.zeros((n, n))
-        self._mass_prev_flat = self._mass_prev.reshape(-1)
-        self._mass_step = np.zeros((n, n))
-        self._known = np.zeros(n)  # qfrc_bias − qfrc_passive at this reading
-        self._known_prev = np.zeros(n)
-        self._qd_prev = np.zeros(n)
-        self._qd_mid = np.zeros(n)
-        self._tmp = np.zeros(n)
-        self._tmp2 = np.zeros(n)
+        self._error = [0.0] * n  # e = p − p̂
+        self._known_prev = [0.0] * n  # qfrc_bias − qfrc_passive at the interval's start
 
     def __len__(self) -> int:
         return len(self.joint_names)
 
+    @property
+    def momentum(self) -> np.ndarray:
+        """``p = M(q)·q̇`` at the last reading (a new array: for inspection, not for the cycle)."""
+        now = self._now
+        full = np.zeros(self.model.nv)
+        mujoco.mj_mulM(self.model, now.data, full, now.qvel)
+        return full[self._dofs]
+
     def reset(self, q: np.ndarray, qd: np.ndarray) -> None:
         """Start again at this reading: ``p̂ = p``, ``r = 0``."""
-        self._evaluate(q, qd)
-        np.copyto(self._estimate, self.momentum)
-        np.copyto(self._mass_prev, self._mass)
-        np.copyto(self._known_prev, self._known)
-        np.copyto(self._qd_prev, qd)
+        now = self._now
+        now.evaluate(q, qd, not self._damping_only)
+        self._known_prev = self._known(now, qd.tolist())
+        self._error = [0.0] * len(self._error)
         self.residual.fill(0.0)
 
     def update(self, q: np.ndarray, qd: np.ndarray, tau: np.ndarray, dt: float) -> np.ndarray:
@@ -106,49 +136,44 @@ class MomentumObserver:
 
         ``tau``: the joint torque that acted over the interval, net of friction the model does not hold (the
         caller subtracts the identified friction)."""
-        self._evaluate(q, qd)
-        est, tmp, tmp2, mid = self._estimate, self._tmp, self._tmp2, self._qd_mid
-        # ∫Ṁq̇ dt ≈ (M_k − M_{k−1})·½(q̇_k + q̇_{k−1})
-        np.add(qd, self._qd_prev, out=mid)
-        mid *= 0.5
-        np.subtract(self._mass, self._mass_prev, out=self._mass_step)
-        np.dot(self._mass_step, mid, out=tmp)
-        est += tmp
-        # ∫(τ − (bias − passive) + r) dt, bias and passive by the trapezoid
-        np.add(self._known, self._known_prev, out=tmp2)
-        tmp2 *= -0.5
-        tmp2 += tau
-        tmp2 += self.residual
-        tmp2 *= dt
-        est += tmp2
-        # r = K (p − p̂)
-        np.subtract(self.momentum, est, out=self.residual)
-        self.residual *= self.gain
-        # This reading is the next interval's start.
-        self._mass_prev, self._mass = self._mass, self._mass_prev
-        self._mass_prev_flat, self._mass_flat = self._mass_flat, self._mass_prev_flat
-        self._known_prev, self._known = self._known, self._known_prev
-        np.copyto(self._qd_prev, qd)
+        self._prev, self._now = prev, now = self._now, self._prev  # the last reading is the interval's start
+        m = self.model
+        now.evaluate(q, qd, not self._damping_only)
+        np.subtract(now.qvel, prev.qvel, out=self._step)
+        mujoco.mj_mulM(m, now.data, now.mass_step, self._step)
+        mujoco.mj_mulM(m, prev.data, prev.mass_step, self._step)
+        known = self._known(now, qd.tolist())
+        a, b, known_prev = now.mass_step.tolist(), prev.mass_step.tolist(), self._known_prev
+        decay, gain = 1.0 - self.gain * dt, self.gain
+        error, residual = self._error, self.residual
+        for i, (j, t) in enumerate(zip(self._dofs, tau.tolist(), strict=True)):
+            e = decay * error[i] + 0.5 * (a[j] + b[j]) - (t - 0.5 * (known[i] + known_prev[i])) * dt
+            error[i] = e
+            residual[i] = gain * e
+        self._known_prev = known
         return self.residual
 
-    def _evaluate(self, q: np.ndarray, qd: np.ndarray) -> None:
-        """M(q) (the joints' block), p = M q̇, and qfrc_bias − qfrc_passive at (q, q̇), into the current buffers."""
-        m, d = self.model, self._data
-        if self._qpos_view is not None and self._qvel_view is not None:
-            np.copyto(self._qpos_view, q)
-            np.copyto(self._qvel_view, qd)
-        else:
-            np.put(self._qpos, self._qposadr, q)
-            np.put(self._qvel, self._dofadr, qd)
-        mujoco.mj_kinematics(m, d)
-        mujoco.mj_comPos(m, d)
-        mujoco.mj_makeM(m, d)  # composite rigid bodies plus armature, into qM
-        mujoco.mj_comVel(m, d)
-        mujoco.mj_passive(m, d)
-        mujoco.mj_rne(m, d, 0, self._rne)  # without acceleration: C q̇ + g, i.e. qfrc_bias
-        self._dense_mass()
-        np.take(self._full, self._flat, out=self._mass_flat)
-        np.dot(self._mass, qd, out=self.momentum)
-        np.take(self._rne, self._dofadr, out=self._known)
-        np.take(self._passive_all, self._dofadr, out=self._tmp)
-        self._known -= self._tmp
+    def _known(self, reading: _Reading, qd: list[float]) -> list[float]:
+        """``qfrc_bias − qfrc_passive`` per joint at ``reading`` (whose joint velocities are ``qd``)."""
+        bias = reading.bias.tolist()
+        if self._damping_only:  # qfrc_passive = −D·q̇
+            return [bias[j] + c * v for j, c, v in zip(self._dofs, self._damping, qd, strict=True)]
+        passive = reading.passive.tolist()
+        return [bias[j] - passive[j] for j in self._dofs]
+
+
+def _passive_is_damping(model: mujoco.MjModel, qposadr: np.ndarray, dofadr: np.ndarray) -> bool:
+    """Whether ``mj_passive`` gives exactly ``−dof_damping·q̇`` here (no springs, tendons, fluid or gravity
+    compensation), tried at a few random readings of the joints: then the observer need not call it."""
+    data = mujoco.MjData(model)
+    rng = np.random.default_rng(0)
+    for _ in range(CHECK_STATES):
+        data.qpos[:] = model.qpos0
+        data.qvel[:] = 0.0
+        data.qpos[qposadr] = rng.uniform(-1.0, 1.0, len(qposadr))
+        data.qvel[dofadr] = rng.uniform(-2.0, 2.0, len(dofadr))
+        mujoco.mj_forward(model, data)
+        expected = -model.dof_damping * data.qvel
+        if not np.allclose(data.qfrc_passive, expected, rtol=1e-12, atol=1e-12):
+            return False
+    return True
