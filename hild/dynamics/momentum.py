@@ -54,11 +54,15 @@ class _Reading:
         d.qvel[:] = 0.0
         self.qpos, self.qvel, self.passive = d.qpos, d.qvel, d.qfrc_passive  # cached: MjData builds views per access
         self.qposadr, self.dofadr = qposadr, dofadr
+        self.bias = np.zeros(model.nv)
+        self.mass_step = np.zeros(model.nv)  # M of this reading × the velocity step
+        # The joints' entries as prebuilt views when they are one block of the model (the usual case).
         qb, db = contiguous_slice(qposadr), contiguous_slice(dofadr)
         self.qpos_view = self.qpos[qb] if qb is not None else None
         self.qvel_view = self.qvel[db] if db is not None else None
-        self.bias = np.zeros(model.nv)
-        self.mass_step = np.zeros(model.nv)  # M of this reading × the velocity step
+        self.joint_bias = self.bias[db] if db is not None else None
+        self.joint_mass_step = self.mass_step[db] if db is not None else None
+        self.joint_passive = self.passive[db] if db is not None else None
 
     def evaluate(self, q: np.ndarray, qd: np.ndarray, passive: bool) -> None:
         m, d = self.model, self.data
@@ -75,6 +79,10 @@ class _Reading:
         if passive:
             mujoco.mj_passive(m, d)
         mujoco.mj_rne(m, d, 0, self.bias)  # without acceleration: C q̇ + g, i.e. qfrc_bias
+
+    def joints(self, full: np.ndarray, view: np.ndarray | None) -> list[float]:
+        """The joints' entries of a per-dof array of this reading, as floats."""
+        return view.tolist() if view is not None else full[self.dofadr].tolist()
 
 
 class MomentumObserver:
@@ -102,15 +110,17 @@ class MomentumObserver:
             raise ValueError(f"model {model_path}: {exc}") from None
         m, n = self.model, len(self.joint_names)
         self._dofs = [int(a) for a in dofadr]
-        self._damping = [float(m.dof_damping[a]) for a in self._dofs]
-        self._damping_only = _passive_is_damping(m, qposadr, dofadr)  # else mj_passive every reading
+        self._damping_only = _passive_is_damping(m, qposadr, dofadr)  # else mj_passive at every reading
+        # qfrc_passive = −D·q̇ is added per joint; with another passive force, known − D·q̇ comes from mj_passive.
+        self._damping = [float(m.dof_damping[a]) if self._damping_only else 0.0 for a in self._dofs]
         self._now = _Reading(m, qposadr, dofadr)  # this reading
         self._prev = _Reading(m, qposadr, dofadr)  # the previous one: the interval's start
         self._step = np.zeros(m.nv)  # q̇_k − q̇_{k−1} over every dof (0 where not a joint of ours)
 
         self.residual = np.zeros(n)
-        self._error = [0.0] * n  # e = p − p̂
-        self._known_prev = [0.0] * n  # qfrc_bias − qfrc_passive at the interval's start
+        self._r = [0.0] * n  # the residual as floats: the recursion's state
+        self._known_prev = [0.0] * n  # qfrc_bias − qfrc_passive − D·q̇ at the interval's start
+        self._qd_prev = [0.0] * n
 
     def __len__(self) -> int:
         return len(self.joint_names)
@@ -127,8 +137,9 @@ class MomentumObserver:
         """Start again at this reading: ``p̂ = p``, ``r = 0``."""
         now = self._now
         now.evaluate(q, qd, not self._damping_only)
-        self._known_prev = self._known(now, qd.tolist())
-        self._error = [0.0] * len(self._error)
+        self._known_prev = self._known(now)
+        self._qd_prev = qd.tolist()
+        self._r = [0.0] * len(self._r)
         self.residual.fill(0.0)
 
     def update(self, q: np.ndarray, qd: np.ndarray, tau: np.ndarray, dt: float) -> np.ndarray:
@@ -142,24 +153,36 @@ class MomentumObserver:
         np.subtract(now.qvel, prev.qvel, out=self._step)
         mujoco.mj_mulM(m, now.data, now.mass_step, self._step)
         mujoco.mj_mulM(m, prev.data, prev.mass_step, self._step)
-        known = self._known(now, qd.tolist())
-        a, b, known_prev = now.mass_step.tolist(), prev.mass_step.tolist(), self._known_prev
-        decay, gain = 1.0 - self.gain * dt, self.gain
-        error, residual = self._error, self.residual
-        for i, (j, t) in enumerate(zip(self._dofs, tau.tolist(), strict=True)):
-            e = decay * error[i] + 0.5 * (a[j] + b[j]) - (t - 0.5 * (known[i] + known_prev[i])) * dt
-            error[i] = e
-            residual[i] = gain * e
-        self._known_prev = known
+        known, v = self._known(now), qd.tolist()
+        # r_k = K·e_k = (1 − K·dt)·r_{k−1} + K·(½(M_k + M_{k−1})·Δq̇ − (τ − ½(known_k + known_{k−1}))·dt), with
+        # known = qfrc_bias + D·q̇ (+ the rest of −qfrc_passive when the model has more than damping).
+        decay, half_k, k_dt = 1.0 - self.gain * dt, 0.5 * self.gain, self.gain * dt
+        self._r = r = [
+            decay * r0 + half_k * (x + y) - k_dt * (t - 0.5 * (g + g0 + c * (v1 + v0)))
+            for r0, x, y, t, g, g0, c, v1, v0 in zip(
+                self._r,
+                now.joints(now.mass_step, now.joint_mass_step),
+                prev.joints(prev.mass_step, prev.joint_mass_step),
+                tau.tolist(),
+                known,
+                self._known_prev,
+                self._damping,
+                v,
+                self._qd_prev,
+                strict=True,
+            )
+        ]
+        self.residual[:] = r
+        self._known_prev, self._qd_prev = known, v
         return self.residual
 
-    def _known(self, reading: _Reading, qd: list[float]) -> list[float]:
-        """``qfrc_bias − qfrc_passive`` per joint at ``reading`` (whose joint velocities are ``qd``)."""
-        bias = reading.bias.tolist()
-        if self._damping_only:  # qfrc_passive = −D·q̇
-            return [bias[j] + c * v for j, c, v in zip(self._dofs, self._damping, qd, strict=True)]
-        passive = reading.passive.tolist()
-        return [bias[j] - passive[j] for j in self._dofs]
+    def _known(self, reading: _Reading) -> list[float]:
+        """``qfrc_bias − qfrc_passive`` per joint at ``reading``, less the damping ``D·q̇`` the update adds."""
+        bias = reading.joints(reading.bias, reading.joint_bias)
+        if self._damping_only:
+            return bias
+        passive = reading.joints(reading.passive, reading.joint_passive)
+        return [g - p for g, p in zip(bias, passive, strict=True)]
 
 
 def _passive_is_damping(model: mujoco.MjModel, qposadr: np.ndarray, dofadr: np.ndarray) -> bool:
