@@ -97,9 +97,9 @@ class ContactMonitor:
         self._tau = np.zeros(n)  # net torque over the last interval
         self._friction = np.zeros(n)
         self._qd_mid = np.zeros(n)
-        self._q_prev = np.zeros(n)
-        self._qd_prev = np.zeros(n)
-        self._load = np.zeros(n)  # low-passed |motor torque|: what model_margin scales
+        self._q_prev = [0.0] * n  # the interval's start, as floats: the per-joint sums run on Python floats
+        self._qd_prev = [0.0] * n
+        self._load = [0.0] * n  # low-passed |motor torque|: what model_margin scales
 
         size = max(2, round(HISTORY * update_rate))
         self._history = np.zeros((size, n))
@@ -123,18 +123,13 @@ class ContactMonitor:
             np.copyto(self._rows[self._head], q)
             self._head = (self._head + 1) % len(self._rows)
             self._filled = min(self._filled + 1, len(self._rows))
-        if not trusted or dt <= 0.0:
+        if not trusted or dt <= 0.0 or not self.running:  # not running: the first trusted reading starts it here
             self._restart(q, qd)
             return -1
-        if not self.running:  # the first trusted reading: the observer starts here
-            self._restart(q, qd)
-            return -1
-        self._motor_torque(state, last, dt)
+        tau = self._motor_torque(state, last, dt)
         r = self.observer.update(q, qd, self._tau, dt)
         np.copyto(self.tau_ext, r)
-        np.copyto(self._q_prev, q)
-        np.copyto(self._qd_prev, qd)
-        return self._classify(r.tolist(), dt)
+        return self._classify(r.tolist(), tau)
 
     def _restart(self, q: np.ndarray, qd: np.ndarray) -> None:
         self.running = False
@@ -142,44 +137,54 @@ class ContactMonitor:
         if not (np.isfinite(q).all() and np.isfinite(qd).all()):
             return
         self.observer.reset(q, qd)
-        np.copyto(self._q_prev, q)
-        np.copyto(self._qd_prev, qd)
+        self._q_prev, self._qd_prev = q.tolist(), qd.tolist()
         self.running = True
 
-    def _motor_torque(self, state: JointState, last: ServoCommand, dt: float) -> None:
-        """Into ``_tau``: per joint, the torque that acted over the interval, minus friction (at the mean speed)."""
+    def _motor_torque(self, state: JointState, last: ServoCommand, dt: float) -> list[float]:
+        """Into ``_tau`` (and returned as floats): per joint, the torque that acted over the interval, minus
+        friction (at the mean speed). This reading becomes the next interval's start."""
         q, qd = state.position.tolist(), state.velocity.tolist()
-        q0, qd0 = self._q_prev.tolist(), self._qd_prev.tolist()
+        q0, qd0 = self._q_prev, self._qd_prev
         reply = state.effort.tolist()
-        p, v, ff = last.position.tolist(), last.velocity.tolist(), last.effort.tolist()
-        kp, kd = last.kp.tolist(), last.kd.tolist()
-        tau, load, emax, applies = self._tau, self._load, self._emax, self._applies
-        use_reply = self._use_reply
+        if self._use_reply and math.isfinite(sum(reply)):  # every drive reported its torque (a NaN or inf would show)
+            tau = reply
+        else:
+            p, v, ff = last.position.tolist(), last.velocity.tolist(), last.effort.tolist()
+            kp, kd = last.kp.tolist(), last.kd.tolist()
+            emax, applies, use_reply = self._emax, self._applies, self._use_reply
+            tau = []
+            for i in range(len(q)):
+                t = reply[i]
+                if not (use_reply and math.isfinite(t)):
+                    if applies[i]:  # the servo law at the interval's mean state: the trapezoid of its two ends
+                        t = kp[i] * (p[i] - 0.5 * (q[i] + q0[i])) + kd[i] * (v[i] - 0.5 * (qd[i] + qd0[i])) + ff[i]
+                    else:
+                        t = ff[i]
+                    t = min(max(t, -emax[i]), emax[i])
+                tau.append(t)
         alpha = min(1.0, self.settings.gain * dt)
-        for i in range(len(q)):
-            t = reply[i]
-            if not (use_reply and math.isfinite(t)):
-                if applies[i]:  # the servo law at the interval's mean state: the trapezoid of its two ends
-                    t = kp[i] * (p[i] - 0.5 * (q[i] + q0[i])) + kd[i] * (v[i] - 0.5 * (qd[i] + qd0[i])) + ff[i]
-                else:
-                    t = ff[i]
-                t = min(max(t, -emax[i]), emax[i])
-            tau[i] = t
-            load[i] += alpha * (abs(t) - load[i])
+        self._load = [x + alpha * ((t if t >= 0.0 else -t) - x) for x, t in zip(self._load, tau, strict=True)]
+        self._tau[:] = tau
         if self._has_friction:
-            np.add(state.velocity, self._qd_prev, out=self._qd_mid)
-            self._qd_mid *= 0.5
+            self._qd_mid[:] = [0.5 * (a + b) for a, b in zip(qd, qd0, strict=True)]
             self.friction.torque(self._qd_mid, self._friction)
-            tau -= self._friction
+            self._tau -= self._friction
+            tau = self._tau.tolist()
+        self._q_prev, self._qd_prev = q, qd
+        return tau
 
-    def _classify(self, r: list[float], dt: float) -> int:
+    def _classify(self, r: list[float], tau: list[float]) -> int:
+        """The contact events, and the joint whose collision threshold ``r`` crossed most (or -1)."""
         level, margin = self.level, self.settings.model_margin
-        load, tau = self._load.tolist(), self._tau.tolist()
         worst, worst_ratio = -1, 1.0
-        for i, x in enumerate(r):
+        for i, (x, t, held, contact) in enumerate(zip(r, tau, self._load, self._contact, strict=True)):
             a = x if x >= 0.0 else -x
-            extra = margin * max(load[i], abs(tau[i]))
-            contact, collision = self._contact[i] + extra, self._collision[i] + extra
+            t = t if t >= 0.0 else -t
+            extra = margin * (held if held > t else t)
+            contact += extra
+            if a <= contact and level[i] == NONE:  # the usual cycle: nothing near a threshold, nothing to release
+                continue
+            collision = self._collision[i] + extra
             if a > collision and not self.collided and a / collision > worst_ratio:
                 worst, worst_ratio = i, a / collision
             if a > contact and level[i] == NONE:
