@@ -112,7 +112,8 @@ class MomentumObserver:
 
         self.residual = np.zeros(n)
         self._r = [0.0] * n  # the residual as floats: the recursion's state
-        self._known_prev = [0.0] * n  # qfrc_bias − qfrc_passive at the interval's start
+        self._bias_prev = [0.0] * n  # qfrc_bias and qfrc_passive at the interval's start
+        self._passive_prev = [0.0] * n
 
     def __len__(self) -> int:
         return len(self.joint_names)
@@ -129,7 +130,10 @@ class MomentumObserver:
         """Start again at this reading: ``p̂ = p``, ``r = 0``."""
         now = self._now
         now.evaluate(q, qd)
-        self._known_prev = self._known(now)
+        self._bias_prev, self._passive_prev = (
+            now.joints(now.bias, now.joint_bias),
+            now.joints(now.passive, now.joint_passive),
+        )
         self._r = [0.0] * len(self._r)
         self.residual.fill(0.0)
 
@@ -144,27 +148,24 @@ class MomentumObserver:
         np.subtract(now.qvel, prev.qvel, out=self._step)
         mujoco.mj_mulM(m, now.data, now.mass_step, self._step)
         mujoco.mj_mulM(m, prev.data, prev.mass_step, self._step)
-        known = self._known(now)
-        # r_k = K·e_k = (1 − K·dt)·r_{k−1} + K·(½(M_k + M_{k−1})·Δq̇ − (τ − ½(known_k + known_{k−1}))·dt)
+        bias, passive = now.joints(now.bias, now.joint_bias), now.joints(now.passive, now.joint_passive)
+        # r_k = K·e_k = (1 − K·dt)·r_{k−1} + K·(½(M_k + M_{k−1})·Δq̇ − (τ − ½(known_k + known_{k−1}))·dt), with
+        # known = qfrc_bias − qfrc_passive
         decay, half_k, k_dt = 1.0 - self.gain * dt, 0.5 * self.gain, self.gain * dt
         self._r = r = [
-            decay * r0 + half_k * (x + y) - k_dt * (t - 0.5 * (g + g0))
-            for r0, x, y, t, g, g0 in zip(
+            decay * r0 + half_k * (x + y) - k_dt * (t - 0.5 * (g - p + g0 - p0))
+            for r0, x, y, t, g, p, g0, p0 in zip(
                 self._r,
                 now.joints(now.mass_step, now.joint_mass_step),
                 prev.joints(prev.mass_step, prev.joint_mass_step),
                 tau.tolist(),
-                known,
-                self._known_prev,
+                bias,
+                passive,
+                self._bias_prev,
+                self._passive_prev,
                 strict=True,
             )
         ]
         self.residual[:] = r
-        self._known_prev = known
+        self._bias_prev, self._passive_prev = bias, passive
         return self.residual
-
-    def _known(self, reading: _Reading) -> list[float]:
-        """``qfrc_bias − qfrc_passive`` per joint at ``reading``."""
-        bias = reading.joints(reading.bias, reading.joint_bias)
-        passive = reading.joints(reading.passive, reading.joint_passive)
-        return [g - p for g, p in zip(bias, passive, strict=True)]
