@@ -94,12 +94,15 @@ class ContactMonitor:
         self.level = [NONE] * n  # per joint: NONE, CONTACT or COLLISION (its last episode's peak)
         self.collided = False  # a collision was detected and not yet reset: detection paused, tau_ext goes on
         self.running = False
-        self._tau = np.zeros(n)  # net torque over the last interval
+        self._tau = np.zeros(n)  # net torque over the last interval, when the replies alone do not give it
+        self._net = [0.0] * n  # the net torque over the last interval, as floats
+        self._raw = [0.0] * n  # the motor torque over the last interval (friction not taken off), as floats
+        self._gain = settings.gain
         self._friction = np.zeros(n)
         self._qd_mid = np.zeros(n)
-        self._q_prev = np.zeros(n)
-        self._qd_prev = np.zeros(n)
-        self._load = np.zeros(n)  # low-passed |motor torque|: what model_margin scales
+        self._q_prev = [0.0] * n  # the interval's start, as floats: the per-joint sums run on Python floats
+        self._qd_prev = [0.0] * n
+        self._load = [0.0] * n  # low-passed |motor torque|: what model_margin scales
 
         size = max(2, round(HISTORY * update_rate))
         self._history = np.zeros((size, n))
@@ -123,18 +126,13 @@ class ContactMonitor:
             np.copyto(self._rows[self._head], q)
             self._head = (self._head + 1) % len(self._rows)
             self._filled = min(self._filled + 1, len(self._rows))
-        if not trusted or dt <= 0.0:
+        if not trusted or dt <= 0.0 or not self.running:  # not running: the first trusted reading starts it here
             self._restart(q, qd)
             return -1
-        if not self.running:  # the first trusted reading: the observer starts here
-            self._restart(q, qd)
-            return -1
-        self._motor_torque(state, last, dt)
-        r = self.observer.update(q, qd, self._tau, dt)
+        tau = self._motor_torque(state, last)
+        r = self.observer.update(q, qd, tau, dt)
         np.copyto(self.tau_ext, r)
-        np.copyto(self._q_prev, q)
-        np.copyto(self._qd_prev, qd)
-        return self._classify(r.tolist(), dt)
+        return self._classify(r.tolist(), min(1.0, self._gain * dt))
 
     def _restart(self, q: np.ndarray, qd: np.ndarray) -> None:
         self.running = False
@@ -142,44 +140,62 @@ class ContactMonitor:
         if not (np.isfinite(q).all() and np.isfinite(qd).all()):
             return
         self.observer.reset(q, qd)
-        np.copyto(self._q_prev, q)
-        np.copyto(self._qd_prev, qd)
+        self._q_prev, self._qd_prev = q.tolist(), qd.tolist()
         self.running = True
 
-    def _motor_torque(self, state: JointState, last: ServoCommand, dt: float) -> None:
-        """Into ``_tau``: per joint, the torque that acted over the interval, minus friction (at the mean speed)."""
+    def _motor_torque(self, state: JointState, last: ServoCommand) -> np.ndarray:
+        """Per joint, the torque that acted over the interval, minus friction (at the mean speed): into ``_net`` as
+        floats, and returned as the array the observer is told (the replies themselves when they are all of it).
+        This reading becomes the next interval's start."""
         q, qd = state.position.tolist(), state.velocity.tolist()
-        q0, qd0 = self._q_prev.tolist(), self._qd_prev.tolist()
+        q0, qd0 = self._q_prev, self._qd_prev
+        self._q_prev, self._qd_prev = q, qd
         reply = state.effort.tolist()
-        p, v, ff = last.position.tolist(), last.velocity.tolist(), last.effort.tolist()
-        kp, kd = last.kp.tolist(), last.kd.tolist()
-        tau, load, emax, applies = self._tau, self._load, self._emax, self._applies
-        use_reply = self._use_reply
-        alpha = min(1.0, self.settings.gain * dt)
-        for i in range(len(q)):
-            t = reply[i]
-            if not (use_reply and math.isfinite(t)):
-                if applies[i]:  # the servo law at the interval's mean state: the trapezoid of its two ends
-                    t = kp[i] * (p[i] - 0.5 * (q[i] + q0[i])) + kd[i] * (v[i] - 0.5 * (qd[i] + qd0[i])) + ff[i]
-                else:
-                    t = ff[i]
-                t = min(max(t, -emax[i]), emax[i])
-            tau[i] = t
-            load[i] += alpha * (abs(t) - load[i])
+        every_reply = self._use_reply and math.isfinite(sum(reply))  # a NaN or inf in any would show
+        if every_reply and not self._has_friction:  # the usual cycle: the drives' replies are the torque
+            self._raw = self._net = reply
+            return state.effort
+        if every_reply:
+            tau = reply
+        else:
+            p, v, ff = last.position.tolist(), last.velocity.tolist(), last.effort.tolist()
+            kp, kd = last.kp.tolist(), last.kd.tolist()
+            emax, applies, use_reply = self._emax, self._applies, self._use_reply
+            tau = []
+            for i in range(len(q)):
+                t = reply[i]
+                if not (use_reply and math.isfinite(t)):
+                    if applies[i]:  # the servo law at the interval's mean state: the trapezoid of its two ends
+                        t = kp[i] * (p[i] - 0.5 * (q[i] + q0[i])) + kd[i] * (v[i] - 0.5 * (qd[i] + qd0[i])) + ff[i]
+                    else:
+                        t = ff[i]
+                    t = min(max(t, -emax[i]), emax[i])
+                tau.append(t)
+        self._raw = tau
+        self._tau[:] = tau
         if self._has_friction:
-            np.add(state.velocity, self._qd_prev, out=self._qd_mid)
-            self._qd_mid *= 0.5
+            self._qd_mid[:] = [0.5 * (a + b) for a, b in zip(qd, qd0, strict=True)]
             self.friction.torque(self._qd_mid, self._friction)
-            tau -= self._friction
+            self._tau -= self._friction
+            tau = self._tau.tolist()
+        self._net = tau
+        return self._tau
 
-    def _classify(self, r: list[float], dt: float) -> int:
+    def _classify(self, r: list[float], alpha: float) -> int:
+        """The contact events, and the joint whose collision threshold ``r`` crossed most (or -1). Low-passes the
+        load (``alpha``: this cycle's share) on the way: the thresholds rise with it."""
         level, margin = self.level, self.settings.model_margin
-        load, tau = self._load.tolist(), self._tau.tolist()
         worst, worst_ratio = -1, 1.0
-        for i, x in enumerate(r):
+        load = self._load
+        for i, (x, m, t, contact) in enumerate(zip(r, self._raw, self._net, self._contact, strict=True)):
             a = x if x >= 0.0 else -x
-            extra = margin * max(load[i], abs(tau[i]))
-            contact, collision = self._contact[i] + extra, self._collision[i] + extra
+            held = load[i] = load[i] + alpha * ((m if m >= 0.0 else -m) - load[i])
+            t = t if t >= 0.0 else -t
+            extra = margin * (held if held > t else t)
+            contact += extra
+            if a <= contact and level[i] == NONE:  # the usual cycle: nothing near a threshold, nothing to release
+                continue
+            collision = self._collision[i] + extra
             if a > collision and not self.collided and a / collision > worst_ratio:
                 worst, worst_ratio = i, a / collision
             if a > contact and level[i] == NONE:
@@ -204,7 +220,7 @@ class ContactMonitor:
     def describe(self, i: int) -> str:
         """The collision fault's words: the joint, its torque and the threshold it crossed."""
         x = float(self.tau_ext[i])
-        extra = self.settings.model_margin * max(float(self._load[i]), abs(float(self._tau[i])))
+        extra = self.settings.model_margin * max(self._load[i], abs(self._net[i]))
         return (
             f"collision on {self.joints[i]}: external torque {x:+.3g} N·m (collision threshold "
             f"{self._collision[i] + extra:.3g}); reflex: {'retract' if self.settings.retract else 'hold'}"

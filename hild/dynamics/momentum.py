@@ -16,7 +16,17 @@ ends (trapezoid); ``τ`` is what the caller says acted over the interval. ``p̂`
 interval's start, so the error obeys ``e_k = (1 − K·dt)·e_{k−1} + τ_ext·dt``: exact for a constant ``τ_ext``,
 second-order in ``dt`` for the model terms, and stable without ringing for ``K·dt < 1`` (checked at construction).
 
-Runs on the cycle thread: every array is allocated here, and ``update`` allocates nothing.
+How it runs it cheaply (it is on the cycle: docs/performance.md, "Contact safety"). With ``e = p − p̂`` the same
+recursion reads, exactly,
+
+    e_k = (1 − K·dt)·e_{k−1} + ½(M_k + M_{k−1})·(q̇_k − q̇_{k−1}) − (τ − ½(known_k + known_{k−1}))·dt,   r = K·e
+
+(``known = qfrc_bias − qfrc_passive``), so no dense mass matrix is formed: two ``MjData`` take turns holding the
+reading, and ``mj_mulM`` multiplies the velocity step by the new reading's ``M`` and by the previous one's, which its
+``MjData`` still holds. The 6–14 per-joint sums are plain Python floats: a numpy
+call on a 6-element array costs about a microsecond, more than the arithmetic (the supervisor does the same).
+
+Runs on the cycle thread: every array is allocated here, and ``update`` allocates no array.
 """
 
 from __future__ import annotations
@@ -29,6 +39,44 @@ import numpy as np
 
 from hild.arrays import contiguous_slice
 from hild.dynamics.model import load_model, scalar_joint_addresses
+
+
+class _Reading:
+    """One ``MjData`` holding a reading: its kinematics, mass matrix (``qM``), ``qfrc_bias`` and ``qfrc_passive``."""
+
+    def __init__(self, model: mujoco.MjModel, qposadr: np.ndarray, dofadr: np.ndarray) -> None:
+        self.model = model
+        self.data = d = mujoco.MjData(model)
+        d.qpos[:] = model.qpos0
+        d.qvel[:] = 0.0
+        self.qpos, self.qvel = d.qpos, d.qvel  # cached views: attribute access on MjData builds a new one each time
+        self.bias, self.passive = d.qfrc_bias, d.qfrc_passive
+        self.qposadr, self.dofadr = qposadr, dofadr
+        self.mass_step = np.zeros(model.nv)  # M of this reading × the velocity step
+        # The joints' entries as prebuilt views when they are one block of the model (the usual case).
+        qb, db = contiguous_slice(qposadr), contiguous_slice(dofadr)
+        self.qpos_view = self.qpos[qb] if qb is not None else None
+        self.qvel_view = self.qvel[db] if db is not None else None
+        self.joint_bias = self.bias[db] if db is not None else None
+        self.joint_passive = self.passive[db] if db is not None else None
+        self.joint_mass_step = self.mass_step[db] if db is not None else None
+
+    def evaluate(self, q: np.ndarray, qd: np.ndarray) -> None:
+        m, d = self.model, self.data
+        if self.qpos_view is not None and self.qvel_view is not None:
+            np.copyto(self.qpos_view, q)
+            np.copyto(self.qvel_view, qd)
+        else:
+            np.put(self.qpos, self.qposadr, q)
+            np.put(self.qvel, self.dofadr, qd)
+        # Two calls, not the stages they run one by one (kinematics, com, M; com velocities, passive, bias): on 6
+        # joints a call into MuJoCo costs more than a stage. Contacts and constraints are off in this model.
+        mujoco.mj_fwdPosition(m, d)
+        mujoco.mj_fwdVelocity(m, d)
+
+    def joints(self, full: np.ndarray, view: np.ndarray | None) -> list[float]:
+        """The joints' entries of a per-dof array of this reading, as floats."""
+        return view.tolist() if view is not None else full[self.dofadr].tolist()
 
 
 class MomentumObserver:
@@ -54,51 +102,39 @@ class MomentumObserver:
             _, qposadr, dofadr = scalar_joint_addresses(self.model, self.joint_names)
         except ValueError as exc:
             raise ValueError(f"model {model_path}: {exc}") from None
-        m, n, nv = self.model, len(self.joint_names), self.model.nv
-        self._data = d = mujoco.MjData(m)
-        d.qpos[:] = m.qpos0
-        d.qvel[:] = 0.0
-        # Cached views: attribute access on MjData builds a new ndarray each time.
-        self._qpos, self._qvel = d.qpos, d.qvel
-        self._bias_all, self._passive_all = d.qfrc_bias, d.qfrc_passive
-        self._qposadr, self._dofadr = qposadr, dofadr
-        qb, db = contiguous_slice(qposadr), contiguous_slice(dofadr)
-        self._qpos_view = self._qpos[qb] if qb is not None else None
-        self._qvel_view = self._qvel[db] if db is not None else None
-        self._full = np.zeros((nv, nv))
-        self._flat = (dofadr[:, None] * nv + dofadr[None, :]).ravel()  # the joints' block of the full matrix
-        self._rne = np.zeros(nv)
-        if hasattr(d, "qM"):  # MuJoCo 3: mj_fullM(m, dst, qM)
-            qm, full = d.qM, self._full
-            self._dense_mass = lambda: mujoco.mj_fullM(m, full, qm)
-        else:  # MuJoCo 4: mj_fullM(m, d, dst)
-            self._dense_mass = lambda: mujoco.mj_fullM(m, d, self._full)
+        m, n = self.model, len(self.joint_names)
+        # Its own copy of the model: only the dynamics are wanted, never contacts or constraint forces.
+        m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT) | int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
+        self._dofs = [int(a) for a in dofadr]
+        self._now = _Reading(m, qposadr, dofadr)  # this reading
+        self._prev = _Reading(m, qposadr, dofadr)  # the previous one: the interval's start
+        self._step = np.zeros(m.nv)  # q̇_k − q̇_{k−1} over every dof (0 where not a joint of ours)
 
         self.residual = np.zeros(n)
-        self.momentum = np.zeros(n)  # p = M(q)·q̇ at the last update
-        self._estimate = np.zeros(n)  # p̂
-        self._mass = np.zeros((n, n))
-        self._mass_flat = self._mass.reshape(-1)  # a view, prebuilt: reshape makes a new one each call
-        self._mass_prev = np.zeros((n, n))
-        self._mass_prev_flat = self._mass_prev.reshape(-1)
-        self._mass_step = np.zeros((n, n))
-        self._known = np.zeros(n)  # qfrc_bias − qfrc_passive at this reading
-        self._known_prev = np.zeros(n)
-        self._qd_prev = np.zeros(n)
-        self._qd_mid = np.zeros(n)
-        self._tmp = np.zeros(n)
-        self._tmp2 = np.zeros(n)
+        self._r = [0.0] * n  # the residual as floats: the recursion's state
+        self._bias_prev = [0.0] * n  # qfrc_bias and qfrc_passive at the interval's start
+        self._passive_prev = [0.0] * n
 
     def __len__(self) -> int:
         return len(self.joint_names)
 
+    @property
+    def momentum(self) -> np.ndarray:
+        """``p = M(q)·q̇`` at the last reading (a new array: for inspection, not for the cycle)."""
+        now = self._now
+        full = np.zeros(self.model.nv)
+        mujoco.mj_mulM(self.model, now.data, full, now.qvel)
+        return full[self._dofs]
+
     def reset(self, q: np.ndarray, qd: np.ndarray) -> None:
         """Start again at this reading: ``p̂ = p``, ``r = 0``."""
-        self._evaluate(q, qd)
-        np.copyto(self._estimate, self.momentum)
-        np.copyto(self._mass_prev, self._mass)
-        np.copyto(self._known_prev, self._known)
-        np.copyto(self._qd_prev, qd)
+        now = self._now
+        now.evaluate(q, qd)
+        self._bias_prev, self._passive_prev = (
+            now.joints(now.bias, now.joint_bias),
+            now.joints(now.passive, now.joint_passive),
+        )
+        self._r = [0.0] * len(self._r)
         self.residual.fill(0.0)
 
     def update(self, q: np.ndarray, qd: np.ndarray, tau: np.ndarray, dt: float) -> np.ndarray:
@@ -106,49 +142,30 @@ class MomentumObserver:
 
         ``tau``: the joint torque that acted over the interval, net of friction the model does not hold (the
         caller subtracts the identified friction)."""
-        self._evaluate(q, qd)
-        est, tmp, tmp2, mid = self._estimate, self._tmp, self._tmp2, self._qd_mid
-        # ∫Ṁq̇ dt ≈ (M_k − M_{k−1})·½(q̇_k + q̇_{k−1})
-        np.add(qd, self._qd_prev, out=mid)
-        mid *= 0.5
-        np.subtract(self._mass, self._mass_prev, out=self._mass_step)
-        np.dot(self._mass_step, mid, out=tmp)
-        est += tmp
-        # ∫(τ − (bias − passive) + r) dt, bias and passive by the trapezoid
-        np.add(self._known, self._known_prev, out=tmp2)
-        tmp2 *= -0.5
-        tmp2 += tau
-        tmp2 += self.residual
-        tmp2 *= dt
-        est += tmp2
-        # r = K (p − p̂)
-        np.subtract(self.momentum, est, out=self.residual)
-        self.residual *= self.gain
-        # This reading is the next interval's start.
-        self._mass_prev, self._mass = self._mass, self._mass_prev
-        self._mass_prev_flat, self._mass_flat = self._mass_flat, self._mass_prev_flat
-        self._known_prev, self._known = self._known, self._known_prev
-        np.copyto(self._qd_prev, qd)
+        self._prev, self._now = prev, now = self._now, self._prev  # the last reading is the interval's start
+        m = self.model
+        now.evaluate(q, qd)
+        np.subtract(now.qvel, prev.qvel, out=self._step)
+        mujoco.mj_mulM(m, now.data, now.mass_step, self._step)
+        mujoco.mj_mulM(m, prev.data, prev.mass_step, self._step)
+        bias, passive = now.joints(now.bias, now.joint_bias), now.joints(now.passive, now.joint_passive)
+        # r_k = K·e_k = (1 − K·dt)·r_{k−1} + K·(½(M_k + M_{k−1})·Δq̇ − (τ − ½(known_k + known_{k−1}))·dt), with
+        # known = qfrc_bias − qfrc_passive
+        decay, half_k, k_dt = 1.0 - self.gain * dt, 0.5 * self.gain, self.gain * dt
+        self._r = r = [
+            decay * r0 + half_k * (x + y) - k_dt * (t - 0.5 * (g - p + g0 - p0))
+            for r0, x, y, t, g, p, g0, p0 in zip(
+                self._r,
+                now.joints(now.mass_step, now.joint_mass_step),
+                prev.joints(prev.mass_step, prev.joint_mass_step),
+                tau.tolist(),
+                bias,
+                passive,
+                self._bias_prev,
+                self._passive_prev,
+                strict=True,
+            )
+        ]
+        self.residual[:] = r
+        self._bias_prev, self._passive_prev = bias, passive
         return self.residual
-
-    def _evaluate(self, q: np.ndarray, qd: np.ndarray) -> None:
-        """M(q) (the joints' block), p = M q̇, and qfrc_bias − qfrc_passive at (q, q̇), into the current buffers."""
-        m, d = self.model, self._data
-        if self._qpos_view is not None and self._qvel_view is not None:
-            np.copyto(self._qpos_view, q)
-            np.copyto(self._qvel_view, qd)
-        else:
-            np.put(self._qpos, self._qposadr, q)
-            np.put(self._qvel, self._dofadr, qd)
-        mujoco.mj_kinematics(m, d)
-        mujoco.mj_comPos(m, d)
-        mujoco.mj_makeM(m, d)  # composite rigid bodies plus armature, into qM
-        mujoco.mj_comVel(m, d)
-        mujoco.mj_passive(m, d)
-        mujoco.mj_rne(m, d, 0, self._rne)  # without acceleration: C q̇ + g, i.e. qfrc_bias
-        self._dense_mass()
-        np.take(self._full, self._flat, out=self._mass_flat)
-        np.dot(self._mass, qd, out=self.momentum)
-        np.take(self._rne, self._dofadr, out=self._known)
-        np.take(self._passive_all, self._dofadr, out=self._tmp)
-        self._known -= self._tmp
