@@ -193,6 +193,8 @@ class Engine:
         self.applies_gains = self._applies_gains()  # per joint; controllers see it in their context
         self.supervisor = self._build_supervisor(loaded)
         self.contact = self._build_contact(loaded)  # None unless safety.contact.enabled
+        self._contact_seq = -1  # the supervisor's change_seq when _foreign_fault was last looked at
+        self._foreign_fault = False
         self.walls = self._build_walls(loaded)
         s = cfg.safety
         self.max_consecutive_overruns = s.max_consecutive_overruns
@@ -297,9 +299,12 @@ class Engine:
         commanding controller is deactivated (as an e-stop does), so nothing pushes on."""
         contact, sup = self.contact, self.supervisor
         assert contact is not None
-        trusted = not (sup.estop or sup.descent_started) and bool(self.state.fresh.all())
-        if trusted and sup.fault.any():  # any fault but a collision's own: the torques are not the model's
-            trusted = bool(((sup.fault == Fault.NONE) | (sup.fault == Fault.COLLISION)).all())
+        if self._contact_seq != sup.change_seq:  # faults change rarely: look at them only when something changed
+            self._contact_seq = sup.change_seq
+            faults = sup.fault
+            # Any fault but a collision's own: the torques are not the model's.
+            self._foreign_fault = bool(((faults != Fault.NONE) & (faults != Fault.COLLISION)).any())
+        trusted = sup.all_fresh and not (sup.estop or sup.descent_started or self._foreign_fault)
         joint = contact.observe(self.state, self.final, trusted, dt)
         if joint >= 0:
             words = contact.describe(joint) + contact.begin_reflex(self.state.position)

@@ -182,6 +182,7 @@ class Supervisor:
         self._silent = [0.0] * n  # s without an accepted reading
         self.longest_silence = [0.0] * n  # published: the longest such stretch since start (s), per joint
         self._codes = [0] * n  # the drives' fault codes at the last check
+        self.all_fresh = False  # every reading of the last check fresh and accepted (the contact observer's gate)
         self._untrusted_fault = [False] * n  # faulted while its readings were untrusted: damped until reset
         self._relatch = [False] * n  # latch at the next command(): after reset and e-stop
         self._new_frame = [False] * n  # the follow window is a set-zero's: re-anchor the gate on every reading
@@ -272,6 +273,7 @@ class Supervisor:
         gate.filter(state, dt)
         fresh, codes = state.fresh.tolist(), state.fault.tolist()
         self._codes = codes
+        self.all_fresh = False not in fresh
         qd_all = state.velocity.tolist()
         stale, silent, fault, longest = self._stale, self._silent, self.fault, self.longest_silence
         stale_limit, stale_time = self.safety.stale_feedback_cycles, self.safety.stale_feedback_time
