@@ -3,8 +3,7 @@
 Every figure comes from `hild.bench.contact_rig.ContactRig` (configs/arm6_can.yaml at 1 kHz, firmware-faithful
 Damiao drives with 12-bit torque replies, the plant's masses ×1.1 and joint friction ×1.3 against the model hild
 uses) on the sim clock, so a seed gives the same run; only the cycle-cost figure is wall time. The pieces measured
-(observer + reflex, walls, teach) are reached through `hild.bench.contact_adapters.ContactAdapters`; a target
-whose piece this install lacks is a MISS "not available: <piece>", never a stand-in.
+(observer + reflex, walls, teach) are reached through `hild.bench.contact_adapters.ContactAdapters`.
 
 1. **Detection latency**: ``hits`` times, a random start pose, a move to another (full speed or slower, random),
    then 20 N in a random direction on the tool (``xfrc_applied``, a step); latency = the engine's time at the
@@ -110,15 +109,11 @@ def target(
     limit: float,
     unit: str,
     basis: str,
-    missing: str | None = None,
     error: str | None = None,
 ) -> dict[str, Any]:
-    """One contact row: PASS/MISS on the measured figure, or MISS "not available: <piece>" when a piece is missing,
-    MISS "error: …" when its measurement failed (also when nothing could be measured: never n/a, never a PASS by
-    default)."""
-    if missing is not None:
-        status, detail, measured = "MISS", f"not available: {missing}", None
-    elif error is not None:
+    """One contact row: PASS/MISS on the measured figure, MISS "error: …" when its measurement failed (also when
+    nothing could be measured: never n/a, never a PASS by default)."""
+    if error is not None:
         status, detail, measured = "MISS", f"error: {error}", None
     elif measured is None or not math.isfinite(measured):
         status, detail = "MISS", f"{name}: nothing measured ({basis})"
@@ -466,10 +461,9 @@ def measure_cost(settings: ContactSettings, adapters: ContactAdapters, with_obse
 
 # ---- the whole group -----------------------------------------------------------------------------------------------
 def run_contact(settings: ContactSettings, adapters: ContactAdapters | None = None) -> dict[str, Any]:
-    """Every contact measurement whose piece exists, and the targets (group ``contact``)."""
+    """Every contact measurement and the targets (group ``contact``)."""
     adapters = adapters or ContactAdapters()
     started = time.monotonic()
-    observer, walls, teach = adapters.observer_missing(), adapters.walls_missing(), adapters.teach_missing()
     m = DEFAULT_MISMATCH
     report: dict[str, Any] = {
         "settings": asdict(settings),
@@ -478,18 +472,14 @@ def run_contact(settings: ContactSettings, adapters: ContactAdapters | None = No
             "rate_hz": RATE,
             "mass_scale": m.mass,
             "friction_scale": m.friction,
-            "missing": [p for p in (observer, walls, teach) if p],
         },
     }
-    if observer is None:
-        report["detection"] = guarded(measure_detection, settings, adapters)
-        report["quiet"] = guarded(measure_quiet, settings, adapters)
-        report["obstacle"] = guarded(measure_obstacle, settings, adapters)
-    if walls is None:
-        report["walls"] = guarded(measure_walls, settings, adapters)
-    if teach is None:
-        report["guiding"] = guarded(measure_guiding, settings, adapters)
-    report["cost"] = guarded(measure_cost, settings, adapters, observer is None)
+    report["detection"] = guarded(measure_detection, settings, adapters)
+    report["quiet"] = guarded(measure_quiet, settings, adapters)
+    report["obstacle"] = guarded(measure_obstacle, settings, adapters)
+    report["walls"] = guarded(measure_walls, settings, adapters)
+    report["guiding"] = guarded(measure_guiding, settings, adapters)
+    report["cost"] = guarded(measure_cost, settings, adapters, True)
     report["targets"] = contact_targets(report, adapters)
     report["seconds_total"] = round(time.monotonic() - started, 1)
     return report
@@ -505,13 +495,12 @@ def guarded(measure: Callable[..., dict[str, Any]], *args: Any) -> dict[str, Any
 
 
 def contact_targets(report: dict[str, Any], adapters: ContactAdapters) -> list[dict[str, Any]]:
-    observer, walls, teach = adapters.observer_missing(), adapters.walls_missing(), adapters.teach_missing()
     d, q, o = report.get("detection", {}), report.get("quiet", {}), report.get("obstacle", {})
     w, g, c = report.get("walls", {}), report.get("guiding", {}), report.get("cost", {})
-    rows = _rows(d, q, o, w, g, c, adapters.collision_force_threshold(), observer, walls, teach)
+    rows = _rows(d, q, o, w, g, c, adapters.collision_force_threshold())
     errors = [d, d, q, o, o, w, g, g, c]  # the part each row is measured in, in row order
     for row, part in zip(rows, errors, strict=True):
-        if "error" in part and not row["detail"].startswith("not available: "):
+        if "error" in part:
             row.update(target(row["target"], None, row["limit"], row["unit"], row["basis"], error=part["error"]))
     return rows
 
@@ -524,9 +513,6 @@ def _rows(
     g: dict[str, Any],
     c: dict[str, Any],
     threshold: float,
-    observer: str | None,
-    walls: str | None,
-    teach: str | None,
 ) -> list[dict[str, Any]]:
     latency = d.get("latency_ms") or {}
     hits = f"{d.get('detected', 0)} of {d.get('hits', 0)} hits detected"
@@ -537,16 +523,14 @@ def _rows(
             LATENCY_MEDIAN_MS,
             "ms",
             f"{FORCE_N:g} N at the tool from its onset to the latched collision fault; {hits}",
-            observer,
         ),
-        target("20 N hit detected, worst", d.get("worst_ms"), LATENCY_WORST_MS, "ms", hits, observer),
+        target("20 N hit detected, worst", d.get("worst_ms"), LATENCY_WORST_MS, "ms", hits),
         target(
             "false positives",
             q.get("false_positives"),
             FALSE_POSITIVES,
             "",
             f"{q.get('seconds', 0)} s sim of full-speed moves, {q.get('abrupt_stops', 0)} abrupt stops",
-            observer,
         ),
         target(
             "peak contact force to the reflex",
@@ -555,7 +539,6 @@ def _rows(
             "N",
             f"padded sphere in the path, {o.get('touched', 0)} of {len(o.get('hits', []))} touched, peak until the "
             f"reflex's first command acted (whole hit: {o.get('peak_n')} N); 2 × {threshold:g} N at the tool",
-            observer,
         ),
         target(
             "push-on after detection",
@@ -563,16 +546,14 @@ def _rows(
             PUSH_ON_N,
             "N",
             f"contact force {AFTER_S * 1000:g} ms after detection − at detection; {o.get('undetected', 0)} undetected",
-            observer,
         ),
-        target("wall overshoot at full speed", w.get("overshoot_mm"), WALL_MM, "mm", "tool site past the wall", walls),
+        target("wall overshoot at full speed", w.get("overshoot_mm"), WALL_MM, "mm", "tool site past the wall"),
         target(
             "hand-guiding force to move",
             g.get("force_to_move_n"),
             GUIDE_N,
             "N",
             f"{MOVED_MM:g} mm of tool travel, worst pose; {g.get('unmoved', 0)} poses unmoved at {GUIDE_MAX_N:g} N",
-            teach,
         ),
         target(
             "hand-guiding drift after release",
@@ -580,7 +561,6 @@ def _rows(
             DRIFT_MRAD_S,
             "mrad/s",
             f"worst joint over {DRIFT_WINDOW_S:g} s after {DRIFT_WAIT_S:g} s of release",
-            teach,
         ),
         target(
             "cycle p99 rise with the observer",
@@ -589,7 +569,6 @@ def _rows(
             "%",
             f"engine.step wall time, 6 joints at {RATE:g} Hz, observer off p99 "
             f"{(c.get('observer_off') or {}).get('p99', '—')} µs",
-            observer,
         ),
     ]
 
@@ -601,8 +580,6 @@ def format_contact(report: dict[str, Any]) -> str:
         f"CONTACT ({rig.get('config')}, {rig.get('rate_hz', RATE):g} Hz, plant mass ×{rig.get('mass_scale')} "
         f"friction ×{rig.get('friction_scale')}; {report.get('seconds_total', '?')} s)"
     ]
-    for missing in rig.get("missing", []):
-        lines.append(f"  not available: {missing}")
     if "detection" in report:
         d = report["detection"]
         lines.append(f"  detection: {d['detected']}/{d['hits']} hits, latency {d['latency_ms']}, worst {d['worst_ms']}")

@@ -70,9 +70,19 @@ def rig_config(spec: RigSpec, channel: str) -> dict[str, Any]:
     }
     data["hardware"]["arm"]["params"]["timeout_ms"] = 100
     data.pop("zenoh", None)
-    data["safety"] = {**data.get("safety", {}), **spec.safety}
+    data["safety"] = merged(data.get("safety", {}), spec.safety)
     data["controllers"] = {**data["controllers"], **spec.controllers}
     return data
+
+
+def merged(base: Mapping[str, Any], extra: Mapping[str, Any]) -> dict[str, Any]:
+    """``base`` with ``extra``'s keys, sections merged key by key (``{"contact": {"enabled": True}}`` switches the
+    observer on and keeps the config's thresholds)."""
+    out = dict(base)
+    for key, value in extra.items():
+        old = out.get(key)
+        out[key] = merged(old, value) if isinstance(old, Mapping) and isinstance(value, Mapping) else value
+    return out
 
 
 _probe: list[TwinPlant] = []
