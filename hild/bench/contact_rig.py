@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import mujoco
 import numpy as np
 import yaml
 
@@ -70,9 +71,19 @@ def rig_config(spec: RigSpec, channel: str) -> dict[str, Any]:
     }
     data["hardware"]["arm"]["params"]["timeout_ms"] = 100
     data.pop("zenoh", None)
-    data["safety"] = {**data.get("safety", {}), **spec.safety}
+    data["safety"] = merged(data.get("safety", {}), spec.safety)
     data["controllers"] = {**data["controllers"], **spec.controllers}
     return data
+
+
+def merged(base: Mapping[str, Any], extra: Mapping[str, Any]) -> dict[str, Any]:
+    """``base`` with ``extra``'s keys, sections merged key by key (``{"contact": {"enabled": True}}`` switches the
+    observer on and keeps the config's thresholds)."""
+    out = dict(base)
+    for key, value in extra.items():
+        old = out.get(key)
+        out[key] = merged(old, value) if isinstance(old, Mapping) and isinstance(value, Mapping) else value
+    return out
 
 
 _probe: list[TwinPlant] = []
@@ -80,11 +91,32 @@ _probe: list[TwinPlant] = []
 
 def tool_at(positions: Sequence[float]) -> np.ndarray:
     """Where arm6's tool site is at joint ``positions`` (world, m; a mismatch changes no length)."""
+    return _probe_at(positions).tool_position()
+
+
+def _probe_at(positions: Sequence[float], mismatch: PlantMismatch | None = None) -> TwinPlant:
     if not _probe:
-        _probe.append(TwinPlant(ARM6_MODEL, JOINTS, gravity=False))
+        _probe.append(TwinPlant(ARM6_MODEL, JOINTS, gravity=False, mismatch=DEFAULT_MISMATCH))
     probe = _probe[0]
     probe.reset(None, dict(zip(JOINTS, (float(p) for p in positions), strict=True)))
-    return probe.tool_position()
+    return probe
+
+
+def tool_mass(positions: Sequence[float], direction: Sequence[float]) -> float:
+    """The plant's (``DEFAULT_MISMATCH``) effective mass at the tool site along ``direction`` (kg):
+    ``1 / (nᵀ J M⁻¹ Jᵀ n)``, what a contact there pushes against. MuJoCo's direct ``solref`` is a stiffness and a
+    damping per unit of that mass, so an obstacle of ``k`` N/m at the tool is ``k / tool_mass`` in it."""
+    probe = _probe_at(positions)
+    m, d = probe.model, probe.data
+    mujoco.mj_forward(m, d)
+    site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, "tool")
+    jac = np.zeros((3, m.nv))
+    mujoco.mj_jacSite(m, d, jac, None, site)
+    n = np.asarray(direction, dtype=float) / np.linalg.norm(direction)
+    row = (n @ jac).reshape(1, -1)
+    solved = np.zeros_like(row)
+    mujoco.mj_solveM(m, d, solved, row)
+    return 1.0 / float((row @ solved.T)[0, 0])
 
 
 class ContactRig:

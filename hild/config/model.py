@@ -255,6 +255,45 @@ class ContactThresholds(Params):
         return self
 
 
+class ContactForce(Params):
+    """Cartesian contact detection: the external force at the tool that the joints' torques imply
+    (docs/safety.md, "Contact", "At the tool")."""
+
+    contact: float = Field(gt=0.0, description="N: above it, a contact event (no stop).")
+    collision: float = Field(gt=0.0, description="N: above it, the collision reflex and a latched fault.")
+    bandwidth: float = Field(
+        default=300.0,
+        gt=0.0,
+        le=5000.0,
+        description="1/s: a second low-pass on the force estimate (after the observer's own), against the noise of "
+        "the drives' quantised velocity replies; bandwidth × the cycle period must stay below 1.",
+    )
+    baseline: float = Field(
+        default=0.1,
+        gt=0.0,
+        le=10.0,
+        description="s: the time constant of the force's recent average; a change from it by more than a threshold "
+        "is a sudden contact, whatever the model's slow error.",
+    )
+    damping: float = Field(
+        default=0.02,
+        gt=0.0,
+        le=1.0,
+        description="m: the damped least squares' λ; near a singularity a force is seen σ²/(σ² + λ²) of its size.",
+    )
+
+    @model_validator(mode="after")
+    def _ordered(self) -> ContactForce:
+        values = (self.contact, self.collision, self.bandwidth, self.baseline, self.damping)
+        if not all(math.isfinite(v) for v in values):
+            raise ValueError("force thresholds and filters must be finite")
+        if self.contact > self.collision:
+            raise ValueError(
+                f"force contact threshold {self.contact:g} N is above the collision threshold {self.collision:g} N"
+            )
+        return self
+
+
 class ContactSection(Params):
     """The external torque estimate and the collision reflex (docs/safety.md, "Contact")."""
 
@@ -303,6 +342,11 @@ class ContactSection(Params):
     tool_site: str | None = Field(
         default=None,
         description="The model's site whose path the retract measures; default: the origin of the last joint's body.",
+    )
+    force: ContactForce | None = Field(
+        default=None,
+        description="Cartesian thresholds (N) on the external force at the tool (tool_site, default the model's "
+        "tool site); none: per-joint thresholds only.",
     )
 
     @model_validator(mode="after")

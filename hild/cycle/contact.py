@@ -14,6 +14,10 @@ saturated at the effort limit), minus the identified friction, goes into the mom
 Both thresholds rise by ``model_margin`` × the joint's low-passed motor torque: a model whose masses are 10 % off
 explains 10 % of the torque wrongly, most of all in fast motion and abrupt stops.
 
+With ``safety.contact.force``, the same two levels in N on the force at the tool the torques imply
+(``hild.cycle.contact_force``): a push at the tool spreads over the joints below each one's threshold. A collision
+there is reported as joint index ``len(joints)``, "the tool".
+
 The observer only runs on torques it can trust: while any reading is not fresh, a joint has another fault, an
 e-stop or the stop descent runs, it restarts at every cycle (``tau_ext`` is NaN, published as null) and detects
 nothing. Allocation-free per cycle; events and the reflex's set-up allocate, once.
@@ -29,6 +33,7 @@ from typing import Protocol
 import numpy as np
 
 from hild.arrays import JointState, ServoCommand
+from hild.cycle.contact_force import ToolForce
 from hild.dynamics.friction import FrictionArrays
 
 NONE, CONTACT, COLLISION = 0, 1, 2
@@ -61,6 +66,8 @@ class ContactSettings:
     reflex_stiffness: float
     retract_distance: float
     retract_time: float
+    force_contact: float = math.inf  # N at the tool (safety.contact.force); inf: no Cartesian detection
+    force_collision: float = math.inf
 
 
 class ContactMonitor:
@@ -76,6 +83,7 @@ class ContactMonitor:
         emit: Callable[[str, str, str], None],
         update_rate: float,
         tool: ToolFn | None = None,
+        tool_force: ToolForce | None = None,
     ) -> None:
         n = len(joints)
         self.joints = joints
@@ -113,6 +121,9 @@ class ContactMonitor:
         self._retract: tuple[np.ndarray, np.ndarray] | None = None  # (from, to) while the reflex retracts
         self._retract_t = 0.0
         self._step = np.zeros(n)
+        self.tool_force = tool_force  # the Cartesian check, or None (per-joint thresholds only)
+        self.force_level = NONE
+        self._margin = np.zeros(n)
 
     # ---- every cycle ------------------------------------------------------------------------------------------
     def observe(self, state: JointState, last: ServoCommand, trusted: bool, dt: float) -> int:
@@ -132,11 +143,14 @@ class ContactMonitor:
         tau = self._motor_torque(state, last)
         r = self.observer.update(q, qd, tau, dt)
         np.copyto(self.tau_ext, r)
-        return self._classify(r.tolist(), min(1.0, self._gain * dt))
+        worst = self._classify(r.tolist(), min(1.0, self._gain * dt))
+        return worst if self.tool_force is None else self._classify_force(q, r, dt, worst)  # the force at the tool
 
     def _restart(self, q: np.ndarray, qd: np.ndarray) -> None:
         self.running = False
         self.tau_ext.fill(np.nan)
+        if self.tool_force is not None:
+            self.tool_force.restart()
         if not (np.isfinite(q).all() and np.isfinite(qd).all()):
             return
         self.observer.reset(q, qd)
@@ -216,9 +230,51 @@ class ContactMonitor:
             self.collided = True
         return worst
 
+    def _classify_force(self, q: np.ndarray, r: np.ndarray, dt: float, worst: int) -> int:
+        """The Cartesian check (``safety.contact.force``) after the joints': the force at the tool against its two
+        levels; returns ``worst``, or ``len(joints)`` (the tool) for a collision there that no joint reported."""
+        tf = self.tool_force
+        assert tf is not None
+        margin, share = self._margin, self.settings.model_margin  # each joint's model margin, as its thresholds rise
+        margin[:] = [share * max(load, abs(net)) for load, net in zip(self._load, self._net, strict=True)]
+        excess = tf.judge(q, r, margin, dt)
+        s = self.settings
+        if excess > s.force_collision and not self.collided:
+            self.force_level = COLLISION
+            self.collided = True
+            return len(self.joints) if worst < 0 else worst
+        if excess > s.force_contact and self.force_level == NONE:
+            self.force_level = CONTACT
+            if not self.collided:
+                self._emit(
+                    "warning",
+                    "contact",
+                    f"contact at the tool: external force {self._force_words()} (contact threshold "
+                    f"{s.force_contact:.3g} N)",
+                )
+        elif self.force_level != NONE and excess < RELEASE * s.force_contact:
+            self.force_level = NONE
+            if not self.collided:
+                self._emit("info", "contact", "contact at the tool released")
+        return worst
+
+    def _force_words(self) -> str:
+        tf = self.tool_force
+        assert tf is not None
+        fx, fy, fz = tf.force.tolist()
+        return (
+            f"{math.sqrt(fx * fx + fy * fy + fz * fz):.3g} N ({fx:+.3g}, {fy:+.3g}, {fz:+.3g}; a change of "
+            f"{tf.change:.3g} N, {tf.level:.3g} N above the model margin)"
+        )
+
     # ---- the reflex --------------------------------------------------------------------------------------------
     def describe(self, i: int) -> str:
-        """The collision fault's words: the joint, its torque and the threshold it crossed."""
+        """The collision fault's words: the joint, its torque and the threshold it crossed (or the tool's force)."""
+        if i == len(self.joints):
+            return (
+                f"collision at the tool: external force {self._force_words()} (collision threshold "
+                f"{self.settings.force_collision:.3g} N); reflex: {'retract' if self.settings.retract else 'hold'}"
+            )
         x = float(self.tau_ext[i])
         extra = self.settings.model_margin * max(self._load[i], abs(self._net[i]))
         return (
@@ -288,3 +344,6 @@ class ContactMonitor:
         self.collided = False
         self._retract = None
         self.level = [NONE] * len(self.level)
+        self.force_level = NONE
+        if self.tool_force is not None:
+            self.tool_force.rearm()

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import concurrent.futures
 import dataclasses
+import math
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
@@ -60,6 +61,7 @@ from hild.crossing.snapshot import Snapshot
 from hild.crossing.stats import LoopStats
 from hild.crossing.status import loop_status, render_status
 from hild.cycle.contact import ContactMonitor, ContactSettings
+from hild.cycle.contact_force import ToolForce
 from hild.cycle.manager import ControllerManager, SwitchError, SwitchResult
 from hild.cycle.sensor_gate import SensorGate
 from hild.cycle.supervisor import Action, Fault, JointGains, SafetySettings, Supervisor, limit_names
@@ -281,6 +283,8 @@ class Engine:
             reflex_stiffness=c.reflex_stiffness,
             retract_distance=c.retract_distance,
             retract_time=c.retract_time,
+            force_contact=c.force.contact if c.force else math.inf,
+            force_collision=c.force.collision if c.force else math.inf,
         )
         return ContactMonitor(
             self.joints,
@@ -292,6 +296,25 @@ class Engine:
             emit=self.events.emit,
             update_rate=self.update_rate,
             tool=ToolPoint(path, self.joints, site=c.tool_site).position if c.reflex == "retract" else None,
+            tool_force=self._build_tool_force(loaded) if c.force else None,
+        )
+
+    def _build_tool_force(self, loaded: LoadedConfig) -> ToolForce:
+        """The Cartesian contact check of ``safety.contact.force`` on the tool point (docs/safety.md, "Contact")."""
+        from hild.dynamics.tool import ToolPoint  # mujoco stays behind this seam
+
+        c = loaded.config.safety.contact
+        f = c.force
+        assert f is not None and loaded.config.robot.model
+        if f.bandwidth * self.period >= 1.0:
+            raise ValueError(
+                f"safety.contact.force.bandwidth {f.bandwidth:g}/s × period {self.period * 1e3:g} ms ≥ 1: use a "
+                f"bandwidth below {1.0 / self.period:.0f}/s"
+            )
+        tool = ToolPoint(loaded.directory / loaded.config.robot.model, self.joints, site=c.tool_site)
+        settle = 5.0 / c.observer_gain + 5.0 / f.bandwidth  # both low-passes within 1 % of a step
+        return ToolForce(
+            tool, len(self.joints), damping=f.damping, bandwidth=f.bandwidth, baseline=f.baseline, settle=settle
         )
 
     def _observe_contact(self, dt: float, dt_control: float) -> None:

@@ -1,5 +1,6 @@
-"""``hild bench --only contact``: its reduced form runs, reports every target in group ``contact``, never a PASS for a
-missing piece; and its measurements work end to end through the adapter seam (with test doubles for the pieces)."""
+"""``hild bench --only contact``: its reduced form runs and reports every target in group ``contact``; its
+measurements work end to end through the adapter seam (with test doubles for the pieces); the seam reads the real
+config keys."""
 
 from __future__ import annotations
 
@@ -15,25 +16,11 @@ from hild.bench import contact as contact_bench
 from hild.bench.cli import bench, selected
 from hild.bench.contact import ContactSettings, contact_targets, run_contact, target
 from hild.bench.contact_adapters import TEACH_CONTROLLER, ContactAdapters
-from hild.bench.contact_rig import JOINTS, JTC, ContactRig, RigSpec
+from hild.bench.contact_rig import JOINTS, JTC, ContactRig, RigSpec, rig_config
 from hild.bench.report import format_report, write_json
 from hild.bench.scenarios import Settings
 from hild.cycle.engine import Engine
 from hild.cycle.supervisor import Fault
-
-
-class NothingAdapters(ContactAdapters):
-    """An install without any of the three pieces, whatever this branch has."""
-
-    def observer_missing(self) -> str | None:
-        return "observer piece"
-
-    def walls_missing(self) -> str | None:
-        return "walls piece"
-
-    def teach_missing(self) -> str | None:
-        return "teach piece"
-
 
 TINY = ContactSettings(
     hits=2, quiet_seconds=1.0, obstacle_hits=1, wall_runs=1, guide_poses=1, cost_cycles=400, seed=3, quick=True
@@ -45,15 +32,13 @@ def test_contact_runs_only_when_named() -> None:
     assert selected(["contact"]) == ["contact"]
 
 
-def test_a_missing_piece_is_a_miss_that_names_it_never_a_pass() -> None:
-    report = run_contact(TINY, NothingAdapters())
-    targets = report["targets"]
-    assert len(targets) == 9 and {t["group"] for t in targets} == {"contact"}
-    assert {t["status"] for t in targets} == {"MISS"}
-    assert all(t["detail"].startswith("not available: ") and t["measured"] is None for t in targets)
-    assert {t["detail"] for t in targets} == {f"not available: {p} piece" for p in ("observer", "walls", "teach")}
-    assert report["cost"]["observer_off"]["n"] == TINY.cost_cycles  # the baseline is still measured
-    assert "detection" not in report and "walls" not in report and "guiding" not in report
+def test_the_seam_switches_the_observer_on_with_the_configs_own_thresholds() -> None:
+    adapters = ContactAdapters()
+    data = rig_config(RigSpec(safety=adapters.observer_safety(True)), "x")
+    contact = data["safety"]["contact"]
+    assert contact["enabled"] is True and contact["force"]["collision"] == adapters.collision_force_threshold()
+    assert data["safety"]["stop_descent"] == 2.0  # the rest of the section kept
+    assert rig_config(RigSpec(safety=adapters.observer_safety(False)), "x")["safety"]["contact"]["enabled"] is False
 
 
 def test_the_reduced_group_prints_and_writes_contact_rows(tmp_path: Path) -> None:
@@ -73,7 +58,7 @@ def test_a_row_passes_only_on_a_measurement_within_its_limit() -> None:
     assert target("x", 11.0, 10.0, "ms", "b")["status"] == "MISS"
     assert target("x", None, 10.0, "ms", "b")["status"] == "MISS"
     assert target("x", float("nan"), 10.0, "ms", "b")["status"] == "MISS"
-    assert target("x", 1.0, 10.0, "ms", "b", missing="p")["detail"] == "not available: p"
+    assert target("x", 1.0, 10.0, "ms", "b", error="boom")["detail"] == "error: boom"
 
 
 # ---- the measurements, end to end, through test doubles of the pieces ---------------------------------------------
@@ -83,15 +68,6 @@ class DoubleAdapters(ContactAdapters):
     harness's plumbing (timing, recovery, rows), not any piece."""
 
     rig: ContactRig | None = None
-
-    def observer_missing(self) -> str | None:
-        return None
-
-    def walls_missing(self) -> str | None:
-        return None
-
-    def teach_missing(self) -> str | None:
-        return None
 
     def observer_safety(self, on: bool) -> dict[str, Any]:
         return {}
@@ -108,7 +84,7 @@ class DoubleAdapters(ContactAdapters):
         if rig is not None and rig.engine is engine and not engine.supervisor.fault.any():
             plant = rig.plant
             if np.linalg.norm(plant.push_now) > 10.0 or np.linalg.norm(plant.contact_force()) > 5.0:
-                engine.supervisor.trip_all(Fault.DRIVE, "collision (test double)")
+                engine.supervisor.trip_all(Fault.COLLISION, "collision (test double)")
         return super().collision_latched(engine)
 
 
