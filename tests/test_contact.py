@@ -326,3 +326,72 @@ def test_an_untrusted_cycle_restarts_the_observer_and_publishes_nan() -> None:
     assert np.isfinite(found.tau_ext).all() and len(recorder.told) == 1
     found.observe(state, last, False, 0.002)  # a reading missing, a drive fault, an e-stop
     assert np.isnan(found.tau_ext).all() and len(recorder.told) == 1
+
+
+# ---- the finding issue 28 quotes: "a trajectory that hits an obstacle today pushes with the full effort limit until
+# path tolerance aborts it" ---------------------------------------------------------------------------------------
+SWEEP = 0.8  # rad of shoulder_pan: the tool sweeps sideways through a post in its way
+
+
+def post_in_the_way(tmp_path: Path, contact: dict[str, Any]) -> Engine:
+    """arm6 on the lockstep twin (the plant as modelled) with a fixed post where the tool passes at pan + SWEEP/2."""
+    path = config(tmp_path, contact, scale=1.0)
+    raw = yaml.safe_load(path.read_text())
+    model = mujoco.MjModel.from_xml_path(str(CONFIGS / "arm6.xml"))
+    data = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, data, mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, "home"))
+    data.qpos[0] += SWEEP / 2
+    mujoco.mj_kinematics(model, data)
+    tool = data.site_xpos[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, "tool")].tolist()
+    post = {"name": "post", "size": [0.03, 0.03, 0.03], "pos": tool, "fixed": True}
+    raw["hardware"]["twin"]["params"]["objects"] = [post]
+    path.write_text(yaml.safe_dump(raw))
+    engine = Engine(load_config(path))
+    engine.start()
+    return engine
+
+
+def sweep_into_the_post(engine: Engine, seconds: float) -> tuple[str, float, float, float]:
+    """A joint_trajectory move through the post: its final status, the largest torque shoulder_pan's drive applied
+    (the twin's reply, N·m), that torque at the end (``seconds`` later), and the sim time the collision fault
+    latched (inf if never)."""
+    from hild.api.goals import GoalEndpoint  # the client half of the goal, as the API builds it
+
+    assert engine.switch(["joint_trajectory"], []).ok
+    jtc = engine.manager.records["joint_trajectory"].instance
+    goals = GoalEndpoint.of(jtc.action)
+    goal = {j: float(engine.state.position[engine.joints.index(j)]) for j in jtc.params.joints}
+    goal["shoulder_pan"] += SWEEP
+    reply = goals.submit({"positions": list(goal.values()), "duration": 1.0})  # in the controller's joint order
+    assert reply["ok"], reply
+    pan = engine.joints.index("shoulder_pan")
+    peak, latched = 0.0, math.inf
+    for _ in range(round(seconds * engine.update_rate)):
+        engine.run_cycles(1)
+        peak = max(peak, abs(float(engine.state.effort[pan])))
+        if latched == math.inf and collided(engine):
+            latched = engine.t
+    status = goals.result({"goal_id": reply["goal_id"]}).get("status", "")
+    return status, peak, abs(float(engine.state.effort[pan])), latched
+
+
+def test_without_contact_detection_a_trajectory_into_an_obstacle_presses_on_it_until_path_tolerance(
+    tmp_path: Path,
+) -> None:
+    """The finding, reproduced: nothing notices the post but the path tolerance (0.2 rad); until then the drive
+    presses on it with kp × the lag, 100+ of arm6's 150 N·m. And the abort must end the pressing: it used to stop
+    the *desired* state, beyond the post, and press on with 137 N·m for good."""
+    engine = post_in_the_way(tmp_path, {"enabled": False})
+    status, peak, after, latched = sweep_into_the_post(engine, 2.0)
+    assert latched == math.inf and status == "aborted"  # the path tolerance ended it, not a contact check
+    assert peak > 100.0
+    assert after < 5.0  # stopped where the arm is: only what holds it there against gravity and friction
+
+
+def test_with_contact_detection_the_same_move_stops_on_touching(tmp_path: Path) -> None:
+    engine = post_in_the_way(tmp_path, {"enabled": True, **THRESHOLDS})
+    status, peak, after, latched = sweep_into_the_post(engine, 2.0)
+    assert latched < 2.0 and status == "aborted"  # the reflex deactivated the controller: its goal ended
+    assert peak < 40.0  # stopped at a fraction of what the path tolerance let through
+    assert after < 5.0
+    assert engine.supervisor.mode.tolist() == [int(JointMode.FAULT)] * 6

@@ -2,8 +2,9 @@
 
 At parity with ros2_controllers' JointTrajectoryController where it makes sense, and stricter where its users
 get hurt: every new goal starts from the current *desired* state (no jump on activation or preemption), a
-cancel or an abort decelerates jerk-limited to a stop instead of freezing the command, and a trajectory that
-ends while still moving gets a stop appended.
+cancel or an abort decelerates jerk-limited to a stop instead of freezing the command (after a path-tolerance abort
+from the *measured* state: the arm is not where its path is, and a setpoint held beyond an obstacle would press on
+it), and a trajectory that ends while still moving gets a stop appended.
 
 Joints are driven by *tracks*: a trajectory, its start time and the joints it still owns. A full goal replaces
 every track; a partial goal (``allow_partial_joints_goal``) takes its joints and leaves the others to their
@@ -373,6 +374,10 @@ class JointTrajectoryController(PlansMotion, Controller):
         if not track.finished(t):
             violation = self._path_violation(q, qd)
             if violation:
+                # The arm is not where its path is (an obstacle, a stall): stop where it *is*. Decelerating from
+                # the desired state would hold a setpoint beyond the obstacle and press on it with kp × the lag
+                # for good (issue 28: 137 of arm6's 150 N·m, long after the abort).
+                self.pd[cols], self.vd[cols], self.ad[cols] = q[cols], qd[cols], 0.0
                 self._abort(t, ErrorCode.PATH_TOLERANCE_VIOLATED, violation)
             return
         error = np.abs(self.pd[cols] - q[cols])
