@@ -2,6 +2,8 @@
 operator starts it. They live in the measuring room (``hild.bench.children``, ``hild.bench.daemon``), which the
 tools and ``hild bench`` share; this module names them for the tests."""
 
+import re
+from pathlib import Path
 from typing import Any, TypeVar
 
 from hild.bench.children import distinct_free_ports, free_endpoint, free_port, wait_for
@@ -14,6 +16,7 @@ __all__ = [
     "domain_pid",
     "free_endpoint",
     "free_port",
+    "heavier_plant",
     "running",
     "wait_for",
 ]
@@ -26,3 +29,15 @@ def component(engine: Any, kind: type[C], index: int = 0) -> C:
     found = engine.hardware[index].component
     assert isinstance(found, kind), type(found)
     return found
+
+
+def heavier_plant(model: Path, directory: Path, scale: float) -> Path:
+    """A copy of the MJCF ``model`` in ``directory`` with every link's mass and inertia ×``scale`` (the motors'
+    armature and damping unchanged): the plant a twin drives when the model hild computes with is that far off."""
+
+    def scaled(m: re.Match[str]) -> str:
+        return f'{m.group(1)}="' + " ".join(f"{float(x) * scale:.6g}" for x in m.group(2).split()) + '"'
+
+    path = directory / f"{model.stem}_x{scale:g}.xml"
+    path.write_text(re.sub(r'(mass|diaginertia)="([^"]+)"', scaled, model.read_text()))
+    return path

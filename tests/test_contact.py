@@ -24,7 +24,7 @@ from hild.cycle.supervisor import Fault
 from hild.dynamics.friction import FrictionArrays
 from hild.modes import JointMode
 from tests.conftest import CONFIGS
-from tests.helpers import component
+from tests.helpers import component, heavier_plant
 from tests.test_engine import JumpGuard, events, send
 
 WRISTS = ("wrist_1", "wrist_2", "wrist_3")
@@ -35,21 +35,12 @@ THRESHOLDS: dict[str, Any] = {
 }
 
 
-def heavier_plant(tmp_path: Path, scale: float) -> Path:
-    """arm6.xml with every link's mass and inertia scaled (the motors' armature and damping unchanged)."""
-
-    def scaled(m: re.Match[str]) -> str:
-        return f'{m.group(1)}="' + " ".join(f"{float(x) * scale:.6g}" for x in m.group(2).split()) + '"'
-
-    path = tmp_path / "plant.xml"
-    path.write_text(re.sub(r'(mass|diaginertia)="([^"]+)"', scaled, (CONFIGS / "arm6.xml").read_text()))
-    return path
-
-
 def config(tmp_path: Path, contact: dict[str, Any], scale: float = 1.1) -> Path:
     raw = yaml.safe_load((CONFIGS / "arm6_twin.yaml").read_text())
     raw["robot"]["model"] = str(CONFIGS / "arm6.xml")  # what hild models
-    raw["hardware"]["twin"]["params"]["model"] = str(heavier_plant(tmp_path, scale))  # what it drives
+    raw["hardware"]["twin"]["params"]["model"] = str(
+        heavier_plant(CONFIGS / "arm6.xml", tmp_path, scale)
+    )  # what it drives
     raw["clock"] = {"source": "sim", "real_time_factor": 0.0}
     raw["safety"]["contact"] = contact
     path = tmp_path / "arm6_contact.yaml"
