@@ -108,6 +108,8 @@ class MomentumObserver:
         self._dofs = [int(a) for a in dofadr]
         self._now = _Reading(m, qposadr, dofadr)  # this reading
         self._prev = _Reading(m, qposadr, dofadr)  # the previous one: the interval's start
+        self.datas = (self._now.data, self._prev.data)  # both, for who reads the model at a reading (the tool force)
+        self.latest = self._now.data  # the one holding the last reading: its kinematics, comPos and M are done
         self._step = np.zeros(m.nv)  # q̇_k − q̇_{k−1} over every dof (0 where not a joint of ours)
 
         self.residual = np.zeros(n)
@@ -130,6 +132,7 @@ class MomentumObserver:
         """Start again at this reading: ``p̂ = p``, ``r = 0``."""
         now = self._now
         now.evaluate(q, qd)
+        self.latest = now.data
         self._bias_prev, self._passive_prev = (
             now.joints(now.bias, now.joint_bias),
             now.joints(now.passive, now.joint_passive),
@@ -145,6 +148,7 @@ class MomentumObserver:
         self._prev, self._now = prev, now = self._now, self._prev  # the last reading is the interval's start
         m = self.model
         now.evaluate(q, qd)
+        self.latest = now.data
         np.subtract(now.qvel, prev.qvel, out=self._step)
         mujoco.mj_mulM(m, now.data, now.mass_step, self._step)
         mujoco.mj_mulM(m, prev.data, prev.mass_step, self._step)
