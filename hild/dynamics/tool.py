@@ -134,7 +134,7 @@ class ToolPoint:
 
 
 class ReadingJacobian:
-    """The tool point's position Jacobian at the momentum observer's latest reading (``MomentumObserver.latest``: an
+    """The tool point's position Jacobian at the momentum observer's last reading (``MomentumObserver.data``: an
     ``MjData`` of the same model whose kinematics and ``mj_comPos`` are done), read off it with one ``mj_jac``.
 
     ``jacobian`` returns one array it reuses (3 × joints, ``joint_names`` order), valid until its next call.
@@ -143,8 +143,7 @@ class ReadingJacobian:
     def __init__(self, tool: ToolPoint, observer: MomentumObserver) -> None:
         if tool.model.nv != observer.model.nv or tool.model.nbody != observer.model.nbody:
             raise ValueError("the tool point and the observer must be built on the same model")
-        self.observer = observer
-        self.model, self.body, self.offset = observer.model, tool.body, tool.offset
+        self.model, self.data, self.body, self.offset = observer.model, observer.data, tool.body, tool.offset
         self._moved = bool(np.any(tool.offset != 0.0))  # a point off the frame's origin: R·offset to add
         self._jacp = np.zeros((3, observer.model.nv))
         dofs = tool._dofadr
@@ -153,24 +152,21 @@ class ReadingJacobian:
         self._dofadr = None if whole else dofs
         self._point = np.zeros(3)
         self._rotated = np.zeros(3)
-        # Per reading, its frame's origin and rotation as prebuilt views (attribute access on MjData builds new ones).
-        self._frames = {id(d): self._frame(tool, d) for d in observer.datas}
-
-    @staticmethod
-    def _frame(tool: ToolPoint, d: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
+        # The frame's origin and rotation in the observer's data, as prebuilt views (MjData builds new ones per access)
+        d = self.data
         if tool.site >= 0:
-            return d.site_xpos[tool.site], d.site_xmat[tool.site].reshape(3, 3)
-        return d.xpos[tool.body], d.xmat[tool.body].reshape(3, 3)
+            self._origin, self._rotation = d.site_xpos[tool.site], d.site_xmat[tool.site].reshape(3, 3)
+        else:
+            self._origin, self._rotation = d.xpos[tool.body], d.xmat[tool.body].reshape(3, 3)
 
     def jacobian(self, q: np.ndarray) -> np.ndarray:
         """∂point/∂q at ``q``, which must be the observer's latest reading (the contact monitor calls it right after
         the observer's ``update``)."""
-        d = self.observer.latest
-        point, rotation = self._frames[id(d)]
+        point = self._origin
         if self._moved:
-            np.matmul(rotation, self.offset, out=self._rotated)
+            np.matmul(self._rotation, self.offset, out=self._rotated)
             point = np.add(point, self._rotated, out=self._point)
-        mujoco.mj_jac(self.model, d, self._jacp, None, point, self.body)
+        mujoco.mj_jac(self.model, self.data, self._jacp, None, point, self.body)
         if self._dofadr is not None:
             np.take(self._jacp, self._dofadr, axis=1, out=self._jac)
         return self._jac
