@@ -93,7 +93,8 @@ class MomentumObserver:
 
         self.residual = np.zeros(n)
         self._r = [0.0] * n  # the residual as floats: the recursion's state
-        self._known_prev = [0.0] * n  # qfrc_bias − qfrc_passive at the interval's start
+        self._bias_prev = [0.0] * n  # qfrc_bias and qfrc_passive at the interval's start
+        self._passive_prev = [0.0] * n
 
     def __len__(self) -> int:
         return len(self.joint_names)
@@ -108,8 +109,8 @@ class MomentumObserver:
     def reset(self, q: np.ndarray, qd: np.ndarray) -> None:
         """Start again at this reading: ``p̂ = p``, ``r = 0``."""
         self._evaluate(q, qd)
-        bias, passive = self._joints(self._bias, "_bias_j"), self._joints(self._passive, "_passive_j")
-        self._known_prev = [g - p for g, p in zip(bias, passive, strict=True)]
+        self._bias_prev = self._joints(self._bias, "_bias_j")
+        self._passive_prev = self._joints(self._passive, "_passive_j")
         self._r = [0.0] * len(self._r)
         self.residual.fill(0.0)
 
@@ -137,14 +138,15 @@ class MomentumObserver:
             bias, passive = self._bias[dofs].tolist(), self._passive[dofs].tolist()
         # r_k = K·e_k = (1 − K·dt)·r_{k−1} + K·(½(M_k + M_{k−1})·Δq̇ − (τ − ½(known_k + known_{k−1}))·dt), with
         # known = qfrc_bias − qfrc_passive
-        known = [g - p for g, p in zip(bias, passive, strict=True)]
-        decay, half_k, k_dt, half_k_dt = 1.0 - self.gain * dt, 0.5 * self.gain, self.gain * dt, 0.5 * self.gain * dt
+        decay, half_k, k_dt = 1.0 - self.gain * dt, 0.5 * self.gain, self.gain * dt
         self._r = r = [
-            decay * r0 + half_k * (a + b) - k_dt * t + half_k_dt * (g + g0)
-            for r0, a, b, t, g, g0 in zip(self._r, x, y, tau.tolist(), known, self._known_prev, strict=True)
+            decay * r0 + half_k * (a + b) - k_dt * (t - 0.5 * (g - p + g0 - p0))
+            for r0, a, b, t, g, p, g0, p0 in zip(
+                self._r, x, y, tau.tolist(), bias, passive, self._bias_prev, self._passive_prev, strict=True
+            )
         ]
         self.residual[:] = r
-        self._known_prev = known
+        self._bias_prev, self._passive_prev = bias, passive
         return self.residual
 
     def _evaluate(self, q: np.ndarray, qd: np.ndarray) -> None:
