@@ -77,10 +77,10 @@ class MomentumObserver:
         self._qpos, self._qvel = d.qpos, d.qvel  # cached views: attribute access on MjData builds a new one each time
         self._bias, self._passive = d.qfrc_bias, d.qfrc_passive
         self._step = np.zeros(m.nv)  # q̇_k − q̇_{k−1} over every dof (0 where not a joint of ours)
-        self._mass_now = np.zeros(m.nv)  # M_k·Δq̇ and M_{k−1}·Δq̇
-        self._mass_prev = np.zeros(m.nv)
-        # Contacts and constraints are off in this model; with no tendon and no flex either, the stages the observer
-        # reads give the same figures as mj_fwdPosition and mj_fwdVelocity (to the bit: tests/test_momentum.py).
+        self._mass = np.zeros((2, m.nv))  # M_k·Δq̇ and M_{k−1}·Δq̇, one buffer: one tolist for both
+        self._mass_now, self._mass_prev = self._mass[0], self._mass[1]
+        # Contacts and constraints are off in this model; with no tendon and no flex either, the position stages the
+        # observer reads give the same figures as mj_fwdPosition (to the bit: tests/test_momentum.py).
         self._staged = m.ntendon == 0 and m.nflex == 0
         self._gather = np.zeros(n)  # the joints' velocity step when their dofs are not one block
         # The joints' entries as prebuilt views when they are one block of the model (the usual case).
@@ -89,7 +89,7 @@ class MomentumObserver:
         if qb is not None and db is not None:
             self._qpos_j, self._qvel_j, self._step_j = d.qpos[qb], d.qvel[db], self._step[db]
             self._bias_j, self._passive_j = d.qfrc_bias[db], d.qfrc_passive[db]
-            self._mass_now_j, self._mass_prev_j = self._mass_now[db], self._mass_prev[db]
+            self._mass_j = self._mass[:, db]
 
         self.residual = np.zeros(n)
         self._r = [0.0] * n  # the residual as floats: the recursion's state
@@ -130,11 +130,11 @@ class MomentumObserver:
         self._evaluate(q, qd)
         mujoco.mj_mulM(m, d, self._mass_now, self._step)  # M_k·Δq̇
         if self._blocks:
-            x, y = self._mass_now_j.tolist(), self._mass_prev_j.tolist()
+            x, y = self._mass_j.tolist()
             bias, passive = self._bias_j.tolist(), self._passive_j.tolist()
         else:
             dofs = self._dofadr
-            x, y = self._mass_now[dofs].tolist(), self._mass_prev[dofs].tolist()
+            x, y = self._mass[:, dofs].tolist()
             bias, passive = self._bias[dofs].tolist(), self._passive[dofs].tolist()
         # r_k = K·e_k = (1 − K·dt)·r_{k−1} + K·(½(M_k + M_{k−1})·Δq̇ − (τ − ½(known_k + known_{k−1}))·dt), with
         # known = qfrc_bias − qfrc_passive
@@ -157,16 +157,13 @@ class MomentumObserver:
         else:
             np.put(self._qpos, self._qposadr, q)
             np.put(self._qvel, self._dofadr, qd)
-        if self._staged:  # only the stages the observer reads: less code and memory touched a cycle than the two calls
+        if self._staged:  # only the position stages the observer reads: mj_fwdPosition also factors M, and more
             mujoco.mj_kinematics(m, d)
             mujoco.mj_comPos(m, d)
             mujoco.mj_makeM(m, d)  # composite inertias and M
-            mujoco.mj_comVel(m, d)
-            mujoco.mj_passive(m, d)
-            mujoco.mj_rne(m, d, 0, self._bias)  # qfrc_bias = C(q, q̇)q̇ + g(q)
-        else:  # tendons or flexes: their lengths and velocities feed the passive forces
+        else:  # tendons or flexes: their lengths feed the passive forces
             mujoco.mj_fwdPosition(m, d)
-            mujoco.mj_fwdVelocity(m, d)
+        mujoco.mj_fwdVelocity(m, d)  # qfrc_passive, and qfrc_bias = C(q, q̇)q̇ + g(q)
 
     def _joints(self, full: np.ndarray, view: str) -> list[float]:
         """The joints' entries of a per-dof array, as floats (set-up and reset: not every cycle)."""
