@@ -23,8 +23,8 @@ into a false alarm by the ``1/σ`` a plain pseudo-inverse has.
 
 Allocation-free per cycle: every array is built here; the 3 × 3 inverse and the filters run on Python floats. To
 stay within a few µs a cycle, ``G`` is refreshed in two halves on alternate cycles (the Jacobian at this cycle's
-``q`` and ``J Jᵀ``, then ``G`` from them), so the ``G`` a cycle uses is one to two cycles old: at 3 rad/s, 3–6 mrad of pose, about
-1 % of the force.
+``q`` and ``J Jᵀ``, then ``G`` from them), so the ``G`` a cycle uses is one to two cycles old: at 3 rad/s, 3–6 mrad
+of pose, about 1 % of the force.
 """
 
 from __future__ import annotations
