@@ -107,3 +107,25 @@ def test_a_released_push_does_not_trip_again_after_reset(tmp_path: Path) -> None
 def test_bad_force_thresholds_are_refused(tmp_path: Path, force: dict[str, Any], words: str) -> None:
     with pytest.raises((ConfigError, ValueError), match=words):
         Engine(load_config(config(tmp_path, {"enabled": True, "force": force})))
+
+
+def test_the_jacobian_read_off_the_observer_is_the_tool_points_own() -> None:
+    """The force check reads the tool's Jacobian off the observer's last reading instead of evaluating the model
+    again: at the same q it must be the Jacobian ToolPoint computes itself."""
+    from hild.dynamics.momentum import MomentumObserver
+    from hild.dynamics.tool import ReadingJacobian, ToolPoint
+    from tests.conftest import CONFIGS
+
+    joints = ["shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3"]
+    observer = MomentumObserver(CONFIGS / "arm6.xml", joints, 150.0, 0.001)
+    rng = np.random.default_rng(4)
+    for offset in ((0.0, 0.0, 0.0), (0.02, -0.01, 0.05)):
+        tool = ToolPoint(CONFIGS / "arm6.xml", joints, offset=offset)
+        read = ReadingJacobian(tool, observer)
+        own = np.zeros((3, 6))
+        observer.reset(rng.uniform(-2.0, 2.0, 6), np.zeros(6))
+        for _ in range(5):
+            q, qd = rng.uniform(-2.0, 2.0, 6), rng.normal(0.0, 1.0, 6)
+            observer.update(q, qd, np.zeros(6), 0.001)
+            tool.position(q)
+            assert np.allclose(read.jacobian(q), tool.jacobian(own), rtol=0.0, atol=1e-12)

@@ -147,3 +147,21 @@ def test_on_a_six_joint_arm_whose_mass_matrix_changes_it_reads_only_the_torque_i
     assert fastest > 0.5  # it really moved
     assert worst < 0.05  # N·m, against ~50 N·m of gravity on shoulder_lift
     assert np.allclose(r, external, atol=0.05)  # 300 ms after the step: e^(−45) of it left to follow
+
+
+def test_the_stages_it_runs_give_the_figures_of_the_full_forward_pass_to_the_bit() -> None:
+    """On arm6 (no tendon, no flex) the observer runs only the stages it reads; the residual must be the one the two
+    full calls (mj_fwdPosition, mj_fwdVelocity) give, exactly."""
+    from tests.conftest import CONFIGS
+
+    joints = ["shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3"]
+    staged, full = (MomentumObserver(CONFIGS / "arm6.xml", joints, 150.0, 0.001) for _ in range(2))
+    assert staged._staged
+    full._staged = False
+    rng = np.random.default_rng(5)
+    q, qd = rng.uniform(-2.0, 2.0, 6), rng.normal(0.0, 2.0, 6)
+    for o in (staged, full):
+        o.reset(q, qd)
+    for _ in range(50):
+        q, qd, tau = q + 0.001 * qd, qd + rng.normal(0.0, 0.5, 6), rng.normal(0.0, 10.0, 6)
+        assert staged.update(q, qd, tau, 0.001).tolist() == full.update(q, qd, tau, 0.001).tolist()

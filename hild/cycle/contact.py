@@ -111,6 +111,7 @@ class ContactMonitor:
         self._q_prev = [0.0] * n  # the interval's start, as floats: the per-joint sums run on Python floats
         self._qd_prev = [0.0] * n
         self._load = [0.0] * n  # low-passed |motor torque|: what model_margin scales
+        self._extra = [0.0] * n  # what model_margin adds to each joint's thresholds this cycle (N·m)
 
         size = max(2, round(HISTORY * update_rate))
         self._history = np.zeros((size, n))
@@ -200,12 +201,12 @@ class ContactMonitor:
         load (``alpha``: this cycle's share) on the way: the thresholds rise with it."""
         level, margin = self.level, self.settings.model_margin
         worst, worst_ratio = -1, 1.0
-        load = self._load
+        load, extras = self._load, self._extra
         for i, (x, m, t, contact) in enumerate(zip(r, self._raw, self._net, self._contact, strict=True)):
             a = x if x >= 0.0 else -x
             held = load[i] = load[i] + alpha * ((m if m >= 0.0 else -m) - load[i])
             t = t if t >= 0.0 else -t
-            extra = margin * (held if held > t else t)
+            extra = extras[i] = margin * (held if held > t else t)
             contact += extra
             if a <= contact and level[i] == NONE:  # the usual cycle: nothing near a threshold, nothing to release
                 continue
@@ -235,9 +236,8 @@ class ContactMonitor:
         levels; returns ``worst``, or ``len(joints)`` (the tool) for a collision there that no joint reported."""
         tf = self.tool_force
         assert tf is not None
-        margin, share = self._margin, self.settings.model_margin  # each joint's model margin, as its thresholds rise
-        margin[:] = [share * max(load, abs(net)) for load, net in zip(self._load, self._net, strict=True)]
-        excess = tf.judge(q, r, margin, dt)
+        self._margin[:] = self._extra  # each joint's model margin, as its thresholds rose in _classify
+        excess = tf.judge(q, r, self._margin, dt)
         s = self.settings
         if excess > s.force_collision and not self.collided:
             self.force_level = COLLISION

@@ -23,8 +23,8 @@ into a false alarm by the ``1/σ`` a plain pseudo-inverse has.
 
 Allocation-free per cycle: every array is built here; the 3 × 3 inverse and the filters run on Python floats. To
 stay within a few µs a cycle, ``G`` is refreshed in two halves on alternate cycles (the Jacobian at this cycle's
-``q``, then ``G`` from it), so the ``G`` a cycle uses is one to two cycles old: at 3 rad/s, 3–6 mrad of pose, about
-1 % of the force.
+``q`` and ``J Jᵀ``, then ``G`` from them), so the ``G`` a cycle uses is one to two cycles old: at 3 rad/s, 3–6 mrad
+of pose, about 1 % of the force.
 """
 
 from __future__ import annotations
@@ -36,11 +36,10 @@ import numpy as np
 
 
 class ToolKinematics(Protocol):
-    """What the estimate needs from the model (``hild.dynamics.tool.ToolPoint``)."""
+    """What the estimate needs from the model (``hild.dynamics.tool.ReadingJacobian``): the tool point's position
+    Jacobian at ``q`` (3 × joints), in an array the caller may only read until the next call."""
 
-    def position(self, q: np.ndarray, out: np.ndarray | None = None) -> np.ndarray: ...
-
-    def jacobian(self, out: np.ndarray) -> np.ndarray: ...
+    def jacobian(self, q: np.ndarray) -> np.ndarray: ...
 
 
 class ToolForce:
@@ -63,10 +62,9 @@ class ToolForce:
         self.bandwidth = float(bandwidth)
         self.baseline = float(baseline)
         self.settle = float(settle)  # s after a (re)start before a change counts: the observer's own rise
-        self.force = np.full(3, np.nan)
         self.change = self.level = self.excess = math.nan
         self._jac = np.zeros((3, joints))
-        self._jac_t = self._jac.T  # a view, prebuilt: .T makes a new one each call
+        self._jac_t = self._jac.T
         self._jjt = np.zeros((3, 3))
         self._inverse = np.zeros((3, 3))
         self._gain = np.zeros((3, joints))  # G = (J Jᵀ + λ²I)⁻¹ J
@@ -75,16 +73,21 @@ class ToolForce:
         self._fresh = False  # G computed at least once since the restart
         self._raw = np.zeros(3)
         self._image = np.zeros(3)
-        self._filtered = [0.0, 0.0, 0.0]
-        self._base = [0.0, 0.0, 0.0]
+        self._filtered = (math.nan, math.nan, math.nan)  # F̄ and its baseline B, as floats
+        self._base = (0.0, 0.0, 0.0)
         self._primed = False
         self._armed_in = 0.0
+
+    @property
+    def force(self) -> np.ndarray:
+        """F̄ (N, world; NaN until judged after a restart): a new array, for the events' words and inspection."""
+        return np.array(self._filtered)
 
     def restart(self) -> None:
         """The observer restarted: forget the filter and the baseline, disarm the change until it settled."""
         self._primed = False
         self._fresh = False
-        self.force.fill(np.nan)
+        self._filtered = (math.nan, math.nan, math.nan)
         self.change = self.level = self.excess = math.nan
 
     def rearm(self) -> None:
@@ -97,49 +100,46 @@ class ToolForce:
         self._estimate(q, tau_ext, margin)
         fx, fy, fz = self._raw.tolist()
         ix, iy, iz = self._image.tolist()
-        bound = math.sqrt(ix * ix + iy * iy + iz * iz)
-        f, b = self._filtered, self._base
-        if not self._primed:
-            f[0], f[1], f[2] = fx, fy, fz
-            b[0], b[1], b[2] = fx, fy, fz
+        if self._primed:
+            a = min(1.0, self.bandwidth * dt)
+            f0, f1, f2 = self._filtered
+            fx, fy, fz = f0 + a * (fx - f0), f1 + a * (fy - f1), f2 + a * (fz - f2)
+            bx, by, bz = self._base
+        else:
+            bx, by, bz = fx, fy, fz
             self._primed = True
             self._armed_in = self.settle
-        else:
-            a = min(1.0, self.bandwidth * dt)
-            f[0] += a * (fx - f[0])
-            f[1] += a * (fy - f[1])
-            f[2] += a * (fz - f[2])
-        dx, dy, dz = f[0] - b[0], f[1] - b[1], f[2] - b[2]
-        change = math.sqrt(dx * dx + dy * dy + dz * dz)
+        self._filtered = (fx, fy, fz)
+        dx, dy, dz = fx - bx, fy - by, fz - bz
         if self._armed_in > 0.0:  # settling: the baseline follows exactly, no change counts
             self._armed_in -= dt
-            b[0], b[1], b[2] = f[0], f[1], f[2]
+            self._base = (fx, fy, fz)
             change = 0.0
         else:
             w = min(1.0, dt / self.baseline)
-            b[0] += w * dx
-            b[1] += w * dy
-            b[2] += w * dz
-        self.force[0], self.force[1], self.force[2] = f[0], f[1], f[2]
-        level = math.sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]) - bound
+            self._base = (bx + w * dx, by + w * dy, bz + w * dz)
+            change = math.sqrt(dx * dx + dy * dy + dz * dz)
+        level = math.sqrt(fx * fx + fy * fy + fz * fz) - math.sqrt(ix * ix + iy * iy + iz * iz)
         self.change, self.level = change, level
         self.excess = change if change > level else level
         return self.excess
 
     def _estimate(self, q: np.ndarray, tau_ext: np.ndarray, margin: np.ndarray) -> None:
-        """``_raw`` = G·tau_ext and ``_image`` = |G|·margin, G refreshed in halves (both at once after a restart)."""
+        """``_raw`` = G·tau_ext and ``_image`` = |G|·margin, G refreshed in halves (both at once after a restart).
+        ``ndarray.dot`` with ``out``, not ``np.matmul``: on these sizes it costs a third as much."""
         if not self._fresh or self._phase == 0:
-            self.tool.position(q)
-            self.tool.jacobian(self._jac)
+            jac = self.tool.jacobian(q)  # the tool's array: read again next cycle, before its next call
+            if jac is not self._jac:  # the first time: its transpose as a view, prebuilt (.T makes a new one)
+                self._jac, self._jac_t = jac, jac.T
+            jac.dot(self._jac_t, out=self._jjt)  # J Jᵀ here: the two halves cost about the same
         if not self._fresh or self._phase == 1:
-            np.matmul(self._jac, self._jac_t, out=self._jjt)
             self._invert(self._jjt.tolist())
-            np.matmul(self._inverse, self._jac, out=self._gain)
+            self._inverse.dot(self._jac, out=self._gain)
             np.abs(self._gain, out=self._gain_abs)
         self._fresh = True
         self._phase ^= 1
-        np.matmul(self._gain, tau_ext, out=self._raw)
-        np.matmul(self._gain_abs, margin, out=self._image)
+        self._gain.dot(tau_ext, out=self._raw)
+        self._gain_abs.dot(margin, out=self._image)
 
     def _invert(self, a: list[list[float]]) -> None:
         """``(a + λ²I)⁻¹`` of the symmetric 3 × 3 ``a`` into ``_inverse`` (cofactors: no solver call, no array)."""
@@ -153,7 +153,5 @@ class ToolForce:
         c12 = a01 * a02 - a00 * a12
         c22 = a00 * a11 - a01 * a01
         s = 1.0 / (a00 * c00 + a01 * c01 + a02 * c02)  # > 0: λ² > 0 makes the matrix positive definite
-        inv = self._inverse
-        inv[0, 0], inv[0, 1], inv[0, 2] = c00 * s, c01 * s, c02 * s
-        inv[1, 0], inv[1, 1], inv[1, 2] = c01 * s, c11 * s, c12 * s
-        inv[2, 0], inv[2, 1], inv[2, 2] = c02 * s, c12 * s, c22 * s
+        c00, c01, c02, c11, c12, c22 = c00 * s, c01 * s, c02 * s, c11 * s, c12 * s, c22 * s
+        self._inverse[:] = ((c00, c01, c02), (c01, c11, c12), (c02, c12, c22))

@@ -21,7 +21,7 @@ import time
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -71,6 +71,9 @@ from hild.dynamics.friction import FrictionArrays
 from hild.hardware import HardwareComponent, HardwareContext, HardwareError, Lifecycle
 from hild.interfaces import ClaimError, SensorLayout, SensorSpec, interface_name
 from hild.modes import MODE_NAMES, JointMode
+
+if TYPE_CHECKING:
+    from hild.dynamics.momentum import MomentumObserver  # only a type here: mujoco stays behind the seam
 
 REQUEST_QUEUE = 64
 HEALTH_POLL_HZ = 20.0
@@ -286,22 +289,24 @@ class Engine:
             force_contact=c.force.contact if c.force else math.inf,
             force_collision=c.force.collision if c.force else math.inf,
         )
+        observer = MomentumObserver(path, self.joints, c.observer_gain, self.period)
         return ContactMonitor(
             self.joints,
             settings,
-            MomentumObserver(path, self.joints, c.observer_gain, self.period),
+            observer,
             effort_limit=self.limits.effort,
             applies_gains=self.applies_gains,
             friction=self.friction,
             emit=self.events.emit,
             update_rate=self.update_rate,
             tool=ToolPoint(path, self.joints, site=c.tool_site).position if c.reflex == "retract" else None,
-            tool_force=self._build_tool_force(loaded) if c.force else None,
+            tool_force=self._build_tool_force(loaded, observer) if c.force else None,
         )
 
-    def _build_tool_force(self, loaded: LoadedConfig) -> ToolForce:
-        """The Cartesian contact check of ``safety.contact.force`` on the tool point (docs/safety.md, "Contact")."""
-        from hild.dynamics.tool import ToolPoint  # mujoco stays behind this seam
+    def _build_tool_force(self, loaded: LoadedConfig, observer: MomentumObserver) -> ToolForce:
+        """The Cartesian contact check of ``safety.contact.force`` on the tool point (docs/safety.md, "Contact"): its
+        Jacobian read off the observer's evaluation of the model at the same reading."""
+        from hild.dynamics.tool import ReadingJacobian, ToolPoint  # mujoco stays behind this seam
 
         c = loaded.config.safety.contact
         f = c.force
@@ -314,7 +319,12 @@ class Engine:
         tool = ToolPoint(loaded.directory / loaded.config.robot.model, self.joints, site=c.tool_site)
         settle = 5.0 / c.observer_gain + 5.0 / f.bandwidth  # both low-passes within 1 % of a step
         return ToolForce(
-            tool, len(self.joints), damping=f.damping, bandwidth=f.bandwidth, baseline=f.baseline, settle=settle
+            ReadingJacobian(tool, observer),
+            len(self.joints),
+            damping=f.damping,
+            bandwidth=f.bandwidth,
+            baseline=f.baseline,
+            settle=settle,
         )
 
     def _observe_contact(self, dt: float, dt_control: float) -> None:

@@ -21,10 +21,12 @@ recursion reads, exactly,
 
     e_k = (1 − K·dt)·e_{k−1} + ½(M_k + M_{k−1})·(q̇_k − q̇_{k−1}) − (τ − ½(known_k + known_{k−1}))·dt,   r = K·e
 
-(``known = qfrc_bias − qfrc_passive``), so no dense mass matrix is formed: two ``MjData`` take turns holding the
-reading, and ``mj_mulM`` multiplies the velocity step by the new reading's ``M`` and by the previous one's, which its
-``MjData`` still holds. The 6–14 per-joint sums are plain Python floats: a numpy
-call on a 6-element array costs about a microsecond, more than the arithmetic (the supervisor does the same).
+(``known = qfrc_bias − qfrc_passive``), so no dense mass matrix is formed and one ``MjData`` holds it all: the
+velocity step is known before the new reading is evaluated, so ``mj_mulM`` multiplies it by the previous reading's
+``M`` while the data still holds it, and by the new one's right after (one ``MjData``, not two taking turns: half
+the memory a cycle touches, which on the cycle costs more than the arithmetic). The 6–14 per-joint sums are plain
+Python floats: a numpy call on a 6-element array costs about a microsecond, more than the arithmetic (the supervisor
+does the same).
 
 Runs on the cycle thread: every array is allocated here, and ``update`` allocates no array.
 """
@@ -39,44 +41,6 @@ import numpy as np
 
 from hild.arrays import contiguous_slice
 from hild.dynamics.model import load_model, scalar_joint_addresses
-
-
-class _Reading:
-    """One ``MjData`` holding a reading: its kinematics, mass matrix (``qM``), ``qfrc_bias`` and ``qfrc_passive``."""
-
-    def __init__(self, model: mujoco.MjModel, qposadr: np.ndarray, dofadr: np.ndarray) -> None:
-        self.model = model
-        self.data = d = mujoco.MjData(model)
-        d.qpos[:] = model.qpos0
-        d.qvel[:] = 0.0
-        self.qpos, self.qvel = d.qpos, d.qvel  # cached views: attribute access on MjData builds a new one each time
-        self.bias, self.passive = d.qfrc_bias, d.qfrc_passive
-        self.qposadr, self.dofadr = qposadr, dofadr
-        self.mass_step = np.zeros(model.nv)  # M of this reading × the velocity step
-        # The joints' entries as prebuilt views when they are one block of the model (the usual case).
-        qb, db = contiguous_slice(qposadr), contiguous_slice(dofadr)
-        self.qpos_view = self.qpos[qb] if qb is not None else None
-        self.qvel_view = self.qvel[db] if db is not None else None
-        self.joint_bias = self.bias[db] if db is not None else None
-        self.joint_passive = self.passive[db] if db is not None else None
-        self.joint_mass_step = self.mass_step[db] if db is not None else None
-
-    def evaluate(self, q: np.ndarray, qd: np.ndarray) -> None:
-        m, d = self.model, self.data
-        if self.qpos_view is not None and self.qvel_view is not None:
-            np.copyto(self.qpos_view, q)
-            np.copyto(self.qvel_view, qd)
-        else:
-            np.put(self.qpos, self.qposadr, q)
-            np.put(self.qvel, self.dofadr, qd)
-        # Two calls, not the stages they run one by one (kinematics, com, M; com velocities, passive, bias): on 6
-        # joints a call into MuJoCo costs more than a stage. Contacts and constraints are off in this model.
-        mujoco.mj_fwdPosition(m, d)
-        mujoco.mj_fwdVelocity(m, d)
-
-    def joints(self, full: np.ndarray, view: np.ndarray | None) -> list[float]:
-        """The joints' entries of a per-dof array of this reading, as floats."""
-        return view.tolist() if view is not None else full[self.dofadr].tolist()
 
 
 class MomentumObserver:
@@ -106,9 +70,26 @@ class MomentumObserver:
         # Its own copy of the model: only the dynamics are wanted, never contacts or constraint forces.
         m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT) | int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
         self._dofs = [int(a) for a in dofadr]
-        self._now = _Reading(m, qposadr, dofadr)  # this reading
-        self._prev = _Reading(m, qposadr, dofadr)  # the previous one: the interval's start
+        self._qposadr, self._dofadr = qposadr, dofadr
+        self.data = d = mujoco.MjData(m)  # the last reading: its kinematics, comPos, M, qfrc_bias and qfrc_passive
+        d.qpos[:] = m.qpos0
+        d.qvel[:] = 0.0
+        self._qpos, self._qvel = d.qpos, d.qvel  # cached views: attribute access on MjData builds a new one each time
+        self._bias, self._passive = d.qfrc_bias, d.qfrc_passive
         self._step = np.zeros(m.nv)  # q̇_k − q̇_{k−1} over every dof (0 where not a joint of ours)
+        self._mass = np.zeros((2, m.nv))  # M_k·Δq̇ and M_{k−1}·Δq̇, one buffer: one tolist for both
+        self._mass_now, self._mass_prev = self._mass[0], self._mass[1]
+        # Contacts and constraints are off in this model; with no tendon and no flex either, the position stages the
+        # observer reads give the same figures as mj_fwdPosition (to the bit: tests/test_momentum.py).
+        self._staged = m.ntendon == 0 and m.nflex == 0
+        self._gather = np.zeros(n)  # the joints' velocity step when their dofs are not one block
+        # The joints' entries as prebuilt views when they are one block of the model (the usual case).
+        qb, db = contiguous_slice(qposadr), contiguous_slice(dofadr)
+        self._blocks = qb is not None and db is not None
+        if qb is not None and db is not None:
+            self._qpos_j, self._qvel_j, self._step_j = d.qpos[qb], d.qvel[db], self._step[db]
+            self._bias_j, self._passive_j = d.qfrc_bias[db], d.qfrc_passive[db]
+            self._mass_j = self._mass[:, db]
 
         self.residual = np.zeros(n)
         self._r = [0.0] * n  # the residual as floats: the recursion's state
@@ -121,19 +102,15 @@ class MomentumObserver:
     @property
     def momentum(self) -> np.ndarray:
         """``p = M(q)·q̇`` at the last reading (a new array: for inspection, not for the cycle)."""
-        now = self._now
         full = np.zeros(self.model.nv)
-        mujoco.mj_mulM(self.model, now.data, full, now.qvel)
+        mujoco.mj_mulM(self.model, self.data, full, self._qvel)
         return full[self._dofs]
 
     def reset(self, q: np.ndarray, qd: np.ndarray) -> None:
         """Start again at this reading: ``p̂ = p``, ``r = 0``."""
-        now = self._now
-        now.evaluate(q, qd)
-        self._bias_prev, self._passive_prev = (
-            now.joints(now.bias, now.joint_bias),
-            now.joints(now.passive, now.joint_passive),
-        )
+        self._evaluate(q, qd)
+        self._bias_prev = self._joints(self._bias, "_bias_j")
+        self._passive_prev = self._joints(self._passive, "_passive_j")
         self._r = [0.0] * len(self._r)
         self.residual.fill(0.0)
 
@@ -142,30 +119,52 @@ class MomentumObserver:
 
         ``tau``: the joint torque that acted over the interval, net of friction the model does not hold (the
         caller subtracts the identified friction)."""
-        self._prev, self._now = prev, now = self._now, self._prev  # the last reading is the interval's start
-        m = self.model
-        now.evaluate(q, qd)
-        np.subtract(now.qvel, prev.qvel, out=self._step)
-        mujoco.mj_mulM(m, now.data, now.mass_step, self._step)
-        mujoco.mj_mulM(m, prev.data, prev.mass_step, self._step)
-        bias, passive = now.joints(now.bias, now.joint_bias), now.joints(now.passive, now.joint_passive)
+        m, d = self.model, self.data
+        if self._blocks:  # the velocity step, while the data still holds the previous reading
+            np.subtract(qd, self._qvel_j, out=self._step_j)
+        else:
+            np.take(self._qvel, self._dofadr, out=self._gather)
+            np.subtract(qd, self._gather, out=self._gather)
+            np.put(self._step, self._dofadr, self._gather)
+        mujoco.mj_mulM(m, d, self._mass_prev, self._step)  # M_{k−1}·Δq̇
+        self._evaluate(q, qd)
+        mujoco.mj_mulM(m, d, self._mass_now, self._step)  # M_k·Δq̇
+        if self._blocks:
+            x, y = self._mass_j.tolist()
+            bias, passive = self._bias_j.tolist(), self._passive_j.tolist()
+        else:
+            dofs = self._dofadr
+            x, y = self._mass[:, dofs].tolist()
+            bias, passive = self._bias[dofs].tolist(), self._passive[dofs].tolist()
         # r_k = K·e_k = (1 − K·dt)·r_{k−1} + K·(½(M_k + M_{k−1})·Δq̇ − (τ − ½(known_k + known_{k−1}))·dt), with
         # known = qfrc_bias − qfrc_passive
         decay, half_k, k_dt = 1.0 - self.gain * dt, 0.5 * self.gain, self.gain * dt
         self._r = r = [
-            decay * r0 + half_k * (x + y) - k_dt * (t - 0.5 * (g - p + g0 - p0))
-            for r0, x, y, t, g, p, g0, p0 in zip(
-                self._r,
-                now.joints(now.mass_step, now.joint_mass_step),
-                prev.joints(prev.mass_step, prev.joint_mass_step),
-                tau.tolist(),
-                bias,
-                passive,
-                self._bias_prev,
-                self._passive_prev,
-                strict=True,
+            decay * r0 + half_k * (a + b) - k_dt * (t - 0.5 * (g - p + g0 - p0))
+            for r0, a, b, t, g, p, g0, p0 in zip(
+                self._r, x, y, tau.tolist(), bias, passive, self._bias_prev, self._passive_prev, strict=True
             )
         ]
         self.residual[:] = r
         self._bias_prev, self._passive_prev = bias, passive
         return self.residual
+
+    def _evaluate(self, q: np.ndarray, qd: np.ndarray) -> None:
+        m, d = self.model, self.data
+        if self._blocks:
+            np.copyto(self._qpos_j, q)
+            np.copyto(self._qvel_j, qd)
+        else:
+            np.put(self._qpos, self._qposadr, q)
+            np.put(self._qvel, self._dofadr, qd)
+        if self._staged:  # only the position stages the observer reads: mj_fwdPosition also factors M, and more
+            mujoco.mj_kinematics(m, d)
+            mujoco.mj_comPos(m, d)
+            mujoco.mj_makeM(m, d)  # composite inertias and M
+        else:  # tendons or flexes: their lengths feed the passive forces
+            mujoco.mj_fwdPosition(m, d)
+        mujoco.mj_fwdVelocity(m, d)  # qfrc_passive, and qfrc_bias = C(q, q̇)q̇ + g(q)
+
+    def _joints(self, full: np.ndarray, view: str) -> list[float]:
+        """The joints' entries of a per-dof array, as floats (set-up and reset: not every cycle)."""
+        return getattr(self, view).tolist() if self._blocks else full[self._dofadr].tolist()

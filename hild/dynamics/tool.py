@@ -3,6 +3,10 @@ on the cycle (``hild.cycle.walls``, docs/safety.md "Virtual walls").
 
 Cycle-safe like :mod:`hild.dynamics.gravity`: one private ``MjData``, views and result arrays built once, and per
 call only ``mj_kinematics`` (plus ``mj_comPos`` and ``mj_jac`` for the Jacobian) on caller-owned arrays.
+
+``ReadingJacobian`` is the contact force's cheaper way to the same Jacobian: the momentum observer has just evaluated
+the model at the very reading the force check wants, so only ``mj_jac`` is left to do (docs/performance.md, "Contact
+safety").
 """
 
 from __future__ import annotations
@@ -15,6 +19,7 @@ import numpy as np
 
 from hild.arrays import contiguous_slice
 from hild.dynamics.model import load_model, scalar_joint_addresses
+from hild.dynamics.momentum import MomentumObserver
 
 DEFAULT_SITES = ("tool", "flange", "tool0", "tcp")  # the tool frame a model names, in this order of preference
 
@@ -126,6 +131,45 @@ class ToolPoint:
         mujoco.mj_jac(m, d, self._jacp, None, self.point, self.body)
         np.take(self._jacp, self._dofadr, axis=1, out=out)
         return out
+
+
+class ReadingJacobian:
+    """The tool point's position Jacobian at the momentum observer's last reading (``MomentumObserver.data``: an
+    ``MjData`` of the same model whose kinematics and ``mj_comPos`` are done), read off it with one ``mj_jac``.
+
+    ``jacobian`` returns one array it reuses (3 × joints, ``joint_names`` order), valid until its next call.
+    """
+
+    def __init__(self, tool: ToolPoint, observer: MomentumObserver) -> None:
+        if tool.model.nv != observer.model.nv or tool.model.nbody != observer.model.nbody:
+            raise ValueError("the tool point and the observer must be built on the same model")
+        self.model, self.data, self.body, self.offset = observer.model, observer.data, tool.body, tool.offset
+        self._moved = bool(np.any(tool.offset != 0.0))  # a point off the frame's origin: R·offset to add
+        self._jacp = np.zeros((3, observer.model.nv))
+        dofs = tool._dofadr
+        whole = dofs.tolist() == list(range(observer.model.nv))
+        self._jac = self._jacp if whole else np.zeros((3, len(dofs)))  # every dof a joint of ours: no copy
+        self._dofadr = None if whole else dofs
+        self._point = np.zeros(3)
+        self._rotated = np.zeros(3)
+        # The frame's origin and rotation in the observer's data, as prebuilt views (MjData builds new ones per access)
+        d = self.data
+        if tool.site >= 0:
+            self._origin, self._rotation = d.site_xpos[tool.site], d.site_xmat[tool.site].reshape(3, 3)
+        else:
+            self._origin, self._rotation = d.xpos[tool.body], d.xmat[tool.body].reshape(3, 3)
+
+    def jacobian(self, q: np.ndarray) -> np.ndarray:
+        """∂point/∂q at ``q``, which must be the observer's latest reading (the contact monitor calls it right after
+        the observer's ``update``)."""
+        point = self._origin
+        if self._moved:
+            np.matmul(self._rotation, self.offset, out=self._rotated)
+            point = np.add(point, self._rotated, out=self._point)
+        mujoco.mj_jac(self.model, self.data, self._jacp, None, point, self.body)
+        if self._dofadr is not None:
+            np.take(self._jacp, self._dofadr, axis=1, out=self._jac)
+        return self._jac
 
 
 def _descends(m: mujoco.MjModel, body: int, ancestor: int) -> bool:
