@@ -386,3 +386,26 @@ def test_with_contact_detection_the_same_move_stops_on_touching(tmp_path: Path) 
     assert peak < 40.0  # stopped at a fraction of what the path tolerance let through
     assert after < 5.0
     assert engine.supervisor.mode.tolist() == [int(JointMode.FAULT)] * 6
+
+
+def test_the_supervisors_gravity_is_the_observers_at_its_reading_and_the_models_elsewhere(tmp_path: Path) -> None:
+    """With the observer on, one evaluation of the arm's dynamics per cycle serves the observer and the supervisor's
+    gravity feed-forward: the same torques, to the last bit, as the gravity model's own."""
+    from hild.dynamics.gravity import GravityModel
+
+    engine = twin(tmp_path)
+    model = GravityModel(CONFIGS / "arm6.xml", engine.joints)
+    assert engine.switch(["forward_position"], []).ok
+    target = engine.state.position + 0.3
+    expected = np.zeros(6)
+    for _ in range(200):  # moving: a new reading every cycle
+        send(engine, "forward_position", target.tolist())
+        engine.run_cycles(1)
+        model.compute(engine.state.position, expected)
+        assert np.array_equal(engine.supervisor.gravity_torque, expected)
+    observer = engine.contact.observer  # type: ignore[union-attr]
+    elsewhere, out = engine.state.position + 0.1, np.zeros(6)
+    assert not observer.gravity_at(elsewhere, out) and not out.any()  # not its reading: the model computes it
+    engine.supervisor.gravity(elsewhere, out)
+    model.compute(elsewhere, expected)
+    assert np.array_equal(out, expected)

@@ -147,6 +147,14 @@ class ContactMonitor:
         worst = self._classify(r.tolist(), min(1.0, self._gain * dt))
         return worst if self.tool_force is None else self._classify_force(q, r, dt, worst)  # the force at the tool
 
+    def after_write(self, q: np.ndarray) -> None:
+        """After the cycle's writes: what the next cycle's check needs and this cycle's command does not — the force
+        estimate's G at this reading (``q``) and the image of the joints' model margins at the tool. Off the path
+        of the command, so it never delays one."""
+        if self.running and self.tool_force is not None:
+            self._margin[:] = self._extra  # each joint's model margin, as its thresholds rose in this cycle's check
+            self.tool_force.refresh(q, self._margin)
+
     def _restart(self, q: np.ndarray, qd: np.ndarray) -> None:
         self.running = False
         self.tau_ext.fill(np.nan)
@@ -236,7 +244,8 @@ class ContactMonitor:
         levels; returns ``worst``, or ``len(joints)`` (the tool) for a collision there that no joint reported."""
         tf = self.tool_force
         assert tf is not None
-        self._margin[:] = self._extra  # each joint's model margin, as its thresholds rose in _classify
+        if not tf.fresh:  # the first check after a restart: G and the margin's image are taken now
+            self._margin[:] = self._extra
         excess = tf.judge(q, r, self._margin, dt)
         s = self.settings
         if excess > s.force_collision and not self.collided:

@@ -21,10 +21,10 @@ into a false alarm by the ``1/σ`` a plain pseudo-inverse has.
 * **level**: ``‖F̄‖ − ‖ |G|·margin ‖``: the whole force, less the worst image at the tool of the model's possible
   error per joint (``model_margin`` × load, N·m, either sign; |G| element-wise) — a force that built up slowly.
 
-Allocation-free per cycle: every array is built here; the 3 × 3 inverse and the filters run on Python floats. To
-stay within a few µs a cycle, ``G`` is refreshed in two halves on alternate cycles (the Jacobian at this cycle's
-``q`` and ``J Jᵀ``, then ``G`` from them), so the ``G`` a cycle uses is one to two cycles old: at 3 rad/s, 3–6 mrad
-of pose, about 1 % of the force.
+Allocation-free per cycle: every array is built here; the 3 × 3 inverse and the filters run on Python floats. ``G``
+changes with the pose only, so it is not computed on the way to the command: `refresh` runs after the cycle's
+writes, at that cycle's reading, and the next cycle's `judge` uses it — one cycle old: at 3 rad/s, 3 mrad of pose,
+well under 1 % of the force.
 """
 
 from __future__ import annotations
@@ -69,10 +69,10 @@ class ToolForce:
         self._inverse = np.zeros((3, 3))
         self._gain = np.zeros((3, joints))  # G = (J Jᵀ + λ²I)⁻¹ J
         self._gain_abs = np.zeros((3, joints))  # |G|
-        self._phase = 0  # 0: the Jacobian is refreshed this cycle, 1: G from it
-        self._fresh = False  # G computed at least once since the restart
+        self.fresh = False  # G computed at least once since the restart
         self._raw = np.zeros(3)
         self._image = np.zeros(3)
+        self._bound = 0.0  # ‖ |G|·margin ‖ (N) as of the last refresh
         self._filtered = (math.nan, math.nan, math.nan)  # F̄ and its baseline B, as floats
         self._base = (0.0, 0.0, 0.0)
         self._primed = False
@@ -86,7 +86,7 @@ class ToolForce:
     def restart(self) -> None:
         """The observer restarted: forget the filter and the baseline, disarm the change until it settled."""
         self._primed = False
-        self._fresh = False
+        self.fresh = False
         self._filtered = (math.nan, math.nan, math.nan)
         self.change = self.level = self.excess = math.nan
 
@@ -96,10 +96,12 @@ class ToolForce:
 
     def judge(self, q: np.ndarray, tau_ext: np.ndarray, margin: np.ndarray, dt: float) -> float:
         """Estimate the force at the tool for ``tau_ext`` at ``q``, filter it and return ``excess`` (N): the larger of
-        its sudden change and its level above the model margin's image (``margin``: N·m per joint, ≥ 0)."""
-        self._estimate(q, tau_ext, margin)
+        its sudden change and its level above the model margin's image (``margin``: N·m per joint, ≥ 0; taken with G
+        after a restart, else the image `refresh` computed after the last cycle's writes)."""
+        if not self.fresh:
+            self.refresh(q, margin)
+        self._gain.dot(tau_ext, out=self._raw)  # ndarray.dot with out: on these sizes a third of np.matmul's cost
         fx, fy, fz = self._raw.tolist()
-        ix, iy, iz = self._image.tolist()
         if self._primed:
             a = min(1.0, self.bandwidth * dt)
             f0, f1, f2 = self._filtered
@@ -119,27 +121,28 @@ class ToolForce:
             w = min(1.0, dt / self.baseline)
             self._base = (bx + w * dx, by + w * dy, bz + w * dz)
             change = math.sqrt(dx * dx + dy * dy + dz * dz)
-        level = math.sqrt(fx * fx + fy * fy + fz * fz) - math.sqrt(ix * ix + iy * iy + iz * iz)
+        level = math.sqrt(fx * fx + fy * fy + fz * fz) - self._bound
         self.change, self.level = change, level
         self.excess = change if change > level else level
         return self.excess
 
-    def _estimate(self, q: np.ndarray, tau_ext: np.ndarray, margin: np.ndarray) -> None:
-        """``_raw`` = G·tau_ext and ``_image`` = |G|·margin, G refreshed in halves (both at once after a restart).
-        ``ndarray.dot`` with ``out``, not ``np.matmul``: on these sizes it costs a third as much."""
-        if not self._fresh or self._phase == 0:
-            jac = self.tool.jacobian(q)  # the tool's array: read again next cycle, before its next call
-            if jac is not self._jac:  # the first time: its transpose as a view, prebuilt (.T makes a new one)
-                self._jac, self._jac_t = jac, jac.T
-            jac.dot(self._jac_t, out=self._jjt)  # J Jᵀ here: the two halves cost about the same
-        if not self._fresh or self._phase == 1:
-            self._invert(self._jjt.tolist())
-            self._inverse.dot(self._jac, out=self._gain)
-            np.abs(self._gain, out=self._gain_abs)
-        self._fresh = True
-        self._phase ^= 1
-        self._gain.dot(tau_ext, out=self._raw)
+    def refresh(self, q: np.ndarray, margin: np.ndarray) -> None:
+        """G at ``q``, the observer's latest reading (the Jacobian, ``(J Jᵀ + λ²I)⁻¹ J``, ``|G|``), and the model
+        margin's image at the tool, ``‖ |G|·margin ‖``. The cycle calls it after its writes
+        (``ContactMonitor.after_write``): off the path of the command, for the next cycle's `judge`, which so uses a G
+        and a margin one cycle old (at 3 rad/s, 3 mrad of pose: well under 1 % of the force; the margin is a
+        low-passed load)."""
+        jac = self.tool.jacobian(q)  # the tool's array: valid until its next call
+        if jac is not self._jac:  # the first time: its transpose as a view, prebuilt (.T makes a new one)
+            self._jac, self._jac_t = jac, jac.T
+        jac.dot(self._jac_t, out=self._jjt)
+        self._invert(self._jjt.tolist())
+        self._inverse.dot(self._jac, out=self._gain)
+        np.abs(self._gain, out=self._gain_abs)
         self._gain_abs.dot(margin, out=self._image)
+        ix, iy, iz = self._image.tolist()
+        self._bound = math.sqrt(ix * ix + iy * iy + iz * iz)
+        self.fresh = True
 
     def _invert(self, a: list[list[float]]) -> None:
         """``(a + λ²I)⁻¹`` of the symmetric 3 × 3 ``a`` into ``_inverse`` (cofactors: no solver call, no array)."""

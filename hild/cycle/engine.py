@@ -238,10 +238,12 @@ class Engine:
         """The supervisor with the config's safety settings, and gravity feed-forward when the robot has a model."""
         cfg = loaded.config
         gravity = None
+        self._gravity_model: Any = None  # hild.dynamics.gravity.GravityModel when the robot has one
         if cfg.robot.model and cfg.safety.gravity_compensation:
             from hild.dynamics.gravity import GravityModel  # mujoco stays behind this seam
 
-            gravity = GravityModel(loaded.directory / cfg.robot.model, self.joints).compute
+            self._gravity_model = GravityModel(loaded.directory / cfg.robot.model, self.joints)
+            gravity = self._gravity_model.compute
         s = cfg.safety
         return Supervisor(
             self.joints,
@@ -289,7 +291,12 @@ class Engine:
             force_contact=c.force.contact if c.force else math.inf,
             force_collision=c.force.collision if c.force else math.inf,
         )
-        observer = MomentumObserver(path, self.joints, c.observer_gain, self.period)
+        shares_gravity = self.supervisor.gravity is not None  # one evaluation of the dynamics per cycle serves both
+        observer = MomentumObserver(path, self.joints, c.observer_gain, self.period, gravity=shares_gravity)
+        if shares_gravity:
+            from hild.dynamics.gravity import SharedGravity
+
+            self.supervisor.gravity = SharedGravity(self._gravity_model, observer).compute
         return ContactMonitor(
             self.joints,
             settings,
@@ -679,6 +686,8 @@ class Engine:
             )
         self._write(t, dt)
         self.write_done_ns = time.perf_counter_ns()  # the cycle's duration ends here: what could delay a command
+        if self.contact is not None:  # what its next check needs and no command waits for
+            self.contact.after_write(self.state.position)
         if self.tap is not None:  # after the write, so recording never delays a command; rerun runs elsewhere
             self.tap.record(t, self.cycle, self.state, self.final, sup.mode, dt)
         if (lifecycle := self._lifecycle.poll()) is not None:

@@ -5,12 +5,17 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Protocol
 
 import mujoco
 import numpy as np
 
 from hild.arrays import contiguous_slice
 from hild.dynamics.model import load_model, scalar_joint_addresses
+
+
+class GravityAt(Protocol):
+    def gravity_at(self, q: np.ndarray, out: np.ndarray) -> bool: ...
 
 
 class GravityModel:
@@ -62,3 +67,17 @@ class GravityModel:
             np.copyto(out, self._result_view)
         else:
             np.take(self._result, self._dofadr, out=out)
+
+
+class SharedGravity:
+    """The supervisor's gravity feed-forward when the contact observer runs: the observer evaluates the arm's
+    dynamics at every reading anyway (``MomentumObserver(..., gravity=True)``), so at that reading its g(q) is taken
+    as it is; any other pose (a joint without an accepted reading, held at 0) is computed by the gravity model."""
+
+    def __init__(self, model: GravityModel, observer: GravityAt) -> None:
+        self.model = model
+        self.observer = observer
+
+    def compute(self, q: np.ndarray, out: np.ndarray) -> None:
+        if not self.observer.gravity_at(q, out):
+            self.model.compute(q, out)

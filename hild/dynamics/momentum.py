@@ -51,7 +51,11 @@ class MomentumObserver:
     off, a reading missing): ``r`` starts again from 0, with no memory of what the model could not explain.
     """
 
-    def __init__(self, model_path: Path, joint_names: Sequence[str], gain: float, period: float) -> None:
+    def __init__(
+        self, model_path: Path, joint_names: Sequence[str], gain: float, period: float, *, gravity: bool = False
+    ) -> None:
+        """``gravity``: also compute the gravity torque at each reading it evaluates (``gravity``, `gravity_at`), for
+        the supervisor's feed-forward: one evaluation of the arm's dynamics per cycle serves both."""
         if not gain > 0.0:
             raise ValueError(f"observer gain {gain} must be > 0 (1/s)")
         if gain * period >= 1.0:
@@ -92,6 +96,12 @@ class MomentumObserver:
             self._mass_j = self._mass[:, db]
 
         self.residual = np.zeros(n)
+        self._with_gravity = gravity
+        self.gravity = np.zeros(n)  # g(q) at the last reading evaluated (with ``gravity``)
+        self.evaluated_at: list[float] = []  # that reading's positions, as floats
+        self._gravity_full = np.zeros(m.nv)
+        self._cvel, self._cdof_dot = d.cvel, d.cdof_dot
+        self._gravity_j = self._gravity_full[db] if db is not None else None
         self._r = [0.0] * n  # the residual as floats: the recursion's state
         self._bias_prev = [0.0] * n  # qfrc_bias and qfrc_passive at the interval's start
         self._passive_prev = [0.0] * n
@@ -163,7 +173,24 @@ class MomentumObserver:
             mujoco.mj_makeM(m, d)  # composite inertias and M
         else:  # tendons or flexes: their lengths feed the passive forces
             mujoco.mj_fwdPosition(m, d)
+        if self._with_gravity:  # g(q) alone: RNE with no body velocity (mj_fwdVelocity sets them again next)
+            self._cvel.fill(0.0)
+            self._cdof_dot.fill(0.0)
+            mujoco.mj_rne(m, d, 0, self._gravity_full)
+            if self._gravity_j is not None:
+                np.copyto(self.gravity, self._gravity_j)
+            else:
+                np.take(self._gravity_full, self._dofadr, out=self.gravity)
+            self.evaluated_at = q.tolist()
         mujoco.mj_fwdVelocity(m, d)  # qfrc_passive, and qfrc_bias = C(q, q̇)q̇ + g(q)
+
+    def gravity_at(self, q: np.ndarray, out: np.ndarray) -> bool:
+        """Write g(``q``) into ``out`` if ``q`` is the reading last evaluated (the usual cycle: the supervisor asks at
+        the reading the observer just took) and say so; False, leaving ``out`` alone, otherwise."""
+        if not self._with_gravity or q.tolist() != self.evaluated_at:
+            return False
+        np.copyto(out, self.gravity)
+        return True
 
     def _joints(self, full: np.ndarray, view: str) -> list[float]:
         """The joints' entries of a per-dof array, as floats (set-up and reset: not every cycle)."""
