@@ -361,7 +361,7 @@ SERVICE_FIELDS: dict[str, tuple[str, ...]] = {
     "enable": ("joints",),
     "set_hardware_state": ("name", "state"),
     "list_controller_types": (),
-    "load_controller": ("name", "type", "params", "fallback_controllers", "by"),
+    "load_controller": ("name", "type", "params", "fallback_controllers", "chain_to", "by"),
     "configure_controller": ("name",),
     "cleanup_controller": ("name",),
     "unload_controller": ("name",),
