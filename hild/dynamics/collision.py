@@ -13,8 +13,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from hild.arrays import contiguous_slice
-from hild.dynamics.model import load_model, scalar_joint_addresses
+from hild.dynamics.model import JointSlots, load_model, scalar_joint_addresses
 
 DEPTH = 0.001  # m: a contact shallower than this is a touch the geometry's own tolerance allows, not a collision
 
@@ -35,17 +34,12 @@ class SelfCollision:
         d.qpos[:] = m.qpos0
         self.depth = depth
         self._arm = _arm_bodies(m, [int(m.jnt_bodyid[j]) for j in jids.tolist()])
-        qb = contiguous_slice(self._qposadr)
-        self._qpos = d.qpos
-        self._qpos_view = self._qpos[qb] if qb is not None else None
+        self._pose = JointSlots(d.qpos, self._qposadr)
 
     def touching(self, q: np.ndarray) -> tuple[str, str] | None:
         """The first pair of the arm's bodies (names, model order) in collision at ``q``, or None."""
         m, d = self.model, self._data
-        if self._qpos_view is not None:
-            np.copyto(self._qpos_view, q)
-        else:
-            np.put(self._qpos, self._qposadr, q)
+        self._pose.write(q)
         mujoco.mj_kinematics(m, d)
         mujoco.mj_collision(m, d)
         if not d.ncon:

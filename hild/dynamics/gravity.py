@@ -11,7 +11,7 @@ import mujoco
 import numpy as np
 
 from hild.arrays import contiguous_slice
-from hild.dynamics.model import load_model, scalar_joint_addresses
+from hild.dynamics.model import JointSlots, load_model, scalar_joint_addresses
 
 
 class GravityAt(Protocol):
@@ -42,12 +42,11 @@ class GravityModel:
         d.qvel[:] = 0.0
         d.cvel[:] = 0.0
         d.cdof_dot[:] = 0.0
-        self._qpos = d.qpos  # cached view: attribute access on MjData builds a new ndarray each time
+        self._pose = JointSlots(d.qpos, self._qposadr)  # d.qpos once: attribute access on MjData builds a new one
         self._result = np.zeros(self.model.nv)
         # When the joints are one contiguous block in model order (the usual case), copy through prebuilt slice
         # views, which is cheaper than take/put; otherwise gather/scatter by address.
-        qb, db = contiguous_slice(self._qposadr), contiguous_slice(self._dofadr)
-        self._qpos_view = self._qpos[qb] if qb is not None else None
+        db = contiguous_slice(self._dofadr)
         self._result_view = self._result[db] if db is not None else None
 
     def __len__(self) -> int:
@@ -56,10 +55,7 @@ class GravityModel:
     def compute(self, q: np.ndarray, out: np.ndarray) -> None:
         """Write into ``out`` (one entry per joint, ``joint_names`` order) the torque balancing gravity at ``q``."""
         m, d = self.model, self._data
-        if self._qpos_view is not None:
-            np.copyto(self._qpos_view, q)
-        else:
-            np.put(self._qpos, self._qposadr, q)
+        self._pose.write(q)
         mujoco.mj_kinematics(m, d)
         mujoco.mj_comPos(m, d)
         mujoco.mj_rne(m, d, 0, self._result)

@@ -10,6 +10,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from hild.arrays import contiguous_slice
+
 # Joint types that own exactly one position and one velocity coordinate.
 SCALAR_JOINT_TYPES = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
 # MuJoCo sensors at a site that give each hild sensor type its values, in the order hild's interfaces list them
@@ -300,3 +302,21 @@ def stiffen_couplings(model: mujoco.MjModel, timestep: float) -> int:
     for c in couplings:
         model.eq_solref[c.equality] = (2.0 * timestep, 1.0)
     return len(couplings)
+
+
+class JointSlots:
+    """The robot's joints' entries in a per-qpos (or per-dof) array of an ``MjData``: a prebuilt view when they are
+    one block in model order (the usual case: a copy through it is cheaper than put), else their addresses. Writing
+    through it allocates nothing, so the cycle can pose a private ``MjData`` with it."""
+
+    def __init__(self, array: np.ndarray, addresses: np.ndarray) -> None:
+        self._array, self._addresses = array, addresses
+        block = contiguous_slice(addresses)
+        self._view = array[block] if block is not None else None
+
+    def write(self, values: np.ndarray) -> None:
+        """The joints' ``values`` (in the robot's joint order) into the array."""
+        if self._view is not None:
+            np.copyto(self._view, values)
+        else:
+            np.put(self._array, self._addresses, values)

@@ -17,8 +17,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from hild.arrays import contiguous_slice
-from hild.dynamics.model import load_model, scalar_joint_addresses
+from hild.dynamics.model import JointSlots, load_model, scalar_joint_addresses
 from hild.dynamics.momentum import MomentumObserver
 
 DEFAULT_SITES = ("tool", "flange", "tool0", "tcp")  # the tool frame a model names, in this order of preference
@@ -61,9 +60,7 @@ class ToolPoint:
         self.point = np.zeros(3)  # the last position computed (world frame)
         self._rotated = np.zeros(3)
         self._jacp = np.zeros((3, m.nv))
-        qb = contiguous_slice(self._qposadr)
-        self._qpos = d.qpos
-        self._qpos_view = self._qpos[qb] if qb is not None else None
+        self._pose = JointSlots(d.qpos, self._qposadr)
 
     @staticmethod
     def _frame(m: mujoco.MjModel, jids: np.ndarray, site: str | None, body: str | None, path: Path) -> tuple[int, int]:
@@ -113,10 +110,7 @@ class ToolPoint:
         """The tool point at joint positions ``q`` (``joint_names`` order), written into ``out`` (and ``point``).
         Leaves the pose in the private data: :meth:`jacobian` right after is at the same ``q``."""
         d = self._data
-        if self._qpos_view is not None:
-            np.copyto(self._qpos_view, q)
-        else:
-            np.put(self._qpos, self._qposadr, q)
+        self._pose.write(q)
         mujoco.mj_kinematics(self.model, d)
         np.matmul(self._rotation, self.offset, out=self._rotated)
         np.add(self._origin, self._rotated, out=self.point)
