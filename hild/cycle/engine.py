@@ -258,6 +258,7 @@ class Engine:
                 plausibility_margin=s.plausibility.margin,
                 plausible_speed_factor=s.plausibility.speed_factor,
                 plausible_step_tolerance=s.plausibility.step_tolerance,
+                plausible_time_slack=self.period,  # a reply shows the shaft somewhere in the last period
             ),
             self.events,
             gravity=gravity,

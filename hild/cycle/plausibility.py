@@ -5,7 +5,10 @@ A drive's reading is input like any other. A reading is **plausible** when
 * its position and velocity are finite,
 * its position lies inside the hard limits widened by ``margin`` (a joint may rest on its end stop), and
 * its position is no further from the last *accepted* reading than the joint could have moved since:
-  ``factor · velocity_limit · (elapsed + dt) + tolerance``, ``dt`` the reading's own cycle. ``elapsed`` is the
+  ``factor · velocity_limit · (elapsed + dt + slack) + tolerance``, ``dt`` the reading's own cycle, ``slack`` one
+  period (a reply shows the shaft at some moment of the last period, not at the cycle's start: a reading a period
+  out of step after a short cycle is motion, not a jump — found beside busy processes, where a moving joint was
+  rejected once and then faulted on readings that continued it). ``elapsed`` is the
   wall time since that reading over cycles that brought *no* reading, and only until a reading is rejected: a
   rejected reading is evidence too, and a missing reply during a rejection streak is no evidence that the shaft
   moved — were the window to widen over a streak, any persistent jump would fit at last (issue 28: a +0.3 rad
@@ -65,11 +68,15 @@ class FeedbackGate:
         factor: float,
         tolerance: float,
         emit: EmitFn,
+        slack: float = 0.0,
     ) -> None:
+        """``slack``: seconds of timing uncertainty in each reading (the cycle's period: a reply shows the shaft at
+        some moment of the last period, not at the cycle's start), added to the time a reading may have moved over."""
         n = len(joints)
         self.joints = joints
         self.emit = emit
         self.tolerance = tolerance
+        self.slack = slack
         self._lower = (lower - margin).tolist()
         self._upper = (upper + margin).tolist()
         self._speed = (velocity_limit * factor).tolist()
@@ -124,6 +131,7 @@ class FeedbackGate:
         last_raw, travel, cause, rejected = self._last_raw, self._frozen_travel, self.cause, self.rejected
         raw_age, on_jump = self._raw_age, self._on_jump
         isfinite = math.isfinite
+        span = dt + self.slack  # this reading's own time, and the uncertainty of when it was taken
         for i, q in enumerate(q_all):
             if not fresh_all[i]:  # no reading: the joint may have moved meanwhile…
                 if cause[i] == NONE:  # …but during a rejection streak that never widens the window (docstring)
@@ -137,9 +145,9 @@ class FeedbackGate:
                 why = NON_FINITE
             elif q < lower[i] or q > upper[i]:
                 why = BEYOND_LIMITS
-            elif not anchor[i] and abs(q - accepted[i]) > speed[i] * (elapsed[i] + dt) + tol:
+            elif not anchor[i] and abs(q - accepted[i]) > speed[i] * (elapsed[i] + span) + tol:
                 why = JUMP
-            elif not anchor[i] and on_jump[i] and abs(q - last_raw[i]) <= speed[i] * (raw_age[i] + dt) + tol:
+            elif not anchor[i] and on_jump[i] and abs(q - last_raw[i]) <= speed[i] * (raw_age[i] + span) + tol:
                 why = JUMP  # it continues the rejected jump: the same offset, not the shaft coming back
             elif cause[i] == FROZEN and q == last_raw[i]:
                 why = FROZEN  # once caught, a frozen encoder stays suspect until its reading moves again
@@ -164,7 +172,7 @@ class FeedbackGate:
                 if rejected[i]:
                     rejected[i] = False
                 continue
-            if why == JUMP and abs(q - last_raw[i]) <= speed[i] * (raw_age[i] + dt) + tol:
+            if why == JUMP and abs(q - last_raw[i]) <= speed[i] * (raw_age[i] + span) + tol:
                 self._steady[i] += 1
             else:
                 self._steady[i] = 0
@@ -202,7 +210,7 @@ class FeedbackGate:
             lo, hi = self._lower[i], self._upper[i]
             text = f"position {q:.4g} rad outside the hard limits and their margin [{lo:.4g}, {hi:.4g}]"
         elif why == JUMP:
-            span = self._elapsed[i] + dt
+            span = self._elapsed[i] + dt  # the time it had, as it happened (the slack is the gate's allowance)
             implied = abs(q - last) / span if span > 0.0 else math.inf
             text = f"jump of {q - last:+.4g} rad in {span * 1000:.3g} ms ({implied:.3g} rad/s implied)"
         else:

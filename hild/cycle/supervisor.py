@@ -105,6 +105,7 @@ class SafetySettings:
     plausibility_margin: float = 0.05  # rad beyond the hard limits a reading may still lie (a joint on its stop)
     plausible_speed_factor: float = 3.0  # × velocity limit: the fastest a reading may move from the last accepted
     plausible_step_tolerance: float = 0.002  # rad added to that bound (encoder quantisation and noise)
+    plausible_time_slack: float = 0.0  # s added to the time a reading may have moved over (the engine: one period)
 
 
 GravityFn = Callable[[np.ndarray, np.ndarray], None]
@@ -141,6 +142,7 @@ class Supervisor:
             factor=safety.plausible_speed_factor,
             tolerance=safety.plausible_step_tolerance,
             emit=lambda level, text: events.emit(level, "supervisor", text),
+            slack=safety.plausible_time_slack,
         )
 
         # Published state (read by status from other threads; written element-wise, only on change).
