@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import pytest
@@ -402,6 +403,25 @@ def test_a_reset_sent_before_an_estop_took_effect_never_clears_it(make_engine: M
     later = engine.request(Reset())  # sent after: it clears the e-stop
     engine.run_cycles(1)
     assert later.result(timeout=0)["cleared"] == ["e-stop"]
+
+
+def test_a_reset_sent_once_the_estop_was_answered_is_applied(make_engine: MakeEngine) -> None:
+    """Found beside two busy processes (tests/api/test_teach.py::test_refusals): the operator's reset, sent once the
+    e-stop's reply came, was refused as "an e-stop took effect after this reset was sent". The e-stop was answered
+    before the requests of its own cycle were taken, so a reset that arrived in between was taken for one sent
+    before it. A done-callback sends the reset the moment the e-stop is answered, as a fast client would."""
+    from hild.crossing.requests import Reset
+
+    engine = make_engine()
+    engine.switch(["fwd"], [])
+    resets: list[Any] = []
+    stop = engine.request_estop()
+    stop.add_done_callback(lambda _: resets.append(engine.request(Reset())))
+    engine.run_cycles(1)
+    assert stop.result(timeout=0) == {"deactivated": ["fwd"]} and len(resets) == 1
+    engine.run_cycles(1)
+    assert resets[0].result(timeout=0)["cleared"] == ["e-stop"]
+    assert engine.status()["mode"] == "hold"
 
 
 def test_a_reset_waiting_for_its_drives_is_refused_by_an_estop(make_engine: MakeEngine) -> None:

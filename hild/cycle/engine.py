@@ -659,9 +659,10 @@ class Engine:
         self.control_t = t - self._clock_lag
         self.cycle += 1
         estop_now = self._estop_requested
-        if estop_now:
-            self._apply_estop()
+        answer = self._apply_estop() if estop_now else None
         self._apply_requests(estop_now)
+        if answer is not None:  # only now: a reset sent once the e-stop is answered is taken in a later cycle
+            self._answer_estop(*answer)
         if self.take_inputs is not None:
             self._take_inputs()
         self._read(t, dt)
@@ -939,13 +940,18 @@ class Engine:
         self._estop_requested = True
         return future
 
-    def _apply_estop(self) -> None:
+    def _apply_estop(self) -> tuple[dict[str, Any], int]:
+        """Engage the e-stop; its reply and how many of the waiting requesters it answers (`_answer_estop`, once
+        this cycle's queued requests were taken: a reset sent after the answer is never taken for one sent before)."""
         self._estop_requested = False
         result = self.estop()
         for item in [item for item in self._deferred if item[2]]:  # a reset waiting for its drives: not any more
             self._deferred.remove(item)
             item[1].set_exception(Refused(RESET_OVERTAKEN))
-        while self._estop_waiters:
+        return result, len(self._estop_waiters)
+
+    def _answer_estop(self, result: dict[str, Any], count: int) -> None:
+        for _ in range(min(count, len(self._estop_waiters))):
             future = self._estop_waiters.popleft()
             if future.set_running_or_notify_cancel():
                 future.set_result(result)
