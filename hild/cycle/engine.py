@@ -171,7 +171,8 @@ class Engine:
         self.limits = JointLimitArrays.of(cfg)
         self._position_gains = JointGainArrays.of(cfg)
         self.mimic_joints = MimicJoints.of(cfg)
-        self._model_path = loaded.directory / cfg.robot.model if cfg.robot.model else None  # controllers' kinematics
+        # robot.model as a path, or None: gravity, the contact check, the walls and controllers all take it from here
+        self._model_path = loaded.directory / cfg.robot.model if cfg.robot.model else None
         self.friction = FrictionArrays.of(cfg)  # joints.<j>.friction: controllers compensate it (teach)
         self.state = JointState.zeros(n)  # joint space, what controllers see
         self.command = ServoCommand.zeros(n)  # controllers' output
@@ -239,10 +240,10 @@ class Engine:
         cfg = loaded.config
         gravity = None
         self._gravity_model: Any = None  # hild.dynamics.gravity.GravityModel when the robot has one
-        if cfg.robot.model and cfg.safety.gravity_compensation:
+        if self._model_path is not None and cfg.safety.gravity_compensation:
             from hild.dynamics.gravity import GravityModel  # mujoco stays behind this seam
 
-            self._gravity_model = GravityModel(loaded.directory / cfg.robot.model, self.joints)
+            self._gravity_model = GravityModel(self._model_path, self.joints)
             gravity = self._gravity_model.compute
         s = cfg.safety
         return Supervisor(
@@ -272,12 +273,12 @@ class Engine:
         c = cfg.safety.contact
         if not c.enabled:
             return None
-        if not cfg.robot.model:
+        if self._model_path is None:
             raise ValueError("safety.contact needs robot.model: the observer runs on the arm's dynamics")
         from hild.dynamics.momentum import MomentumObserver  # mujoco stays behind this seam
         from hild.dynamics.tool import ToolPoint
 
-        path = loaded.directory / cfg.robot.model
+        path = self._model_path
         thresholds = [c.thresholds(j) for j in self.joints]
         settings = ContactSettings(
             gain=c.observer_gain,
@@ -318,13 +319,13 @@ class Engine:
 
         c = loaded.config.safety.contact
         f = c.force
-        assert f is not None and loaded.config.robot.model
+        assert f is not None and self._model_path is not None
         if f.bandwidth * self.period >= 1.0:
             raise ValueError(
                 f"safety.contact.force.bandwidth {f.bandwidth:g}/s × period {self.period * 1e3:g} ms ≥ 1: use a "
                 f"bandwidth below {1.0 / self.period:.0f}/s"
             )
-        tool = ToolPoint(loaded.directory / loaded.config.robot.model, self.joints, site=c.tool_site)
+        tool = ToolPoint(self._model_path, self.joints, site=c.tool_site)
         settle = 5.0 / c.observer_gain + 5.0 / f.bandwidth  # both low-passes within 1 % of a step
         return ToolForce(
             ReadingJacobian(tool, observer),
@@ -360,12 +361,12 @@ class Engine:
         spec = cfg.safety.walls
         if not spec.enabled:
             return None
-        if not cfg.robot.model:
+        if self._model_path is None:
             raise ValueError("safety.walls: virtual walls need the arm's model (robot.model) for the tool point")
         from hild.dynamics.collision import SelfCollision  # mujoco stays behind this seam
         from hild.dynamics.tool import ToolPoint
 
-        model = loaded.directory / cfg.robot.model
+        model = self._model_path
         tool = ToolPoint(model, self.joints, site=spec.site, body=spec.body, offset=spec.tool_offset)
         return WallGuard(
             tool,
@@ -465,9 +466,7 @@ class Engine:
             external_torque=self.contact.tau_ext if self.contact is not None else None,
             friction=self.friction,
             gravity_torque=self.supervisor.gravity_torque if self.supervisor.gravity is not None else None,
-            model_path=self.loaded.directory / self.loaded.config.robot.model
-            if self.loaded.config.robot.model
-            else None,
+            model_path=self._model_path,
         )
 
     def controllers(self) -> dict[str, Any]:
