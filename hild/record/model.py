@@ -21,6 +21,10 @@ BLACKBOX_DIR = "blackbox"  # under recording.dir: the flight recorder's files
 STATES = ("recording", "complete", "recovered")  # an episode.json's state; a discarded episode's directory is removed
 
 
+class RecordError(Exception):
+    """A refusal or failure a client is told about in words (no episode open, recording disabled, disk full …)."""
+
+
 def mcap_name(episode_id: str) -> str:
     """rosbag2's name for a bag's first (and, here, only) file."""
     return f"{episode_id}_0.mcap"
