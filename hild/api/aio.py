@@ -106,6 +106,23 @@ class AsyncHildClient:
     async def teach(self, on: bool, joints: Iterable[str] = (), **options: Any) -> dict[str, Any]:
         return await asyncio.to_thread(self.sync.teach, on, list(joints), **options)
 
+    async def record_start(
+        self, task: str | None = None, fps: float | None = None, note: str | None = None, **options: Any
+    ) -> dict[str, Any]:
+        return await asyncio.to_thread(self.sync.record_start, task, fps, note, **options)
+
+    async def record_stop(self, **options: Any) -> dict[str, Any]:
+        return await asyncio.to_thread(self.sync.record_stop, **options)
+
+    async def record_discard(self, **options: Any) -> dict[str, Any]:
+        return await asyncio.to_thread(self.sync.record_discard, **options)
+
+    async def record_status(self, **options: Any) -> dict[str, Any]:
+        return await asyncio.to_thread(self.sync.record_status, **options)
+
+    async def blackbox(self, seconds: float | None = None, **options: Any) -> dict[str, Any]:
+        return await asyncio.to_thread(self.sync.blackbox, seconds, **options)
+
     async def cancel(self, controller: str, goal_id: str) -> dict[str, Any]:
         return await asyncio.to_thread(self.sync.cancel, controller, goal_id)
 

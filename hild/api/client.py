@@ -40,6 +40,9 @@ from hild.api.keys import ALIVE_ANY, Keys, check_chunk, robot_of_alive_key
 from hild.api.session import DEFAULT_CONNECT, client_config, declare_json_publisher, open_session, zenoh_error_text
 
 TEACH_WAIT = 5.0  # s a teach request may take: off brakes each joint to a stop before it holds
+# s a record or blackbox request may take: a stop writes the last chunk, fsyncs and writes metadata.yaml. Above the
+# daemon's own limit on the recorder (hild/api/record.py, RECORDER_TIMEOUT: 15 s), so the client hears its error.
+RECORD_WAIT = 20.0
 log = logging.getLogger("hild.api.client")
 
 
@@ -246,6 +249,62 @@ class HildClient:
         request = {"on": on, "joints": list(joints), "by": self.sender}
         wait = max(self.timeout, TEACH_WAIT) if timeout is None else timeout
         return self.call("teach", request, check=check, timeout=wait)
+
+    # ---- recording (docs/recording.md) ----------------------------------------------------------------------------
+    def record_start(
+        self,
+        task: str | None = None,
+        fps: float | None = None,
+        note: str | None = None,
+        *,
+        check: bool = True,
+        timeout: float | None = None,
+    ) -> dict[str, Any]:
+        """Open an episode: every cycle from now on goes to disk. ``task``: what it shows (the dataset's task);
+        ``fps``: the dataset's frame rate for export (default: the config's ``recording.fps``), at most the
+        robot's update rate; ``note``: kept in its ``episode.json``. The reply: ``id``, ``directory``,
+        ``start_tick``, ``task``, ``fps``. Refused while one is open or when recording is disabled."""
+        request: dict[str, Any] = {"action": "start"}
+        if task is not None:
+            request["task"] = task
+        if fps is not None:
+            if not math.isfinite(float(fps)):
+                raise ValueError("fps must be a finite number")
+            request["fps"] = float(fps)
+        if note is not None:
+            request["note"] = note
+        return self._record(request, check, timeout)
+
+    def record_stop(self, *, check: bool = True, timeout: float | None = None) -> dict[str, Any]:
+        """Close the open episode; the reply: ``id``, ``directory``, ``files`` (absolute paths, the ``.mcap`` among
+        them), ``cycles``, ``duration``, ``dropped`` (rows the recorder lost)."""
+        return self._record({"action": "stop"}, check, timeout)
+
+    def record_discard(self, *, check: bool = True, timeout: float | None = None) -> dict[str, Any]:
+        """End the open episode and delete its directory; the reply: ``id``, ``discarded``."""
+        return self._record({"action": "discard"}, check, timeout)
+
+    def record_status(self, *, check: bool = True, timeout: float | None = None) -> dict[str, Any]:
+        """``recording`` (bool), the open episode's ``id``, ``cycles``, ``duration``, and ``dropped``, ``dir``,
+        ``recorder`` (``running``, ``stopped`` or ``disabled``)."""
+        return self.call("record", {"action": "status"}, check=check, timeout=timeout)
+
+    def blackbox(
+        self, seconds: float | None = None, *, check: bool = True, timeout: float | None = None
+    ) -> dict[str, Any]:
+        """Save the flight recorder's last ``seconds`` (default: all it keeps) of every cycle now; the reply:
+        ``file``, ``cycles``, ``seconds``."""
+        request: dict[str, Any] = {}
+        if seconds is not None:
+            if not math.isfinite(float(seconds)):
+                raise ValueError("seconds must be a finite number")
+            request["seconds"] = float(seconds)
+        wait = max(self.timeout, RECORD_WAIT) if timeout is None else timeout
+        return self.call("blackbox", request, check=check, timeout=wait)
+
+    def _record(self, request: dict[str, Any], check: bool, timeout: float | None) -> dict[str, Any]:
+        wait = max(self.timeout, RECORD_WAIT) if timeout is None else timeout
+        return self.call("record", request, check=check, timeout=wait)
 
     def configure_controller(self, name: str) -> dict[str, Any]:
         return self.call("configure_controller", {"name": name})

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import math
 import os
 import sys
 import threading
@@ -138,6 +139,25 @@ def add_ctl_parser(subparsers: Any) -> None:
     )
     teach.add_argument("state", choices=("on", "off"))
     teach.add_argument("joints", nargs="*", metavar="JOINT", help="default: every joint (off: every joint in teach)")
+    record = sub.add_parser(
+        "record", parents=[common], help="episodes: every cycle on disk (start, stop, discard, status)"
+    )
+    actions = record.add_subparsers(dest="record_command", metavar="ACTION", required=True)
+    start = actions.add_parser("start", parents=[common], help="open an episode under the config's recording.dir")
+    start.add_argument("--task", metavar="TEXT", help="what the episode shows (the dataset's task)")
+    start.add_argument(
+        "--fps", type=float, metavar="F", help="the dataset's frame rate for export (default: recording.fps)"
+    )
+    start.add_argument("--note", metavar="TEXT", help="the operator's note, kept in episode.json")
+    actions.add_parser("stop", parents=[common], help="close the episode: prints its id, duration and files")
+    actions.add_parser("discard", parents=[common], help="end the episode and delete its files")
+    actions.add_parser("status", parents=[common], help="the open episode, if any, and the recorder")
+    blackbox = sub.add_parser(
+        "blackbox", parents=[common], help="save the flight recorder's last seconds of every cycle now"
+    )
+    blackbox.add_argument(
+        "--seconds", type=float, metavar="S", help="how far back (default: all it keeps, recording.blackbox_seconds)"
+    )
     zero = sub.add_parser("set-zero", parents=[common], help="make a held joint's current position its drive zero")
     zero.add_argument("joint")
     zero.add_argument("--confirm", action="store_true", help="required: the joint's position origin moves")
@@ -288,6 +308,51 @@ def _teach_text(reply: dict[str, Any]) -> str:
     if reply.get("deactivated"):
         parts.append(f"deactivated {', '.join(reply['deactivated'])}")
     return "; ".join(parts)
+
+
+RECORD_TEXT: dict[str, Callable[[dict[str, Any]], str]] = {
+    "start": render.record_started_text,
+    "stop": render.record_stopped_text,
+    "discard": render.record_discarded_text,
+    "status": render.record_status_text,
+}
+
+
+def _record(client: HildClient, args: argparse.Namespace, as_json: bool) -> int:
+    """``record start|stop|discard|status``: one call of the ``record`` service each."""
+    verb = args.record_command
+    if verb == "start":
+        if (wrong := _not_positive("record start: --fps", args.fps)) is not None:
+            return _fail(wrong, as_json, EXIT_SERVICE)
+        reply = client.record_start(args.task, args.fps, args.note, check=False)
+    else:
+        reply = {"stop": client.record_stop, "discard": client.record_discard, "status": client.record_status}[verb](
+            check=False
+        )
+    return _print_reply(f"record {verb}", reply, RECORD_TEXT[verb], as_json)
+
+
+def _blackbox(client: HildClient, args: argparse.Namespace, as_json: bool) -> int:
+    if (wrong := _not_positive("blackbox: --seconds", args.seconds)) is not None:
+        return _fail(wrong, as_json, EXIT_SERVICE)
+    return _print_reply("blackbox", client.blackbox(args.seconds, check=False), render.blackbox_text, as_json)
+
+
+def _not_positive(option: str, value: float | None) -> HildError | None:
+    """Why an option's number cannot be sent (NaN would go out as null), or None."""
+    if value is None or (math.isfinite(value) and value > 0):
+        return None
+    return HildError(f"{option} must be a finite number > 0, not {value:g}")
+
+
+def _print_reply(what: str, reply: dict[str, Any], text: Callable[[dict[str, Any]], str], as_json: bool) -> int:
+    if as_json:
+        print(json.dumps(reply, indent=2))
+    elif reply.get("ok"):
+        print(text(reply))
+    else:
+        print(f"hild ctl: {what}: {reply.get('error')}", file=sys.stderr)
+    return EXIT_OK if reply.get("ok") else EXIT_SERVICE
 
 
 def _switch_request(args: argparse.Namespace) -> dict[str, Any]:
@@ -613,6 +678,8 @@ COMMANDS: dict[str, Callable[[HildClient, argparse.Namespace, bool], int]] = {
     ),
     "load": _load,
     "teach": _teach,
+    "record": _record,
+    "blackbox": _blackbox,
     "param": _param,
     "params": _params_save,
     "configure": _service("configure_controller", lambda r: f"{r['name']}: {r['state']}", _named),

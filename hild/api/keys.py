@@ -34,6 +34,8 @@ SERVICES = (
     "set_parameters",
     "tuned_config",
     "teach",
+    "record",
+    "blackbox",
 )
 # Second-level chunks the API itself uses; a controller output may not take one of these names.
 RESERVED = frozenset(

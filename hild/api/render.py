@@ -177,3 +177,67 @@ def _gripper_words(result: dict[str, Any]) -> str:
         else "stopped"
     )
     return f" ({outcome} {at}{pressing})"
+
+
+def _seconds(value: Any) -> str:
+    return f"{value:.2f} s" if isinstance(value, int | float) else "? s"
+
+
+def record_started_text(reply: dict[str, Any]) -> str:
+    """``record start``: the episode's id and where it goes; how to end it."""
+    task = f"task {reply['task']!r}, " if reply.get("task") else ""
+    fps = reply.get("fps")
+    rate = f"{fps:g} fps" if isinstance(fps, int | float) else "fps ?"
+    return (
+        f"recording {reply.get('id')} ({task}{rate}) into {reply.get('directory')}\n"
+        "end it with: hild ctl record stop (keep) or hild ctl record discard (delete)"
+    )
+
+
+def record_stopped_text(reply: dict[str, Any]) -> str:
+    """``record stop``: the id, how long, how many cycles and drops, then each file on its own line."""
+    dropped = reply.get("dropped", 0)
+    warning = " (rows lost: the recorder fell behind)" if dropped else ""
+    lines = [
+        f"stopped {reply.get('id')}: {_seconds(reply.get('duration'))}, {reply.get('cycles')} cycles, "
+        f"{dropped} dropped{warning}"
+    ]
+    lines += [f"  {path}" for path in reply.get("files") or []]
+    return "\n".join(lines)
+
+
+def record_discarded_text(reply: dict[str, Any]) -> str:
+    return f"discarded {reply.get('id')}: its directory is deleted"
+
+
+def record_status_text(reply: dict[str, Any]) -> str:
+    """``record status``: the open episode, or that none is, and the recorder's state and directory."""
+    recorder = reply.get("recorder")
+    if recorder == "disabled":
+        return "recording is disabled on this daemon (recording.enabled: false)"
+    where = f"recorder {recorder}, dir {reply.get('dir')}"
+    if reply.get("recording"):
+        head = (
+            f"recording {reply.get('id')}: {_seconds(reply.get('duration'))}, {reply.get('cycles')} cycles, "
+            f"{reply.get('dropped', 0)} dropped"
+        )
+    else:
+        head = "not recording"
+    lines = [f"{head} ({where})"]
+    last = reply.get("last")
+    if last:
+        lines.append(f"last: {_last(last)}")
+    return "\n".join(lines)
+
+
+def _last(last: Any) -> str:
+    """The status's ``last``: the previous episode (an id, or a summary with one) or the last thing that happened."""
+    if isinstance(last, dict):
+        named = last.get("id") or last.get("file") or ""
+        rest = ", ".join(f"{k} {v}" for k, v in last.items() if k not in ("id", "file") and v is not None)
+        return f"{named} ({rest})" if named and rest else str(named or rest)
+    return str(last)
+
+
+def blackbox_text(reply: dict[str, Any]) -> str:
+    return f"black box saved: {reply.get('file')} ({reply.get('cycles')} cycles, {_seconds(reply.get('seconds'))})"

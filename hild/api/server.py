@@ -43,6 +43,7 @@ from hild.api.queries import (
     drop,
     reply_json,
 )
+from hild.api.record import RecorderFace
 from hild.api.services import DEFAULT_TIMEOUT, Reply, Services
 from hild.api.session import declare_json_publisher, open_session, server_config
 from hild.api.unique import DaemonIdentity, check_unique, describe_other
@@ -70,16 +71,18 @@ class ApiServer:
         request_timeout: float = DEFAULT_TIMEOUT,
         status_period: float = STATUS_PERIOD,
         pid: int | None = None,
+        recorder: RecorderFace | None = None,
     ) -> None:
         """``pid``: the process an operator stops to stop this daemon, which a refused second daemon names (under
-        ``hild run``, the main process; default: this one)."""
+        ``hild run``, the main process; default: this one). ``recorder``: what the ``record`` and ``blackbox``
+        services ask (None: recording is disabled)."""
         self.engine = engine
         self.pid = pid
         self.settings = settings
         self.listen = listen
         self.keys = Keys(engine.robot)
         self.lane = LargePayloadWorker()  # shared by services and controller endpoints: one large payload at a time
-        self.services = Services(engine, request_timeout, lane=self.lane)
+        self.services = Services(engine, request_timeout, lane=self.lane, recorder=recorder)
         self.status_period = status_period
         self.counters = Counters()
         self.session: zenoh.Session | None = None

@@ -40,6 +40,7 @@ from hild.api.fields import (
 from hild.api.lifecycle import ControllerLifecycle, loaded_names
 from hild.api.parameters import ControllerParameters
 from hild.api.queries import LargePayloadWorker, clip
+from hild.api.record import RecorderFace, RecordServices
 from hild.api.teach import TeachService
 from hild.crossing.requests import Enable, Refused, Request, Reset, SetHardwareState, SetZero, Switch
 from hild.daemon.link import CycleLink
@@ -74,8 +75,15 @@ _ASKED_TIMEOUT: contextvars.ContextVar[float | None] = contextvars.ContextVar("a
 
 class Services:
     def __init__(
-        self, engine: CycleLink, timeout: float = DEFAULT_TIMEOUT, *, lane: LargePayloadWorker | None = None
+        self,
+        engine: CycleLink,
+        timeout: float = DEFAULT_TIMEOUT,
+        *,
+        lane: LargePayloadWorker | None = None,
+        recorder: RecorderFace | None = None,
     ) -> None:
+        """``recorder``: the daemon's episode recorder (hild/record/recorder.py); None when recording is disabled,
+        which the ``record`` and ``blackbox`` services then say."""
         self.engine = engine
         self.timeout = timeout
         self.lane = lane or LargePayloadWorker()
@@ -96,6 +104,7 @@ class Services:
         self.table.update(lifecycle.services())
         self.table.update(ControllerParameters(engine, self.on_cycle, lifecycle.checked).services())
         self.table.update(TeachService(engine, self.on_cycle, lifecycle).services())
+        self.table.update(RecordServices(recorder, engine.update_rate).services())
 
     async def handle(self, name: str, raw: bytes, *, timeout: float | None = None) -> Reply:
         """Serve one request on the asyncio thread; always returns a reply with ``ok`` and ``error``. ``timeout``:

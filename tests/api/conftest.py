@@ -77,12 +77,14 @@ class Stepper(threading.Thread):
 class Daemon:
     """Engine + stepper + ApiServer on a background asyncio loop, wired like hild.daemon.daemon (coalesced wake-ups)."""
 
-    def __init__(self, engine: Engine, endpoint: str, settings: ZenohSection | None = None) -> None:
+    def __init__(
+        self, engine: Engine, endpoint: str, settings: ZenohSection | None = None, *, recorder: Any = None
+    ) -> None:
         self.engine = engine
         self.endpoint = endpoint
         self.loop = asyncio.new_event_loop()
         self.thread = threading.Thread(target=self.loop.run_forever, name="test-asyncio", daemon=True)
-        self.server = ApiServer(engine, settings or ZenohSection(), [endpoint], request_timeout=0.5)
+        self.server = ApiServer(engine, settings or ZenohSection(), [endpoint], request_timeout=0.5, recorder=recorder)
         self.stepper = Stepper(engine)
         self.published_events: list[dict[str, Any]] = []
         self._pending = False
@@ -136,9 +138,10 @@ def engine_with_trajectory(tmp_path: Path) -> Engine:
 
 
 @contextlib.contextmanager
-def running(engine: Engine) -> Iterator[Daemon]:
-    """``engine`` served by a daemon on a free loopback port, stopped on leaving."""
-    d = Daemon(engine, free_endpoint())
+def running(engine: Engine, *, recorder: Any = None) -> Iterator[Daemon]:
+    """``engine`` served by a daemon on a free loopback port, stopped on leaving; ``recorder``: what the record
+    services ask (None: recording disabled)."""
+    d = Daemon(engine, free_endpoint(), recorder=recorder)
     d.start()
     try:
         yield d

@@ -371,6 +371,8 @@ SERVICE_FIELDS: dict[str, tuple[str, ...]] = {
     "set_parameters": ("controller", "values", "by"),
     "tuned_config": (),
     "teach": ("on", "joints", "by"),
+    "record": ("action", "task", "fps", "note"),
+    "blackbox": ("seconds",),
 }
 
 

@@ -29,6 +29,7 @@ from hild.api.fields import (
 )
 from hild.api.keys import SERVICES
 from hild.api.queries import clip
+from hild.api.record import action, note_text, positive, task_text
 from hild.api.teach import joint_names
 from tests.fuzz import strategies, tally
 from tests.fuzz.checks import refused, unharmed
@@ -58,6 +59,8 @@ FIELDS = {
     "get_parameters": {"controller": controller_name, "names": names},
     "set_parameters": {"controller": controller_name, "values": mapping, "by": sender},
     "teach": {"on": boolean, "joints": joint_names, "by": sender},
+    "record": {"action": action, "task": task_text, "fps": positive, "note": note_text},
+    "blackbox": {"seconds": positive},
 }
 TOO_DEEP = "malformed JSON: nested too deeply"
 
