@@ -530,6 +530,7 @@ class Recorder:
         self._last_blackbox = {**reply, "reason": reason}
         self._emit(
             "info" if reason == "manual" else "warning",
-            f"black box saved ({reason}): {reply['file']}, the last {reply['seconds']:.3f} s ({reply['cycles']} cycles)",
+            f"black box saved ({reason}): {reply['file']}, the last {reply['seconds']:.3f} s "
+            f"({reply['cycles']} cycles)",
         )
         return reply
