@@ -13,10 +13,12 @@ This module does not import ``mcap`` or ``pyarrow``: the client domain never loa
 
 Messages — handle → recorder (the ``commands`` socket pair; first the cycle log's memfd, ``send_handle``):
 ``("start", seq, episode_no, meta, directory, markers)``, ``("stop", seq, episode_no, stop_tick, events_sent,
-markers, controller_codes)``, ``("discard", seq, episode_no)``, ``("blackbox", seq, path, count, events, info)``,
-``("close", seq, budget)``. Recorder → handle (the ``messages`` pipe): ``("ready", info)`` or ``("error", text)``
-once, ``("reply", seq, ok, value)``, ``("progress", episode_no, figures)``, ``("ended", episode_no, reply,
-reason)`` (an episode the recorder had to stop: disk full), ``("event", level, text)``, ``("log", levelno, text)``.
+markers, controller_codes, events_dropped)``, ``("discard", seq, episode_no)``, ``("blackbox", seq, name, count,
+events, info)``, ``("close", seq)``; events on the bounded queue as ``(episode_no, wall, t, kind, data)``.
+Recorder → handle (the ``messages`` pipe): ``("ready", info)`` or ``("error", text)`` once, ``("reply", seq, ok,
+value)``, ``("progress", episode_no, figures)`` after each chunk, ``("ended", episode_no, reply, reason)`` (an
+episode the recorder had to stop: disk full), ``("recovered", report)``, ``("event", level, text)`` and ``("log",
+levelno, text)``.
 """
 
 from __future__ import annotations
@@ -42,7 +44,7 @@ from typing import Any, Protocol
 
 from hild.record.events import marker
 from hild.record.model import EpisodeMeta, RecordedEvent, RecordError
-from hild.record.setup import RecorderSetup
+from hild.record.setup import CODES, RecorderSetup
 
 log = logging.getLogger("hild.record")
 
@@ -62,6 +64,9 @@ class CycleSource(Protocol):
 
     @property
     def t(self) -> float: ...
+
+    @property
+    def change_seq(self) -> int: ...
 
     def snapshot(self) -> Any: ...
 
@@ -126,6 +131,8 @@ class Recorder:
         self._seqs = itertools.count(1)
         self._recent: deque[RecordedEvent] = deque(maxlen=RECENT_EVENTS)
         self._keep = max(setup.blackbox_seconds, 2.0) + 1.0  # s of events kept for the black box
+        self._codes_seq = -1  # the change_seq the controllers' codes were last read at
+        self._codes: dict[int, str] = {}  # as the open episode's recorder knows them
         self._waiting: dict[int, asyncio.Future[Any]] = {}
         self._ready: asyncio.Future[Any] | None = None
         self._episode_lock: asyncio.Lock | None = None
@@ -354,6 +361,7 @@ class Recorder:
             markers = [marker("episode_start", t, wall, id=episode_id, tick=tick, task=task, fps=fps, note=note)]
             if task is not None:
                 markers.append(marker("task", t, wall, task=task))
+            self._codes, self._codes_seq = dict(meta.controller_codes), self.cycle.change_seq
             episode = _Episode(next(self._episodes), episode_id, directory, tick, task, fps, time.monotonic())
             self._episode = episode  # events from here on are the episode's
             try:
@@ -493,8 +501,18 @@ class Recorder:
         episode = self._episode
         if episode is None or episode.stopping or not self.alive:
             return
+        self._queue(episode, (episode.no, event.wall, event.t, event.kind, event.data))
+        seq = self.cycle.change_seq  # a controller loaded: its code's name, for its commands topic
+        if seq != self._codes_seq:
+            self._codes_seq = seq
+            codes = self._controller_codes()
+            if codes != self._codes:
+                self._codes = codes
+                self._queue(episode, (episode.no, event.wall, event.t, CODES, codes))
+
+    def _queue(self, episode: _Episode, item: tuple[Any, ...]) -> None:
         try:
-            self._events.put_nowait((episode.no, event.wall, event.t, event.kind, event.data))
+            self._events.put_nowait(item)
             episode.sent += 1
         except (queue.Full, ValueError, OSError, AttributeError):  # full, or closed under us
             episode.events_dropped += 1

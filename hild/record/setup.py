@@ -15,6 +15,10 @@ from typing import Any
 
 from hild.record.model import BLACKBOX_DIR
 
+# On the event queue to the recorder process, an item of this kind is no event: it carries the controllers' owner
+# codes as they are now (a controller loaded during an episode gets a code; its commands topic needs the name).
+CODES = "_controller_codes"
+
 # Recorded in every episode's metadata, as installed (absent ones are left out).
 VERSIONED = ("hild", "numpy", "mujoco", "mcap", "mcap-ros2-support", "rosbags", "pyarrow", "eclipse-zenoh")
 

@@ -40,7 +40,7 @@ from hild.record import locks
 from hild.record.events import EVENT
 from hild.record.mcap_files import EpisodeWriter, recover, write_blackbox
 from hild.record.model import EpisodeMeta, RecordedEvent
-from hild.record.setup import RecorderSetup
+from hild.record.setup import CODES, RecorderSetup
 
 log = logging.getLogger("hild.record")
 
@@ -103,6 +103,7 @@ class EpisodeFile:
             locks.release(self.lock)
             raise
         self.reader = cycle_log.reader(start_tick=meta.start_tick)
+        self.codes: dict[int, str] = dict(meta.controller_codes)  # owner code → controller, as the cycle names them
         self.stop_tick: int | None = None
         self.pending: list[RecordedEvent] = []  # events waiting for the rows of their cycle
         self.received = 0  # events taken off the queue for this episode
@@ -136,7 +137,7 @@ class EpisodeFile:
     def write(self, rows: CycleRows, events: list[RecordedEvent], final: bool = False) -> None:
         """One chunk: the rows, then the events whose cycle's row is written (all of them when ``final``)."""
         if len(rows):
-            self.writer.write_rows(rows)
+            self.writer.write_rows(rows, self.codes)
             if self.first is None:
                 self.first = (float(rows.t[0]), float(rows.wall[0]))
             self.cycles += len(rows)
@@ -150,9 +151,9 @@ class EpisodeFile:
         else:  # a cycle's event waits for its row, so it lands at that cycle's time
             ready = [e for e in self.pending if not (e.kind == EVENT and e.t > self.last_t)]
             self.pending = [e for e in self.pending if e.kind == EVENT and e.t > self.last_t]
-        if ready:
-            self.writer.write_events(placed(ready, self._recent_t, self._recent_wall))
-            self.events_written += len(ready)
+        for event in placed(ready, self._recent_t, self._recent_wall):
+            self.writer.write_event(event)
+        self.events_written += len(ready)
         self.writer.end_chunk()
 
     def figures(self) -> dict[str, Any]:
@@ -160,28 +161,24 @@ class EpisodeFile:
 
     def close(self, events_dropped: int, controller_codes: dict[int, str] | None, why: str | None) -> list[Path]:
         """Close the file (state ``complete``) with the final metadata; returns every file written."""
-        meta = self.meta
+        meta = self.meta  # the writer's: close() writes it into episode.json
         if self.first is not None:
             meta.started_wall = self.first[1]
-        meta.stopped_wall = self.last_wall
-        meta.stop_tick = self.last_tick if self.cycles else None
-        meta.cycles = self.cycles
-        meta.dropped = self.dropped
-        meta.state = "complete"
         if controller_codes:
-            meta.controller_codes = {**meta.controller_codes, **controller_codes}
+            self.codes.update(controller_codes)
+        meta.controller_codes = dict(self.codes)
         meta.extra = {**meta.extra, "events": self.events_written, "events_dropped": events_dropped}
         if why is not None:
             meta.extra["stopped_because"] = why
         try:
-            return [Path(p).resolve() for p in self.writer.close(meta)]
+            return [Path(p).resolve() for p in self.writer.close("complete", dropped=self.dropped)]
         finally:
             locks.release(self.lock)
 
     def remove(self) -> None:
         """Discard: close what is open and delete the directory."""
         with contextlib.suppress(Exception):
-            self.writer.close(self.meta)
+            self.writer.abandon()
         locks.release(self.lock)
         shutil.rmtree(self.directory, ignore_errors=True)
 
@@ -276,7 +273,10 @@ class Worker:
             event = RecordedEvent(wall, t, kind, data)
             if episode is not None and no == episode.no:
                 episode.received += 1
-                out.append(event)
+                if kind == CODES:
+                    episode.codes.update(data)
+                else:
+                    out.append(event)
             elif episode is None or no > episode.no:
                 self._early.append(_Early(no, event))
 
@@ -374,7 +374,11 @@ class Worker:
         episode.pending.extend(markers)
         early = [e.event for e in self._early if e.no == no]
         episode.received += len(early)
-        episode.pending.extend(early)
+        for event in early:
+            if event.kind == CODES:
+                episode.codes.update(event.data)
+            else:
+                episode.pending.append(event)
         self._early = [e for e in self._early if e.no > no]
         self._last_no = max(self._last_no, no)
         self.episode = episode
