@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import BinaryIO
 
 import numpy as np
+from mcap.exceptions import EndOfFile
 from mcap.records import Channel, Chunk, Footer, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.writer import CompressionType, Writer
@@ -280,6 +281,10 @@ def _scan(path: Path, scan: _Scan) -> Iterator[list[tuple[str, str, Message]]]:
                 record = next(records)
                 inner = breakup_chunk(record, validate_crc=True) if isinstance(record, Chunk) else [record]
             except StopIteration:
+                return
+            except EndOfFile:
+                if scan.intact < scan.size:  # a record cut short (at the file's end, a file never closed: no damage)
+                    scan.damage = "a record cut short by the end of the file"
                 return
             except Exception as exc:
                 scan.damage = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
