@@ -84,6 +84,12 @@ def test_the_templates_write_the_face_s_bytes_and_read_back_bit_exact(drawn: tup
     command = topics.decode_joint_states(encoded.command)
     cycle = topics.decode_cycles(encoded.cycle, len(joints))
     assert states is not None and command is not None and states.names == joints
+    by_decode = [decode(raw, topics.JOINT_STATE) for raw in encoded.joint_states]  # the face's decoder, one by one
+    assert states.position.tobytes() == np.stack([m.position for m in by_decode]).tobytes()
+    assert states.effort.tobytes() == np.stack([m.effort for m in by_decode]).tobytes()
+    assert states.stamps.tolist() == [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in by_decode]
+    data = np.stack([decode(raw, topics.FLOAT64_ARRAY).data for raw in encoded.cycle])
+    assert cycle["tau_ext"].tobytes() == data[:, -len(joints) :].tobytes()
     back = CycleRows(
         **cycle,
         measured_position=states.position,
@@ -120,6 +126,31 @@ def test_the_cycle_layout_is_labelled_in_order() -> None:
     msg = decode(topics.cycle_template(2).data, topics.FLOAT64_ARRAY)
     labelled = [(d.label, d.size) for d in msg.layout.dim]
     assert labelled == [(name, 1) for name in topics.SCALARS] + [(name, 2) for name in topics.PER_JOINT]
+
+
+def test_messages_not_from_the_template_are_decoded_one_by_one() -> None:
+    def state(frame_id: str, names: list[str], value: float) -> bytes:
+        stamp = message("builtin_interfaces/msg/Time", sec=3, nanosec=4)
+        header = message("std_msgs/msg/Header", stamp=stamp, frame_id=frame_id)
+        array = np.array([value] * len(names))
+        msg = message(topics.JOINT_STATE, header=header, name=names, position=array, velocity=array, effort=array)
+        return encode(msg, topics.JOINT_STATE)
+
+    other = topics.decode_joint_states([state("base", ["a", "b"], 1.5), state("", ["a", "b"], -2.0)])
+    assert other is not None and other.position.tolist() == [[1.5, 1.5], [-2.0, -2.0]]
+    assert other.stamps.tolist() == [3_000_000_004] * 2
+    with pytest.raises(ValueError, match="different joints"):
+        topics.decode_joint_states([state("", ["a", "b"], 1.0), state("", ["a", "c"], 1.0)])
+    dims = [("t", 1), ("tick", 1), ("wall", 1), ("period", 1), ("duration", 1)] + [(n, 1) for n in topics.PER_JOINT]
+    layout = message(
+        "std_msgs/msg/MultiArrayLayout",
+        dim=[message("std_msgs/msg/MultiArrayDimension", label=lb, size=n, stride=n) for lb, n in dims],
+        data_offset=0,
+    )
+    data = np.arange(len(dims), dtype=np.float64)
+    raw = encode(message(topics.FLOAT64_ARRAY, layout=layout, data=data), topics.FLOAT64_ARRAY)
+    fields = topics.decode_cycles([raw], 1)  # found by label, in another order
+    assert (fields["t"][0], fields["tick"][0], fields["tau_ext"][0, 0]) == (0.0, 1, len(dims) - 1)
 
 
 def test_a_cycle_message_without_a_field_is_refused() -> None:
