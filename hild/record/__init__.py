@@ -6,8 +6,8 @@ runs here, never on the cycle:
 - ``model``      what an episode is: its metadata, its files' names, ``Episode`` (rows + events read back)
 - ``mcap_files`` episodes and black boxes as MCAP with ROS 2 message encoding (rosbag2's storage): writing in
                  chunks that are valid alone, reading back, ``recover`` (the ``mcap`` library); beside it
-                 ``topics`` (a row as the face's CDR and back), ``mcap_out`` / ``mcap_scan`` (one MCAP written /
-                 read up to its damage) and ``bag_metadata`` (rosbag2's metadata.yaml)
+                 ``topics`` and ``cdr_templates`` (a row as the face's CDR and back), ``mcap_out`` /
+                 ``mcap_scan`` (one MCAP written / read up to its damage), ``bag_metadata`` (metadata.yaml)
 - ``lerobot``    LeRobotDataset v3.0 export, frames resampled from the cycle log (``pyarrow``)
 - ``recorder``   the client domain's handle: starts the recorder process, episodes, triggers the black box
 - ``worker``     the recorder process: reads the cycle log, writes the files
