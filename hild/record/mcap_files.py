@@ -77,6 +77,11 @@ class EpisodeWriter:
         if self._out.pending > AUTO_CHUNK_BYTES:
             self.end_chunk()
 
+    @property
+    def messages(self) -> int:
+        """Messages written so far, every topic."""
+        return sum(self._out.counts.values())
+
     def write_event(self, event: RecordedEvent) -> None:
         self._check_open()
         self._out.write_event(event)
