@@ -53,7 +53,8 @@ def scan_chunks(path: Path, scan: Scan) -> Iterator[list[tuple[str, str, Message
             try:  # a damaged record raises whatever its parser meets: EndOfFile, a CRC or zstd error, garbage
                 record = next(records)
                 inner = breakup_chunk(record, validate_crc=True) if isinstance(record, Chunk) else [record]
-            except StopIteration:
+            except StopIteration:  # after the footer, the closing magic was read too
+                scan.intact = stream.tell()
                 return
             except EndOfFile:
                 if scan.intact < scan.size:  # a record cut short (at the file's end, a file never closed: no damage)

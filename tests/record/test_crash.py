@@ -146,6 +146,15 @@ def test_recover_twice_changes_nothing(original: Original, tmp_path: Path) -> No
     assert digest(directory) == files
 
 
+def test_a_crash_between_finishing_the_file_and_episode_json_recovers_everything(
+    original: Original, tmp_path: Path
+) -> None:
+    directory = cut_copy(original, len(original.data), tmp_path / "ep")  # the MCAP finished, episode.json not yet
+    report = recover(directory)
+    assert (report["cycles"], report["lost_bytes"], report["damage"]) == (len(original.written.rows), 0, None)
+    assert_rows_equal(read_episode(directory).rows, original.written.rows)
+
+
 def test_recover_refuses_a_complete_episode(original: Original) -> None:
     before = digest(original.written.directory)
     with pytest.raises(RecordError, match="complete"):
