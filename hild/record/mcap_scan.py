@@ -48,6 +48,8 @@ def scan_chunks(path: Path, scan: Scan) -> Iterator[list[tuple[str, str, Message
         return
     with path.open("rb") as stream:
         scan.size = os.fstat(stream.fileno()).st_size
+        # chunks whole (emit_chunks), each opened here with breakup_chunk — what the library's own readers call —
+        # so that a chunk that fails its CRC or decompression is known as the damage, never half-read
         records = StreamReader(stream, emit_chunks=True, validate_crcs=True).records
         while True:
             try:  # a damaged record raises whatever its parser meets: EndOfFile, a CRC or zstd error, garbage

@@ -16,7 +16,7 @@ from functools import cache
 import numpy as np
 
 from hild.api.ros2.types import decode, encode, message, type_hash, typestore
-from hild.crossing.cyclelog import CycleRows
+from hild.crossing.cyclelog import OWNER_NONE, CycleRows
 from hild.record.bag_metadata import QOS_PROFILES
 from hild.record.cdr_templates import (
     FLOAT64_ARRAY,
@@ -100,7 +100,7 @@ def encode_rows(rows: CycleRows, joints: tuple[str, ...], controller_codes: dict
     controllers: dict[str, tuple[np.ndarray, list[bytes]]] = {}
     for code, name in controller_codes.items():
         mask = rows.owner == code
-        if not mask.any():
+        if code == OWNER_NONE or not mask.any():
             continue
         which = np.flatnonzero(mask.any(axis=1))
         out: list[bytes] = [b""] * len(which)
@@ -132,7 +132,7 @@ def encode_event(event: RecordedEvent) -> bytes:
 
 def decode_events(raw: bytes) -> list[RecordedEvent]:
     out = []
-    for line in decode(raw, STRING).data.splitlines():
+    for line in decode(raw, STRING).data.split("\n"):
         if line.strip():
             item = json.loads(line)
             t = math.nan if item.get("t") is None else float(item["t"])
