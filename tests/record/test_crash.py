@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given, settings
 from hypothesis import strategies as st
 from mcap.reader import make_reader
 from rosbags.rosbag2 import Reader
@@ -125,7 +125,7 @@ def test_recover_closes_a_cut_episode_losing_at_most_the_chunk_it_cut(original: 
         check_recovered(original, cut_copy(original, cut, tmp_path / str(cut)), cut)
 
 
-@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=40, deadline=None)
 @given(data=st.data())
 def test_recover_after_a_cut_anywhere(original: Original, data: st.DataObject) -> None:
     cut = data.draw(st.integers(0, len(original.data)))
