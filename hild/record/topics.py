@@ -37,6 +37,9 @@ CYCLE = "/hild/cycle"
 EVENTS = "/hild/events"
 TOPIC_TYPES = {JOINT_STATES: JOINT_STATE, COMMAND: JOINT_STATE, CYCLE: FLOAT64_ARRAY, EVENTS: STRING}
 
+# /joint_states' frame, the face's (hild.api.ros2.face.JOINT_STATES_FRAME: joint_state_broadcaster's default), so a
+# recorded reading is the bytes the face publishes; commands have none
+JOINT_STATES_FRAME = "base_link"
 INT_FIELDS = {"tick": np.int64, "mode": np.int8, "owner": np.int16, "fault": np.int16, "fresh": np.bool_}
 
 
@@ -96,7 +99,7 @@ def encode_rows(rows: CycleRows, joints: tuple[str, ...], controller_codes: dict
     if rows.position.shape[1:] != (len(joints),):
         raise ValueError(f"rows have {rows.position.shape[1:]} joints, the episode {len(joints)}")
     stamps = stamps_ns(rows.wall)
-    states = joint_state_template(joints)
+    commands = joint_state_template(joints)
     controllers: dict[str, tuple[np.ndarray, list[bytes]]] = {}
     for code, name in controller_codes.items():
         mask = rows.owner == code
@@ -116,8 +119,10 @@ def encode_rows(rows: CycleRows, joints: tuple[str, ...], controller_codes: dict
         controllers[controller_topic(name)] = (which, out)
     return EncodedRows(
         log_times=stamps,
-        joint_states=states.fill(stamps, rows.measured_position, rows.measured_velocity, rows.measured_effort),
-        command=states.fill(stamps, rows.position, rows.velocity, rows.effort),
+        joint_states=joint_state_template(joints, JOINT_STATES_FRAME).fill(
+            stamps, rows.measured_position, rows.measured_velocity, rows.measured_effort
+        ),
+        command=commands.fill(stamps, rows.position, rows.velocity, rows.effort),
         cycle=cycle_template(len(joints)).fill(None, cycle_values(rows)),
         controllers=controllers,
     )
@@ -153,8 +158,9 @@ def decode_joint_states(messages: list[bytes]) -> DecodedJointStates | None:
     """JointStates of one joint list (None for none); a message naming other joints is a ValueError."""
     if not messages:
         return None
-    names = tuple(decode(messages[0], JOINT_STATE).name)
-    parsed = joint_state_template(names).parse(messages)
+    first = decode(messages[0], JOINT_STATE)
+    names = tuple(first.name)
+    parsed = joint_state_template(names, first.header.frame_id).parse(messages)
     if parsed is not None:  # every message hild's template for these joints: the same numbers decode would give
         stamps, (position, velocity, effort) = parsed
         assert stamps is not None

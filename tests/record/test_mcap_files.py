@@ -16,6 +16,7 @@ from mcap.stream_reader import StreamReader, breakup_chunk
 from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import Reader
 
+from hild.api.ros2.face import JOINT_STATES_FRAME
 from hild.api.ros2.types import decode, encode, message, type_hash, typestore
 from hild.crossing.cyclelog import OWNER_NONE
 from hild.record import mcap_files, topics
@@ -182,7 +183,7 @@ def test_joint_states_carry_the_face_s_bytes(episode: Written) -> None:
         stamp = message("builtin_interfaces/msg/Time", sec=ns // 10**9, nanosec=ns % 10**9)
         face = message(
             topics.JOINT_STATE,
-            header=message("std_msgs/msg/Header", stamp=stamp, frame_id=""),
+            header=message("std_msgs/msg/Header", stamp=stamp, frame_id=JOINT_STATES_FRAME),
             name=list(JOINTS),
             position=rows.measured_position[i],
             velocity=rows.measured_velocity[i],

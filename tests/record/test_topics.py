@@ -12,6 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
+from hild.api.ros2.face import JOINT_STATES_FRAME
 from hild.api.ros2.types import decode, encode, message
 from hild.crossing.cyclelog import CycleRows
 from hild.record import topics
@@ -72,6 +73,13 @@ def test_the_templates_write_the_face_s_bytes_and_read_back_bit_exact(drawn: tup
             effort=rows.effort[i],
         )
         assert encoded.command[i] == encode(face, topics.JOINT_STATE)
+        face.header.frame_id = JOINT_STATES_FRAME
+        face.position, face.velocity, face.effort = (
+            rows.measured_position[i],
+            rows.measured_velocity[i],
+            rows.measured_effort[i],
+        )
+        assert encoded.joint_states[i] == encode(face, topics.JOINT_STATE)
     for code, name in codes.items():
         which, messages = encoded.controllers.get(topics.controller_topic(name), (np.array([], int), []))
         assert which.tolist() == np.flatnonzero((rows.owner == code).any(axis=1)).tolist()
@@ -113,6 +121,10 @@ def test_a_stamp_is_the_nearest_nanosecond(wall: float) -> None:
 def test_a_wall_time_before_the_epoch_or_not_finite_is_refused(wall: float) -> None:
     with pytest.raises(ValueError, match="wall"):
         topics.stamps_ns(np.array([1.0, wall]))
+
+
+def test_joint_states_are_in_the_face_s_frame() -> None:
+    assert topics.JOINT_STATES_FRAME == JOINT_STATES_FRAME
 
 
 def test_controller_names_become_ros_topic_names() -> None:
