@@ -81,31 +81,32 @@ def main() -> None:
     parser.add_argument("--dir", type=Path, default=None, help="where to write (default: a temporary directory)")
     args = parser.parse_args()
     rows = trajectory(args.rows, args.joints, args.rate)
-    for fsync in (False, True):
-        root = Path(tempfile.mkdtemp(dir=args.dir))
-        writer = EpisodeWriter(root / "cost", meta(args.joints, args.rate), fsync=fsync)
-        write, end = [], []
-        for start in range(0, args.rows, args.chunk):
-            part = rows.select(slice(start, start + args.chunk))
-            began = time.perf_counter()
-            writer.write_rows(part, {})
-            writer.write_event(RecordedEvent(float(part.wall[0]), float(part.t[0]), "event", {"chunk": start}))
-            wrote = time.perf_counter()
-            writer.end_chunk()
-            write.append(wrote - began)
-            end.append(time.perf_counter() - wrote)
-        writer.close()
-        messages = writer.messages
-        total = sum(write) + sum(end)
-        print(
-            f"fsync {'on ' if fsync else 'off'}: {args.rows / total:8.0f} rows/s {messages / total:9.0f} messages/s "
-            f"({messages / args.rows:.2f} a row); write_rows of {args.chunk} rows median "
-            f"{statistics.median(write) * 1e3:.2f} ms; end_chunk median {statistics.median(end) * 1e3:.2f} ms, "
-            f"p99 {percentile(end, 0.99) * 1e3:.2f} ms; {writer.path.stat().st_size / args.rows:.0f} B a row on disk"
-        )
-    began = time.perf_counter()
-    back = read_episode(root / "cost")
-    print(f"read back: {len(back.rows) / (time.perf_counter() - began):.0f} rows/s")
+    with tempfile.TemporaryDirectory(dir=args.dir) as tmp:
+        for fsync in (False, True):
+            directory = Path(tmp) / f"fsync-{fsync}"
+            writer = EpisodeWriter(directory, meta(args.joints, args.rate), fsync=fsync)
+            write, end = [], []
+            for start in range(0, args.rows, args.chunk):
+                part = rows.select(slice(start, start + args.chunk))
+                began = time.perf_counter()
+                writer.write_rows(part, {})
+                writer.write_event(RecordedEvent(float(part.wall[0]), float(part.t[0]), "event", {"chunk": start}))
+                wrote = time.perf_counter()
+                writer.end_chunk()
+                write.append(wrote - began)
+                end.append(time.perf_counter() - wrote)
+            writer.close()
+            total = sum(write) + sum(end)
+            print(
+                f"fsync {'on ' if fsync else 'off'}: {args.rows / total:8.0f} rows/s "
+                f"{writer.messages / total:9.0f} messages/s ({writer.messages / args.rows:.2f} a row); write_rows of "
+                f"{args.chunk} rows median {statistics.median(write) * 1e3:.2f} ms; end_chunk median "
+                f"{statistics.median(end) * 1e3:.2f} ms, p99 {percentile(end, 0.99) * 1e3:.2f} ms; "
+                f"{writer.path.stat().st_size / args.rows:.0f} B a row on disk"
+            )
+        began = time.perf_counter()
+        back = read_episode(directory)
+        print(f"read back: {len(back.rows) / (time.perf_counter() - began):.0f} rows/s")
 
 
 if __name__ == "__main__":
