@@ -18,6 +18,7 @@ import pytest
 
 from hild.arrays import JointState, ServoCommand
 from hild.config import load_config
+from hild.crossing.attach import Crossing
 from hild.crossing.cyclelog import (
     OWNER_NONE,
     CycleLog,
@@ -29,6 +30,7 @@ from hild.crossing.cyclelog import (
     cycle_log_bytes,
     cycle_log_capacity,
 )
+from hild.crossing.region import RegionError
 from hild.crossing.requests import Load, Unload
 from hild.crossing.stats import LoopStats
 from hild.cycle.engine import Engine
@@ -501,3 +503,19 @@ def test_spawned_cycle_carves_the_ring_in_the_region_and_hands_over_its_place(
         attached.close()
     finally:
         spawned.close()
+
+
+def test_a_client_domain_attached_later_finds_the_same_place_and_a_different_capacity_fails_at_once() -> None:
+    """Under ``hild run`` the main process carves; the client domain (a restarted one too) and the cycle process
+    find the cell by name, and code or config that disagree on its size fail at start-up."""
+    carved = Crossing.carve(JOINTS, 200)
+    try:
+        at = carved.attachment(os.getpid())
+        found = Crossing.attach(JOINTS, at, 200)
+        assert found.cells.cycle_log_place == carved.cells.cycle_log_place
+        assert found.cells.cycle_log is not None and found.cells.cycle_log.capacity == 200
+        with pytest.raises(RegionError, match="engine/cycle_log"):
+            Crossing.attach(JOINTS, at, 300)
+    finally:
+        os.close(carved.wakeup_fd)
+        os.close(carved.region.fd)  # the mappings keep the memory until they go
