@@ -43,6 +43,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from hild.record.frames import TIME_SLACK, frame_rows
 from hild.record.model import Episode, RecordError
 from hild.record.swap import link_tree, replace_tree, staging_dir, write_new
 
@@ -63,7 +64,6 @@ ACTION = "action"
 INDEX_FEATURES = {"frame_index": "int64", "episode_index": "int64", "index": "int64", "task_index": "int64"}
 QUANTILES = {"q01": 0.01, "q10": 0.10, "q50": 0.50, "q90": 0.90, "q99": 0.99}  # compute_stats.DEFAULT_QUANTILES
 STAT_KEYS = ("min", "max", "mean", "std", "count", *QUANTILES)
-TIME_SLACK = 1e-9  # s: a cycle this close after a frame's time counts as at it (float rounding of t0 + k/fps)
 DEFAULT_TASK = "unspecified"  # the task of frames whose episode names none
 
 
@@ -82,22 +82,6 @@ def features(joints: Sequence[str]) -> dict[str, dict[str, Any]]:
 
 
 # ---- resampling ------------------------------------------------------------------------------------------------
-def frame_rows(t: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:
-    """``(offsets, rows)``: frame ``k``'s time after the first cycle (``k/fps``) and the index of the cycle it
-    holds, the last one at or before ``t[0] + k/fps``. ``t`` is the cycle clock, non-decreasing."""
-    if len(t) == 0:
-        raise RecordError("the episode has no cycles")
-    if np.any(np.diff(t) < 0.0):
-        raise RecordError("the episode's cycle clock goes backwards: cannot resample it")
-    t0, duration = float(t[0]), float(t[-1] - t[0])
-    last = math.floor((duration + TIME_SLACK) * fps)
-    if t0 + last / fps > t[-1] + TIME_SLACK:  # ⌊duration·fps⌋ rounded up past the last cycle
-        last -= 1
-    offsets = np.arange(last + 1, dtype=np.float64) / fps
-    rows = np.searchsorted(t, t0 + offsets + TIME_SLACK, side="right") - 1
-    return offsets, rows.astype(np.int64)
-
-
 def frame_tasks(episode: Episode, offsets: np.ndarray, default: str) -> list[str]:
     """Each frame's task: the episode's, or the latest task marker at or before the frame (a ``marker`` event
     whose data carries ``task``)."""

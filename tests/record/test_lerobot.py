@@ -17,7 +17,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hild.record import lerobot, swap
-from hild.record.lerobot import ACTION, STATE, export_lerobot, frame_rows
+from hild.record.frames import TIME_SLACK, frame_rows
+from hild.record.lerobot import ACTION, STATE, export_lerobot
 from hild.record.model import RecordedEvent, RecordError
 from tests.record import lerobot_reader
 from tests.record.episodes import JOINTS, cycle_rows, episode
@@ -44,10 +45,10 @@ def tree_digest(root: Path) -> dict[str, str]:
 # ---- resampling ------------------------------------------------------------------------------------------------
 def assert_zero_order_hold(t: np.ndarray, fps: float, offsets: np.ndarray, rows: np.ndarray) -> None:
     times = t[0] + offsets
-    assert np.all(t[rows] <= times + lerobot.TIME_SLACK), "a frame holds a cycle after its time"
+    assert np.all(t[rows] <= times + TIME_SLACK), "a frame holds a cycle after its time"
     following = rows + 1 < len(t)
-    assert np.all(t[rows[following] + 1] > times[following] + lerobot.TIME_SLACK), "a frame skips a newer cycle"
-    assert times[-1] <= t[-1] + lerobot.TIME_SLACK, "a frame past the last cycle"
+    assert np.all(t[rows[following] + 1] > times[following] + TIME_SLACK), "a frame skips a newer cycle"
+    assert times[-1] <= t[-1] + TIME_SLACK, "a frame past the last cycle"
     assert abs(len(rows) - math.floor((t[-1] - t[0]) * fps)) <= 1
     np.testing.assert_array_equal(offsets, np.arange(len(rows)) / fps)
 
