@@ -220,6 +220,9 @@ def _replay(args: argparse.Namespace) -> int:
     except HildError as exc:
         print(f"hild record: {exc}", file=sys.stderr)
         return EXIT_FAILED
+    except KeyboardInterrupt:  # closing the client withdraws its presence: the controller stops the goal
+        print("hild record: replay interrupted; the goal is stopped", file=sys.stderr)
+        return EXIT_FAILED
     finally:
         client.close()
     print(json.dumps(result, indent=2) if args.json else f"replay {result.get('status')}: {result}")
