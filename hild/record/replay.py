@@ -3,7 +3,9 @@
 The path is the *measured* positions (where the arm went, not what it was told), decimated to ``rate`` waypoints
 (50 Hz by default: far denser than any arm's bandwidth, and 200 s fit the controller's 10 000-point limit; longer
 episodes get a lower rate), each with the velocity the path has there (finite differences of the waypoints), so the
-controller interpolates them with cubics. ``speed`` scales time: times divided by it, velocities multiplied.
+controller interpolates them with cubics; the first and the last point are at rest, so the arm stops exactly at
+the recorded end pose (a trajectory ending in motion would get a stop appended, beyond it). ``speed`` scales time:
+times divided by it, velocities multiplied.
 
 Safety, in order, before anything moves:
 1. The daemon's hardware must be simulated (every component's driver is the MuJoCo twin or the mock), unless the
@@ -93,7 +95,8 @@ def plan_replay(
     cols = [episode.meta.joints.index(j) for j in joint_names]
     times = (rows.t[picked] - rows.t[0]) / speed
     positions = rows.measured_position[np.ix_(picked, cols)]
-    velocities = np.gradient(positions, times, axis=0) if len(times) > 1 else np.zeros_like(positions)
+    velocities = np.gradient(positions, times, axis=0)
+    velocities[[0, -1]] = 0.0  # from rest (after the move to the start) to rest exactly at the recorded end pose
     return ReplayPlan(list(joint_names), times, positions, velocities)
 
 
