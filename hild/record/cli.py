@@ -100,6 +100,13 @@ def _export(args: argparse.Namespace) -> int:
     from hild.record.lerobot import DEFAULT_TASK, export_lerobot
 
     episodes = [load_episode(resolve_episode(e)) for e in args.episodes]
+    for e in episodes:
+        if e.meta.state == "recording":
+            print(
+                f"hild record: {e.meta.id} was never closed (still 'recording'): exporting the {len(e.rows)} cycles "
+                "its file holds; `hild record recover` closes it",
+                file=sys.stderr,
+            )
     report = export_lerobot(episodes, Path(args.lerobot), args.fps, default_task=args.task or DEFAULT_TASK)
     if args.json:
         print(

@@ -76,9 +76,11 @@ def test_export_writes_and_appends_a_lerobot_dataset(recordings, tmp_path, capsy
     out = tmp_path / "ds"
     assert main(["record", "export", "--lerobot", str(out), "--fps", "30", str(root / ids[0]), str(root / ids[1])]) == 0
     assert "2 episodes" in capsys.readouterr().out
-    # an id under ./recordings, and the .mcap path, name episodes too; --task fills the missing task
+    # appending the crashed episode, recorded without a task: --task names it
     assert main(["record", "export", "--lerobot", str(out), "--task", "wave", "--json", str(root / ids[2])]) == 0
-    reply = json.loads(capsys.readouterr().out)
+    captured = capsys.readouterr()
+    assert f"{ids[2]} was never closed" in captured.err  # the crashed one: said, and exported all the same
+    reply = json.loads(captured.out)
     assert reply["ok"] and reply["total_episodes"] == 3 and reply["episodes"][0]["episode_index"] == 2
     ds = lerobot_reader.load(out)
     assert ds.tasks.index.tolist() == ["pick the cube", "place the cube", "wave"]
