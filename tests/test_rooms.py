@@ -24,6 +24,7 @@ LIBRARY_ROOMS = {
     "rerun": ("hild/telemetry",),
     "simpleeval": ("hild/api/expressions.py",),
     "ruamel": ("hild/config/tuned.py",),
+    "pyarrow": ("hild/record",),
 }
 
 
