@@ -13,7 +13,8 @@ Two sections run only when named, after the rest: ``motion`` (tracking on the lo
 servo latency over Zenoh: ``hild.bench.motion``) and ``soak`` (``hild run`` on the twin at 1 kHz under random
 goals, servo streams and faults for 3 min, ``--quick`` 20 s, or ``--seconds``: ``hild.bench.soak``), and
 ``contact`` (the [contact] targets on the emulated Damiao arm6 in lockstep, group ``contact`` in the targets:
-``hild.bench.contact``; ``--quick`` a smoke run, ``--seconds`` the no-false-positive run's sim time).
+``hild.bench.contact``; ``--quick`` a smoke run, ``--seconds`` the no-false-positive run's sim time), and ``record``
+(what recording costs the cycle: twin6@1000 with recording off and with an episode open, ``hild.bench.record``).
 See docs/performance.md for what each figure means.
 """
 
@@ -48,7 +49,7 @@ from hild.config.model import RealtimeSection
 PACKAGES = ("hild", "numpy", "eclipse-zenoh", "python-can", "mujoco", "ruckig", "rerun-sdk", "pydantic")
 FLOOR_RATES = (500.0, 1000.0)
 SECTIONS = ("floor", *(s.name for s in SCENARIOS), "interference")
-NAMED_ONLY = ("motion", "soak", "contact")  # not part of a whole run: motion paths, endurance, contact safety
+NAMED_ONLY = ("motion", "soak", "contact", "record")  # not in a whole run: motion, endurance, contact, recording
 SOAK_SECONDS = 180.0
 SOAK_QUICK_SECONDS = 20.0
 
@@ -219,7 +220,8 @@ def bench(settings: Settings, sections: list[str], workdir: Path) -> dict[str, A
     report["machine"]["busy"] = busy(report["machine"])
     report["bench"]["seconds_total"] = round(time.monotonic() - started, 1)
     report["targets"] = evaluate_targets(report) if set(sections) & set(SECTIONS) else []  # none for motion, soak
-    report["targets"] += report.get("contact", {}).get("targets", [])  # group "contact"
+    for name in ("contact", "record"):  # their own groups of targets
+        report["targets"] += report.get(name, {}).get("targets", [])
     return report
 
 
@@ -233,6 +235,10 @@ def run_named(name: str, settings: Settings) -> dict[str, Any]:
         from hild.bench.contact import ContactSettings, run_contact
 
         return run_contact(ContactSettings.make(settings.quick, settings.seed, settings.soak_seconds))
+    if name == "record":
+        from hild.bench.record import run_record
+
+        return run_record(settings)
     from hild.bench.soak import run_soak
 
     seconds = settings.soak_seconds or (SOAK_QUICK_SECONDS if settings.quick else SOAK_SECONDS)
@@ -252,6 +258,11 @@ def format_named(report: dict[str, Any]) -> list[str]:
 
         contact = report["contact"]
         texts.append(f"CONTACT error: {contact['error']}" if "error" in contact else format_contact(contact))
+    if "record" in report:
+        from hild.bench.record import format_record
+
+        record = report["record"]
+        texts.append(f"RECORD error: {record['error']}" if "error" in record else format_record(record))
     if "soak" in report:
         from hild.bench.soak import Report
 

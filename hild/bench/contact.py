@@ -42,7 +42,7 @@ import numpy as np
 from drivers.can.emulator.disturbances import Obstacle, Push
 from hild.bench.contact_adapters import TEACH_CONTROLLER, ContactAdapters
 from hild.bench.contact_rig import DEFAULT_MISMATCH, JOINTS, JTC, RATE, ContactRig, RigSpec, tool_at, tool_mass
-from hild.bench.report import rise_pct, summarize_ns
+from hild.bench.report import rise_pct, summarize_ns, target_row
 
 GROUP = "contact"
 SCENARIO = "arm6 damiao emu"
@@ -121,31 +121,10 @@ def target(
     basis: str,
     error: str | None = None,
 ) -> dict[str, Any]:
-    """One contact row: PASS/MISS on the measured figure, MISS "error: …" when its measurement failed (also when
-    nothing could be measured: never n/a, never a PASS by default)."""
-    if error is not None:
-        status, detail, measured = "MISS", f"error: {error}", None
-    elif measured is None or not math.isfinite(measured):
-        status, detail = "MISS", f"{name}: nothing measured ({basis})"
-        measured = None
-    elif measured <= limit:
-        status, detail = "PASS", ""
-    else:
-        status, detail = "MISS", f"{name} {measured:g} {unit} > limit {limit:g} {unit} ({basis})"
-    return {
-        "target": name,
-        "scenario": SCENARIO,
-        "measured": None if measured is None else round(float(measured), 2),
-        "limit": limit,
-        "unit": unit,
-        "basis": basis,
-        "status": status,
-        "group": GROUP,
-        "detail": detail,
-    }
+    """One contact row (``hild.bench.report.target_row``)."""
+    return target_row(name, measured, limit, unit, basis, scenario=SCENARIO, group=GROUP, error=error)
 
 
-# ---- helpers -------------------------------------------------------------------------------------------------------
 def sample_pose(rng: np.random.Generator) -> np.ndarray:
     return rng.uniform(POSE_LOW, POSE_HIGH)
 

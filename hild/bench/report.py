@@ -9,6 +9,7 @@ or n/a when the run did not measure what it needs (e.g. ``--only`` left it out).
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -44,6 +45,41 @@ def per_10k(events: int, cycles: int) -> float:
 def rise_pct(loaded: float, baseline: float) -> float:
     """How much ``loaded`` exceeds ``baseline``, in % of the baseline (negative when it is below)."""
     return round(100.0 * (loaded - baseline) / baseline, 1) if baseline > 0 else 0.0
+
+
+def target_row(
+    name: str,
+    measured: float | None,
+    limit: float,
+    unit: str,
+    basis: str,
+    *,
+    scenario: str,
+    group: str,
+    error: str | None = None,
+) -> dict[str, Any]:
+    """One target row of a named section (lower is better): PASS/MISS on the measured figure, MISS "error: …" when
+    its measurement failed (also when nothing could be measured: never n/a, never a PASS by default)."""
+    if error is not None:
+        status, detail, measured = "MISS", f"error: {error}", None
+    elif measured is None or not math.isfinite(measured):
+        status, detail = "MISS", f"{name}: nothing measured ({basis})"
+        measured = None
+    elif measured <= limit:
+        status, detail = "PASS", ""
+    else:
+        status, detail = "MISS", f"{name} {measured:g} {unit} > limit {limit:g} {unit} ({basis})"
+    return {
+        "target": name,
+        "scenario": scenario,
+        "measured": None if measured is None else round(float(measured), 2),
+        "limit": limit,
+        "unit": unit,
+        "basis": basis,
+        "status": status,
+        "group": group,
+        "detail": detail,
+    }
 
 
 def loop_figures(
@@ -678,6 +714,7 @@ def _hild_lines(report: dict[str, Any]) -> list[str]:
             (RT, "TARGETS [rt-split] (1 kHz, 6 joints, trajectory, broadcaster, telemetry; floor from this run)"),
             ("earlier", "EARLIER TARGETS (docs/performance.md, Targets)"),
             ("contact", "TARGETS [contact] (emulated Damiao arm6, 1 kHz, mass ×1.1, friction ×1.3; lockstep)"),
+            ("record", "TARGETS [record] (twin6@1000, the cycle in its own process; recording off vs an episode open)"),
         )
         w = (36, 17, 9, 9, 6, 6)
         for group, heading in groups:

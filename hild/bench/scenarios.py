@@ -220,9 +220,15 @@ def arm6_config(kind: str, rate: float, *, interference: bool = False) -> dict[s
 
 
 def scenario_config(
-    scenario: Scenario, workdir: Path, settings: Settings, *, interference: bool = False
+    scenario: Scenario,
+    workdir: Path,
+    settings: Settings,
+    *,
+    interference: bool = False,
+    overrides: dict[str, Any] | None = None,
 ) -> tuple[dict[str, Any], str | None, float]:
-    """(config document, rig name or None, trajectory scale) with telemetry to a file in ``workdir``."""
+    """(config document, rig name or None, trajectory scale) with telemetry to a file in ``workdir``; ``overrides``
+    replace top-level sections (e.g. ``recording``)."""
     rig: str | None = None
     scale = 1.0
     if scenario.kind == "can":
@@ -239,6 +245,7 @@ def scenario_config(
     if scenario.spin_us is not None:
         realtime["spin_us"] = scenario.spin_us
     realtime["cycle_process"] = settings.cycle_process
+    data.update(overrides or {})
     return data, rig, scale
 
 
@@ -344,8 +351,15 @@ class Session:
 
 
 @contextlib.contextmanager
-def open_session(scenario: Scenario, workdir: Path, settings: Settings, *, interference: bool = False) -> Any:
-    data, rig, scale = scenario_config(scenario, workdir, settings, interference=interference)
+def open_session(
+    scenario: Scenario,
+    workdir: Path,
+    settings: Settings,
+    *,
+    interference: bool = False,
+    overrides: dict[str, Any] | None = None,
+) -> Any:
+    data, rig, scale = scenario_config(scenario, workdir, settings, interference=interference, overrides=overrides)
     tag = scenario.name.replace("@", "_") + ("_interference" if interference else "")
     path = workdir / f"{tag}.yaml"
     path.write_text(json.dumps(data, indent=1))  # JSON is YAML

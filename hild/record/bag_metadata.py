@@ -1,13 +1,12 @@
 """rosbag2's ``metadata.yaml`` (version 9, as Jazzy writes it), so ``ros2 bag info`` and rosbags open the directory.
 
 Written by hand rather than with a YAML library (PyYAML lives in ``hild/config``): the structure is fixed and every
-value is a number, a name hild chose, or a string emitted double-quoted with JSON's escapes (valid YAML). The layout
-follows yaml-cpp's block style as rosbag2 emits it.
+value is a number, a name hild chose, or a string emitted double-quoted with every non-ASCII character escaped.
+The layout follows yaml-cpp's block style as rosbag2 emits it.
 """
 
 from __future__ import annotations
 
-import json
 import re
 from dataclasses import dataclass
 from typing import Any
@@ -100,15 +99,28 @@ def _scalar(value: Any) -> str:
         return str(value)
     if isinstance(value, str):
         plain = _PLAIN.match(value) and value.lower() not in _RESERVED
-        return value if plain else json.dumps(value)
+        return value if plain else _quoted(value)
     raise TypeError(f"cannot write {type(value).__name__} to metadata.yaml")
+
+
+def _quoted(text: str) -> str:
+    """A YAML double-quoted scalar: printable ASCII as is, everything else escaped (``\\uXXXX``, ``\\UXXXXXXXX``)."""
+    out = []
+    for char in text:
+        code = ord(char)
+        if 0x20 <= code < 0x7F and char not in '"\\':
+            out.append(char)
+        else:
+            out.append(f"\\u{code:04x}" if code < 0x10000 else f"\\U{code:08x}")
+    return '"' + "".join(out) + '"'
 
 
 def _lines(node: Any, indent: int) -> list[str]:
     pad = " " * indent
     out: list[str] = []
     if isinstance(node, dict):
-        for key, value in node.items():
+        for name, value in node.items():
+            key = _scalar(str(name))
             if isinstance(value, dict | list) and value:
                 out.append(f"{pad}{key}:")
                 out += _lines(value, indent + 2)

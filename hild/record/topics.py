@@ -2,31 +2,33 @@
 
 A row becomes ``/joint_states`` (the reading), ``/hild/command`` (the final command), ``/<controller>/commands`` (a
 controller's joints' final command, the cycles it commands one) and ``/hild/cycle`` (everything else, a labelled
-``Float64MultiArray``); an event becomes one JSON line on ``/hild/events``. The bytes are the face's: ``encode`` in
-``hild.api.ros2.types`` (rosbags' serializer) is the reference. Serializing 3–4 messages a row that way costs
-~12 µs each, so a message's bytes are a template — its constant part (names, labels, lengths) encoded once — with
-the stamp and the numbers written into it for a whole batch with numpy; every template is checked against
-``encode`` when it is made, so a template that differs from the face's bytes never writes a file.
+``Float64MultiArray``); an event becomes one JSON line on ``/hild/events``. The bytes are the face's
+(``hild.api.ros2.types.encode``), written and read a batch at a time through ``cdr_templates``.
 """
 
 from __future__ import annotations
 
 import json
 import math
-import struct
 from dataclasses import dataclass
 from functools import cache
-from typing import Any
 
 import numpy as np
 
 from hild.api.ros2.types import decode, encode, message, type_hash, typestore
-from hild.crossing.cyclelog import CycleRows
+from hild.crossing.cyclelog import OWNER_NONE, CycleRows
 from hild.record.bag_metadata import QOS_PROFILES
+from hild.record.cdr_templates import (
+    FLOAT64_ARRAY,
+    JOINT_STATE,
+    PER_JOINT,
+    SCALARS,
+    cycle_layout,
+    cycle_template,
+    joint_state_template,
+)
 from hild.record.model import RecordedEvent
 
-JOINT_STATE = "sensor_msgs/msg/JointState"
-FLOAT64_ARRAY = "std_msgs/msg/Float64MultiArray"
 STRING = "std_msgs/msg/String"
 
 JOINT_STATES = "/joint_states"
@@ -35,10 +37,9 @@ CYCLE = "/hild/cycle"
 EVENTS = "/hild/events"
 TOPIC_TYPES = {JOINT_STATES: JOINT_STATE, COMMAND: JOINT_STATE, CYCLE: FLOAT64_ARRAY, EVENTS: STRING}
 
-# /hild/cycle's labelled layout: one MultiArrayDimension per field, in this order (size 1, or one per joint);
-# ``wall`` rides along so that a row's wall time comes back bit-exact (the stamps are whole nanoseconds)
-SCALARS = ("tick", "t", "wall", "period", "duration")
-PER_JOINT = ("kp", "kd", "mode", "owner", "fresh", "fault", "tau_ext")
+# /joint_states' frame, the face's (hild.api.ros2.face.JOINT_STATES_FRAME: joint_state_broadcaster's default), so a
+# recorded reading is the bytes the face publishes; commands have none
+JOINT_STATES_FRAME = "base_link"
 INT_FIELDS = {"tick": np.int64, "mode": np.int8, "owner": np.int16, "fault": np.int16, "fresh": np.bool_}
 
 
@@ -74,117 +75,6 @@ def wall_ns(wall: float) -> int:
     return int(stamps_ns(np.array([wall]))[0])
 
 
-class _Cdr:
-    """Little-endian CDR of a message's constant part, noting where the variable parts go (offsets from the
-    buffer's start; alignment counts from after the 4-byte encapsulation header, as the face's encoder does)."""
-
-    def __init__(self) -> None:
-        self.buf = bytearray(b"\x00\x01\x00\x00")
-
-    def _align(self, size: int) -> None:
-        self.buf += bytes(-(len(self.buf) - 4) % size)
-
-    def u32(self, value: int) -> int:
-        self._align(4)
-        at = len(self.buf)
-        self.buf += struct.pack("<I", value)
-        return at
-
-    def string(self, text: str) -> None:
-        raw = text.encode()
-        self.u32(len(raw) + 1)
-        self.buf += raw + b"\x00"
-
-    def float64s(self, count: int) -> int:
-        self.u32(count)
-        if count:
-            self._align(8)
-        at = len(self.buf)
-        self.buf += bytes(8 * count)
-        return at
-
-
-@dataclass(frozen=True)
-class _Template:
-    """A message's bytes with holes: a stamp (sec, nanosec) at ``stamp`` (or none) and float64 runs."""
-
-    data: bytes
-    stamp: int | None
-    runs: tuple[int, ...]  # offsets of the float64 runs
-    counts: tuple[int, ...]
-
-    def fill(self, stamps: np.ndarray | None, *values: np.ndarray) -> list[bytes]:
-        """One message per row: ``stamps`` int64 ns (k,), each of ``values`` (k, count) float64."""
-        k = len(values[0]) if values else len(stamps)  # type: ignore[arg-type]
-        size = len(self.data)
-        buf = np.empty((k, size), np.uint8)
-        buf[:] = np.frombuffer(self.data, np.uint8)
-        if self.stamp is not None and stamps is not None:
-            sec, nanosec = np.divmod(stamps, 1_000_000_000)
-            if len(sec) and sec.max() > 2**31 - 1:
-                raise ValueError("a wall time past 2038 does not fit builtin_interfaces/Time")
-            buf[:, self.stamp : self.stamp + 4].view("<i4")[:, 0] = sec
-            buf[:, self.stamp + 4 : self.stamp + 8].view("<u4")[:, 0] = nanosec
-        for at, count, block in zip(self.runs, self.counts, values, strict=True):
-            if count:
-                buf[:, at : at + 8 * count].view("<f8")[:] = block
-        flat = buf.tobytes()
-        return [flat[i * size : (i + 1) * size] for i in range(k)]
-
-
-def _checked(template: _Template, probe: Any, type_name: str, stamp_ns: int | None, *values: np.ndarray) -> _Template:
-    """``template`` if it writes exactly what the face's encoder writes for ``probe``; a bug otherwise."""
-    stamps = None if stamp_ns is None else np.array([stamp_ns], np.int64)
-    mine = template.fill(stamps, *(v[None, :] for v in values))[0]
-    if mine != encode(probe, type_name):
-        raise AssertionError(f"the {type_name} template differs from the ROS 2 face's CDR")
-    return template
-
-
-@cache
-def joint_state_template(names: tuple[str, ...], frame_id: str = "") -> _Template:
-    """``sensor_msgs/msg/JointState`` for ``names``: stamp, then position, velocity and effort."""
-    cdr = _Cdr()
-    stamp = cdr.u32(0)
-    cdr.u32(0)
-    cdr.string(frame_id)
-    cdr.u32(len(names))
-    for name in names:
-        cdr.string(name)
-    n = len(names)
-    runs = (cdr.float64s(n), cdr.float64s(n), cdr.float64s(n))
-    template = _Template(bytes(cdr.buf), stamp, runs, (n, n, n))
-    probe = [np.arange(n, dtype=np.float64) * scale + 0.5 for scale in (1.0, -2.0, 3.0)]
-    stamp_msg = message("builtin_interfaces/msg/Time", sec=7, nanosec=9)
-    header = message("std_msgs/msg/Header", stamp=stamp_msg, frame_id=frame_id)
-    msg = message(JOINT_STATE, header=header, name=list(names), position=probe[0], velocity=probe[1], effort=probe[2])
-    return _checked(template, msg, JOINT_STATE, 7_000_000_009, *probe)
-
-
-@cache
-def cycle_template(joints: int) -> _Template:
-    """``/hild/cycle``'s ``Float64MultiArray``: the labelled layout, then the data."""
-    dims = [(label, 1) for label in SCALARS] + [(label, joints) for label in PER_JOINT]
-    cdr = _Cdr()
-    cdr.u32(len(dims))
-    for label, size in dims:
-        cdr.string(label)
-        cdr.u32(size)
-        cdr.u32(size)
-    cdr.u32(0)  # data_offset
-    width = len(SCALARS) + len(PER_JOINT) * joints
-    data_at = cdr.float64s(width)
-    template = _Template(bytes(cdr.buf), None, (data_at,), (width,))
-    layout = message("std_msgs/msg/MultiArrayLayout", dim=_dimensions(joints), data_offset=0)
-    probe = np.arange(width, dtype=np.float64) - 1.25
-    return _checked(template, message(FLOAT64_ARRAY, layout=layout, data=probe), FLOAT64_ARRAY, None, probe)
-
-
-def _dimensions(joints: int) -> list[Any]:
-    sizes = [(label, 1) for label in SCALARS] + [(label, joints) for label in PER_JOINT]
-    return [message("std_msgs/msg/MultiArrayDimension", label=lb, size=s, stride=s) for lb, s in sizes]
-
-
 def cycle_values(rows: CycleRows) -> np.ndarray:
     """(k, 5 + 7n) float64: /hild/cycle's data for each row (every int and bool is exact in a float64)."""
     columns = [getattr(rows, name).astype(np.float64)[:, None] for name in SCALARS]
@@ -209,11 +99,11 @@ def encode_rows(rows: CycleRows, joints: tuple[str, ...], controller_codes: dict
     if rows.position.shape[1:] != (len(joints),):
         raise ValueError(f"rows have {rows.position.shape[1:]} joints, the episode {len(joints)}")
     stamps = stamps_ns(rows.wall)
-    states = joint_state_template(joints)
+    commands = joint_state_template(joints)
     controllers: dict[str, tuple[np.ndarray, list[bytes]]] = {}
     for code, name in controller_codes.items():
         mask = rows.owner == code
-        if not mask.any():
+        if code == OWNER_NONE or not mask.any():
             continue
         which = np.flatnonzero(mask.any(axis=1))
         out: list[bytes] = [b""] * len(which)
@@ -229,8 +119,10 @@ def encode_rows(rows: CycleRows, joints: tuple[str, ...], controller_codes: dict
         controllers[controller_topic(name)] = (which, out)
     return EncodedRows(
         log_times=stamps,
-        joint_states=states.fill(stamps, rows.measured_position, rows.measured_velocity, rows.measured_effort),
-        command=states.fill(stamps, rows.position, rows.velocity, rows.effort),
+        joint_states=joint_state_template(joints, JOINT_STATES_FRAME).fill(
+            stamps, rows.measured_position, rows.measured_velocity, rows.measured_effort
+        ),
+        command=commands.fill(stamps, rows.position, rows.velocity, rows.effort),
         cycle=cycle_template(len(joints)).fill(None, cycle_values(rows)),
         controllers=controllers,
     )
@@ -245,7 +137,7 @@ def encode_event(event: RecordedEvent) -> bytes:
 
 def decode_events(raw: bytes) -> list[RecordedEvent]:
     out = []
-    for line in decode(raw, STRING).data.splitlines():
+    for line in decode(raw, STRING).data.split("\n"):
         if line.strip():
             item = json.loads(line)
             t = math.nan if item.get("t") is None else float(item["t"])
@@ -266,8 +158,14 @@ def decode_joint_states(messages: list[bytes]) -> DecodedJointStates | None:
     """JointStates of one joint list (None for none); a message naming other joints is a ValueError."""
     if not messages:
         return None
+    first = decode(messages[0], JOINT_STATE)
+    names = tuple(first.name)
+    parsed = joint_state_template(names, first.header.frame_id).parse(messages)
+    if parsed is not None:  # every message hild's template for these joints: the same numbers decode would give
+        stamps, (position, velocity, effort) = parsed
+        assert stamps is not None
+        return DecodedJointStates(names, stamps, position, velocity, effort)
     decoded = [decode(raw, JOINT_STATE) for raw in messages]
-    names = tuple(decoded[0].name)
     if any(tuple(m.name) != names for m in decoded):
         raise ValueError("JointState messages name different joints")
     stamps = np.array([m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec for m in decoded], np.int64)
@@ -278,11 +176,17 @@ def decode_joint_states(messages: list[bytes]) -> DecodedJointStates | None:
 
 def decode_cycles(messages: list[bytes], joints: int) -> dict[str, np.ndarray]:
     """/hild/cycle's fields by label, typed like ``CycleRows`` (a field found nowhere is a ValueError)."""
+    parsed = cycle_template(joints).parse(messages)
+    if parsed is not None:  # hild's layout, in its order
+        data = parsed[1][0]
+        where = _segments(cycle_layout(joints), 0, joints)
+        out = {name: data[:, at] if name in PER_JOINT else data[:, at.start] for name, at in where.items()}
+        return {name: values.astype(INT_FIELDS.get(name, np.float64)) for name, values in out.items()}
     decoded = [decode(raw, FLOAT64_ARRAY) for raw in messages]
     width = len(SCALARS) + len(PER_JOINT) * joints
     data = np.stack([m.data for m in decoded]) if decoded else np.zeros((0, width))
     layouts = [(tuple((d.label, d.size) for d in msg.layout.dim), msg.layout.data_offset) for msg in decoded]
-    out: dict[str, np.ndarray] = {name: np.empty((len(decoded),)) for name in SCALARS}
+    out = {name: np.empty((len(decoded),)) for name in SCALARS}
     out |= {name: np.empty((len(decoded), joints)) for name in PER_JOINT}
     for layout in set(layouts):  # one, in any file hild wrote
         rows = np.array([other == layout for other in layouts])

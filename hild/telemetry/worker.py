@@ -31,7 +31,7 @@ import rerun as rr
 from hild.config.model import FileSinkSpec
 from hild.crossing.events import Event
 from hild.crossing.telemetry import SharedRing, TelemetryRows, TelemetryTap
-from hild.telemetry import layout
+from hild.telemetry import columns, layout
 from hild.telemetry.errors import TelemetryError
 from hild.telemetry.outlets import FileOutlet, LiveOutlet, Outlet
 from hild.telemetry.setup import TelemetrySetup
@@ -41,19 +41,6 @@ log = logging.getLogger("hild.telemetry")
 NICE = 19  # the recorder yields the CPU to anything else, above all the cycle; a late flush only costs latency
 EVENT_WAIT = 1.0  # s a flush waits for events the daemon has queued but the pipe has not delivered yet
 _LEVELS = {"debug": "DEBUG", "info": "INFO", "warning": "WARN", "error": "ERROR", "critical": "CRITICAL"}
-# One colour per joint, shared by its measured (thick) and commanded (thin) series.
-_PALETTE = [
-    (31, 119, 180),
-    (255, 127, 14),
-    (44, 160, 44),
-    (214, 39, 40),
-    (148, 103, 189),
-    (140, 86, 75),
-    (227, 119, 194),
-    (127, 127, 127),
-    (188, 189, 34),
-    (23, 190, 207),
-]
 
 
 class Recorder:
@@ -106,23 +93,7 @@ class Recorder:
 
     # ---- static content (every new stream) ------------------------------------------------------------------
     def _on_open(self, rec: rr.RecordingStream) -> None:
-        joints = list(self.joints)
-        colors = [_PALETTE[i % len(_PALETTE)] for i in range(len(joints))]
-        for q in layout.QUANTITIES:
-            rec.log(
-                layout.joint_path(q, layout.MEASURED),
-                rr.SeriesLines(names=joints, colors=colors, widths=[2.0] * len(joints)),
-                static=True,
-            )
-            rec.log(
-                layout.joint_path(q, layout.COMMANDED),
-                rr.SeriesLines(names=[f"{j} cmd" for j in joints], colors=colors, widths=[1.0] * len(joints)),
-                static=True,
-            )
-        rec.log(layout.TRACKING_ERROR, rr.SeriesLines(names=joints, colors=colors), static=True)
-        rec.log(layout.MODE, rr.SeriesLines(names=joints, colors=colors), static=True)
-        rec.log(layout.LOOP_PERIOD, rr.SeriesLines(names=["period"]), static=True)
-        rec.log(layout.LOOP_DURATION, rr.SeriesLines(names=["duration (previous cycle)"]), static=True)
+        columns.log_series_styles(rec, self.joints)
         if self.scene is not None:
             self.scene.log_static(rec)
         rec.send_blueprint(self.blueprint)
@@ -153,27 +124,16 @@ class Recorder:
             outlet.rec.send_columns(path, indexes=indexes, columns=columns)
 
     def _send_rows(self, rows: TelemetryRows) -> None:
-        index = [rr.TimeColumn(layout.TICK, sequence=rows.tick), rr.TimeColumn(layout.CYCLE_TIME, duration=rows.t)]
-        measured = (rows.measured_position, rows.measured_velocity, rows.measured_effort)
-        commanded = (rows.position, rows.velocity, rows.effort)
-        for q, meas, cmd in zip(layout.QUANTITIES, measured, commanded, strict=True):
-            self._send(layout.joint_path(q, layout.MEASURED), index, rr.Scalars.columns(scalars=meas))
-            self._send(layout.joint_path(q, layout.COMMANDED), index, rr.Scalars.columns(scalars=cmd))
-        error = rows.position - rows.measured_position
-        self._send(layout.TRACKING_ERROR, index, rr.Scalars.columns(scalars=error))
-        self._send(layout.MODE, index, rr.Scalars.columns(scalars=rows.mode.astype(float)))
-        self._send(layout.LOOP_PERIOD, index, rr.Scalars.columns(scalars=rows.period * 1e6))
-        self._send(layout.LOOP_DURATION, index, rr.Scalars.columns(scalars=rows.duration * 1e6))
+        index = columns.time_index(rows.tick, rows.t)
+        for path, batch in columns.row_columns(rows):
+            self._send(path, index, batch)
         self._anchor = (float(rows.t[-1]), int(rows.tick[-1]))
         if self.scene is not None:
             pick = self.pose_rows(rows.t)
             if pick.size:
-                pose_index = [
-                    rr.TimeColumn(layout.TICK, sequence=rows.tick[pick]),
-                    rr.TimeColumn(layout.CYCLE_TIME, duration=rows.t[pick]),
-                ]
-                for path, columns in self.scene.pose_columns(rows.measured_position[pick]):
-                    self._send(path, pose_index, columns)
+                pose_index = columns.time_index(rows.tick[pick], rows.t[pick])
+                for path, poses in self.scene.pose_columns(rows.measured_position[pick]):
+                    self._send(path, pose_index, poses)
 
     def pose_rows(self, t: np.ndarray) -> np.ndarray:
         """Indices of the rows that start a new 1/pose_rate slot of the cycle clock (decimation without drift)."""

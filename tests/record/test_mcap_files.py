@@ -4,6 +4,7 @@ reader, rosbags' rosbag2 reader, rclpy) see a rosbag2 bag with the ROS 2 face's 
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +16,7 @@ from mcap.stream_reader import StreamReader, breakup_chunk
 from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import Reader
 
+from hild.api.ros2.face import JOINT_STATES_FRAME
 from hild.api.ros2.types import decode, encode, message, type_hash, typestore
 from hild.crossing.cyclelog import OWNER_NONE
 from hild.record import mcap_files, topics
@@ -181,7 +183,7 @@ def test_joint_states_carry_the_face_s_bytes(episode: Written) -> None:
         stamp = message("builtin_interfaces/msg/Time", sec=ns // 10**9, nanosec=ns % 10**9)
         face = message(
             topics.JOINT_STATE,
-            header=message("std_msgs/msg/Header", stamp=stamp, frame_id=""),
+            header=message("std_msgs/msg/Header", stamp=stamp, frame_id=JOINT_STATES_FRAME),
             name=list(JOINTS),
             position=rows.measured_position[i],
             velocity=rows.measured_velocity[i],
@@ -272,3 +274,28 @@ def test_a_black_box_is_one_mcap_and_a_json(tmp_path: Path) -> None:
     with path.open("rb") as stream:
         summary = make_reader(stream).get_summary()
     assert summary is not None and summary.statistics.chunk_count == 8  # 0.7 s of 0.1 s chunks, and the events'
+
+
+def test_end_chunk_fsyncs_only_when_asked(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    synced: list[int] = []
+    real_fsync = os.fsync
+    monkeypatch.setattr(os, "fsync", lambda fd: (synced.append(fd), real_fsync(fd)))
+    for fsync in (False, True):
+        writer = EpisodeWriter(tmp_path / str(fsync), make_meta(), fsync=fsync)
+        synced.clear()
+        writer.write_rows(make_rows(20), CODES)
+        writer.end_chunk()
+        assert (writer._file.fileno() in synced) is fsync
+        writer.close()
+
+
+def test_a_writer_never_told_to_end_a_chunk_ends_one_at_a_row_boundary(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(mcap_files, "AUTO_CHUNK_BYTES", 20_000)  # ~15 rows of 6 joints
+    rows = make_rows(400)
+    writer = EpisodeWriter(tmp_path / "ep", make_meta(), fsync=False)
+    for start in range(0, 400, 40):
+        writer.write_rows(rows.select(slice(start, start + 40)), CODES)
+    writer.abandon()  # never closed: only the chunks the writer ended itself are in the file
+    assert_rows_equal(read_episode(tmp_path / "ep").rows, rows)
