@@ -23,6 +23,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from hild.record import locks
 from hild.record.model import EPISODE_JSON, Episode, EpisodeMeta, RecordError, mcap_name
 
 DEFAULT_DIR = Path("recordings")
@@ -169,6 +170,10 @@ def _recover(args: argparse.Namespace) -> int:
     status = EXIT_OK
     reports: list[dict[str, Any]] = []
     for directory in targets:
+        if locks.in_use(directory):  # a live recorder holds it: never, not even with --force
+            print(f"{directory}: a running recorder is writing it; skipped")
+            status = EXIT_FAILED
+            continue
         mcap = directory / mcap_name(directory.name)
         if mcap.exists() and time.time() - mcap.stat().st_mtime < LIVE_SECONDS and not args.force:
             print(f"{directory}: written less than {LIVE_SECONDS:g} s ago, maybe still recording; skipped (--force)")

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from hild.cli import main as hild_main
 from hild.config import load_config
 from hild.crossing.cyclelog import CycleLog, CycleRows
 from hild.crossing.events import Event
@@ -35,7 +36,7 @@ from hild.record.recorder import Recorder
 from hild.record.setup import RecorderSetup
 from hild.record.worker import Outbox, Worker
 from tests.conftest import merge, mock_robot
-from tests.record.rows import assert_rows_equal
+from tests.record.rows import assert_rows_equal, make_meta
 
 RATE = 500  # Hz: the mock robot's
 SECONDS = 2.0  # the black box's: the ring holds (max(2, this) + 2) s = 2000 rows
@@ -375,17 +376,25 @@ def test_the_next_recorder_recovers_what_a_dead_one_left_open(link: LocalCycle) 
     assert_rows_equal(episode.rows, rows_between(link, started["start_tick"], started["start_tick"] + 200))
 
 
-def test_an_episode_a_live_recorder_holds_is_not_recovered(tmp_path: Path) -> None:
-    directory = tmp_path / "20260101-000000-x"
+def test_an_episode_a_live_recorder_holds_is_not_recovered(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    meta = make_meta()
+    directory = tmp_path / meta.id
     directory.mkdir()
-    fd = locks.hold(directory)
+    fd = locks.hold(directory)  # as the recorder process holds the episode it writes
     try:
+        writer = mcap_files.EpisodeWriter(directory, meta, fsync=False)
         assert locks.in_use(directory)
         with pytest.raises(BlockingIOError):
             locks.hold(directory)
+        assert hild_main(["record", "recover", str(tmp_path), "--force"]) == 1
+        assert "a running recorder is writing it; skipped" in capsys.readouterr().out
+        assert EpisodeMeta.read(directory).state == "recording"
+        writer.abandon()
     finally:
         locks.release(fd)
     assert not locks.in_use(directory)
+    assert hild_main(["record", "recover", str(tmp_path), "--force"]) == 0
+    assert EpisodeMeta.read(directory).state == "recovered"
 
 
 # ---- the recorder's loop in this process: a full disk ---------------------------------------------------------------
