@@ -315,7 +315,7 @@ class Recorder:
 
     async def _release(self, kill: bool) -> None:
         process = self._process
-        if process is not None:
+        if process is not None and process.pid is not None:  # started
             await asyncio.to_thread(process.join, 1.0)
             if kill and process.is_alive():
                 await asyncio.to_thread(_stop_process, process, 0.2)
@@ -478,6 +478,7 @@ class Recorder:
                 fps=episode.fps,
                 cycles=int(figures.get("cycles", 0)),
                 duration=float(figures.get("duration", 0.0)),
+                chunk_ms_max=float(figures.get("chunk_ms_max", 0.0)),  # the recorder's slowest chunk so far
             )
         if self._last is not None:
             out["last"] = dict(self._last)

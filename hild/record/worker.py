@@ -117,6 +117,7 @@ class EpisodeFile:
         self._recent_t = np.zeros(0)
         self._recent_wall = np.zeros(0)
         self.events_written = 0
+        self.chunks, self.chunk_seconds, self.chunk_max = 0, 0.0, 0.0
 
     @property
     def dropped(self) -> int:
@@ -160,7 +161,21 @@ class EpisodeFile:
         self.writer.end_chunk()
 
     def figures(self) -> dict[str, Any]:
-        return {"cycles": self.cycles, "duration": self.duration, "dropped": self.dropped, "last_tick": self.last_tick}
+        return {
+            "cycles": self.cycles,
+            "duration": self.duration,
+            "dropped": self.dropped,
+            "last_tick": self.last_tick,
+            "chunks": self.chunks,
+            "chunk_ms_mean": 1e3 * self.chunk_seconds / self.chunks if self.chunks else 0.0,
+            "chunk_ms_max": 1e3 * self.chunk_max,
+        }
+
+    def timed(self, seconds: float) -> None:
+        """A chunk's time (take, write, flush, the free-space check), for the figures."""
+        self.chunks += 1
+        self.chunk_seconds += seconds
+        self.chunk_max = max(self.chunk_max, seconds)
 
     def close(self, events_dropped: int, controller_codes: dict[int, str] | None, why: str | None) -> list[Path]:
         """Close the file (state ``complete``) with the final metadata; returns every file written."""
@@ -170,7 +185,15 @@ class EpisodeFile:
         if controller_codes:
             self.codes.update(controller_codes)
         meta.controller_codes = dict(self.codes)
-        meta.extra = {**meta.extra, "events": self.events_written, "events_dropped": events_dropped}
+        figures = self.figures()
+        meta.extra = {
+            **meta.extra,
+            "events": self.events_written,
+            "events_dropped": events_dropped,
+            "chunks": self.chunks,
+            "chunk_ms_mean": round(figures["chunk_ms_mean"], 3),  # the recorder's time per chunk: is it keeping up?
+            "chunk_ms_max": round(figures["chunk_ms_max"], 3),
+        }
         if why is not None:
             meta.extra["stopped_because"] = why
         try:
@@ -296,7 +319,9 @@ class Worker:
         if left < self.setup.min_free_mb:
             self.end(f"free space below recording.min_free_mb ({left:.0f} MiB left, {self.setup.min_free_mb:g} asked)")
             return
-        self._report(episode, time.monotonic() - started)
+        spent = time.monotonic() - started
+        episode.timed(spent)
+        self._report(episode, spent)
         self.send(("progress", episode.no, episode.figures()))
 
     def _write(self, episode: EpisodeFile, rows: CycleRows, events: list[RecordedEvent], final: bool = False) -> bool:
