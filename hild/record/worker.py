@@ -177,7 +177,7 @@ class EpisodeFile:
         self.chunk_seconds += seconds
         self.chunk_max = max(self.chunk_max, seconds)
 
-    def close(self, events_dropped: int, controller_codes: dict[int, str] | None, why: str | None) -> list[Path]:
+    def close(self, events_dropped: int | None, controller_codes: dict[int, str] | None, why: str | None) -> list[Path]:
         """Close the file (state ``complete``) with the final metadata; returns every file written."""
         meta = self.meta  # the writer's: close() writes it into episode.json
         if self.first is not None:
@@ -258,7 +258,11 @@ class Worker:
                 if not self.command(message):
                     return
                 continue
-            self.chunk()
+            try:
+                self.chunk()
+            except Exception as exc:  # e.g. the episode's directory removed under it: the recorder runs on
+                log.exception("recording: a chunk failed")
+                self.end(f"recording failed: {type(exc).__name__}: {exc}")
             next_chunk = max(next_chunk + period, time.monotonic())
             if os.getppid() != self.parent_pid:  # orphaned: leave like the killed process PDEATHSIG makes us
                 return
@@ -363,7 +367,7 @@ class Worker:
         if episode is None:
             return
         try:
-            files = episode.close(0, None, why)
+            files = episode.close(None, None, why)  # events dropped on the way here: the handle's count
         except Exception as exc:
             files = []
             why = f"{why}; closing it failed too ({exc}): hild record recover closes it once there is room"

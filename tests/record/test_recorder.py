@@ -12,7 +12,9 @@ import itertools
 import json
 import os
 import queue
+import shutil
 import signal
+import threading
 from collections.abc import Awaitable, Callable, Iterator
 from dataclasses import replace
 from multiprocessing import Pipe
@@ -406,7 +408,7 @@ class InProcess:
         base = RecorderSetup.from_config(link.loaded)
         self.setup = replace(base, **setup)
         self.messages, sender = Pipe(duplex=False)
-        commands, _ = Pipe()
+        commands, self.commands = Pipe()
         self.events: queue.Queue[Any] = queue.Queue()
         self.worker = Worker(self.setup, ring(link), commands, Outbox(sender), self.events, os.getppid())
         self.seq = itertools.count(1)
@@ -427,6 +429,11 @@ class InProcess:
         raise AssertionError(f"no {kind!r} message; had {self.said}")
 
     def start(self) -> tuple[Path, tuple[Any, ...]]:
+        args = self.start_args()
+        return Path(args[2]), self.ask("start", *args)
+
+    def start_args(self) -> tuple[Any, ...]:
+        """A new episode's directory made, and the start command's arguments."""
         self.no += 1
         directory = self.setup.directory / f"episode-{self.no}"
         directory.mkdir(parents=True)
@@ -445,7 +452,7 @@ class InProcess:
             started_wall=0.0,
             start_tick=self.link.cycle,
         )
-        return directory, self.ask("start", self.no, meta, str(directory), [])
+        return self.no, meta, str(directory), []
 
 
 def test_a_full_disk_stops_the_episode_cleanly_and_the_recorder_runs_on(
@@ -513,3 +520,24 @@ def test_events_that_overtake_their_start_are_kept_for_it(link: LocalCycle) -> N
     stopped = here.ask("stop", 1, link.cycle, 1, [], {}, 0)
     assert stopped[2] is True
     assert [e.data["marker"] for e in read_episode(directory).events] == ["early"]
+
+
+def test_a_chunk_that_fails_ends_the_episode_and_the_loop_runs_on(link: LocalCycle) -> None:
+    here = InProcess(link)
+    directory, _ = here.start()
+    serving = threading.Thread(target=here.worker.serve, daemon=True)
+    serving.start()
+    try:
+        link.engine.run_cycles(10)
+        here.received("progress")
+        shutil.rmtree(directory)  # under the recorder's feet
+        link.engine.run_cycles(10)
+        _, no, ended, why = here.received("ended")
+        assert no == 1 and why.startswith("recording failed: FileNotFoundError") and ended["files"] == []
+        assert serving.is_alive()
+        here.commands.send(("start", 100, *here.start_args()))
+        assert here.received("reply")[2] is True  # a new episode starts
+    finally:
+        here.commands.send(("close", 101))
+        serving.join(5.0)
+    assert not serving.is_alive()
