@@ -25,6 +25,8 @@ from hild import plugins
 from hild.config.model import ControllerSection, RobotConfig
 from hild.config.params import Params
 from hild.config.safety import review_safety
+from hild.crossing.cyclelog import MAX_BYTES as CYCLE_LOG_MAX_BYTES
+from hild.crossing.cyclelog import capacity_of, cycle_log_bytes
 from hild.hardware import BusUsage
 from hild.interfaces import FIELDS, ClaimError, SensorLayout, interface_name, parse_interface
 
@@ -77,6 +79,11 @@ class LoadedConfig:
     @property
     def directory(self) -> Path:
         return self.path.parent
+
+    @property
+    def recording_dir(self) -> Path:
+        """``recording.dir``, absolute (a relative one is beside the config file)."""
+        return (self.directory / Path(self.config.recording.dir).expanduser()).resolve()
 
     @property
     def joint_names(self) -> tuple[str, ...]:
@@ -354,6 +361,25 @@ def _cross_check(loaded: LoadedConfig, issues: list[ConfigIssue]) -> None:
     _check_files(loaded, report)
     _check_controllers(loaded, owner, report)
     _check_contact(loaded.config, report)
+    _check_recording(loaded, report)
+
+
+def _check_recording(loaded: LoadedConfig, report: Report) -> None:
+    """The cycle log fits the shared region, and recording.dir is a directory if it exists."""
+    c = loaded.config
+    if not c.recording.enabled:
+        return
+    capacity = capacity_of(c)
+    nbytes = cycle_log_bytes(len(c.joints), capacity)
+    if nbytes > CYCLE_LOG_MAX_BYTES:
+        report(
+            ("recording", "blackbox_seconds"),
+            f"the cycle log would take {nbytes / 2**20:.0f} MiB ({capacity} cycles of {len(c.joints)} joints at "
+            f"{c.update_rate:g} Hz); at most {CYCLE_LOG_MAX_BYTES / 2**20:.0f} MiB: keep fewer seconds",
+        )
+    where = loaded.recording_dir
+    if where.exists() and not where.is_dir():
+        report(("recording", "dir"), f"not a directory: {where}")
 
 
 def _check_contact(c: RobotConfig, report: Report) -> None:

@@ -620,6 +620,55 @@ class TelemetrySection(Params):
         return self
 
 
+BlackboxTrigger = Literal["fault", "estop", "stall"]
+
+
+class RecordingSection(Params):
+    """Episodes and the flight recorder (docs/recording.md): every cycle, off the cycle, in MCAP files."""
+
+    enabled: bool = Field(
+        default=True,
+        description="Keep the cycle log (every cycle's row, in shared memory) and run the recorder process: "
+        "episodes on request, black boxes on the triggers. Off: the cycle writes no cycle log.",
+    )
+    dir: str = Field(
+        default="recordings",
+        min_length=1,
+        description="Where episodes and black boxes are written; relative to the config file's directory.",
+    )
+    blackbox_seconds: float = Field(
+        default=10.0,
+        ge=0.0,
+        description="Seconds of every cycle the flight recorder keeps and writes on a trigger; 0: no black box.",
+    )
+    blackbox_on: list[BlackboxTrigger] = Field(
+        default_factory=lambda: ["fault", "estop", "stall"],
+        description="What writes a black box: a fault latches, an e-stop engages, the cycle stalls.",
+    )
+    stall_after: float = Field(
+        default=0.5, gt=0.0, description="s without a new cycle while live that counts as a stall."
+    )
+    fps: float = Field(default=30.0, gt=0.0, description="An episode's dataset frame rate unless its start says.")
+    chunk_period: float = Field(
+        default=0.1,
+        ge=0.01,
+        le=0.2,
+        description="s between MCAP chunks, each valid alone: a crash loses at most the last one.",
+    )
+    fsync: bool = Field(default=True, description="fsync each chunk, so a power cut loses at most the last one.")
+    min_free_mb: float = Field(
+        default=200.0, ge=0.0, description="An episode stops, with an event, when the disk has less free (MB)."
+    )
+
+    @field_validator("blackbox_on")
+    @classmethod
+    def _once_each(cls, v: list[str]) -> list[str]:
+        twice = sorted({t for t in v if v.count(t) > 1})
+        if twice:
+            raise ValueError(f"each trigger at most once ({', '.join(twice)} listed more than once)")
+        return v
+
+
 class RealtimeSection(Params):
     priority: int = Field(default=0, ge=0, le=99, description="SCHED_FIFO priority of the cycle thread; 0 = off.")
     cpu_affinity: list[int] = Field(default_factory=list, description="CPUs the cycle thread may run on.")
@@ -673,4 +722,5 @@ class RobotConfig(Params):
     zenoh: ZenohSection = Field(default_factory=ZenohSection)
     ros2: Ros2Section | None = Field(default=None, description="Present: speak ROS 2 over Zenoh (docs/ros2.md).")
     telemetry: TelemetrySection = Field(default_factory=TelemetrySection)
+    recording: RecordingSection = Field(default_factory=RecordingSection)
     realtime: RealtimeSection = Field(default_factory=RealtimeSection)

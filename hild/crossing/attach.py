@@ -27,20 +27,23 @@ class Attachment:
 
 
 class Crossing:
-    def __init__(self, region: Region, wakeup_fd: int, joints: int, *, create: bool) -> None:
+    """``cycle_log``: the cycle log's capacity in rows (``hild.crossing.cyclelog.capacity_of``; 0: none)."""
+
+    def __init__(self, region: Region, wakeup_fd: int, joints: int, *, create: bool, cycle_log: int = 0) -> None:
         self.region = region
         self.wakeup_fd = wakeup_fd
         self.doors = Shared(region, create=create)  # the controllers' doors: carved or found by name
-        self.cells = EngineCells(region, joints, create=create)
+        self.cells = EngineCells(region, joints, create=create, cycle_log=cycle_log)
 
     @classmethod
-    def carve(cls, joints: int) -> Crossing:
+    def carve(cls, joints: int, cycle_log: int = 0) -> Crossing:
         wakeup = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
-        return cls(Region(REGION_BYTES), wakeup, joints, create=True)
+        return cls(Region(REGION_BYTES), wakeup, joints, create=True, cycle_log=cycle_log)
 
     @classmethod
-    def attach(cls, joints: int, at: Attachment) -> Crossing:
-        return cls(Region.attach(at.region_fd, at.region_size), at.wakeup_fd, joints, create=False)
+    def attach(cls, joints: int, at: Attachment, cycle_log: int = 0) -> Crossing:
+        region = Region.attach(at.region_fd, at.region_size)
+        return cls(region, at.wakeup_fd, joints, create=False, cycle_log=cycle_log)
 
     def attachment(self, parent_pid: int, restarted_after: str | None = None) -> Attachment:
         return Attachment(self.region.fd, self.region.size, self.wakeup_fd, parent_pid, restarted_after)

@@ -10,7 +10,9 @@ Who writes what (one writer per cell, or per number of ``asks``, so nobody waits
 - cycle → client domain: ``replies`` and ``events`` queues, the ``snapshot`` (written when ``change_seq`` moves),
   ``loads`` (how each loaded controller was loaded: a restarted client domain builds their API halves from it),
   the e-stop reply, the start-up ``failure``, ``vitals`` (phase, cycle count, change_seq …), ``clock`` (the cycle
-  clock and each joint's longest silence) and the loop statistics.
+  clock and each joint's longest silence) and the loop statistics; ``cycle_log``, every cycle's row (read by the
+  client domain's recorder process, which maps it from the region's fd and a ``CycleLogPlace``; only when
+  ``recording.enabled``).
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from enum import IntEnum
 
 import numpy as np
 
+from hild.crossing.cyclelog import CycleLog, CycleLogPlace, cycle_log_bytes
 from hild.crossing.mailboxes import Latest, Queue, Shared
 from hild.crossing.region import Region
 from hild.crossing.stats import LoopStats, stats_bytes
@@ -75,7 +78,9 @@ class Vital(IntEnum):  # the cycle's cells
 
 
 class EngineCells:
-    def __init__(self, region: Region, joints: int, *, create: bool) -> None:
+    """``cycle_log``: the cycle log's capacity in rows (``hild.crossing.cyclelog.capacity_of``; 0: no cycle log)."""
+
+    def __init__(self, region: Region, joints: int, *, create: bool, cycle_log: int = 0) -> None:
         shared = Shared(region, create=create, prefix="engine/")
         self.requests: Queue[object] = shared.queue("requests", REQUESTS, RECORD_BYTES)
         self.replies: Queue[object] = shared.queue("replies", REQUESTS, RECORD_BYTES)
@@ -90,3 +95,10 @@ class EngineCells:
         self.vitals = shared.numbers("vitals", len(Vital))
         self.clock = shared.numbers("clock", 1 + joints, np.float64)  # t, then each joint's longest silence (s)
         self.stats = LoopStats(STATS_WINDOW, buffer=shared.cell("stats", stats_bytes(STATS_WINDOW)))
+        self.cycle_log: CycleLog | None = None
+        self.cycle_log_place: CycleLogPlace | None = None
+        if cycle_log:
+            nbytes = cycle_log_bytes(joints, cycle_log)
+            self.cycle_log = CycleLog(shared.cell("cycle_log", nbytes), joints, cycle_log, create=create)
+            offset = next(at for name, at, _ in region.cells() if name == "engine/cycle_log")
+            self.cycle_log_place = CycleLogPlace(region.size, offset, nbytes, joints, cycle_log)

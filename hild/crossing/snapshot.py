@@ -25,3 +25,5 @@ class Snapshot:
     # name, type, frame_id, hardware, state_interfaces, fault (None: healthy), available
     sensors: tuple[dict[str, Any], ...] = ()
     walls: dict[str, Any] | None = None  # safety.walls on: the tool frame and the walls engaged now
+    # every owner code the engine ever gave → its controller's name (the cycle log's owner column; never reused)
+    controller_codes: dict[int, str] = field(default_factory=dict)

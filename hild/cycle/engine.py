@@ -39,6 +39,7 @@ from hild.arrays import (
 from hild.config.loader import LoadedConfig
 from hild.config.tuning import MANAGER, ManagerParams
 from hild.controller import ControllerContext, ControllerState, JointGainArrays, JointLimitArrays
+from hild.crossing.cyclelog import OWNER_NONE, CycleLog, CycleLogTap
 from hild.crossing.events import EventLog
 from hild.crossing.inprocess import BoundedQueue
 from hild.crossing.mailboxes import InProcess, Mailboxes
@@ -69,7 +70,7 @@ from hild.cycle.transmission import Transmissions
 from hild.cycle.walls import WallGuard, Walls
 from hild.dynamics.friction import FrictionArrays
 from hild.hardware import HardwareComponent, HardwareContext, HardwareError, Lifecycle
-from hild.interfaces import ClaimError, SensorLayout, SensorSpec, interface_name
+from hild.interfaces import ClaimError, ClaimMasks, SensorLayout, SensorSpec, interface_name
 from hild.modes import MODE_NAMES, JointMode
 
 if TYPE_CHECKING:
@@ -128,11 +129,13 @@ class Engine:
         *,
         stats: LoopStats | None = None,
         wake_client: Callable[[], None] | None = None,
+        cycle_log: CycleLog | None = None,
     ) -> None:
         """``mailboxes``: where controllers' doors to their API halves live (in this process by default; cells of
         the shared region when the API half runs in the client domain). ``stats``: where the cycle's loop
         statistics go (a shared cell when another process reads them). ``wake_client``: called, from the cycle, when
-        there is something to publish (events, outputs, replies).
+        there is something to publish (events, outputs, replies). ``cycle_log``: the ring every cycle is written
+        into for the recorder (``hild.crossing.cyclelog``; ``CycleLog.private`` for a lockstep test); None: none.
 
         Long because it builds the robot in the order each part needs the one before (arrays and transmissions,
         hardware, supervisor, controller manager, controllers), kept in one place so that order is read at once."""
@@ -165,6 +168,7 @@ class Engine:
         self._clock_lag = 0.0
         self._gap_report = (-1.0, 0, 0.0)  # (t of the last gap event, gaps not reported since, the longest)
         self.cycle = 0
+        self.wall = 0.0  # time.time() at the last cycle's read: the cycle log's wall clock
         self.started = False
         self.realtime_report: dict[str, str] = {}
 
@@ -210,7 +214,11 @@ class Engine:
         # what controllers may claim: only fields the drives really use
         self.available_interfaces = [i for slot in self.hardware for i in slot.command_interfaces()]
         self.manager = ControllerManager(self.joints, self.available_interfaces, self.events)
-        self.manager.on_claims = self.supervisor.set_claims
+        self.manager.on_claims = self._claims_changed
+        # Owner codes (the cycle log's owner column): each load gets the next code, never given again, so a row
+        # recorded before an unload still names the controller that wrote it. code = the manager's slot + 1.
+        self.controller_codes: dict[int, str] = {}
+        self.owner_codes = np.full(n, OWNER_NONE, dtype=np.int64)  # per joint: its claiming controller's code
         self._requests: BoundedQueue[tuple[Callable[[], Any], concurrent.futures.Future[Any], bool]] = BoundedQueue(
             REQUEST_QUEUE
         )
@@ -223,6 +231,7 @@ class Engine:
         self.loads_seq = 0
         self._estop_requested = False
         self.tap: Any = None  # telemetry: an object with record(...) called once per cycle, or None
+        self.cycle_log: CycleLogTap | None = None if cycle_log is None else self.cycle_log_tap(cycle_log)
         self._rearm: dict[int, int] = {}  # joint → cycle by which its drive must confirm an operator enable
         self._estop_waiters: deque[concurrent.futures.Future[Any]] = deque(maxlen=256)
         self._deferred: list[tuple[Deferred, concurrent.futures.Future[Any], bool]] = []  # …, clears an e-stop
@@ -469,6 +478,30 @@ class Engine:
             model_path=self._model_path,
         )
 
+    def cycle_log_tap(self, log: CycleLog) -> CycleLogTap:
+        """A writer of ``log`` bound to this engine's arrays (the ring is prefaulted now, before any cycle)."""
+        tau_ext = self.contact.tau_ext if self.contact is not None else np.full(len(self.joints), np.nan)
+        sup = self.supervisor
+        return CycleLogTap(
+            log,
+            state=self.state,
+            final=self.final,
+            mode=sup.mode,
+            fault=sup.fault,
+            owner=self.owner_codes,
+            tau_ext=tau_ext,
+            stats=self.stats,
+        )
+
+    def _claims_changed(self, masks: ClaimMasks) -> None:
+        """At each switch or failure (never per cycle): the supervisor's defaults and each joint's owner code."""
+        self.supervisor.set_claims(masks)
+        np.add(masks.owner, 1, out=self.owner_codes)  # a slot's code is slot + 1; unclaimed (-1) is OWNER_NONE
+
+    def _coded(self, name: str) -> None:
+        """Give the controller just loaded as ``name`` its code (its manager slot's; a reload keeps it)."""
+        self.controller_codes[self.manager.records[name].slot + 1] = name
+
     def controllers(self) -> dict[str, Any]:
         """Each loaded controller by name: the instance whose inputs and action server the API exposes."""
         return {name: record.instance for name, record in list(self.manager.records.items())}
@@ -485,6 +518,7 @@ class Engine:
     ) -> None:
         """Load and configure an already built controller instance (tests and tools that build their own)."""
         self.manager.load(name, type_name, controller, fallbacks, chain_to)
+        self._coded(name)
         self.manager.configure(name)
 
     def _build(self, load: Load) -> Any:
@@ -506,6 +540,7 @@ class Engine:
         else:
             self.manager.load(load.name, load.type, controller, load.fallbacks, load.chain_to)
             state = "unconfigured"
+        self._coded(load.name)
         self.loads[load.name] = load
         self.loads_seq += 1
         return state
@@ -664,6 +699,7 @@ class Engine:
             self._answer_estop(*answer)
         if self.take_inputs is not None:
             self._take_inputs()
+        self.wall = time.time()
         self._read(t, dt)
         sup = self.supervisor
         sup.check(self.state, dt)
@@ -691,6 +727,8 @@ class Engine:
             self.contact.after_write(self.state.position)
         if self.tap is not None:  # after the write, so recording never delays a command; rerun runs elsewhere
             self.tap.record(t, self.cycle, self.state, self.final, sup.mode, dt)
+        if self.cycle_log is not None:  # every cycle, for the recorder and the flight recorder (no allocation)
+            self.cycle_log.record(self.cycle, t, self.wall, dt)
         if (lifecycle := self._lifecycle.poll()) is not None:
             self._apply_lifecycle(*lifecycle)
 
@@ -1169,6 +1207,7 @@ class Engine:
                 for k, entry in enumerate(self.sensor_layout.describe())
             ),
             walls=self.walls.status() if self.walls is not None else None,
+            controller_codes=dict(self.controller_codes),
         )
 
     def _sensor_available(self, k: int) -> bool:

@@ -33,6 +33,7 @@ from hild import plugins
 from hild.config.loader import LoadedConfig
 from hild.crossing.attach import Crossing
 from hild.crossing.cells import Ask, EngineCells, Phase, Vital
+from hild.crossing.cyclelog import capacity_of
 from hild.crossing.events import EventLog, log_event
 from hild.crossing.mailboxes import Shared
 from hild.crossing.region import Region
@@ -233,7 +234,7 @@ def _wait_for_go(cells: EngineCells, spec: CycleSpec, cycle_terminated: list[boo
 def run(spec: CycleSpec) -> int:
     cfg = spec.loaded.config
     region = Region.attach(spec.region_fd, spec.region_size)
-    cells = EngineCells(region, len(cfg.joints), create=False)
+    cells = EngineCells(region, len(cfg.joints), create=False, cycle_log=capacity_of(cfg))
     outbox = Outbox(cells, ClientWakeup(spec.wakeup_fd))
     cells.vitals[Vital.PID] = os.getpid()
     terminated = [False]
@@ -248,7 +249,13 @@ def run(spec: CycleSpec) -> int:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches every process: the main process asks the stop
     scratch = EventLog()
     try:
-        engine = Engine(spec.loaded, Shared(region, create=False), stats=cells.stats, wake_client=outbox.wakeup.mark)
+        engine = Engine(
+            spec.loaded,
+            Shared(region, create=False),
+            stats=cells.stats,
+            wake_client=outbox.wakeup.mark,
+            cycle_log=cells.cycle_log,  # written every cycle; the client domain's recorder maps it (None: off)
+        )
     except Exception as exc:
         outbox.failure(f"cannot build {spec.loaded.path}: {exc}", scratch)
         return 1

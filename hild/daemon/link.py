@@ -16,6 +16,7 @@ from collections.abc import Callable
 from typing import Any, Protocol
 
 from hild.config.loader import LoadedConfig
+from hild.crossing.cyclelog import CycleLogPlace
 from hild.crossing.events import Event, EventLog
 from hild.crossing.requests import Request
 from hild.crossing.snapshot import Snapshot
@@ -63,6 +64,11 @@ class CycleLink(Protocol):
     def status(self) -> dict[str, Any]: ...
 
     def controllers(self) -> dict[str, Any]: ...
+
+    def cycle_log(self) -> tuple[int, CycleLogPlace] | None:
+        """The memfd the cycle log is in and where in it (``CycleLog.attach`` maps it; the fd stays the link's: a
+        recorder process gets its own through ``multiprocessing.reduction.send_handle``). None when
+        ``recording.enabled`` is false: the cycle writes no cycle log then."""
 
 
 class CycleHost(CycleLink, Protocol):

@@ -11,10 +11,12 @@ import asyncio
 import concurrent.futures
 import os
 import signal
+import weakref
 from collections.abc import Callable
 from typing import Any
 
 from hild.config.loader import LoadedConfig
+from hild.crossing.cyclelog import CycleLog, CycleLogPlace, capacity_of
 from hild.crossing.events import Event
 from hild.crossing.requests import Request
 from hild.crossing.snapshot import Snapshot
@@ -35,7 +37,14 @@ class LocalCycle:
     def __init__(self, loaded: LoadedConfig) -> None:
         cfg = loaded.config
         self.loaded = loaded
-        self.engine = Engine(loaded)
+        # The cycle log in a memfd of its own, so the recorder process maps it as it maps the shared region's.
+        self._cycle_log: tuple[int, CycleLogPlace] | None = None
+        log: CycleLog | None = None
+        if capacity := capacity_of(cfg):
+            log, fd, place = CycleLog.memfd(len(cfg.joints), capacity)
+            self._cycle_log = (fd, place)
+            self._close_cycle_log = weakref.finalize(self, os.close, fd)  # at close(), or when this link is dropped
+        self.engine = Engine(loaded, cycle_log=log)
         self.robot = self.engine.robot
         self.joints = self.engine.joints
         self.update_rate = self.engine.update_rate
@@ -88,6 +97,9 @@ class LocalCycle:
 
     def controllers(self) -> dict[str, Any]:
         return self.engine.controllers()
+
+    def cycle_log(self) -> tuple[int, CycleLogPlace] | None:
+        return self._cycle_log
 
     # ---- the daemon's lifecycle (CycleHost) -------------------------------------------------------------------
     @property
@@ -159,4 +171,9 @@ class LocalCycle:
         """Nobody else to tell: this process is the unit's top process."""
 
     def close(self) -> None:
+        """The daemon stops. The cycle log's fd is closed (the engine's mapping stays until it goes: a recorder
+        process holds an fd of its own)."""
         self.engine.wake_client = lambda: None
+        if self._cycle_log is not None:
+            self._cycle_log = None
+            self._close_cycle_log()

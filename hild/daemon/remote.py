@@ -28,6 +28,7 @@ from typing import Any
 from hild.config.loader import LoadedConfig
 from hild.crossing.attach import Attachment, Crossing
 from hild.crossing.cells import REQUESTS, Ask, ClientPhase, ClientVital, Phase, Vital
+from hild.crossing.cyclelog import CycleLogPlace, capacity_of
 from hild.crossing.events import Event, EventLog
 from hild.crossing.requests import Estop, Load, Refused, Request, SetParams, Unload
 from hild.crossing.snapshot import Snapshot
@@ -212,6 +213,11 @@ class RemoteCycle:
     def controllers(self) -> dict[str, Any]:
         return self.halves.current()
 
+    def cycle_log(self) -> tuple[int, CycleLogPlace] | None:
+        """The region's fd and where the cycle log is in it (None: recording is off, the cycle writes none)."""
+        place = self.cells.cycle_log_place
+        return None if place is None else (self.region.fd, place)
+
     # ---- requests -----------------------------------------------------------------------------------------------
     def request(self, request: Request) -> concurrent.futures.Future[Any]:
         """Into the request queue; a load's API half is built first (its cells carved), an unload's dropped after."""
@@ -340,7 +346,7 @@ class SpawnedCycle(RemoteCycle):
     releases_hardware = True
 
     def __init__(self, loaded: LoadedConfig) -> None:
-        super().__init__(loaded, Crossing.carve(len(loaded.config.joints)))
+        super().__init__(loaded, Crossing.carve(len(loaded.config.joints), capacity_of(loaded.config)))
         self.main_pid = os.getpid()  # the unit's top process
         self._wakeup_closed = False
 
@@ -411,7 +417,7 @@ class AttachedCycle(RemoteCycle):
     releases_hardware = False  # the main process stops the cycle process
 
     def __init__(self, loaded: LoadedConfig, at: Attachment) -> None:
-        crossing = Crossing.attach(len(loaded.config.joints), at)
+        crossing = Crossing.attach(len(loaded.config.joints), at, capacity_of(loaded.config))
         super().__init__(loaded, crossing, None if at.restarted_after is None else _cycle_loads(crossing))
         self.parent_pid = self.main_pid = at.parent_pid  # stopping this process only makes the main one start another
         self.restarted_after = at.restarted_after

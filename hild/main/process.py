@@ -31,6 +31,7 @@ from dataclasses import dataclass
 from hild.config.loader import LoadedConfig
 from hild.crossing.attach import Attachment, Crossing
 from hild.crossing.cells import Ask, ClientPhase, ClientVital, Phase
+from hild.crossing.cyclelog import capacity_of
 from hild.cycle.process import spawn
 from hild.daemon.remote import RemoteCycle
 from hild.main.notify import ServiceReport, SystemdNotifier
@@ -59,7 +60,7 @@ class MainProcess:
     def __init__(self, loaded: LoadedConfig, listen: list[str] | None = None) -> None:
         self.loaded = loaded
         self.listen = listen
-        self.crossing = Crossing.carve(len(loaded.config.joints))
+        self.crossing = Crossing.carve(len(loaded.config.joints), capacity_of(loaded.config))
         self.cells = self.crossing.cells
         self.cycle = RemoteCycle(loaded, self.crossing)  # only read here: the client domain drains and requests
         self.client: subprocess.Popen[bytes] | None = None
