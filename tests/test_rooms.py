@@ -24,6 +24,8 @@ LIBRARY_ROOMS = {
     "rerun": ("hild/telemetry",),
     "simpleeval": ("hild/api/expressions.py",),
     "ruamel": ("hild/config/tuned.py",),
+    "mcap": ("hild/record",),
+    "pyarrow": ("hild/record",),
 }
 
 

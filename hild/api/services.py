@@ -20,6 +20,7 @@ import concurrent.futures
 import contextvars
 import logging
 import time
+from collections.abc import Callable
 from typing import Any
 
 from hild.api.codec import MAX_PAYLOAD, encode
@@ -42,8 +43,10 @@ from hild.api.parameters import ControllerParameters
 from hild.api.queries import LargePayloadWorker, clip
 from hild.api.record import RecorderFace, RecordServices
 from hild.api.teach import TeachService
-from hild.crossing.requests import Enable, Refused, Request, Reset, SetHardwareState, SetZero, Switch
+from hild.crossing.requests import Enable, Estop, Refused, Request, Reset, SetHardwareState, SetZero, Switch
 from hild.daemon.link import CycleLink
+from hild.record.events import reply_event, request_event
+from hild.record.model import RecordedEvent
 
 __all__ = [  # the request checks live in hild.api.fields; these names stay importable from here too
     "DEFAULT_TIMEOUT",
@@ -87,6 +90,8 @@ class Services:
         self.engine = engine
         self.timeout = timeout
         self.lane = lane or LargePayloadWorker()
+        # Every request sent to the cycle goes into the recording (its type and fields, never the client's bytes).
+        self._record: Callable[[RecordedEvent], None] | None = getattr(recorder, "log", None)
         self._read_cache: dict[str, tuple[int, float, bytes]] = {}  # service → (change_seq, monotonic, reply)
         self.table: dict[str, Service] = {
             "status": Service({}, read=self._status),
@@ -186,7 +191,22 @@ class Services:
     async def on_cycle(self, request: Request) -> Any:
         """Have the cycle apply ``request`` between two cycles and return its reply; :class:`Refused` when it
         refuses, RequestError after ``timeout``."""
-        return await self.wait_cycle(self.engine.request(request))
+        return await self._recorded(request, self.engine.request(request))
+
+    async def _recorded(self, request: Request, future: concurrent.futures.Future[Any]) -> Any:
+        """Await the cycle's answer to ``request``; the recorder is handed the request as it is sent and the answer
+        (or the error the client gets) when it comes, both on the loop's thread (``log`` never blocks)."""
+        record = self._record
+        if record is None:
+            return await self.wait_cycle(future)
+        record(request_event(request, self.engine.t))
+        try:
+            reply = await self.wait_cycle(future)
+        except Exception as exc:
+            record(reply_event(request, self.engine.t, str(exc) or type(exc).__name__))
+            raise
+        record(reply_event(request, self.engine.t, None))
+        return reply
 
     async def wait_cycle(self, future: concurrent.futures.Future[Any]) -> Any:
         """Await a request the cycle will apply; withdraw it if the cycle does not get to it in time and it can
@@ -251,7 +271,7 @@ class Services:
 
     async def _estop(self, request: dict[str, Any]) -> Reply:
         # Bypasses the request queue, so a flood of other requests can never delay or refuse an e-stop.
-        return dict(await self.wait_cycle(self.engine.request_estop()))
+        return dict(await self._recorded(Estop(), self.engine.request_estop()))
 
     async def _reset(self, request: dict[str, Any]) -> Reply:
         return dict(await self.on_cycle(Reset()))

@@ -34,6 +34,10 @@ from hild.daemon.local import LocalCycle
 from hild.daemon.remote import CycleProcessError, SpawnedCycle
 from hild.hardware import HardwareError
 from hild.main.notify import SystemdNotifier
+from hild.record.events import cycle_event
+from hild.record.model import RecordError
+from hild.record.recorder import Recorder
+from hild.record.triggers import STALL, BlackBoxTriggers
 
 __all__ = ["Daemon", "StartupError", "cycle_host", "run_daemon", "serve"]
 
@@ -62,6 +66,10 @@ class Daemon:
         self.api = None
         self.telemetry: Any = None  # hild.telemetry.Telemetry when telemetry.enabled
         self._telemetry_task: asyncio.Task[None] | None = None
+        self.recorder: Recorder | None = None  # episodes and the black box, when recording.enabled
+        self.triggers: BlackBoxTriggers | None = None  # the black box's own triggers (recording.blackbox_on)
+        self._triggers_task: asyncio.Task[None] | None = None
+        self._link_closed = False
         self.notifier = SystemdNotifier()
         self.cpu_latency = CpuLatencyRequest()
         self.service = self.link.service_report(self.notifier)
@@ -89,6 +97,9 @@ class Daemon:
             self.api.publish(events)
         if self.telemetry is not None and events:
             self.telemetry.log_events(events)
+        if self.recorder is not None:
+            for event in events:
+                self.recorder.log(cycle_event(event))
 
     def _take_events(self) -> list[Event]:
         return self.link.take()  # replies to requests are answered on the way, by the link
@@ -112,7 +123,8 @@ class Daemon:
         self.client_report = apply_client_settings(cfg.realtime)  # before Zenoh's threads start: they inherit it
         self.notifier.status("bringing up the hardware")
         self._open_telemetry()  # before the hardware: a sink that cannot open is a start-up error, nothing enabled
-        self.api = ApiServer(self.link, cfg.zenoh, self.listen, pid=self.link.main_pid)
+        self.recorder = self._build_recorder()
+        self.api = ApiServer(self.link, cfg.zenoh, self.listen, pid=self.link.main_pid, recorder=self.recorder)
         try:  # one robot name, one daemon: checked before the hardware is touched (the bus may be the other's)
             await self.api.open()
         except RobotNameTaken as exc:
@@ -127,21 +139,13 @@ class Daemon:
             await self.api.close()
             self.api = None
             raise
+        await self._open_recorder()  # the cycle log exists now; a recorder that cannot start is reported, not fatal
         try:
-            await self.api.start()
-        except Exception as exc:  # release the hardware we just configured
-            self._refused()
-            raise StartupError(f"cannot start the Zenoh API ({self.listen or cfg.zenoh.listen}): {exc}") from exc
-        for sig in self.link.signals:
-            self._loop.add_signal_handler(sig, self._on_signal, sig)
-        try:
-            await self.link.go_live()
-        except (HardwareError, CycleProcessError) as exc:
-            await self.api.close()
-            self.api = None
-            if isinstance(exc, CycleProcessError):
-                raise StartupError(f"the cycle process: {exc}") from None
+            await self._go_live()
+        except BaseException:
+            await self.close_recorder()
             raise
+        self._start_triggers()
         if self.telemetry is not None:
             self._telemetry_task = self._loop.create_task(self.telemetry.run(), name="hild-telemetry")
         self.link.serving()
@@ -157,6 +161,26 @@ class Daemon:
         exit_code = await self._wait_for_stop()
         await self._shutdown()
         return exit_code
+
+    async def _go_live(self) -> None:
+        """Declare the API, then enable the drives and start cycling."""
+        assert self.api is not None and self._loop is not None
+        cfg = self.loaded.config
+        try:
+            await self.api.start()
+        except Exception as exc:  # release the hardware we just configured
+            self._refused()
+            raise StartupError(f"cannot start the Zenoh API ({self.listen or cfg.zenoh.listen}): {exc}") from exc
+        for sig in self.link.signals:
+            self._loop.add_signal_handler(sig, self._on_signal, sig)
+        try:
+            await self.link.go_live()
+        except (HardwareError, CycleProcessError) as exc:
+            await self.api.close()
+            self.api = None
+            if isinstance(exc, CycleProcessError):
+                raise StartupError(f"the cycle process: {exc}") from None
+            raise
 
     async def _bring_up(self) -> None:
         """Configure and read the hardware, drives disabled (wherever the cycle runs, it reports how it went)."""
@@ -195,6 +219,8 @@ class Daemon:
                 if why:
                     log.error("%s", why)
                     self.notifier.status(why)
+                    if self.triggers is not None:  # the cycle's last seconds are in the log: the black box keeps them
+                        self.triggers.trigger(STALL, why)
                 return code
             self.service.tick(asyncio.get_running_loop().time(), self.link, True)
         return 0
@@ -222,7 +248,76 @@ class Daemon:
                 await self._telemetry_task
             self._telemetry_task = None
 
+    # ---- recording -----------------------------------------------------------------------------------------------
+    def _build_recorder(self) -> Recorder | None:
+        """The recorder (not started yet), when recording is enabled and the cycle writes a cycle log."""
+        if not self.loaded.config.recording.enabled:
+            return None
+        if self.link.cycle_log() is None:
+            log.warning("recording: this cycle writes no cycle log; recording is off")
+            return None
+        return Recorder.from_config(self.loaded, self.link, self._recorder_said)
+
+    async def _open_recorder(self) -> None:
+        if self.recorder is None:
+            return
+        try:
+            await self.recorder.open()
+        except RecordError as exc:  # the robot runs on; record start says why it cannot
+            log.error("%s; the daemon runs without recording", exc)
+            self.link.events.emit("error", "recorder", f"{exc}; the daemon runs without recording")
+
+    def _recorder_said(self, level: str, text: str) -> None:
+        """An event of the recorder's own (recording started, disk full …): on the daemon's event stream."""
+        if self._link_closed:
+            log.log(logging.ERROR if level == "error" else logging.INFO, "[recorder] %s", text)
+            return
+        self.link.events.emit(level, "recorder", text)
+        if self._loop is not None:
+            self._loop.call_soon(self._drain_if_open)  # a cycle elsewhere rings only for its own events
+
+    def _drain_if_open(self) -> None:
+        if not self._link_closed:
+            self._on_wake()
+
+    def _start_triggers(self) -> None:
+        """The black box's triggers, once the cycle is live (a stall means something only then)."""
+        sec = self.loaded.config.recording
+        recorder = self.recorder
+        if recorder is None or not recorder.alive or sec.blackbox_seconds <= 0 or not sec.blackbox_on:
+            return
+        assert self._loop is not None
+        self.triggers = BlackBoxTriggers(
+            self.link,
+            lambda reason: recorder.blackbox(reason),
+            sec.blackbox_on,
+            sec.stall_after,
+            live=lambda: not self.link.stopping(),
+        )
+        self._triggers_task = self._loop.create_task(self.triggers.run(), name="hild-blackbox-triggers")
+
+    async def _stop_triggers(self) -> None:
+        """No more triggers (the stop itself stalls the cycle); a burst still waiting is written now."""
+        task, self._triggers_task = self._triggers_task, None
+        if task is not None:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await task
+        if self.triggers is not None:
+            await self.triggers.flush()
+
+    async def close_recorder(self) -> None:
+        """Stop the open episode (closed, complete) and the recorder process; bounded in time."""
+        await self._stop_triggers()
+        recorder, self.recorder = self.recorder, None
+        if recorder is None:
+            return
+        await recorder.close()
+        if not self._link_closed:
+            self._on_wake()  # its last words
+
     async def _shutdown(self) -> None:
+        await self._stop_triggers()
         if self.api is not None:
             self.api.withdraw()  # first: clients see the robot go while it descends and releases
         descent = self.loaded.config.safety.stop_descent
@@ -233,7 +328,9 @@ class Daemon:
         if not stopped:
             log.error("the cycle did not stop within %g s", timeout)
         self._on_wake()
+        await self.close_recorder()  # after the cycle stopped: the episode ends with the stop (descent, release)
         self.link.close()
+        self._link_closed = True
         await self.close_telemetry()
         if self.api is not None:
             await self.api.close()
