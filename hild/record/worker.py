@@ -47,6 +47,7 @@ log = logging.getLogger("hild.record")
 NICE = 19  # the recorder yields the CPU to anything else, above all the cycle: the ring holds seconds
 EVENT_WAIT = 1.0  # s a stop waits for events the handle queued but the queue has not delivered yet
 STOP_WAIT = 1.0  # s a stop waits for the cycle to write its stop tick's row (a stopped cycle never will)
+RECENT_SECONDS = 2.0  # s of rows kept to place the cycle's events at their cycle's wall time
 REPORT_EVERY = 5.0  # s between two warnings about lost rows or a slow recorder
 DISK_FULL = (errno.ENOSPC, errno.EDQUOT)
 PR_SET_PDEATHSIG = 1
@@ -112,6 +113,7 @@ class EpisodeFile:
         self.last_tick = meta.start_tick - 1
         self.last_t = -math.inf
         self.last_wall = meta.started_wall
+        self.recent_rows = max(2, math.ceil(setup.update_rate * max(RECENT_SECONDS, 4 * setup.chunk_period)))
         self._recent_t = np.zeros(0)
         self._recent_wall = np.zeros(0)
         self.events_written = 0
@@ -143,8 +145,9 @@ class EpisodeFile:
             self.cycles += len(rows)
             self.last_tick = int(rows.tick[-1])
             self.last_t, self.last_wall = float(rows.t[-1]), float(rows.wall[-1])
-            self._recent_t = np.concatenate((self._recent_t[-len(rows) :], rows.t))  # this chunk and the last
-            self._recent_wall = np.concatenate((self._recent_wall[-len(rows) :], rows.wall))
+            keep = self.recent_rows  # the newest rows: where the cycle's late-received events are placed
+            self._recent_t = np.concatenate((self._recent_t, rows.t))[-keep:]
+            self._recent_wall = np.concatenate((self._recent_wall, rows.wall))[-keep:]
         self.pending.extend(events)
         if final:
             ready, self.pending = self.pending, []
