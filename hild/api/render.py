@@ -198,10 +198,7 @@ def record_stopped_text(reply: dict[str, Any]) -> str:
     """``record stop``: the id, how long, how many cycles and drops, then each file on its own line."""
     dropped = reply.get("dropped", 0)
     warning = " (rows lost: the recorder fell behind)" if dropped else ""
-    lines = [
-        f"stopped {reply.get('id')}: {_seconds(reply.get('duration'))}, {reply.get('cycles')} cycles, "
-        f"{dropped} dropped{warning}"
-    ]
+    lines = [f"stopped {reply.get('id')}: {_figures(reply)}{warning}"]
     lines += [f"  {path}" for path in reply.get("files") or []]
     return "\n".join(lines)
 
@@ -215,28 +212,20 @@ def record_status_text(reply: dict[str, Any]) -> str:
     recorder = reply.get("recorder")
     if recorder == "disabled":
         return "recording is disabled on this daemon (recording.enabled: false)"
-    where = f"recorder {recorder}, dir {reply.get('dir')}"
-    if reply.get("recording"):
-        head = (
-            f"recording {reply.get('id')}: {_seconds(reply.get('duration'))}, {reply.get('cycles')} cycles, "
-            f"{reply.get('dropped', 0)} dropped"
-        )
-    else:
-        head = "not recording"
+    why = f": {reply['failure']}" if reply.get("failure") and recorder != "running" else ""
+    where = f"recorder {recorder}{why}, dir {reply.get('dir')}"
+    head = f"recording {reply.get('id')}: {_figures(reply)}" if reply.get("recording") else "not recording"
     lines = [f"{head} ({where})"]
     last = reply.get("last")
-    if last:
-        lines.append(f"last: {_last(last)}")
+    if isinstance(last, dict) and last.get("id"):
+        lines.append(f"last: {last['id']}: {_figures(last)}")
+    elif last:
+        lines.append(f"last: {last}")
     return "\n".join(lines)
 
 
-def _last(last: Any) -> str:
-    """The status's ``last``: the previous episode (an id, or a summary with one) or the last thing that happened."""
-    if isinstance(last, dict):
-        named = last.get("id") or last.get("file") or ""
-        rest = ", ".join(f"{k} {v}" for k, v in last.items() if k not in ("id", "file") and v is not None)
-        return f"{named} ({rest})" if named and rest else str(named or rest)
-    return str(last)
+def _figures(episode: dict[str, Any]) -> str:
+    return f"{_seconds(episode.get('duration'))}, {episode.get('cycles')} cycles, {episode.get('dropped', 0)} dropped"
 
 
 def blackbox_text(reply: dict[str, Any]) -> str:

@@ -8,23 +8,30 @@ from __future__ import annotations
 import asyncio
 import json
 import math
+import shutil
 import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
+import yaml
 
 import hild.api.record as record_module
 from hild.api.aio import AsyncHildClient
 from hild.api.client import HildClient, HildError
 from hild.api.ctl import EXIT_OK, EXIT_SERVICE, EXIT_UNREACHABLE, run_ctl
 from hild.api.record import BLACKBOX_REASON, DISABLED, MAX_NOTE_CHARS, MAX_TASK_CHARS
+from hild.config import load_config
 from hild.cycle.engine import Engine
+from hild.daemon.daemon import Daemon as DaemonProcess
+from hild.record.mcap_files import read_episode
 from hild.record.model import EPISODE_JSON, ROSBAG_METADATA, RecordedEvent, RecordError, mcap_name
 from tests.api.conftest import ROBOT, Daemon, engine_from, robot_config, running
 from tests.api.test_ctl import ctl, parse
 from tests.api.test_services import raw_call
+from tests.controllers.test_teach import CONFIGS
 from tests.helpers import free_endpoint
 
 UPDATE_RATE = 500  # robot_config()'s
@@ -42,6 +49,7 @@ class FakeRecorder:
         self.fail: Exception | None = None
         self.hold: asyncio.Event | None = None
         self.episode: dict[str, Any] | None = None
+        self.last: dict[str, Any] | None = None  # the last stop's reply
         self.count = 0
 
     async def _enter(self, *call: Any) -> None:
@@ -80,7 +88,7 @@ class FakeRecorder:
         for file in files:
             file.write_text("")
         self.episode = None
-        return {
+        self.last = {
             "id": episode["id"],
             "directory": str(directory),
             "files": [str(f) for f in files],
@@ -88,6 +96,7 @@ class FakeRecorder:
             "duration": cycles / UPDATE_RATE,
             "dropped": 0,
         }
+        return dict(self.last)
 
     async def discard(self) -> dict[str, Any]:
         await self._enter("discard")
@@ -105,6 +114,8 @@ class FakeRecorder:
         reply["recorder"] = "running"
         if self.episode is not None:
             reply.update(id=self.episode["id"], cycles=self._cycles(), duration=self._cycles() / UPDATE_RATE)
+        if self.last is not None:
+            reply["last"] = dict(self.last)
         return reply
 
     async def blackbox(self, reason: str, seconds: float | None = None) -> dict[str, Any]:
@@ -351,6 +362,11 @@ def test_ctl_record_text(daemon: Daemon, recorder: FakeRecorder, capsys: pytest.
                          f"  {directory / 'episode.json'}"]  # fmt: skip
     assert ctl(daemon, "record", "discard") == EXIT_SERVICE
     assert "no episode is open" in capsys.readouterr().err
+    assert ctl(daemon, "record", "status") == EXIT_OK
+    assert capsys.readouterr().out.splitlines() == [
+        f"not recording (recorder running, dir {recorder.root})",
+        f"last: {episode}: {head[2]} s, {head[4]} cycles, 0 dropped",
+    ]
 
 
 def test_ctl_record_json(daemon: Daemon, recorder: FakeRecorder, capsys: pytest.CaptureFixture[str]) -> None:
@@ -428,3 +444,69 @@ def test_async_client(daemon: Daemon, recorder: FakeRecorder) -> None:
     started, status, stopped, refused, box = asyncio.run(session())
     assert started["task"] == "stack" and started["fps"] == 20.0 and status["recording"] is True
     assert stopped["id"] == started["id"] and refused["ok"] is False and box["seconds"] == 1.0
+
+
+# ---- end to end: the daemon's own recorder on the twin ---------------------------------------------------------
+def twin_config(directory: Path) -> dict[str, Any]:
+    """arm6 on its MuJoCo twin, paced on the sim clock, the cycle on a thread (LocalCycle), recording into
+    ``directory``."""
+    config = yaml.safe_load((CONFIGS / "arm6_twin.yaml").read_text())
+    config["clock"] = {"source": "sim", "real_time_factor": 1.0}
+    config["realtime"] = {**config.get("realtime", {}), "cycle_process": False}
+    config["recording"] = {"dir": str(directory), "fsync": False, "chunk_period": 0.05, "min_free_mb": 1}
+    return config
+
+
+def test_start_a_few_hundred_cycles_stop_on_the_twin_read_back(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    shutil.copy(CONFIGS / "arm6.xml", tmp_path)
+    path = tmp_path / "robot.yaml"
+    path.write_text(yaml.safe_dump(twin_config(tmp_path / "recordings"), sort_keys=False))
+    endpoint = free_endpoint()
+    daemon = DaemonProcess(load_config(path), [endpoint])
+    seen: dict[str, Any] = {}
+
+    async def scenario(client: HildClient) -> None:
+        seen["started"] = await asyncio.to_thread(client.record_start, "hold still", 25.0, "end to end")
+        end = time.monotonic() + 30.0
+        while (await asyncio.to_thread(client.record_status))["cycles"] < 300:
+            assert time.monotonic() < end, "the episode did not reach 300 cycles"
+            await asyncio.sleep(0.02)
+        seen["stopped"] = await asyncio.to_thread(client.record_stop)
+        seen["status"] = await asyncio.to_thread(client.record_status)
+        seen["ctl"] = await asyncio.to_thread(run_ctl, parse("--connect", endpoint, "record", "status"))
+
+    async def main() -> int:
+        task = asyncio.create_task(daemon.run())
+        end = time.monotonic() + 60.0
+        while not (daemon.ready or task.done()):
+            assert time.monotonic() < end, "the daemon did not come up"
+            await asyncio.sleep(0.01)
+        if task.done():
+            return task.result()
+        client = HildClient("arm6", [endpoint], timeout=5.0)
+        try:
+            await scenario(client)
+        finally:
+            client.close()
+            daemon.request_stop()
+        return await task
+
+    assert asyncio.run(main()) == 0
+    started, stopped = seen["started"], seen["stopped"]
+    assert started["task"] == "hold still" and started["fps"] == 25.0
+    assert stopped["id"] == started["id"] and stopped["cycles"] >= 300 and stopped["dropped"] == 0
+    files = [Path(f) for f in stopped["files"]]
+    assert all(f.is_absolute() and f.exists() for f in files)
+    assert any(f.suffix == ".mcap" for f in files)
+    episode = read_episode(Path(stopped["directory"]))
+    assert len(episode.rows) == stopped["cycles"]
+    assert episode.rows.tick[0] == started["start_tick"]
+    assert (episode.rows.tick == started["start_tick"] + np.arange(len(episode.rows))).all()  # every cycle, once
+    assert episode.meta.task == "hold still" and episode.meta.note == "end to end" and episode.meta.fps == 25.0
+    assert seen["status"]["recording"] is False and seen["status"]["last"]["id"] == stopped["id"]
+    assert seen["ctl"] == EXIT_OK
+    out = capsys.readouterr().out.splitlines()
+    assert out[0] == f"not recording (recorder running, dir {tmp_path / 'recordings'})"
+    assert out[1] == f"last: {stopped['id']}: {stopped['duration']:.2f} s, {stopped['cycles']} cycles, 0 dropped"
