@@ -73,6 +73,10 @@ class CycleSource(Protocol):
     def cycle_log(self) -> Any: ...  # (memfd, CycleLogPlace) | None
 
 
+class _NoAnswer(RecordError):
+    """The recorder did not answer a command (in time, or at all): it may still carry it out."""
+
+
 Emit = Callable[[str, str], None]  # (level, text): an event on the daemon's stream
 
 
@@ -271,8 +275,10 @@ class Recorder:
         self.failure = f"the recorder process died (exit code {code})"
         self._emit("error", f"recording: {self.failure}: recording is off{left}")
 
-    async def _ask(self, *command: Any, timeout: float = COMMAND_TIMEOUT) -> Any:
-        """Send a command and wait for its acknowledgement; its refusal, or silence, as ``RecordError``."""
+    async def _ask(self, *command: Any, timeout: float | None = None) -> Any:
+        """Send a command and wait for its acknowledgement (``COMMAND_TIMEOUT`` unless told); its refusal, or
+        silence, as ``RecordError``."""
+        timeout = COMMAND_TIMEOUT if timeout is None else timeout
         if not self.alive:
             raise RecordError(self._not_running())
         assert self._loop is not None
@@ -283,13 +289,18 @@ class Recorder:
             self._commands.send((command[0], seq, *command[1:]))
         except OSError:
             self._waiting.pop(seq, None)
-            raise RecordError("the recorder process is not answering (its pipe is closed)") from None
+            raise _NoAnswer("the recorder process is not answering (its pipe is closed)") from None
         try:
             return await asyncio.wait_for(future, timeout)
         except TimeoutError:
-            raise RecordError(f"the recorder did not answer within {timeout:g} s ({command[0]})") from None
+            raise _NoAnswer(f"the recorder did not answer within {timeout:g} s ({command[0]})") from None
         finally:
             self._waiting.pop(seq, None)
+
+    def _tell(self, *command: Any) -> None:
+        """Send a command without waiting for its answer (nobody waits for its reply)."""
+        with contextlib.suppress(OSError, ValueError, AttributeError):
+            self._commands.send((command[0], next(self._seqs), *command[1:]))
 
     def _not_running(self) -> str:
         why = self.failure or "it is not started"
@@ -366,10 +377,14 @@ class Recorder:
             self._episode = episode  # events from here on are the episode's
             try:
                 await self._ask("start", episode.no, meta, str(directory), markers)
+            except _NoAnswer:
+                self._episode = None
+                self._tell("discard", episode.no)  # should it start late after all: undone there, its directory too
+                raise
             except RecordError:
                 self._episode = None
                 with contextlib.suppress(OSError):
-                    directory.rmdir()  # the recorder removes what it wrote; an empty directory is ours
+                    directory.rmdir()  # refused: the recorder removed what it wrote; an empty directory is ours
                 raise
             words = f"recording started: episode {episode_id} at cycle {tick}"
             self._emit("info", words + (f", task {task!r}" if task else ""))

@@ -388,9 +388,10 @@ class Worker:
 
     # ---- commands ----------------------------------------------------------------------------------------------
     def start(self, no: int, meta: EpisodeMeta, directory: str, markers: list[RecordedEvent]) -> dict[str, Any]:
-        if self.episode is not None:
-            raise _Refusal(f"episode {self.episode.meta.id} is being recorded")
         path = Path(directory)
+        if self.episode is not None:
+            shutil.rmtree(path, ignore_errors=True)
+            raise _Refusal(f"episode {self.episode.meta.id} is being recorded")
         left = free_mb(path)
         if left < self.setup.min_free_mb:
             shutil.rmtree(path, ignore_errors=True)
@@ -400,7 +401,7 @@ class Worker:
             )
         try:
             episode = EpisodeFile(no, meta, path, self.cycle_log, self.setup)
-        except OSError as exc:
+        except Exception as exc:
             shutil.rmtree(path, ignore_errors=True)
             raise _Refusal(f"cannot write {path}: {exc}") from None
         episode.pending.extend(markers)

@@ -31,6 +31,7 @@ from hild.crossing.events import Event
 from hild.crossing.requests import Switch
 from hild.daemon.local import LocalCycle
 from hild.record import locks, mcap_files
+from hild.record import recorder as recorder_module
 from hild.record.events import cycle_event, marker, request_event
 from hild.record.mcap_files import read_blackbox, read_episode
 from hild.record.model import EPISODE_JSON, EpisodeMeta, RecordError, mcap_name
@@ -245,6 +246,29 @@ def test_one_episode_at_a_time_and_discard_removes_it(link: LocalCycle) -> None:
         taken = await recorder.start(None, None, None)
         assert taken["id"] != second["id"]
         await recorder.stop()
+
+    run(link, scenario)
+
+
+def test_a_start_the_recorder_answers_too_late_is_undone(link: LocalCycle, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(recorder_module, "COMMAND_TIMEOUT", 0.3)
+
+    async def scenario(recorder: Recorder, said: list[tuple[str, str]]) -> None:
+        link.engine.run_cycles(5)
+        assert recorder.pid is not None
+        os.kill(recorder.pid, signal.SIGSTOP)
+        try:
+            with pytest.raises(RecordError, match=r"the recorder did not answer within 0.3 s \(start\)"):
+                await recorder.start(None, None, None)
+        finally:
+            os.kill(recorder.pid, signal.SIGCONT)
+        assert recorder.status()["recording"] is False
+        monkeypatch.setattr(recorder_module, "COMMAND_TIMEOUT", 10.0)
+        started = await recorder.start(None, None, None)  # the late start was discarded there: this one is taken
+        link.engine.run_cycles(5)
+        stopped = await recorder.stop()
+        assert stopped["cycles"] == 6
+        assert [p.name for p in Path(started["directory"]).parent.iterdir()] == [started["id"]]
 
     run(link, scenario)
 
