@@ -240,7 +240,7 @@ def test_one_episode_at_a_time_and_discard_removes_it(link: LocalCycle) -> None:
         assert (directory / EPISODE_JSON).is_file()
         assert await recorder.discard() == {"id": first["id"], "discarded": True}
         assert not directory.exists()
-        second = await recorder.start(None, None, None)  # the discarded one's id is free again
+        second = await recorder.start(None, None, None)  # a new episode after a discard
         link.engine.run_cycles(5)
         await recorder.stop()
         taken = await recorder.start(None, None, None)
