@@ -1,9 +1,10 @@
 """The episode files' topics and their messages: cycle rows as the ROS 2 face's CDR, and back (docs/recording.md).
 
-A row becomes ``/joint_states`` (the reading), ``/hild/command`` (the final command), ``/<controller>/commands`` (a
-controller's joints' final command, the cycles it commands one) and ``/hild/cycle`` (everything else, a labelled
-``Float64MultiArray``); an event becomes one JSON line on ``/hild/events``. The bytes are the face's
-(``hild.api.ros2.types.encode``), written and read a batch at a time through ``cdr_templates``.
+A row becomes ``/joint_states`` (the reading), ``/hild/command`` (the final command),
+``/<controller>/joint_commands`` (a controller's joints' final command, the cycles it commands one) and
+``/hild/cycle`` (everything else, a labelled ``Float64MultiArray``); an event becomes one JSON line on
+``/hild/events``. The bytes are the face's (``hild.api.ros2.types.encode``), written and read a batch at a time
+through ``cdr_templates``.
 """
 
 from __future__ import annotations
@@ -44,9 +45,11 @@ INT_FIELDS = {"tick": np.int64, "mode": np.int8, "owner": np.int16, "fault": np.
 
 
 def controller_topic(controller: str) -> str:
-    """``/<controller>/commands``; a character a ROS name cannot hold becomes ``_``."""
+    """``/<controller>/joint_commands`` (not ``commands``: forward_command
+    controllers subscribe to ``/<name>/commands`` as ``Float64MultiArray`` on the ROS 2 face, and a ``ros2 bag play``
+    must not publish another type there); a character a ROS name cannot hold becomes ``_``."""
     name = "".join(c if c.isascii() and (c.isalnum() or c == "_") else "_" for c in controller) or "_"
-    return f"/{'_' + name if name[0].isdigit() else name}/commands"
+    return f"/{'_' + name if name[0].isdigit() else name}/joint_commands"
 
 
 @cache

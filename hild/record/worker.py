@@ -2,7 +2,9 @@
 
 Started by ``hild.record.recorder.Recorder`` with "spawn", at ``NICE`` and off the cycle's CPUs; it dies with the
 client domain (``PR_SET_PDEATHSIG``, and a parent check each period), leaving an open episode ``recording`` on disk
-for ``recover``. It maps the cycle log (the memfd comes over the command socket) and, every
+for ``recover`` — after a last chunk: the cycle log outlives the client domain (it is in the shared region, and the
+cycle runs on), so the rows up to the parent's death are still there to write, and a killed client domain costs
+the episode nothing. It maps the cycle log (the memfd comes over the command socket) and, every
 ``recording.chunk_period``, takes the rows the cycle wrote since and writes those of the open episode as one MCAP
 chunk, flushed (fsync'ed when ``recording.fsync``), with the episode's events in time order. The cycle never waits
 for it: the log is a ring, and rows a late recorder finds overwritten are counted (``dropped``) and reported.
@@ -51,13 +53,24 @@ RECENT_SECONDS = 2.0  # s of rows kept to place the cycle's events at their cycl
 REPORT_EVERY = 5.0  # s between two warnings about lost rows or a slow recorder
 DISK_FULL = (errno.ENOSPC, errno.EDQUOT)
 PR_SET_PDEATHSIG = 1
+LEFT_WAIT = 5.0  # s recovery at start waits for a dying recorder to let go of its episode
+
+
+class _Leave(Exception):
+    """SIGTERM: the client domain died (``PR_SET_PDEATHSIG``) or someone stops us; write a last chunk and go."""
+
+
+def _leave(signum: int, frame: Any) -> None:
+    raise _Leave
 
 
 def die_with_parent(parent_pid: int) -> None:
-    """SIGKILL when the client domain dies (Linux ``prctl``); without it, the parent check each period does it."""
+    """SIGTERM when the client domain dies (Linux ``prctl``), raised as ``_Leave`` where the loop waits; without the
+    prctl, the parent check each period and the command socket's end do it."""
+    signal.signal(signal.SIGTERM, _leave)
     with contextlib.suppress(Exception):
         libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+        libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
     if os.getppid() != parent_pid:  # it died before the prctl took
         os._exit(0)
 
@@ -88,6 +101,19 @@ def placed(events: list[RecordedEvent], rows_t: np.ndarray, rows_wall: np.ndarra
         out.append(event)
     out.sort(key=lambda e: e.wall)
     return out
+
+
+@contextlib.contextmanager
+def _deferred_leave() -> Any:
+    """Hold a SIGTERM until the block is done, then raise ``_Leave``."""
+    pending: list[int] = []
+    previous = signal.signal(signal.SIGTERM, lambda signum, frame: pending.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    if pending:
+        raise _Leave
 
 
 class EpisodeFile:
@@ -246,6 +272,15 @@ class Worker:
 
     # ---- the loop ----------------------------------------------------------------------------------------------
     def serve(self) -> None:
+        """Chunks every period and commands between them, until told to close; a parent that dies (its socket's
+        end, SIGTERM, or found orphaned) gets the open episode's last chunk written first (``last_chunk``)."""
+        try:
+            self._serve()
+        except _Leave:
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)  # a second SIGTERM ends us, last chunk or not
+            self.last_chunk()
+
+    def _serve(self) -> None:
         period = self.setup.chunk_period
         next_chunk = time.monotonic() + period
         while True:
@@ -254,18 +289,29 @@ class Worker:
                 try:
                     message = self.commands.recv()
                 except (EOFError, OSError):  # the client domain is gone: the episode stays for recover
-                    return
-                if not self.command(message):
-                    return
+                    raise _Leave from None
+                with _deferred_leave():  # a command runs whole: its reply and its files stay consistent
+                    if not self.command(message):
+                        return
                 continue
-            try:
-                self.chunk()
-            except Exception as exc:  # e.g. the episode's directory removed under it: the recorder runs on
-                log.exception("recording: a chunk failed")
-                self.end(f"recording failed: {type(exc).__name__}: {exc}")
+            with _deferred_leave():  # a chunk is written whole, never cut by the SIGTERM a dead parent sends
+                try:
+                    self.chunk()
+                except Exception as exc:  # e.g. the episode's directory removed under it: the recorder runs on
+                    log.exception("recording: a chunk failed")
+                    self.end(f"recording failed: {type(exc).__name__}: {exc}")
             next_chunk = max(next_chunk + period, time.monotonic())
-            if os.getppid() != self.parent_pid:  # orphaned: leave like the killed process PDEATHSIG makes us
-                return
+            if os.getppid() != self.parent_pid:  # orphaned
+                raise _Leave
+
+    def last_chunk(self) -> None:
+        """The client domain is gone: write the open episode's rows up to now (the cycle log lives on in the shared
+        region) as one more chunk, and leave the episode ``recording`` for the next recorder's recovery."""
+        episode = self.episode
+        if episode is None:
+            return
+        with contextlib.suppress(Exception):
+            self._write(episode, episode.take(), self.take_events(), final=True)
 
     def command(self, message: tuple[Any, ...]) -> bool:
         """Handle one command and acknowledge it; False once told to close."""
@@ -488,7 +534,7 @@ class Worker:
     def recover_left(self, directories: list[Path]) -> None:
         """Close the episodes a dead recorder left ``recording`` (a thread at start: episodes start meanwhile)."""
         for directory in directories:
-            if locks.in_use(directory):
+            if _still_held(directory):
                 log.info("recording: %s is being written by a live recorder; left alone", directory)
                 continue
             try:
@@ -499,6 +545,17 @@ class Worker:
             summary = report if isinstance(report, dict) else {"report": str(report)}
             self.send(("recovered", {"directory": str(directory), **summary}))
             self.event("warning", f"recording: recovered episode {directory.name}, left open by a recorder that died")
+
+
+def _still_held(directory: Path) -> bool:
+    """Whether a live recorder holds ``directory`` after ``LEFT_WAIT``: one whose client domain just died may be
+    writing its last chunk (``Worker.last_chunk``) while the next client domain's recorder starts."""
+    deadline = time.monotonic() + LEFT_WAIT
+    while locks.in_use(directory):
+        if time.monotonic() > deadline:
+            return True
+        time.sleep(0.05)
+    return False
 
 
 class _Refusal(Exception):

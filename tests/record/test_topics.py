@@ -128,10 +128,10 @@ def test_joint_states_are_in_the_face_s_frame() -> None:
 
 
 def test_controller_names_become_ros_topic_names() -> None:
-    assert topics.controller_topic("arm_trajectory") == "/arm_trajectory/commands"
-    assert topics.controller_topic("grip-per.2") == "/grip_per_2/commands"
-    assert topics.controller_topic("2nd") == "/_2nd/commands"
-    assert topics.controller_topic("") == "/_/commands"
+    assert topics.controller_topic("arm_trajectory") == "/arm_trajectory/joint_commands"
+    assert topics.controller_topic("grip-per.2") == "/grip_per_2/joint_commands"
+    assert topics.controller_topic("2nd") == "/_2nd/joint_commands"
+    assert topics.controller_topic("") == "/_/joint_commands"
 
 
 def test_the_cycle_layout_is_labelled_in_order() -> None:
