@@ -19,8 +19,16 @@ from pathlib import Path
 from tests.conftest import REPO
 
 CYCLE_ENTRY = "hild.cycle.process"
-CLIENT_ONLY = ("hild.daemon", "hild.api", "hild.main", "hild.telemetry", "hild.bench", "hild.importers")
-CLIENT_LIBRARIES = ("zenoh", "rerun", "rosbags", "xxhash", "rclpy", "simpleeval", "ruamel")
+CLIENT_ONLY = (
+    "hild.daemon",
+    "hild.api",
+    "hild.main",
+    "hild.telemetry",
+    "hild.record",
+    "hild.bench",
+    "hild.importers",
+)
+CLIENT_LIBRARIES = ("zenoh", "rerun", "rosbags", "xxhash", "rclpy", "simpleeval", "ruamel", "mcap", "pyarrow")
 # Loaded into the cycle process by name (entry points), beside what its entry imports.
 PLUGIN_PACKAGES = ("hild.controllers", "drivers")
 
