@@ -6,7 +6,7 @@ and then only written in place (``arr[:] = …`` or ``np.copyto``), so the cycle
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, fields
 from typing import Any
 
@@ -29,6 +29,8 @@ __all__ = [
 ]
 
 FloatArray = np.ndarray
+MOTION_FIELDS = ("position", "velocity", "effort")  # a state's float fields the servo law uses
+SERVO_FIELDS = ("position", "velocity", "effort", "kp", "kd")  # the servo command's five fields
 
 
 @dataclass(slots=True)
@@ -47,11 +49,12 @@ class JointState:
     fresh: np.ndarray
 
     @classmethod
-    def zeros(cls, n: int) -> JointState:
+    def zeros(cls, n: int, over: Callable[[str], FloatArray] | None = None) -> JointState:
+        """A zero state; ``over(field)``: an existing zeroed array to use for position, velocity and effort (the
+        engine's cycle-log row: hild.crossing.cyclelog.CycleRow), fresh arrays for the rest."""
+        motion = {name: np.zeros(n) if over is None else over(name) for name in MOTION_FIELDS}
         return cls(
-            position=np.zeros(n),
-            velocity=np.zeros(n),
-            effort=np.zeros(n),
+            **motion,
             temperature=np.full(n, np.nan),
             fault=np.zeros(n, dtype=np.int64),
             fresh=np.ones(n, dtype=bool),
@@ -92,16 +95,11 @@ class ServoCommand:
     hold_effort: FloatArray
 
     @classmethod
-    def zeros(cls, n: int) -> ServoCommand:
-        return cls(
-            position=np.zeros(n),
-            velocity=np.zeros(n),
-            effort=np.zeros(n),
-            kp=np.zeros(n),
-            kd=np.zeros(n),
-            written=np.zeros(n, dtype=bool),
-            hold_effort=np.zeros(n),
-        )
+    def zeros(cls, n: int, over: Callable[[str], FloatArray] | None = None) -> ServoCommand:
+        """A zero command; ``over(field)``: an existing zeroed array to use for each of the five servo fields (the
+        engine's cycle-log row: hild.crossing.cyclelog.CycleRow), fresh arrays for the rest."""
+        servo = {name: np.zeros(n) if over is None else over(name) for name in SERVO_FIELDS}
+        return cls(**servo, written=np.zeros(n, dtype=bool), hold_effort=np.zeros(n))
 
     def copy_from(self, other: ServoCommand) -> None:
         for name in COMMAND_FIELDS:

@@ -2,7 +2,10 @@
 operator starts it. They live in the measuring room (``hild.bench.children``, ``hild.bench.daemon``), which the
 tools and ``hild bench`` share; this module names them for the tests."""
 
+import asyncio
 import re
+import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -18,10 +21,22 @@ __all__ = [
     "free_port",
     "heavier_plant",
     "running",
+    "until",
     "wait_for",
 ]
 
 C = TypeVar("C")
+UNTIL_WAIT = 20.0  # s
+
+
+async def until(condition: Callable[[], Any], what: str, timeout: float = UNTIL_WAIT) -> Any:
+    """``condition()``'s first truthy value, polled on the running event loop (``wait_for``'s asyncio twin)."""
+    deadline = time.monotonic() + timeout
+    while not (value := condition()):
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
+        await asyncio.sleep(0.01)
+    return value
 
 
 def component(engine: Any, kind: type[C], index: int = 0) -> C:

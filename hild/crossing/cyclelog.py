@@ -31,11 +31,10 @@ import math
 import mmap
 import os
 from dataclasses import dataclass, fields
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
-from hild.arrays import JointState, ServoCommand
 from hild.crossing.stats import LoopStats
 from hild.modes import JointMode
 
@@ -321,49 +320,71 @@ class CycleLogReader:
 # ---- the writer (on the cycle) ---------------------------------------------------------------------------------------
 
 
+class CycleRow:
+    """The engine's row buffer: one float64 array laid out as a ring's row, whose per-joint views *are* the engine's
+    float arrays (the accepted reading, the final command, the owner codes, the contact observer's estimate).
+
+    The engine builds its ``JointState`` and final ``ServoCommand`` on these views, so the cycle updates the row as it
+    works and a record is one contiguous copy into the ring instead of thirteen (``np.concatenate`` of thirteen
+    arrays: 1.8 µs for six joints; one copy: 0.3 µs). The fields of other types (``fresh``, ``fault``, ``mode``) are
+    mirrored by the tap every cycle."""
+
+    def __init__(self, joints: int) -> None:
+        self.joints = joints
+        self.buffer = np.zeros(row_width(joints))
+        self.stage = self.buffer[: len(SCALARS)]  # tick, t, wall, period, duration
+        per_joint = self.buffer[len(SCALARS) :].reshape(len(PER_JOINT), joints)
+        self._fields = {name: per_joint[k] for k, name in enumerate(PER_JOINT)}
+        self._fields["tau_ext"].fill(np.nan)  # no observer: NaN (one that runs writes its estimate here)
+
+    def field(self, name: str) -> np.ndarray:
+        """The row's view of one per-joint field (``PER_JOINT``): write it in place, never rebind it."""
+        return self._fields[name]
+
+
+MIRRORED = ("fresh", "fault", "mode")  # fields the tap copies into the row (their sources are not float64)
+
+
+class Changes(Protocol):
+    """What tells the tap that faults or modes changed: the supervisor's ``change_seq``, bumped with every change."""
+
+    change_seq: int
+
+
 class CycleLogTap:
     """The cycle's side: ``record`` copies one cycle into the ring, with no allocation that outlives the call.
 
-    The sources are the engine's own arrays, which it updates in place every cycle (bound once here, so a cycle
-    passes four numbers, not thirteen arrays): the accepted reading ``state``, the supervisor's ``final``
-    command, the joints' ``mode`` and latched ``fault``, each joint's claiming controller's code ``owner``, and
-    the contact observer's ``tau_ext`` (an array of NaN when none runs). ``stats``: the engine's loop
-    statistics, read for the last completed cycle's duration (the current one's is known only after the step).
-    Binding prefaults the ring: the cycle never takes a first-touch page fault in it."""
+    ``row``: the engine's ``CycleRow``, whose views are the engine's own arrays (see there); ``fresh``, ``fault`` and
+    ``mode``: the sources the row mirrors (the accepted reading's flags, every cycle; the supervisor's latched faults
+    and modes, whenever ``changes.change_seq`` moved: they change with it and only with it, and copying them every
+    cycle would cost more than the rest of the row). ``stats``: the engine's loop statistics, read for the last
+    completed cycle's duration (the current one's is known only after the step). Binding prefaults the ring: the
+    cycle never takes a first-touch page fault in it."""
 
     def __init__(
         self,
         log: CycleLog,
         *,
-        state: JointState,
-        final: ServoCommand,
-        mode: np.ndarray,
+        row: CycleRow,
+        fresh: np.ndarray,
         fault: np.ndarray,
-        owner: np.ndarray,
-        tau_ext: np.ndarray,
+        mode: np.ndarray,
+        changes: Changes,
         stats: LoopStats | None = None,
     ) -> None:
-        self.log = log
-        self._stage = np.zeros(len(SCALARS))  # tick, t, wall, period, duration of the row being recorded
-        self._parts = (
-            self._stage,
-            state.position,
-            state.velocity,
-            state.effort,
-            state.fresh,
-            fault,
-            final.position,
-            final.velocity,
-            final.effort,
-            final.kp,
-            final.kd,
-            mode,
-            owner,
-            tau_ext,
-        )
-        widths = {len(p) for p in self._parts[1:]}
+        if row.joints != log.joints:
+            raise ValueError(f"the cycle log has {log.joints} joints; the engine's row has {row.joints}")
+        sources = {"fresh": fresh, "fault": fault, "mode": mode}
+        widths = {len(a) for a in sources.values()}
         if widths != {log.joints}:
             raise ValueError(f"the cycle log has {log.joints} joints; its sources have {sorted(widths)}")
+        self.log = log
+        self._buffer = row.buffer
+        self._stage = row.stage
+        self._fresh, self._fault, self._mode = (row.field(name) for name in MIRRORED)
+        self._fresh_source, self._fault_source, self._mode_source = fresh, fault, mode
+        self._changes = changes
+        self._mirrored = -1  # changes.change_seq when faults and modes were last mirrored (-1: never)
         self._rows = log._rows
         self._header = log._header
         self._capacity = log.capacity
@@ -386,7 +407,12 @@ class CycleLogTap:
         if counted is not None and (count := counted.item(0)):
             values = self._duration_values
             stage[4] = values.item((count - 1) % values.shape[0]) * 1e-9
+        np.copyto(self._fresh, self._fresh_source)
+        if (seq := self._changes.change_seq) != self._mirrored:
+            self._mirrored = seq
+            np.copyto(self._fault, self._fault_source)
+            np.copyto(self._mode, self._mode_source)
         written = self._written
-        np.concatenate(self._parts, out=self._rows[written % self._capacity])  # the whole row in one call
+        self._rows[written % self._capacity] = self._buffer  # the whole row: one contiguous copy
         self._written = written + 1
         self._header[_HEAD] = written + 1  # publish: the row is complete before a reader can see it

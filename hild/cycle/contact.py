@@ -84,6 +84,7 @@ class ContactMonitor:
         update_rate: float,
         tool: ToolFn | None = None,
         tool_force: ToolForce | None = None,
+        tau_ext: np.ndarray | None = None,
     ) -> None:
         n = len(joints)
         self.joints = joints
@@ -98,7 +99,10 @@ class ContactMonitor:
         self._use_reply = settings.use_reply
         self._contact, self._collision = settings.contact.tolist(), settings.collision.tolist()
 
-        self.tau_ext = np.full(n, np.nan)  # published: the estimate, NaN while the observer cannot run
+        # published: the estimate, NaN while the observer cannot run (``tau_ext``: the array to keep it in, e.g. the
+        # engine's cycle-log row; written in place, never rebound)
+        self.tau_ext = np.full(n, np.nan) if tau_ext is None else tau_ext
+        self.tau_ext.fill(np.nan)
         self.level = [NONE] * n  # per joint: NONE, CONTACT or COLLISION (its last episode's peak)
         self.collided = False  # a collision was detected and not yet reset: detection paused, tau_ext goes on
         self.running = False

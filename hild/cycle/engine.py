@@ -39,7 +39,7 @@ from hild.arrays import (
 from hild.config.loader import LoadedConfig
 from hild.config.tuning import MANAGER, ManagerParams
 from hild.controller import ControllerContext, ControllerState, JointGainArrays, JointLimitArrays
-from hild.crossing.cyclelog import OWNER_NONE, CycleLog, CycleLogTap
+from hild.crossing.cyclelog import OWNER_NONE, CycleLog, CycleLogTap, CycleRow
 from hild.crossing.events import EventLog
 from hild.crossing.inprocess import BoundedQueue
 from hild.crossing.mailboxes import InProcess, Mailboxes
@@ -178,9 +178,12 @@ class Engine:
         # robot.model as a path, or None: gravity, the contact check, the walls and controllers all take it from here
         self._model_path = loaded.directory / cfg.robot.model if cfg.robot.model else None
         self.friction = FrictionArrays.of(cfg)  # joints.<j>.friction: controllers compensate it (teach)
-        self.state = JointState.zeros(n)  # joint space, what controllers see
+        # The cycle-log row: the accepted reading and the final command live in it (views), so recording a cycle is
+        # one contiguous copy (hild/crossing/cyclelog.py, CycleRow); controllers and drivers see plain arrays.
+        self.row = CycleRow(n)
+        self.state = JointState.zeros(n, over=lambda name: self.row.field(f"measured_{name}"))  # what controllers see
         self.command = ServoCommand.zeros(n)  # controllers' output
-        self.final = ServoCommand.zeros(n)  # the supervisor's output, joint space
+        self.final = ServoCommand.zeros(n, over=self.row.field)  # the supervisor's output, joint space
         self.transmissions = self._transmissions(cfg, index)
         if self.transmissions.identity:  # actuator space is joint space: one set of arrays, no conversion
             self._actuator_state, self._actuator_command = self.state, self.final
@@ -218,7 +221,8 @@ class Engine:
         # Owner codes (the cycle log's owner column): each load gets the next code, never given again, so a row
         # recorded before an unload still names the controller that wrote it. code = the manager's slot + 1.
         self.controller_codes: dict[int, str] = {}
-        self.owner_codes = np.full(n, OWNER_NONE, dtype=np.int64)  # per joint: its claiming controller's code
+        self.owner_codes = self.row.field("owner")  # per joint: its claiming controller's code (float64, exact)
+        self.owner_codes.fill(OWNER_NONE)
         self._requests: BoundedQueue[tuple[Callable[[], Any], concurrent.futures.Future[Any], bool]] = BoundedQueue(
             REQUEST_QUEUE
         )
@@ -319,6 +323,7 @@ class Engine:
             update_rate=self.update_rate,
             tool=ToolPoint(path, self.joints, site=c.tool_site).position if c.reflex == "retract" else None,
             tool_force=self._build_tool_force(loaded, observer) if c.force else None,
+            tau_ext=self.row.field("tau_ext"),  # the estimate is written where the cycle log reads it
         )
 
     def _build_tool_force(self, loaded: LoadedConfig, observer: MomentumObserver) -> ToolForce:
@@ -479,18 +484,10 @@ class Engine:
         )
 
     def cycle_log_tap(self, log: CycleLog) -> CycleLogTap:
-        """A writer of ``log`` bound to this engine's arrays (the ring is prefaulted now, before any cycle)."""
-        tau_ext = self.contact.tau_ext if self.contact is not None else np.full(len(self.joints), np.nan)
+        """A writer of ``log`` bound to this engine's row (the ring is prefaulted now, before any cycle)."""
         sup = self.supervisor
         return CycleLogTap(
-            log,
-            state=self.state,
-            final=self.final,
-            mode=sup.mode,
-            fault=sup.fault,
-            owner=self.owner_codes,
-            tau_ext=tau_ext,
-            stats=self.stats,
+            log, row=self.row, fresh=self.state.fresh, fault=sup.fault, mode=sup.mode, changes=sup, stats=self.stats
         )
 
     def _claims_changed(self, masks: ClaimMasks) -> None:

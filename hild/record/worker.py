@@ -105,7 +105,11 @@ def placed(events: list[RecordedEvent], rows_t: np.ndarray, rows_wall: np.ndarra
 
 @contextlib.contextmanager
 def _deferred_leave() -> Any:
-    """Hold a SIGTERM until the block is done, then raise ``_Leave``."""
+    """Hold a SIGTERM until the block is done, then raise ``_Leave`` (the recorder process's main thread; a worker
+    served on another thread, in tests, has no signals to hold)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
     pending: list[int] = []
     previous = signal.signal(signal.SIGTERM, lambda signum, frame: pending.append(signum))
     try:
@@ -277,7 +281,8 @@ class Worker:
         try:
             self._serve()
         except _Leave:
-            signal.signal(signal.SIGTERM, signal.SIG_DFL)  # a second SIGTERM ends us, last chunk or not
+            if threading.current_thread() is threading.main_thread():
+                signal.signal(signal.SIGTERM, signal.SIG_DFL)  # a second SIGTERM ends us, last chunk or not
             self.last_chunk()
 
     def _serve(self) -> None:

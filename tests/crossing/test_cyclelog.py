@@ -25,6 +25,7 @@ from hild.crossing.cyclelog import (
     CycleLogError,
     CycleLogPlace,
     CycleLogTap,
+    CycleRow,
     CycleRows,
     capacity_of,
     cycle_log_bytes,
@@ -51,18 +52,14 @@ class Producer:
 
     def __init__(self, log: CycleLog, stats: LoopStats | None = None) -> None:
         n = log.joints
-        self.state, self.final = JointState.zeros(n), ServoCommand.zeros(n)
+        self.row = CycleRow(n)  # as the engine builds its arrays: the float ones are views of the row
+        self.state = JointState.zeros(n, over=lambda name: self.row.field(f"measured_{name}"))
+        self.final = ServoCommand.zeros(n, over=self.row.field)
         self.mode, self.fault = np.zeros(n, np.int64), np.zeros(n, np.int64)
-        self.owner, self.tau_ext = np.zeros(n, np.int64), np.full(n, np.nan)
+        self.owner, self.tau_ext = self.row.field("owner"), self.row.field("tau_ext")
+        self.change_seq = 0  # as the supervisor's: bumped with every fault or mode change
         self.tap = CycleLogTap(
-            log,
-            state=self.state,
-            final=self.final,
-            mode=self.mode,
-            fault=self.fault,
-            owner=self.owner,
-            tau_ext=self.tau_ext,
-            stats=stats,
+            log, row=self.row, fresh=self.state.fresh, fault=self.fault, mode=self.mode, changes=self, stats=stats
         )
 
     def cycle(self, k: int) -> None:
@@ -95,6 +92,7 @@ def test_a_row_holds_every_field_of_its_cycle_with_the_types_of_cycle_rows() -> 
     producer.state.fresh[:] = [True, False, True]
     producer.fault[:] = [0, int(Fault.STALE_FEEDBACK), 0]
     producer.mode[:] = [JointMode.CONTROLLED, JointMode.FAULT, JointMode.HOLD]
+    producer.change_seq += 1
     producer.owner[:] = [2, 2, 0]
     producer.final.velocity[:], producer.final.effort[:] = [0.5, 0.6, 0.7], [7.0, 8.0, 9.0]
     producer.final.kp[:], producer.final.kd[:] = [100.0, 0.0, 100.0], [5.0, 1.0, 5.0]

@@ -26,7 +26,7 @@ from hild.daemon.daemon import Daemon, StartupError
 from hild.daemon.remote import SpawnedCycle
 from hild.main.process import MainProcess
 from tests.conftest import Systemd, merge, mock_robot
-from tests.helpers import HildRun, free_endpoint
+from tests.helpers import HildRun, free_endpoint, until
 
 WAIT = 20.0
 SPLIT = {"realtime": {"cycle_process": True}, "clock": {"source": "sim", "real_time_factor": 1.0}}
@@ -34,15 +34,6 @@ SPLIT = {"realtime": {"cycle_process": True}, "clock": {"source": "sim", "real_t
 
 def split_robot(patch: dict[str, Any] | None = None) -> dict[str, Any]:
     return merge(merge(mock_robot(), SPLIT), patch or {})
-
-
-async def until(condition: Callable[[], Any], what: str, timeout: float = WAIT) -> Any:
-    deadline = time.monotonic() + timeout
-    while not (value := condition()):
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
-        await asyncio.sleep(0.01)
-    return value
 
 
 def run_split(

@@ -29,20 +29,11 @@ from hild.record.mcap_files import read_blackbox, read_episode
 from hild.record.model import EpisodeMeta
 from hild.record.recorder import Recorder
 from tests.conftest import merge, mock_robot
-from tests.helpers import HildRun, component, free_endpoint
+from tests.helpers import HildRun, component, free_endpoint, until
 
 WAIT = 20.0
 IN_PROCESS = {"realtime": {"cycle_process": False}, "clock": {"source": "sim", "real_time_factor": 1.0}}
 RECORDING = {"recording": {"chunk_period": 0.05, "fsync": False, "min_free_mb": 0, "blackbox_seconds": 2}}
-
-
-async def until(condition: Callable[[], Any], what: str, timeout: float = WAIT) -> Any:
-    deadline = time.monotonic() + timeout
-    while not (value := condition()):
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
-        await asyncio.sleep(0.01)
-    return value
 
 
 def run_daemon(
