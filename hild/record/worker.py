@@ -46,7 +46,8 @@ from hild.record.setup import CODES, RecorderSetup
 
 log = logging.getLogger("hild.record")
 
-NICE = 19  # the recorder yields the CPU to anything else, above all the cycle: the ring holds seconds
+NICE = 5  # below the cycle and the client domain (nice 0), above a busy machine's batch work: at 19 two busy
+# processes on two cores starved it for more than 10 s (tests/record beside two busy loops); the ring holds seconds
 EVENT_WAIT = 1.0  # s a stop waits for events the handle queued but the queue has not delivered yet
 STOP_WAIT = 1.0  # s a stop waits for the cycle to write its stop tick's row (a stopped cycle never will)
 RECENT_SECONDS = 2.0  # s of rows kept to place the cycle's events at their cycle's wall time
