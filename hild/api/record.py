@@ -34,7 +34,7 @@ DISABLED = "recording is disabled on this daemon (recording.enabled: false in it
 
 
 class RecorderFace(Protocol):
-    """What these services ask of the recorder (the SPEC's ``Recorder``, hild/record/recorder.py)."""
+    """What these services ask of the recorder (``hild.record.recorder.Recorder``; docs/recording.md)."""
 
     async def start(self, task: str | None, fps: float | None, note: str | None) -> dict[str, Any]: ...
 

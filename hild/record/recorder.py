@@ -119,7 +119,7 @@ def episode_stamp(wall: float) -> str:
 
 
 class Recorder:
-    """Episodes and the black box, written by the recorder process (the SPEC's interface for the API layer)."""
+    """Episodes and the black box, written by the recorder process (what the API layer calls: hild/api/record.py)."""
 
     def __init__(self, setup: RecorderSetup, cycle: CycleSource, emit: Emit | None = None) -> None:
         self.setup = setup
@@ -343,7 +343,7 @@ class Recorder:
 
     # ---- episodes ---------------------------------------------------------------------------------------------
     async def start(self, task: str | None, fps: float | None, note: str | None) -> dict[str, Any]:
-        """Open an episode at the cycle this request is handled in; the reply's fields (SPEC: ``record start``)."""
+        """Open an episode at the cycle this request is handled in; the reply's fields (docs/protocol.md)."""
         assert self._episode_lock is not None, "open() first"
         async with self._episode_lock:
             if not self.alive:
@@ -473,7 +473,7 @@ class Recorder:
             return {}
 
     def status(self) -> dict[str, Any]:
-        """The SPEC's ``record status`` fields (and ``events_dropped``, ``recovered``, ``blackbox``)."""
+        """``record status``'s fields (docs/protocol.md) (and ``events_dropped``, ``recovered``, ``blackbox``)."""
         episode = self._episode
         figures = (episode.figures if episode is not None else None) or {}
         source = episode if episode is not None else None

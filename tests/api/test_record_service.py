@@ -1,5 +1,5 @@
 """The ``record`` and ``blackbox`` services, ``hild ctl record|blackbox`` and the client's record methods, against a
-fake recorder with the SPEC's ``Recorder`` interface, over a real ApiServer on loopback Zenoh: the replies, every
+fake recorder with ``Recorder``'s interface, over a real ApiServer on loopback Zenoh: the replies, every
 refusal of a bad request (before the recorder is asked), a recorder's refusal (``RecordError``) as the client's
 error with the daemon answering on, a recorder that fails or hangs, and a daemon with recording disabled."""
 
@@ -38,7 +38,7 @@ UPDATE_RATE = 500  # robot_config()'s
 
 
 class FakeRecorder:
-    """The SPEC's ``Recorder`` (hild/record/recorder.py), in memory: episodes are directories with empty files,
+    """``Recorder``'s interface (hild/record/recorder.py), in memory: episodes are directories with empty files,
     cycles are the engine's. ``fail``: raised by the next call; ``hold``: start/stop/discard/blackbox wait for it."""
 
     def __init__(self, root: Path, engine: Engine) -> None:
