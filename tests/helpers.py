@@ -5,7 +5,7 @@ tools and ``hild bench`` share; this module names them for the tests."""
 import asyncio
 import re
 import time
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -21,6 +21,7 @@ __all__ = [
     "free_port",
     "heavier_plant",
     "running",
+    "serve",
     "until",
     "wait_for",
 ]
@@ -56,3 +57,23 @@ def heavier_plant(model: Path, directory: Path, scale: float) -> Path:
     path = directory / f"{model.stem}_x{scale:g}.xml"
     path.write_text(re.sub(r'(mass|diaginertia)="([^"]+)"', scaled, model.read_text()))
     return path
+
+
+async def serve(
+    daemon: Any, endpoint: str, scenario: Callable[[Any, Any], Awaitable[None]], robot: str = "mock3"
+) -> int:
+    """Run ``daemon`` (an embedded ``hild.daemon.daemon.Daemon`` listening on ``endpoint``) until it is ready, give
+    ``scenario`` the daemon and a client of it, then stop it; its exit code (its start-up's, if it never got ready)."""
+    from hild.api.client import HildClient
+
+    task = asyncio.create_task(daemon.run())
+    await until(lambda: daemon.ready or task.done(), "the daemon to be ready")
+    if task.done():
+        return int(task.result())
+    client = HildClient(robot, [endpoint], timeout=5.0)
+    try:
+        await scenario(daemon, client)
+    finally:
+        client.close()
+        daemon.request_stop()
+    return int(await task)

@@ -26,7 +26,7 @@ from hild.daemon.daemon import Daemon, StartupError
 from hild.daemon.remote import SpawnedCycle
 from hild.main.process import MainProcess
 from tests.conftest import Systemd, merge, mock_robot
-from tests.helpers import HildRun, free_endpoint, until
+from tests.helpers import HildRun, free_endpoint, serve, until
 
 WAIT = 20.0
 SPLIT = {"realtime": {"cycle_process": True}, "clock": {"source": "sim", "real_time_factor": 1.0}}
@@ -44,20 +44,7 @@ def run_split(
     endpoint = free_endpoint()
     daemon = Daemon(load_config(write_config(split_robot(patch))), [endpoint])
 
-    async def main() -> int:
-        task = asyncio.create_task(daemon.run())
-        await until(lambda: daemon.ready or task.done(), "the daemon to be ready")
-        if task.done():
-            return task.result()
-        client = HildClient("mock3", [endpoint], timeout=5.0)
-        try:
-            await scenario(daemon, client)
-        finally:
-            client.close()
-            daemon.request_stop()
-        return await task
-
-    return daemon, asyncio.run(main())
+    return daemon, asyncio.run(serve(daemon, endpoint, scenario))
 
 
 def test_a_client_drives_the_arm_through_the_cycle_process(write_config: Callable[..., Path]) -> None:

@@ -29,7 +29,7 @@ from hild.record.mcap_files import read_blackbox, read_episode
 from hild.record.model import EpisodeMeta
 from hild.record.recorder import Recorder
 from tests.conftest import merge, mock_robot
-from tests.helpers import HildRun, component, free_endpoint, until
+from tests.helpers import HildRun, component, free_endpoint, serve, until
 
 WAIT = 20.0
 IN_PROCESS = {"realtime": {"cycle_process": False}, "clock": {"source": "sim", "real_time_factor": 1.0}}
@@ -45,20 +45,7 @@ def run_daemon(
     daemon = Daemon(load_config(write_config(merge(merge(mock_robot(), merge(IN_PROCESS, RECORDING)), patch or {}))))
     daemon.listen = [endpoint]
 
-    async def main() -> int:
-        task = asyncio.create_task(daemon.run())
-        await until(lambda: daemon.ready or task.done(), "the daemon to be ready")
-        if task.done():
-            return task.result()
-        client = HildClient("mock3", [endpoint], timeout=5.0)
-        try:
-            await scenario(daemon, client)
-        finally:
-            client.close()
-            daemon.request_stop()
-        return await task
-
-    assert asyncio.run(main()) == 0
+    assert asyncio.run(serve(daemon, endpoint, scenario)) == 0
     return daemon
 
 
