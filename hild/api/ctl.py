@@ -260,14 +260,7 @@ def _service(
     service: str, text: Callable[[dict[str, Any]], str], request: Callable[[argparse.Namespace], dict[str, Any]]
 ) -> Callable[[HildClient, argparse.Namespace, bool], int]:
     def command(client: HildClient, args: argparse.Namespace, as_json: bool) -> int:
-        reply = client.call(service, request(args), check=False)
-        if as_json:
-            print(json.dumps(reply, indent=2))
-        elif reply.get("ok"):
-            print(text(reply))
-        else:
-            print(f"hild ctl: {service}: {reply.get('error')}", file=sys.stderr)
-        return EXIT_OK if reply.get("ok") else EXIT_SERVICE
+        return _print_reply(service, client.call(service, request(args), check=False), text, as_json)
 
     return command
 
