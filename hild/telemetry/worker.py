@@ -273,8 +273,9 @@ def _lower_priority(avoid_cpus: Sequence[int]) -> None:
 def main(
     setup: TelemetrySetup, ring: tuple[str, int, int, int], conn: Connection, events: Any, parent_pid: int
 ) -> None:
-    """Entry point of the recorder process (spawned by ``Telemetry``): start the sinks, report, then serve."""
-    _lower_priority(setup.avoid_cpus)
+    """Entry point of the recorder process (spawned by ``Telemetry``): start the sinks, report, then serve — at
+    ``NICE`` only once ready: its start-up (the model, the sinks) is a one-off the daemon waits for, and at nice 19
+    beside two busy processes on two cores it did not get done within the 30 s start timeout."""
     proc = _Process(conn, events, parent_pid)
     handler = _PipeLog(proc.send)
     logger = logging.getLogger("hild")
@@ -291,6 +292,7 @@ def main(
         proc.send(("error", f"telemetry: {type(exc).__name__}: {exc}"))
         os._exit(1)
     proc.send(("ready", recorder.info()))
+    _lower_priority(setup.avoid_cpus)
     proc.serve(recorder, setup.section.flush_period)
     # Everything is flushed and acknowledged: leave now, skipping rerun's at-exit flush (it would wait again for
     # an unreachable viewer). The daemon unlinks the shared memory; the mapping goes with the process.
