@@ -334,9 +334,14 @@ class Recorder:
             with contextlib.suppress(Exception):
                 if end is not None:
                     end.close()
-        with contextlib.suppress(Exception):
-            if self._events is not None:
-                self._events.close()
+        events, self._events = self._events, None
+        if events is not None:  # freed now: its semaphores leave the resource tracker before the client domain's
+            with contextlib.suppress(Exception):  # os._exit (else the tracker reports them "leaked" at shutdown)
+                events.close()
+                feeder = getattr(events, "_thread", None)  # the queue's feeder thread holds two of them
+                if feeder is not None:
+                    await asyncio.to_thread(feeder.join, 1.0)
+            del events
         finalizer = getattr(self, "_finalizer", None)
         if finalizer is not None:
             finalizer.detach()
