@@ -283,14 +283,7 @@ def _hardware_state_text(reply: dict[str, Any]) -> str:
 
 
 def _teach(client: HildClient, args: argparse.Namespace, as_json: bool) -> int:
-    reply = client.teach(args.state == "on", args.joints, check=False)
-    if as_json:
-        print(json.dumps(reply, indent=2))
-    elif reply.get("ok"):
-        print(_teach_text(reply))
-    else:
-        print(f"hild ctl: teach: {reply.get('error')}", file=sys.stderr)
-    return EXIT_OK if reply.get("ok") else EXIT_SERVICE
+    return _print_reply("teach", client.teach(args.state == "on", args.joints, check=False), _teach_text, as_json)
 
 
 def _teach_text(reply: dict[str, Any]) -> str:
