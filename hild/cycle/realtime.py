@@ -10,12 +10,14 @@ and MuJoCo balloons its resident memory by gigabytes and stalls for seconds.
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import ctypes.util
 import gc
 import os
 import struct
 import sys
+from collections.abc import Sequence
 
 from hild.config.model import RealtimeSection
 
@@ -138,3 +140,14 @@ def apply_thread_settings(settings: RealtimeSection) -> dict[str, str]:
     else:
         report["timer_slack"] = f"not applied: {os.strerror(ctypes.get_errno())}"
     return report
+
+
+def lower_priority(nice: int, avoid_cpus: Sequence[int]) -> None:
+    """A helper process's own settings (the telemetry and episode recorders): ``nice`` and, when ``avoid_cpus`` (the
+    cycle's) leaves other CPUs, off them. Best effort: a refusal leaves the process as it was."""
+    with contextlib.suppress(OSError):
+        os.nice(nice)
+    with contextlib.suppress(OSError, AttributeError):
+        others = os.sched_getaffinity(0) - set(avoid_cpus)
+        if avoid_cpus and others:
+            os.sched_setaffinity(0, others)

@@ -28,7 +28,6 @@ import shutil
 import signal
 import threading
 import time
-from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from multiprocessing.connection import Connection
 from multiprocessing.reduction import recv_handle
@@ -38,6 +37,7 @@ from typing import Any
 import numpy as np
 
 from hild.crossing.cyclelog import CycleLog, CycleRows
+from hild.cycle.realtime import lower_priority
 from hild.record import locks
 from hild.record.events import EVENT
 from hild.record.mcap_files import EpisodeWriter, recover, write_blackbox
@@ -74,15 +74,6 @@ def die_with_parent(parent_pid: int) -> None:
         libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
     if os.getppid() != parent_pid:  # it died before the prctl took
         os._exit(0)
-
-
-def lower_priority(avoid_cpus: Sequence[int]) -> None:
-    with contextlib.suppress(OSError):
-        os.nice(NICE)
-    with contextlib.suppress(OSError, AttributeError):
-        others = os.sched_getaffinity(0) - set(avoid_cpus)
-        if avoid_cpus and others:
-            os.sched_setaffinity(0, others)
 
 
 def free_mb(directory: Path) -> float:
@@ -616,7 +607,7 @@ def main(
 ) -> None:
     """Entry point of the recorder process (spawned by ``Recorder.open``): map the log, report, recover, serve."""
     die_with_parent(parent_pid)
-    lower_priority(setup.avoid_cpus)
+    lower_priority(NICE, setup.avoid_cpus)
     outbox = Outbox(messages)
     logger = logging.getLogger("hild")
     logger.addHandler(_PipeLog(outbox))

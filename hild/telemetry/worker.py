@@ -31,6 +31,7 @@ import rerun as rr
 from hild.config.model import FileSinkSpec
 from hild.crossing.events import Event
 from hild.crossing.telemetry import SharedRing, TelemetryRows, TelemetryTap
+from hild.cycle.realtime import lower_priority
 from hild.telemetry import columns, layout
 from hild.telemetry.errors import TelemetryError
 from hild.telemetry.outlets import FileOutlet, LiveOutlet, Outlet
@@ -261,15 +262,6 @@ class _Process:
                 return
 
 
-def _lower_priority(avoid_cpus: Sequence[int]) -> None:
-    with contextlib.suppress(OSError):
-        os.nice(NICE)
-    with contextlib.suppress(OSError, AttributeError):
-        others = os.sched_getaffinity(0) - set(avoid_cpus)
-        if avoid_cpus and others:
-            os.sched_setaffinity(0, others)
-
-
 def main(
     setup: TelemetrySetup, ring: tuple[str, int, int, int], conn: Connection, events: Any, parent_pid: int
 ) -> None:
@@ -292,7 +284,7 @@ def main(
         proc.send(("error", f"telemetry: {type(exc).__name__}: {exc}"))
         os._exit(1)
     proc.send(("ready", recorder.info()))
-    _lower_priority(setup.avoid_cpus)
+    lower_priority(NICE, setup.avoid_cpus)
     proc.serve(recorder, setup.section.flush_period)
     # Everything is flushed and acknowledged: leave now, skipping rerun's at-exit flush (it would wait again for
     # an unreachable viewer). The daemon unlinks the shared memory; the mapping goes with the process.
