@@ -35,6 +35,7 @@ from hild.crossing.mailboxes import InProcess, Mailboxes
 from hild.crossing.ring import SampleRing
 from hild.dynamics.friction import FrictionArrays
 from hild.interfaces import ClaimMasks, SensorLayout
+from hild.modes import Source
 
 __all__ = [
     "Controller",
@@ -159,10 +160,14 @@ class Controller:
     """Base class; override what you need. ``claims`` must not change while the controller is loaded."""
 
     Params: ClassVar[type[Params]] = Params
+    # Who moves the joints this controller commands (hild.modes.Source): recorded per joint every cycle. A controller
+    # with more than one kind of input sets ``self.source`` on the cycle side when the kind changes.
+    SOURCE: ClassVar[Source] = Source.STREAM
 
     def __init__(self, context: ControllerContext, params: Params) -> None:
         self.context = context
         self.params = params
+        self.source: Source = self.SOURCE
         self._active = context.mailboxes.flag("active")
         # A chainable controller's references (see reference_interfaces_for): allocated at construction over the
         # robot's joints, written by the controllers chained to it each cycle before its own update.

@@ -30,6 +30,7 @@ from hild.config.params import Field, Params, dynamic, model_validator
 from hild.controller import Controller, ControllerContext
 from hild.controllers.motion_common import PlansMotion, first_taken_over
 from hild.controllers.trajectory_goals import GoalContext, PreparedGoal, parse_goal
+from hild.modes import Source
 from hild.motion.limits import KinematicLimits
 from hild.motion.planning import PlanningError, plan_stop
 from hild.motion.trajectory import Trajectory
@@ -161,6 +162,7 @@ class Track:
 
 
 class JointTrajectoryController(PlansMotion, Controller):
+    SOURCE = Source.TRAJECTORY
     Params = JointTrajectoryParams
     KIND = "joint_trajectory"
     MEASURED = ("position", "velocity")  # tolerances and feedback compare both

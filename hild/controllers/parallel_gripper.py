@@ -35,6 +35,7 @@ from hild.config.params import Field, Params, dynamic
 from hild.controller import Controller, ControllerContext, and_more, unknown_keys
 from hild.controllers.motion_common import first_taken_over
 from hild.interfaces import interface_name
+from hild.modes import Source
 
 __all__ = ["GripperGoal", "ParallelGripperController", "ParallelGripperParams"]
 
@@ -100,6 +101,7 @@ GRIPPER_FEEDBACK = FeedbackShape(FEEDBACK, _feedback_message)
 
 
 class ParallelGripperController(Controller):
+    SOURCE = Source.TRAJECTORY
     Params = ParallelGripperParams
 
     def __init__(self, context: ControllerContext, params: ParallelGripperParams) -> None:

@@ -45,6 +45,7 @@ from hild.controller import Controller, ControllerContext, and_more, unknown_key
 from hild.crossing.mailboxes import LatestNumbers
 from hild.dynamics.friction import FrictionArrays
 from hild.interfaces import FIELDS, interface_name
+from hild.modes import Source
 
 BRAKE_RAMP = 0.25  # of speed_limit: the damping reaches brake damping at (1 + BRAKE_RAMP) x speed_limit
 SETTLED_TIME = 0.02  # s a releasing joint must stay below release_speed before it is handed to hold
@@ -202,6 +203,7 @@ _TEACH, _RELEASING, _RELEASED = int(Phase.TEACH), int(Phase.RELEASING), int(Phas
 
 
 class TeachController(Controller):
+    SOURCE = Source.HAND
     Params = TeachParams
 
     def __init__(self, context: ControllerContext, params: TeachParams) -> None:
