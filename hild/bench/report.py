@@ -715,6 +715,7 @@ def _hild_lines(report: dict[str, Any]) -> list[str]:
             ("earlier", "EARLIER TARGETS (docs/performance.md, Targets)"),
             ("contact", "TARGETS [contact] (emulated Damiao arm6, 1 kHz, mass ×1.1, friction ×1.3; lockstep)"),
             ("record", "TARGETS [record] (twin6@1000, the cycle in its own process; recording off vs an episode open)"),
+            ("teleop", "TARGETS [teleop] (the arm6 twin in lockstep; chunks: a synthetic policy, 10 Hz × 50 steps)"),
         )
         w = (36, 17, 9, 9, 6, 6)
         for group, heading in groups:
