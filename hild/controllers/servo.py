@@ -466,15 +466,15 @@ class ServoController(PlansMotion, Controller):
         """Aim ruckig at the chunk ``CHUNK_LEAD`` ahead, to be reached in that time: a moving target whose path
         ruckig follows within the limits instead of racing to it (time-optimal re-planning every cycle chatters)."""
         chunks, inp = self._chunks, self._inp
-        playing = chunks.aim(dt, self.params.chunk_slowdown, CHUNK_LEAD)
+        chunks.aim(dt, self.params.chunk_slowdown, CHUNK_LEAD)
         p, v, a = chunks.target_p.tolist(), chunks.target_v.tolist(), chunks.target_a.tolist()
-        clip_target(p, v, a, self._lo, self._hi, self._vmax, self._amax)
+        clip_target(p, v, a, self._lo, self._hi, self._vmax, self._amax, self._jmax)
         inp.control_interface = ControlInterface.Position
         inp.synchronization = Synchronization.Time
         inp.target_position = p
         inp.target_velocity = v
         inp.target_acceleration = a
-        inp.minimum_duration = CHUNK_LEAD if playing else None
+        inp.minimum_duration = chunks.lead_time  # the last approach too: no time-optimal dash to the end
         self.phase = Phase.TRACK
 
     def _end_chunk(self) -> None:

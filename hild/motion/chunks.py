@@ -192,6 +192,7 @@ class ChunkPlayer:
         self.target_p = np.zeros(n)
         self.target_v = np.zeros(n)
         self.target_a = np.zeros(n)
+        self.lead_time = 0.0  # s the servo gives ruckig to reach the target
         self._a = np.zeros(n)  # scratch
         self._b = np.zeros(n)
 
@@ -270,10 +271,13 @@ class ChunkPlayer:
         remaining = end - tau
         self.speed = math.sqrt(remaining / slowdown) if remaining < slowdown else 1.0
         ahead = tau + (lead - dt) * self.speed  # the plan starts from the last command, one cycle back
-        if ahead >= end:
+        self.lead_time = lead
+        if ahead >= end:  # the last point, at rest, in the time the slow-down takes to get there
             self.target_p[:] = self._p[self._steps - 1]
             self.target_v.fill(0.0)
             self.target_a.fill(0.0)
+            if remaining < slowdown:
+                self.lead_time = max(2.0 * math.sqrt(slowdown * remaining), dt)
         else:
             self._sample(ahead, self.speed)
         self.tau = min(tau + dt * self.speed, end)
@@ -320,19 +324,24 @@ def clip_target(
     hi: Sequence[float],
     vmax: Sequence[float],
     amax: Sequence[float],
+    jmax: Sequence[float],
 ) -> None:
-    """In place: a sample between two clamped steps can still overshoot them a little, and ruckig refuses a target
-    velocity or acceleration beyond its limits."""
+    """In place, a target ruckig can plan to: a sample between two clamped steps can still overshoot them a little;
+    its velocity within the limit; its acceleration within the limit and small enough that braking it at the jerk
+    limit keeps the velocity within its limit (|v| + a²/2j ≤ v_max: else ruckig refuses the target state)."""
     for i in range(len(p)):
-        if a[i] > amax[i]:
-            a[i] = amax[i]
-        elif a[i] < -amax[i]:
-            a[i] = -amax[i]
         if p[i] < lo[i]:
             p[i] = lo[i]
         elif p[i] > hi[i]:
             p[i] = hi[i]
-        if v[i] > vmax[i]:
-            v[i] = vmax[i]
-        elif v[i] < -vmax[i]:
-            v[i] = -vmax[i]
+        limit = vmax[i]
+        if v[i] > limit:
+            v[i] = limit
+        elif v[i] < -limit:
+            v[i] = -limit
+        room = math.sqrt(2.0 * jmax[i] * (limit - abs(v[i])))
+        bound = min(amax[i], room)
+        if a[i] > bound:
+            a[i] = bound
+        elif a[i] < -bound:
+            a[i] = -bound
