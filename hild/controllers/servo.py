@@ -234,7 +234,7 @@ class ServoController(PlansMotion, Controller):
 
         self._slot = TargetRecord(context.mailboxes.latest_numbers("target", TargetRecord.width(n)), n)
         self._chunks = ChunkPlayer(context.mailboxes.latest_numbers("chunk", ChunkRecord.width(n)), n)
-        self._last_chunk_note = -math.inf
+        self._last_chunk_note = [-math.inf] * len(Verdict)  # per refusal: one event a second of each
         self._zeros = [0.0] * n
         self._otg: Ruckig | None = None
         self._jerk_pending = False  # a lowered jerk not yet in ruckig's input (see on_params)
@@ -386,7 +386,7 @@ class ServoController(PlansMotion, Controller):
         self.source = Source.STREAM
         self._last_target = -math.inf
         self._last_clamp = -math.inf
-        self._last_chunk_note = -math.inf
+        self._last_chunk_note = [-math.inf] * len(Verdict)
 
     def _follow_measured(self, state: JointState) -> None:
         """A joint is faulted or e-stopped: forget the stream and rest where the arm is, so a reset resumes
@@ -448,9 +448,11 @@ class ServoController(PlansMotion, Controller):
         chunks = self._chunks
         verdict = chunks.start(t)
         if verdict != Verdict.STARTED:
-            if t - self._last_chunk_note >= CLAMP_EVENT_QUIET:
-                self.context.emit_event("warning", chunks.refusal(verdict, t))
-                self._last_chunk_note = t
+            if t - self._last_chunk_note[verdict] >= CLAMP_EVENT_QUIET:
+                # an overtaken chunk is normal when inference times jitter; a chunk out of time is the client's error
+                level = "info" if verdict == Verdict.STALE else "warning"
+                self.context.emit_event(level, chunks.refusal(verdict, t))
+                self._last_chunk_note[verdict] = t
             return
         self.source = Source.POLICY
         self._moving = False

@@ -36,9 +36,10 @@ from hild.crossing.mailboxes import LatestNumbers
 
 # The servo aims at the chunk this far ahead (chunk time) and asks ruckig to take this long to get there: the plan
 # then follows the chunk's path instead of racing to each cycle's sample (time-optimal re-planning every cycle
-# bangs between the acceleration limits: 28 mrad RMS on the bench's reference, 2 mrad with this lead; 0.03 s and
-# shorter are not always reachable in time and fall back to racing).
-CHUNK_LEAD = 0.1  # s
+# bangs between the acceleration limits). On the bench's reference (hild bench --only chunks, seeds 1–4): no lead
+# 28 mrad RMS; 0.15 s 4.9; 0.1 s 1.8; 0.08 s 1.0 (max 1.8); 0.06 s 0.5 (but max 3.9–5.0: a plan now and then not
+# reachable in time); 0.04 s 12 (falls back to racing). Shorter lags less, longer forgives more.
+CHUNK_LEAD = 0.08  # s
 MAX_CHUNK_STEPS = 100  # fixes the record's size: 2 s at 50 Hz, more than any policy's chunk in use
 MAX_STEP_PERIOD = 1.0  # s; a longer step is no action chunk
 MIN_STEP_PERIOD = 1e-4  # s
