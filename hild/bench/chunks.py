@@ -49,6 +49,7 @@ MOVING = 0.25  # of the peak speed: handoffs judged where the reference moves at
 PAUSE_MOVING, AT_REST = 0.10, 0.01  # a pause: slower than AT_REST × peak while the reference moves at PAUSE_MOVING
 JERK_SLACK = 1e-6
 KINDS = ("servo", "jtc", "jtc_stamped")
+MIN_SECONDS = 3.0
 SETTLE = 1.0  # s after the first chunk's arrival before the figures count: the arm starts at rest, the reference not
 
 
@@ -64,7 +65,10 @@ class ChunkSettings:
 
     @classmethod
     def make(cls, quick: bool, seed: int | None = None, seconds: float | None = None) -> ChunkSettings:
-        return cls(seconds=seconds or (5.0 if quick else 20.0), seed=1 if seed is None else seed)
+        """``--quick`` 5 s, else 20 s, or ``--seconds`` (at least ``MIN_SECONDS``: the figures start after a settling
+        second and need handoffs after it)."""
+        chosen = seconds or (5.0 if quick else 20.0)
+        return cls(seconds=max(chosen, MIN_SECONDS), seed=1 if seed is None else seed)
 
 
 class Reference:
