@@ -11,9 +11,11 @@ import pytest
 
 from hild.bench.chunks import ChunkSettings, figures, play
 from hild.controllers.servo import Phase, ServoController
+from hild.crossing.mailboxes import Shared
+from hild.crossing.region import Region
 from hild.cycle.engine import Engine
 from hild.modes import Source
-from hild.motion.chunks import MAX_CHUNK_STEPS
+from hild.motion.chunks import MAX_CHUNK_STEPS, ChunkPlayer, ChunkRecord, Verdict, parse_chunk
 from tests.controllers.test_servo import LimitProbe, servo_patch, started
 from tests.test_engine import events
 
@@ -193,3 +195,24 @@ def test_a_chunk_for_an_inactive_servo_is_refused(make_engine: MakeEngine) -> No
     assert isinstance(servo, ServoController)
     with pytest.raises(ValueError, match="controller servo is not active"):
         servo.accept_chunk(chunk(0.0, [[0.0] * 3] * 2))
+
+
+def test_a_chunk_crosses_the_shared_region_as_one_record_and_plays_through_its_points() -> None:
+    """The client domain's half puts a parsed chunk into a cell of the shared region; the cycle's half, attached to
+    the same region, takes it whole and its samples pass through the chunk's steps with their velocities."""
+    size = 4 << 20
+    region = Region(size)
+    n = 6
+    writer = ChunkRecord(Shared(region, create=True).latest_numbers("chunk", ChunkRecord.width(n)), n)
+    reader_door = Shared(Region.attach(region.fd, size), create=False).latest_numbers("chunk", ChunkRecord.width(n))
+    player = ChunkPlayer(reader_door, n)
+    positions = np.sin(0.3 * np.arange(MAX_CHUNK_STEPS)[:, None] + np.arange(n)).tolist()
+    writer.put(parse_chunk({"stamp": 2.0, "dt": STEP, "positions": positions}, list("abcdef"), lambda p, v: ()))
+    assert player.record.take()
+    assert player.start(2.0) == Verdict.STARTED
+    assert player.end == pytest.approx(STEP * (MAX_CHUNK_STEPS - 1))
+    for k in (0, 17, MAX_CHUNK_STEPS - 2):
+        player._sample(k * STEP, 1.0)
+        np.testing.assert_allclose(player.target_p, positions[k], atol=1e-12)
+        slope = (np.array(positions[k + 1]) - np.array(positions[max(k - 1, 0)])) / (STEP * (2 if k else 1))
+        np.testing.assert_allclose(player.target_v, slope, atol=1e-9)
