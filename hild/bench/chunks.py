@@ -16,9 +16,11 @@ The same chunks, at the same cycles, go to two controllers on two fresh twins:
   current desired state, coming to rest at the last point. The inference delay is not compensated: the motion lags
   the plan by it.
 * ``jtc_stamped`` — the same goals with the delay compensated (the chunk's stamp honoured: steps before the arrival
-  dropped, step ``k`` at ``k·dt − delay`` from now): reported, not judged. On this bench's exact reference its RMS
-  error is the lowest, but every handoff splices into the first remaining point within a few ms (accelerations far
-  beyond the limits, the supervisor's velocity limit engaging, stops).
+  dropped, step ``k`` at ``k·dt − delay`` from now). On this bench's exact reference its command's RMS error is the
+  lowest, but every handoff splices into the first remaining point within a few ms (accelerations far beyond the
+  limits, the supervisor's velocity limit engaging, a repeated command), and the arm does not follow that.
+
+The RMS target compares the arm's measured error with the servo against the better of the two JTC variants.
 
 Figures, on the commanded positions (what the controller writes, every cycle, once the first chunk arrived):
 speed at every handoff (each chunk's arrival, the 100 ms after it) as a fraction of the reference's speed there
