@@ -112,13 +112,13 @@ class Clamp(NamedTuple):
     result: float
 
 
-def clamp_note(joints: Sequence[str], clamps: Sequence[Sequence[float]]) -> str:
+def clamp_note(joints: Sequence[str], clamps: Sequence[Sequence[float]], what: str = "target clamped") -> str:
     """The event text for ``clamps`` (rows of joint, reason, requested, result)."""
     notes = []
     for joint, reason, requested, result in clamps:
         what, why = _CLAMP_TEXT[ClampReason(int(reason))]
         notes.append(f"{joints[int(joint)]} {what} {requested:.4g} → {result:.4g} ({why})")
-    return "target clamped: " + "; ".join(notes)
+    return f"{what}: " + "; ".join(notes)
 
 
 @dataclass(frozen=True, slots=True)
@@ -460,7 +460,7 @@ class ServoController(PlansMotion, Controller):
         if chunks.clamped():
             if t - self._last_clamp >= CLAMP_EVENT_QUIET:
                 step, row = chunks.first_clamp()
-                note = clamp_note(self.params.joints, [row]).replace("target clamped", f"chunk clamped at step {step}")
+                note = clamp_note(self.params.joints, [row], f"chunk clamped at step {step}")
                 self.context.emit_event("warning", note)
             self._last_clamp = t
 
