@@ -112,13 +112,13 @@ class Clamp(NamedTuple):
     result: float
 
 
-def clamp_note(joints: Sequence[str], clamps: Sequence[Sequence[float]], what: str = "target clamped") -> str:
+def clamp_note(joints: Sequence[str], clamps: Sequence[Sequence[float]], heading: str = "target clamped") -> str:
     """The event text for ``clamps`` (rows of joint, reason, requested, result)."""
     notes = []
     for joint, reason, requested, result in clamps:
         what, why = _CLAMP_TEXT[ClampReason(int(reason))]
         notes.append(f"{joints[int(joint)]} {what} {requested:.4g} → {result:.4g} ({why})")
-    return f"{what}: " + "; ".join(notes)
+    return f"{heading}: " + "; ".join(notes)
 
 
 @dataclass(frozen=True, slots=True)
