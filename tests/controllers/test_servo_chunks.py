@@ -216,3 +216,39 @@ def test_a_chunk_crosses_the_shared_region_as_one_record_and_plays_through_its_p
         np.testing.assert_allclose(player.target_p, positions[k], atol=1e-12)
         slope = (np.array(positions[k + 1]) - np.array(positions[max(k - 1, 0)])) / (STEP * (2 if k else 1))
         np.testing.assert_allclose(player.target_v, slope, atol=1e-9)
+
+
+def test_a_fault_drops_the_chunk_and_reset_resumes_without_a_jump() -> None:
+    """Chunks keep coming while a joint is faulted: dropped, the servo rests where the arm is; after the reset it
+    stays there until a new chunk arrives, and that one starts from where the arm is."""
+    from hild.cycle.supervisor import Fault
+    from tests.test_engine import JumpGuard
+    from tests.test_twin_engine import twin
+
+    engine = twin("arm6_twin.yaml")
+    engine.load_controller("policy", "servo", {"joints": list(engine.joints), "command_timeout": 5.0})
+    assert engine.switch(["policy"], []).ok
+    servo = engine.manager.records["policy"].instance
+    assert isinstance(servo, ServoController)
+    guard = JumpGuard(engine)
+    start = engine.state.position.copy()
+    slope = np.full(len(start), 0.2)
+
+    def send() -> None:
+        servo.accept_chunk(chunk(engine.t, ramp(start + slope * engine.t, slope)))
+
+    for _ in range(10):
+        send()
+        guard.run(50)
+    engine.supervisor.trip(1, Fault.HARDWARE, "test fault")
+    for _ in range(6):
+        send()  # dropped while faulted
+        guard.run(50)
+    assert not servo._chunks.playing
+    held = engine.state.position.copy()
+    assert engine.reset()["cleared"]
+    guard.run(300)  # no chunk since the reset: it rests where the arm was
+    np.testing.assert_allclose(engine.final.position, held, atol=5e-3)
+    send()
+    guard.run(100)  # a new chunk far from the arm: reached within the limits, no jump (the guard checks)
+    assert servo.source == Source.POLICY and servo._chunks.playing
