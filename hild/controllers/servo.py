@@ -469,7 +469,7 @@ class ServoController(PlansMotion, Controller):
         ruckig follows within the limits instead of racing to it (time-optimal re-planning every cycle chatters)."""
         chunks, inp = self._chunks, self._inp
         chunks.aim(dt, self.params.chunk_slowdown, CHUNK_LEAD)
-        p, v, a = chunks.target_p.tolist(), chunks.target_v.tolist(), chunks.target_a.tolist()
+        p, v, a = chunks.target.tolist()
         clip_target(p, v, a, self._lo, self._hi, self._vmax, self._amax, self._jmax)
         inp.control_interface = ControlInterface.Position
         inp.synchronization = Synchronization.Time

@@ -180,8 +180,7 @@ class ChunkPlayer:
     def __init__(self, door: LatestNumbers, n: int) -> None:
         self.record = ChunkRecord(door, n)
         self.n = n
-        self._p = np.zeros((MAX_CHUNK_STEPS, n))
-        self._v = np.zeros((MAX_CHUNK_STEPS, n))
+        self._pv = np.zeros((MAX_CHUNK_STEPS, 2, n))  # step k: position, velocity — two steps are one (4, n) view
         self._steps = 0
         self._step = 1.0  # the chunk's dt
         self.stamp = -math.inf  # of the chunk last started: an older one is stale
@@ -190,12 +189,10 @@ class ChunkPlayer:
         self.playing = False
         self.dropped = 0  # stale chunks dropped since activation
         self.refused = 0  # chunks refused for their timing (past, future) since activation
-        self.target_p = np.zeros(n)
-        self.target_v = np.zeros(n)
-        self.target_a = np.zeros(n)
+        self.target = np.zeros((3, n))  # the sample: position, velocity, acceleration
+        self.target_p, self.target_v, self.target_a = self.target
         self.lead_time = 0.0  # s the servo gives ruckig to reach the target
-        self._a = np.zeros(n)  # scratch
-        self._b = np.zeros(n)
+        self._weights = np.zeros((3, 4))  # Hermite weights of (p_k, v_k, p_k+1, v_k+1) for p, v, a
 
     @property
     def end(self) -> float:
@@ -225,8 +222,8 @@ class ChunkPlayer:
         if t - stamp > (steps - 1) * dt:
             self.refused += 1
             return Verdict.PAST
-        self._p[:steps] = self.record.positions[:steps]
-        self._v[:steps] = self.record.velocities[:steps]
+        self._pv[:steps, 0] = self.record.positions[:steps]
+        self._pv[:steps, 1] = self.record.velocities[:steps]
         self._steps, self._step, self.stamp = steps, dt, stamp
         self.tau, self.speed, self.playing = t - stamp, 1.0, True
         return Verdict.STARTED
@@ -259,14 +256,12 @@ class ChunkPlayer:
         return int(header.item(4)), header[5:9].tolist()
 
     def aim(self, dt: float, slowdown: float, lead: float) -> bool:
-        """Sample the target for this cycle into :attr:`target_p`, :attr:`target_v`, :attr:`target_a` — the chunk
+        """Sample the target for this cycle into :attr:`target` (position, velocity, acceleration) — the chunk
         ``lead`` s of chunk time ahead, to be reached in ``lead`` s — and advance playback by ``dt``; False once the
         chunk has ended (the target is then its last point, at rest)."""
         end, tau = self.end, self.tau
         if tau >= end:
-            self.target_p[:] = self._p[self._steps - 1]
-            self.target_v.fill(0.0)
-            self.target_a.fill(0.0)
+            self._rest_at_end()
             self.playing = False
             return False
         remaining = end - tau
@@ -274,9 +269,7 @@ class ChunkPlayer:
         ahead = tau + (lead - dt) * self.speed  # the plan starts from the last command, one cycle back
         self.lead_time = lead
         if ahead >= end:  # the last point, at rest, in the time the slow-down takes to get there
-            self.target_p[:] = self._p[self._steps - 1]
-            self.target_v.fill(0.0)
-            self.target_a.fill(0.0)
+            self._rest_at_end()
             if remaining < slowdown:
                 self.lead_time = max(2.0 * math.sqrt(slowdown * remaining), dt)
         else:
@@ -284,37 +277,24 @@ class ChunkPlayer:
         self.tau = min(tau + dt * self.speed, end)
         return True
 
+    def _rest_at_end(self) -> None:
+        self.target_p[:] = self._pv[self._steps - 1, 0]
+        self.target[1:] = 0.0
+
     def _sample(self, tau: float, speed: float) -> None:
-        """Cubic Hermite between the two steps around ``tau``; velocity scaled by the playback speed."""
+        """Cubic Hermite between the two steps around ``tau``: one (3, 4) × (4, n) product; velocity and acceleration
+        scaled by the playback speed."""
         h = self._step
         k = min(int(tau / h), self._steps - 2)
         u = tau / h - k
         u2, u3 = u * u, u * u * u
-        p0, p1, v0, v1 = self._p[k], self._p[k + 1], self._v[k], self._v[k + 1]
-        out, a, b = self.target_p, self._a, self._b
-        np.multiply(p0, 2 * u3 - 3 * u2 + 1, out=out)
-        np.multiply(p1, 3 * u2 - 2 * u3, out=a)
-        out += a
-        np.multiply(v0, h * (u3 - 2 * u2 + u), out=a)
-        out += a
-        np.multiply(v1, h * (u3 - u2), out=a)
-        out += a
-        vel = self.target_v
-        np.subtract(p1, p0, out=b)
-        np.multiply(b, (6 * u - 6 * u2) / h, out=vel)
-        np.multiply(v0, 3 * u2 - 4 * u + 1, out=a)
-        vel += a
-        np.multiply(v1, 3 * u2 - 2 * u, out=a)
-        vel += a
-        acc = self.target_a
-        np.multiply(b, (6 - 12 * u) / (h * h), out=acc)
-        np.multiply(v0, (6 * u - 4) / h, out=a)
-        acc += a
-        np.multiply(v1, (6 * u - 2) / h, out=a)
-        acc += a
-        if speed != 1.0:
-            vel *= speed
-            acc *= speed * speed
+        s, s2 = speed / h, speed * speed / (h * h)
+        self._weights[:] = (
+            (2 * u3 - 3 * u2 + 1, h * (u3 - 2 * u2 + u), 3 * u2 - 2 * u3, h * (u3 - u2)),
+            ((6 * u2 - 6 * u) * s, (3 * u2 - 4 * u + 1) * speed, (6 * u - 6 * u2) * s, (3 * u2 - 2 * u) * speed),
+            ((12 * u - 6) * s2, (6 * u - 4) * s2 * h, (6 - 12 * u) * s2, (6 * u - 2) * s2 * h),
+        )
+        np.dot(self._weights, self._pv[k : k + 2].reshape(4, self.n), out=self.target)
 
 
 def clip_target(
