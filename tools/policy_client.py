@@ -173,8 +173,11 @@ def run(
         while pending and pending[0][0] <= time.monotonic():
             client.put(controller, heapq.heappop(pending)[2], input="chunk")
             sent += 1
-        wake = min([next_observation, *(p[0] for p in pending[:1])])
-        time.sleep(max(0.0, min(wake - time.monotonic(), 0.01)))
+        wakes = [p[0] for p in pending[:1]]  # the next chunk due
+        if time.monotonic() - begin < args.seconds:
+            wakes.append(next_observation)
+        if wakes:
+            time.sleep(max(0.0, min(min(wakes) - time.monotonic(), 0.01)))
     return {"observed": observed, "sent": sent}
 
 
