@@ -22,6 +22,10 @@ The same chunks, at the same cycles, go to two controllers on two fresh twins:
 
 The RMS target compares the arm's measured error with the servo against the better of the two JTC variants.
 
+Reported, not judged: the same three with chunks that disagree, as a real policy's do — each chunk drifts from the
+reference by a per-joint N(0, ``PREDICTION_ERROR``) × k/steps (0 at its observation, the full error at its end), so
+successive chunks differ by a few mrad where they meet.
+
 Figures, on the commanded positions (what the controller writes, every cycle, once the first chunk arrived):
 speed at every handoff (each chunk's arrival, the 100 ms after it) as a fraction of the reference's speed there
 (where the reference moves at ≥ 25 % of its peak speed); velocity, acceleration and jerk peaks (finite differences,
@@ -33,7 +37,7 @@ command and of the arm's measured position (the target: the arm's, against the b
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -53,6 +57,7 @@ PAUSE_MOVING, AT_REST = 0.10, 0.01  # a pause: slower than AT_REST × peak while
 JERK_SLACK = 1e-6
 KINDS = ("servo", "jtc", "jtc_stamped")
 MIN_SECONDS = 3.0
+PREDICTION_ERROR = 0.01  # rad (σ): a policy's chunks drift from the truth along their horizon, each its own way
 SETTLE = 1.0  # s after the first chunk's arrival before the figures count: the arm starts at rest, the reference not
 
 
@@ -65,6 +70,7 @@ class ChunkSettings:
     delay: tuple[float, float] = (0.05, 0.30)  # s, uniform
     seed: int = 1
     command_timeout: float = 1.0  # the servo's: more than the longest gap between two chunks
+    prediction_error: float = 0.0  # rad: each chunk drifts from the reference by up to this at its end (see play)
 
     @classmethod
     def make(cls, quick: bool, seed: int | None = None, seconds: float | None = None) -> ChunkSettings:
@@ -147,6 +153,10 @@ def play(kind: str, settings: ChunkSettings) -> dict[str, Any]:
         start = engine.t + 0.1
         arrivals = schedule(settings, _on_cycle(start, dt), np.random.default_rng(settings.seed))
         arrivals = [(_on_cycle(a, dt), _on_cycle(s, dt)) for a, s in arrivals]
+        drift = np.random.default_rng(settings.seed + 1).normal(
+            0.0, settings.prediction_error, (len(arrivals), len(index))
+        )
+        ramp = np.arange(settings.steps)[:, None] / settings.steps
         endpoint = GoalEndpoint.of(controller.action) if kind != "servo" else None
         end = arrivals[-1][0] + 0.5
         times, commands, measured, taken = [], [], [], []
@@ -157,7 +167,7 @@ def play(kind: str, settings: ChunkSettings) -> dict[str, Any]:
             while k < len(arrivals) and arrivals[k][0] <= t_next + 1e-9:
                 arrival, stamp = arrivals[k]
                 k += 1
-                chunk = ref.at(stamp + settings.step_dt * np.arange(settings.steps))
+                chunk = ref.at(stamp + settings.step_dt * np.arange(settings.steps)) + ramp * drift[k - 1]
                 if kind == "servo":
                     controller.accept_chunk({"stamp": stamp, "dt": settings.step_dt, "positions": chunk.tolist()})
                     if stamp >= newest:
@@ -251,6 +261,10 @@ def run_chunks(settings: ChunkSettings) -> dict[str, Any]:
     for kind in KINDS:
         report[kind] = figures(play(kind, settings), settings)
     report["targets"] = chunk_targets(report)
+    noisy = replace(settings, prediction_error=PREDICTION_ERROR)
+    report["disagreeing"] = {"prediction_error_rad": PREDICTION_ERROR}
+    for kind in KINDS:  # reported: what successive chunks that disagree do to each controller
+        report["disagreeing"][kind] = figures(play(kind, noisy), noisy)
     return report
 
 
@@ -330,6 +344,19 @@ def format_chunks(report: dict[str, Any]) -> str:
         "  (peaks: fraction of the joints' limits; speed: fraction of the reference's at each handoff; errors: the "
         "command vs the reference, arm RMS: the measured position vs the reference)"
     )
+    disagreeing = report.get("disagreeing")
+    if disagreeing:
+        lines.append(
+            f"  chunks that disagree (each drifts from the reference by N(0, {disagreeing['prediction_error_rad']:g} "
+            "rad) × k/steps: reported, not judged):"
+        )
+        for kind in KINDS:
+            r = disagreeing[kind]
+            lines.append(
+                f"  {kind:<11} {r['handoffs']:>8} {_num(r['handoff_speed_min']):>9} {_num(r['handoff_speed_p5']):>6} "
+                f"{r['pauses']:>6} {r['velocity_peak']:>6.2f} {r['acceleration_peak']:>6.2f} {r['jerk_peak']:>7.2f} "
+                f"{r['rms_error_mrad']:>9.3f} {r['max_error_mrad']:>9.3f} {r['measured_rms_error_mrad']:>8.3f}"
+            )
     return "\n".join(lines)
 
 
