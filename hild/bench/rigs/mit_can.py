@@ -24,12 +24,13 @@ import os
 import threading
 import time
 import uuid
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import can
 
-from drivers.can.bus import frame_bits, open_bus
+from drivers.can.bus import BusSpec, frame_bits, open_bus
 from drivers.can.emulator import Emulator, MotorPlant
 from drivers.can.emulator.runtime import build_firmware
 from drivers.can.mit_driver import MotorWiring, wire_motors
@@ -182,11 +183,14 @@ def wall_to_perf_offset_ns() -> int:
 class CanBenchRig:
     """The ``mit_can`` rig (a ``hild.bench.rigs.BenchRig``): see the module docstring.
 
-    One emulator per bus, all serviced by one thread (a drive answers the frame it got in the last service)."""
+    One emulator per bus, all serviced by one thread (a drive answers the frame it got in the last service).
+    ``open_channel`` opens an emulated drive's side of a bus: the config's own (a virtual channel in this process)
+    by default; the rig process (:mod:`hild.bench.rigs.can_process`) serves each over loopback instead."""
 
     trajectory_scale = 0.5  # the standard trajectory moves joints up to 1 rad; half of that suits these motors
 
-    def __init__(self) -> None:
+    def __init__(self, open_channel: Callable[[BusSpec], Any] = open_bus) -> None:
+        self._open_channel = open_channel
         self.emulators: list[Emulator] = []
         self.tap: FrameTap | None = None
         self.first: MotorWiring | None = None
@@ -212,7 +216,7 @@ class CanBenchRig:
                 wiring, problems = wire_motors(params, joints)
                 if problems:
                     raise ValueError("; ".join(problems))
-                bus: Any = open_bus(params.bus)
+                bus: Any = self._open_channel(params.bus)
                 if self.tap is None:  # the first motor's bus carries the latency probes
                     self.first = wiring[0]
                     bus = self.tap = FrameTap(bus, {wiring[0].command_id, wiring[0].reply_id})
