@@ -40,6 +40,7 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from hild.bench.command_taps import ENV, SITECUSTOMIZE, read_stamps
+from hild.bench.floor import run_probe
 from hild.bench.latency import hop_latencies, send_probes
 from hild.bench.report import summarize_ns
 from hild.bench.scenarios import FORWARD, PROBE_DELTA_LSB, PROBE_TOL_LSB, Scenario, Settings, open_session
@@ -49,6 +50,7 @@ LAYOUTS = {
     "virtual": Scenario("can6", "can", 6, 1000.0, virtual_bus=True),
 }
 WARMUP_S = 1.0
+ZENOH_PINGS = 1000  # the floor's Zenoh probe before each layout: put → accept less this is the daemon's share
 LINGER_S = 0.6  # s after the last probe: the taps flush every 0.25 s
 
 
@@ -142,6 +144,10 @@ def main() -> int:
     layouts = list(LAYOUTS) if args.layout == "both" else [args.layout]
     print(f"load average {os.getloadavg()[0]:.2f}, {os.cpu_count()} CPUs")
     for layout in layouts:
+        floor = run_probe("zenoh", count=ZENOH_PINGS, puts=ZENOH_PINGS)
+        if "error" not in floor:
+            f = floor["put_to_subscriber_us"]
+            print(f"\nZenoh floor just before (put → subscriber): p50 {f['p50']:.0f} µs, p99 {f['p99']:.0f} µs")
         result = measure(layout, args.probes, args.stock_bridge, args.seed)
         print(
             f"\n{result['scenario']} — {result['bus']}: {result['probes']} probes, {result['judged']} judged, "
