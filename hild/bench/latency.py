@@ -1,7 +1,9 @@
 """Latencies across processes: a Zenoh command → the first CAN frame carrying it; a CAN reply → its joint_states.
 
 Both ends are stamped on ``perf_counter_ns`` (CLOCK_MONOTONIC, one clock for the whole machine), the client's in
-this process, the frames' inside the daemon's process by the bench rig.
+this process, the frames' by the bench rig: in the daemon's process on the virtual bus, or in the rig's own process
+when the loop serving the loopback bridge reads them (``hild.bench.rigs.can_process``). ``hop_latencies`` splits the
+way into its hops (tools/command_hops.py).
 
 **Command → frame.** With ``forward_position`` active, the bench publishes targets whose first joint alternates
 between two positions ``delta`` apart (a few position LSBs, below one cycle's slew limit); the others hold. Each

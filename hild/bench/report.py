@@ -273,7 +273,7 @@ def command_to_frame_target(report: dict[str, Any], where: str, one_way: float |
     bus = str(latency.get("can_bus", "?")) + (f", {latency['can_bridge']}" if latency.get("can_bridge") else "")
     basis += f"; {bus}; probes {sent}: matched {matched}, ambiguous {ambiguous}, unmatched {unmatched}"
     row = _target("Zenoh command → CAN frame p99", where, measured, limit, "µs", basis, RT)
-    if unmatched and row["status"] != "n/a":  # a command that never reached the wire is the worst latency of all
+    if unmatched:  # a command that never reached the wire is the worst latency of all, even with no other matched
         row["status"] = "MISS"
         row["detail"] = f"{where}: {unmatched} of {sent} probes never matched a frame ({basis})"
     return row

@@ -329,3 +329,11 @@ def test_command_to_frame_has_a_row_per_medium_and_unmatched_probes_are_a_miss()
 def test_command_to_frame_without_the_virtual_scenario_is_not_applicable() -> None:
     t = _rt(_rt_report())
     assert t[("Zenoh command → CAN frame p99", "can6@1000-virtual")]["status"] == "n/a"
+
+
+def test_command_to_frame_with_no_probe_matched_is_a_miss_not_a_gap() -> None:
+    report = _rt_report()
+    report["latency"][0].update({"probes": 300, "ambiguous_probes": 150, "command_to_frame_us": {"n": 0}})
+    frame = _rt(report)[("Zenoh command → CAN frame p99", "can6@1000")]
+    assert frame["measured"] is None and frame["status"] == "MISS"
+    assert "150 of 300 probes never matched a frame" in frame["detail"]

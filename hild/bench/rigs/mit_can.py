@@ -13,8 +13,10 @@ reply it sends. No extra bus joins the channel, so listening adds no frame copie
 ``time.time()`` (the virtual bus's clock) converted to ``perf_counter_ns`` (CLOCK_MONOTONIC, system-wide), so the
 bench compares them with stamps taken in its own process.
 
-The emulator thread competes with the cycle for the GIL (real drives answer from their own silicon), so CAN cycle
-figures are an upper bound; its CPU is reported apart from the daemon's.
+In one process the emulator thread competes with the cycle for the GIL (real drives answer from their own
+silicon), so CAN cycle figures are an upper bound; its CPU is reported apart from the daemon's. With the cycle in a
+process of its own the rig runs in a process of its own too (:mod:`hild.bench.rigs.can_process`), each bus a
+loopback server its loop reads: the frames are then stamped when that loop reads them off the socket.
 """
 
 from __future__ import annotations
