@@ -19,7 +19,9 @@ SECTION_KEYS = ("bench", "machine", "floor", "scenarios", "latency", "cpu", "int
 
 def test_only_takes_names_and_base_names_as_patterns() -> None:
     assert selected(None) == list(SECTIONS)
-    assert selected(["can6"]) == ["can6@500", "can6@1000", "can6@500-nospin"]
+    assert selected(["can6"]) == ["can6@500", "can6@1000", "can6@500-nospin", "can6@1000-virtual"]
+    assert selected(["can6@1000"]) == ["can6@1000"]  # the virtual-bus row is named apart
+    assert selected(["can6@1000*"]) == ["can6@1000", "can6@1000-virtual"]
     assert selected(["*nospin"]) == ["twin6@500-nospin", "can6@500-nospin"]
     assert selected(["floor", "*@1000"]) == ["floor", "mock6@1000", "twin6@1000", "can3@1000", "can6@1000"]
     assert selected(["nothing"]) == []
