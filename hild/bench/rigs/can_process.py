@@ -49,11 +49,9 @@ def serve(config: str, out: IO[str]) -> int:
     from hild.config.loader import load_config
 
     served: dict[str, str] = {}
-    buses: list[Any] = []
 
     def open_served(spec: BusSpec) -> Any:
-        bus = RemoteServerBus(HOST, 0)
-        buses.append(bus)
+        bus = RemoteServerBus(HOST, 0)  # closed by the rig's stop, with the emulators
         served[str(spec.channel)] = f"ws://{bus.address[0]}:{bus.address[1]}/"
         return bus
 
