@@ -7,8 +7,11 @@
 Order: machine facts and load average; the floor (empty thread, Zenoh, python-can, mj_step); the scenarios one
 after the other (never two daemons at once); the interference windows; targets from all of it. Names for
 ``--only`` (shell-style patterns): ``floor``, ``interference``, ``mock6@500`` … ``can6@1000`` and
-``twin6@500-nospin``, ``can6@500-nospin`` (or a base name such as ``can6`` for all of its). Every scenario runs
-with the cycle in a process of its own; ``--one-process`` runs them as before, the cycle a thread of the daemon.
+``twin6@500-nospin``, ``can6@500-nospin``, ``can6@1000-virtual`` (or a base name such as ``can6`` for all of its).
+Every scenario runs with the cycle in a process of its own (the emulated CAN drives in a process of theirs, reached
+over loopback; ``--stock-can-bridge``: beside the daemon as before [teleop]) but ``can6@1000-virtual`` (the cycle a
+thread of the daemon, the drives on its in-process virtual bus); ``--one-process`` runs them all as before, the
+cycle a thread of the daemon.
 Two sections run only when named, after the rest: ``motion`` (tracking on the lockstep twin, goal acceptance and
 servo latency over Zenoh: ``hild.bench.motion``) and ``soak`` (``hild run`` on the twin at 1 kHz under random
 goals, servo streams and faults for 3 min, ``--quick`` 20 s, or ``--seconds``: ``hild.bench.soak``), and
@@ -95,6 +98,12 @@ def register(subparsers: Any) -> None:
         action="store_true",
         help="with --one-process: serve the emulated CAN channels over loopback as the cycle-process mode must "
         "(same bus medium in both modes)",
+    )
+    parser.add_argument(
+        "--stock-can-bridge",
+        action="store_true",
+        help="bridged CAN scenarios as before [teleop]: the emulated drives in the daemon's process behind "
+        "python-can-remote's stock server (its per-client threads share the daemon's GIL), for before/after figures",
     )
     parser.add_argument(
         "--cycle-cpu",
@@ -303,6 +312,7 @@ def run(args: argparse.Namespace) -> int:
         cycle_process=not args.one_process,
         can_remote=args.can_remote,
         cycle_cpu=args.cycle_cpu,
+        stock_bridge=args.stock_can_bridge,
     )
     if args.keep is not None:
         args.keep.mkdir(parents=True, exist_ok=True)
