@@ -16,7 +16,7 @@ Two things the servo's own clients do not need:
 - **Degradation**: under delay and loss the stream arrives late and in gaps. The gap is the larger of the time
   between two samples taken and the samples missing by ``seq``; above ``degrade_after`` stream periods the velocity
   limit falls linearly with it, down to ``min_speed`` at ``command_timeout``, and ruckig brakes to it jerk-limited.
-  It recovers as the stream does (fast to slow down, slower to speed up again).
+  It recovers as the stream does (at once to slow down, a fifth of the way per sample to speed up again).
 
 Leader samples that cannot be followed (a joint missing, a non-finite value, a stale ``fresh`` flag) are never
 followed: they are counted and reported as one warning per episode (and once when valid samples return), so a
@@ -42,7 +42,7 @@ from hild.modes import Source
 # The velocity scale changes ruckig's limits only when it moved by this much: no new limits on every cycle.
 SPEED_STEP = 0.02
 # Per sample, how far a shrinking gap estimate moves toward the new gap (a growing one is taken at once).
-GAP_RECOVERY = 0.1
+GAP_RECOVERY = 0.2
 # A seq this far below the last one followed is a leader that restarted, not a late sample.
 SEQ_RESTART = 1000
 
@@ -74,7 +74,7 @@ class FollowParams(ServoParams):
     rate: float = Field(default=100.0, gt=0.0, description="Hz: the leader's expected joint_states rate.")
     deadman: Deadman = Field(default_factory=Deadman)
     degrade_after: float = dynamic(
-        default=2.5, ge=1.0, description="Stream periods of gap above which the follower slows down."
+        default=4.0, ge=1.0, description="Stream periods of gap above which the follower slows down."
     )
     min_speed: float = dynamic(
         default=0.2, gt=0.0, le=1.0, description="Fraction of the velocity limits at a gap of command_timeout."
