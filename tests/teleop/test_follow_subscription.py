@@ -6,6 +6,7 @@ playing the leader."""
 
 from __future__ import annotations
 
+import argparse
 import json
 import threading
 from collections.abc import Iterator
@@ -17,6 +18,7 @@ import yaml
 import zenoh
 
 from hild.api.client import HildClient
+from hild.api.ctl import EXIT_OK, EXIT_SERVICE, add_ctl_parser, run_ctl
 from hild.api.session import client_config, open_session
 from hild.config import load_config
 from hild.cycle.engine import Engine
@@ -95,3 +97,25 @@ def test_the_leader_key_is_followed_once_active_and_enabled(rig: tuple[Daemon, H
         holder.join(5.0)
     client.put("follow", {"enable": False}, input="enable")
     wait_for(lambda: [j["mode"] for j in client.status()["joints"]] == ["hold"] * 3, what="hold after release")
+
+
+def test_hild_ctl_deadman_holds_it_for_its_duration_then_releases(
+    rig: tuple[Daemon, HildClient, LeaderStream], capsys: pytest.CaptureFixture[str]
+) -> None:
+    daemon, client, _ = rig
+    assert ctl(daemon, "deadman", "follow", "--duration", "0.2") == EXIT_SERVICE  # not active yet
+    assert "hild ctl switch --activate follow" in capsys.readouterr().err
+    assert ctl(daemon, "deadman", "fwd") == EXIT_SERVICE
+    assert "not a follow controller" in capsys.readouterr().err
+    client.switch(activate=["follow"])
+    engine = daemon.engine
+    follow = engine.manager.records["follow"].instance
+    assert ctl(daemon, "--json", "deadman", "follow", "--duration", "1.0", "--rate", "20") == EXIT_OK
+    assert json.loads(capsys.readouterr().out)["sent"] >= 5
+    wait_for(lambda: follow.released_at > 0.0, what="the release after the duration")  # it had engaged, then let go
+
+
+def ctl(daemon: Daemon, *argv: str) -> int:
+    parser = argparse.ArgumentParser(prog="hild")
+    add_ctl_parser(parser.add_subparsers(dest="command", required=True))
+    return run_ctl(parser.parse_args(["ctl", "--connect", daemon.endpoint, *argv]))
