@@ -81,8 +81,8 @@ class FollowParams(ServoParams):
     )
     anticipate: bool = Field(
         default=True,
-        description="Aim ahead of the leader by the distance the follower needs to brake from its velocity: no lag "
-        "at a steady speed, without chasing a moving target (which overshoots).",
+        description="Aim ahead of the leader by the distance the follower needs to brake from its velocity (and half "
+        "a stream period of travel): no lag at a steady speed, without chasing a moving target (which overshoots).",
     )
 
     @model_validator(mode="after")
@@ -192,6 +192,7 @@ class FollowController(ServoController):
         if not (isinstance(velocity, list) and len(velocity) == len(names)):
             velocity = None
         fresh = message.get("fresh")
+        half_period = 0.5 / self._follow_params().rate
         positions = []
         for k, i in enumerate(index):
             p = position[i]
@@ -202,7 +203,9 @@ class FollowController(ServoController):
                 raise ValueError(f"{names[i]}: reading not fresh")
             v = self._scale[k] * v
             speed = min(abs(v), self._vmax[k])
-            ahead = stopping_distance(speed, self._amax[k], self._jmax[k]) if speed > 0.0 else 0.0
+            # Braking distance, plus half a stream period of travel: the sample is that old on average while it
+            # is the target (it stays one until the next arrives).
+            ahead = stopping_distance(speed, self._amax[k], self._jmax[k]) + speed * half_period if speed else 0.0
             positions.append(self._scale[k] * p + self._offset[k] + math.copysign(ahead, v))
         velocities = list(self._zeros)
         clamped = self._clamp(positions, velocities)
