@@ -8,17 +8,18 @@ random jerk-limited moves (``move_to`` on its joint_trajectory controller, moder
 controller is activated and its dead-man held (``{"enable": true}`` at 10 Hz). Run once without delay and once at
 ``delay``/``loss``.
 
-How each figure is measured:
+How each figure is measured (docs/performance.md, "Leader–follower teleoperation"):
 
-- **joint lag** (measured): the bench subscribes to the leader's and the follower's joint_states and stamps each
-  message on arrival (one clock, this process's); per joint, the shift τ in [0, 0.5] s that minimises the RMS of
-  follower(t) − leader(t − τ) over the moves; the worst joint's. It includes the relay's delay, the follower's
-  planning and the twin's own tracking of its command (a PD drive). Target: ≤ 2 stream periods + one-way delay.
 - **the follower's command** (replayed): the relayed stream as the follower's daemon received it (the bench
   subscribes to the relayed key there, and stamps arrivals) is replayed into the same follower config in lockstep
-  (the sim clock, each sample handed over in the cycle after its arrival time): every cycle's command is there
-  exactly. Jumps = command steps > v_max·T (target 0); the command's lag, like the above.
-- **dead-man → hold**: in that replay the dead-man is released while the arm moves: cycles from the cycle that
+  (the sim clock, each sample handed over in the first cycle at or after its arrival time): every cycle's command
+  is there exactly.
+- **joint lag** (the target): per joint, the shift τ in [0, 0.5] s that minimises the RMS of command(t) −
+  leader(t − τ), the leader's joint_states stamped on arrival here (one clock, this process's); the worst joint's.
+  Target: ≤ 2 stream periods + one-way delay. The same from the follower's measured joint_states is reported beside
+  it: that adds the twin's own tracking of its command (a PD drive).
+- **jumps**: replayed command steps > v_max·T (target 0).
+- **dead-man → hold**: a second replay releases the dead-man while the arm moves: cycles from the cycle that
   adopts the release to every joint's mode HOLD (target ≤ 2).
 """
 
