@@ -270,6 +270,7 @@ class FollowController(ServoController):
         q = state.position[self._index]
         self._hold_at(np.where(np.isfinite(q), q, command.position[self._index]).tolist())
         self._engaged = True  # a target waiting now came after the enable: released, the slot is cleared
+        self.context.emit_event("info", f"following {self._follow_params().leader}")
         self._seq = None
         self._gap = 0.0
         self._set_speed(1.0)
