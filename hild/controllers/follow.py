@@ -43,8 +43,10 @@ from hild.modes import Source
 SPEED_STEP = 0.02
 # Per sample, how far a shrinking gap estimate moves toward the new gap (a growing one is taken at once).
 GAP_RECOVERY = 0.2
-# A seq this far below the last one followed is a leader that restarted, not a late sample.
+# A sample behind the last one followed is late (reordered on the network) and dropped, unless it is a leader that
+# restarted: its seq this far below, or its stamp (the leader's cycle clock, which restarts at 0) this much older.
 SEQ_RESTART = 1000
+STAMP_RESTART = 1.0  # s
 
 
 class JointMapping(Params):
@@ -113,6 +115,7 @@ class FollowController(ServoController):
         self._api_lock = threading.Lock()
         self._lookup: tuple[tuple[str, ...], list[int]] | None = None  # the leader's names → our mapping
         self._last_seq: int | None = None
+        self._last_stamp = -math.inf
         self.invalid_samples = 0  # leader samples not followed (API half)
         self.stale_samples = 0  # samples older than one already followed (reordered by the network)
         self._invalid_run = 0  # invalid samples in the current episode
@@ -158,10 +161,12 @@ class FollowController(ServoController):
             except ValueError as exc:
                 self._invalid(str(exc))
                 return
-            if self._last_seq is not None and self._last_seq - SEQ_RESTART < seq <= self._last_seq:
+            stamp = message.get("stamp")
+            stamp = float(stamp) if _finite(stamp) else math.inf
+            if self._last_seq is not None and self._late(seq, stamp):
                 self.stale_samples += 1
                 return
-            self._last_seq = seq
+            self._last_seq, self._last_stamp = seq, stamp
             if self._invalid_run:
                 self.context.emit_event(
                     "info", f"leader {self.params.leader}: valid samples again after {self._invalid_run} invalid"
@@ -169,6 +174,11 @@ class FollowController(ServoController):
                 self._invalid_run = 0
             self._seq_door.put((float(seq),))
             self._slot.put(target)
+
+    def _late(self, seq: int, stamp: float) -> bool:
+        assert self._last_seq is not None
+        restarted = seq <= self._last_seq - SEQ_RESTART or stamp < self._last_stamp - STAMP_RESTART
+        return seq <= self._last_seq and not restarted
 
     def _invalid(self, reason: str) -> None:
         self.invalid_samples += 1
