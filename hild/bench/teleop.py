@@ -20,7 +20,8 @@ How each figure is measured (docs/performance.md, "Leader–follower teleoperati
   it: that adds the twin's own tracking of its command (a PD drive).
 - **jumps**: replayed command steps > v_max·T (target 0).
 - **dead-man → hold**: a second replay releases the dead-man while the arm moves: cycles from the cycle that
-  adopts the release to every joint's mode HOLD (target ≤ 2).
+  adopts the release to every joint's mode HOLD (target ≤ 2). Beside it, from the live run: the time from sending
+  ``{"enable": false}`` to a status query answering every joint in hold (Zenoh both ways and the query included).
 """
 
 from __future__ import annotations
@@ -316,7 +317,12 @@ def run_once(directory: Path, delay: float, jitter: float, loss: float, moves: i
         rig.random_moves(moves, seed)
         moving_end = time.monotonic()
         wait_for(lambda: time.monotonic() > moving_end + 0.5, 5.0, "the follower to settle", every=0.05)
+        released = time.monotonic()
         rig.release()
+        follower = rig.follower
+        assert follower is not None
+        wait_for(lambda: all(j["mode"] == "hold" for j in follower.status()["joints"]), 10.0, "hold", every=0.002)
+        release_wall_ms = (time.monotonic() - released) * 1e3
         t_l, p_l = rig.leader_stream.arrays()
         t_f, p_f = rig.follower_stream.arrays()
         relayed = rig.relayed_stream
@@ -348,6 +354,7 @@ def run_once(directory: Path, delay: float, jitter: float, loss: float, moves: i
         "jumps": replayed.jumps,
         "worst_step_of_vmax_T": round(replayed.worst_step_ratio, 3),
         "deadman_hold_cycles": release.release_cycles,
+        "deadman_release_to_hold_status_ms": round(release_wall_ms, 1),
     }
 
 
@@ -433,7 +440,8 @@ def format_teleop(report: dict[str, Any]) -> str:
             f"  {run['run']:<22} lag measured {run['lag_measured_worst_ms']:g} ms,"
             f" command {run['lag_command_worst_ms']:g} ms"
             f" (worst joint); jumps {run['jumps']} (worst step {run['worst_step_of_vmax_T']} v_max·T);"
-            f" dead-man → hold {run['deadman_hold_cycles']} cycles; samples {s['leader']} leader,"
+            f" dead-man → hold {run['deadman_hold_cycles']} cycles (release sent → status says hold:"
+            f" {run['deadman_release_to_hold_status_ms']} ms); samples {s['leader']} leader,"
             f" {s['relayed']} relayed, {s['lost_seq']} lost; relay transit p50 {run['relay_ms']['p50']} ms,"
             f" p99 {run['relay_ms']['p99']} ms"
         )
