@@ -12,7 +12,8 @@ Two things the servo's own clients do not need:
 - **A dead-man**: with ``deadman.required`` the follower moves only while ``ctrl/<follow>/enable`` says
   ``{"enable": true}`` and was said again within ``deadman.timeout`` (cycle clock). A release — or its silence —
   stops writing the joints at once, so the supervisor holds them in that very cycle (a dead-man is a stop, not a
-  glide); the next enable starts again from where the arm is.
+  glide); the next enable starts again from where the arm is. The provenance says so: ``source`` is LEADER while
+  engaged, HOLD while released.
 - **Degradation**: under delay and loss the stream arrives late and in gaps. The gap is the larger of the time
   between two samples taken and the samples missing by ``seq``; above ``degrade_after`` stream periods the velocity
   limit falls linearly with it, down to ``min_speed`` at ``command_timeout``, and ruckig brakes to it jerk-limited.
@@ -239,6 +240,7 @@ class FollowController(ServoController):
         self._enabled = not self._deadman_params().required
         self._enabled_at = -math.inf
         self._engaged = False
+        self.source = Source.HOLD  # until the dead-man engages it (at the first cycle, when none is required)
         self._set_speed(1.0)
 
     def on_params(self, old: Params) -> None:
@@ -265,6 +267,7 @@ class FollowController(ServoController):
         if not self._dead_man_holds(t):
             if self._engaged:
                 self._engaged = False
+                self.source = Source.HOLD  # provenance: its joints are held, nobody moves them
                 self.released_at = t
                 self.context.emit_event("info", "dead-man released: the joints hold")
             self._slot.clear()  # a target from before the release is never followed after it
@@ -280,6 +283,7 @@ class FollowController(ServoController):
         q = state.position[self._index]
         self._hold_at(np.where(np.isfinite(q), q, command.position[self._index]).tolist())
         self._engaged = True  # a target waiting now came after the enable: released, the slot is cleared
+        self.source = Source.LEADER
         self.context.emit_event("info", f"following {self._follow_params().leader}")
         self._seq = None
         self._gap = 0.0

@@ -165,6 +165,19 @@ def test_without_enable_nothing_is_followed(make_engine: MakeEngine) -> None:
     assert modes(engine) == ["hold"] * 3
     np.testing.assert_allclose(engine.final.position, start)
     assert not follow.engaged
+    assert follow.source == Source.HOLD  # the provenance: held, not moved by a human
+
+
+def test_the_source_is_leader_while_engaged_and_hold_once_released(make_engine: MakeEngine) -> None:
+    engine, follow = started(make_engine)
+    leader = Leader(engine, follow, still(0.2, -0.1, 0.3))
+    leader.run(50, enable=True)
+    assert follow.source == Source.LEADER
+    follow.accept_enable({"enable": False})
+    leader.run(1)
+    assert follow.source == Source.HOLD
+    leader.run(50, enable=True)
+    assert follow.source == Source.LEADER
 
 
 def test_releasing_the_dead_man_holds_within_two_cycles(make_engine: MakeEngine) -> None:
