@@ -22,6 +22,7 @@ from hild.api.ctl import EXIT_OK, EXIT_SERVICE, add_ctl_parser, run_ctl
 from hild.api.session import client_config, open_session
 from hild.config import load_config
 from hild.cycle.engine import Engine
+from hild.modes import JointMode
 from tests.api.conftest import Daemon, robot_config
 from tests.conftest import merge
 from tests.helpers import free_endpoint, wait_for
@@ -96,7 +97,7 @@ def test_the_leader_key_is_followed_once_active_and_enabled(rig: tuple[Daemon, H
         stop.set()
         holder.join(5.0)
     client.put("follow", {"enable": False}, input="enable")
-    wait_for(lambda: [j["mode"] for j in client.status()["joints"]] == ["hold"] * 3, what="hold after release")
+    wait_for(lambda: (engine.supervisor.mode == JointMode.HOLD).all(), what="hold after release")
 
 
 def test_hild_ctl_deadman_holds_it_for_its_duration_then_releases(
