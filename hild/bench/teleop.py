@@ -41,7 +41,7 @@ import numpy as np
 import yaml
 import zenoh
 
-from hild.api.client import HildClient
+from hild.api.client import HildClient, HildError
 from hild.api.session import client_config, open_session
 from hild.bench.children import LoggedChild, distinct_free_ports, wait_for
 from hild.bench.daemon import HILD, HildRun
@@ -220,6 +220,14 @@ class TeleopRig:
         self._children.clear()
 
 
+def joint_modes(client: HildClient) -> list[str]:
+    """Each joint's mode, or [] when the daemon did not answer in time (a loaded machine): asked again."""
+    try:
+        return [j["mode"] for j in client.status()["joints"]]
+    except HildError:
+        return []
+
+
 # ---- figures --------------------------------------------------------------------------------------------------
 def best_shift(t_lead: np.ndarray, lead: np.ndarray, t_follow: np.ndarray, follow: np.ndarray) -> tuple[float, float]:
     """The shift τ (s, 1 ms steps up to ``MAX_SHIFT``) minimising the RMS of follow(t) − lead(t − τ), and that RMS,
@@ -321,7 +329,7 @@ def run_once(directory: Path, delay: float, jitter: float, loss: float, moves: i
         rig.release()
         follower = rig.follower
         assert follower is not None
-        wait_for(lambda: all(j["mode"] == "hold" for j in follower.status()["joints"]), 10.0, "hold", every=0.002)
+        wait_for(lambda: joint_modes(follower) == ["hold"] * 6, 10.0, "hold", every=0.002)
         release_wall_ms = (time.monotonic() - released) * 1e3
         t_l, p_l = rig.leader_stream.arrays()
         t_f, p_f = rig.follower_stream.arrays()
