@@ -329,7 +329,7 @@ def run_once(directory: Path, delay: float, jitter: float, loss: float, moves: i
         rig.release()
         follower = rig.follower
         assert follower is not None
-        wait_for(lambda: joint_modes(follower) == ["hold"] * 6, 10.0, "hold", every=0.002)
+        wait_for(lambda: joint_modes(follower) == ["hold"] * 6, 30.0, "hold", every=0.002)
         release_wall_ms = (time.monotonic() - released) * 1e3
         t_l, p_l = rig.leader_stream.arrays()
         t_f, p_f = rig.follower_stream.arrays()
