@@ -55,6 +55,7 @@ CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 LEADER, FOLLOWER, RELAYED = "arm6_leader", "arm6_follower", "arm6_leader_relayed"
 GROUP = "teleop"
 MAX_SHIFT = 0.5  # s: the longest lag looked for
+STALL_ALLOWED = 5.0  # s: the rig's safety.max_cycle_gap (the configs' 0.5 s faults a twin on an overloaded machine)
 ENABLE_EVERY = 0.1  # s between dead-man refreshes
 
 
@@ -108,6 +109,8 @@ def config_pair(directory: Path, leader_port: int, follower_port: int) -> tuple[
     leader["zenoh"] = {"listen": [f"tcp/127.0.0.1:{leader_port}"]}
     follower["zenoh"] = {"listen": [f"tcp/127.0.0.1:{follower_port}"]}
     follower["controllers"]["follow"]["params"]["leader"] = RELAYED
+    for cfg in (leader, follower):  # twins: nothing to protect when a loaded machine stalls a cycle for a second
+        cfg["safety"]["max_cycle_gap"] = STALL_ALLOWED
     paths = directory / "leader.yaml", directory / "follower.yaml"
     for path, cfg in zip(paths, (leader, follower), strict=True):
         path.write_text(yaml.safe_dump(cfg, sort_keys=False))
@@ -329,8 +332,13 @@ def run_once(directory: Path, delay: float, jitter: float, loss: float, moves: i
         rig.release()
         follower = rig.follower
         assert follower is not None
-        wait_for(lambda: joint_modes(follower) == ["hold"] * 6, 30.0, "hold", every=0.002)
+        wait_for(
+            lambda: set(joint_modes(follower)) in ({"hold"}, {"fault"}, {"hold", "fault"}), 30.0, "hold", every=0.002
+        )
         release_wall_ms = (time.monotonic() - released) * 1e3
+        faults = {j["fault"] for j in follower.status()["joints"] if j.get("fault")}
+        if faults:  # its figures are not the follower's: say why, as the run's error
+            raise RuntimeError(f"the follower faulted during the run: {'; '.join(sorted(faults))}")
         t_l, p_l = rig.leader_stream.arrays()
         t_f, p_f = rig.follower_stream.arrays()
         relayed = rig.relayed_stream
