@@ -17,7 +17,9 @@ servo latency over Zenoh: ``hild.bench.motion``) and ``soak`` (``hild run`` on t
 goals, servo streams and faults for 3 min, ``--quick`` 20 s, or ``--seconds``: ``hild.bench.soak``), and
 ``contact`` (the [contact] targets on the emulated Damiao arm6 in lockstep, group ``contact`` in the targets:
 ``hild.bench.contact``; ``--quick`` a smoke run, ``--seconds`` the no-false-positive run's sim time), and ``record``
-(what recording costs the cycle: twin6@1000 with recording off and with an episode open, ``hild.bench.record``).
+(what recording costs the cycle: twin6@1000 with recording off and with an episode open, ``hild.bench.record``),
+and ``teleop`` (leader–follower between two twin daemons through a delaying, dropping relay, group ``teleop``:
+``hild.bench.teleop``).
 See docs/performance.md for what each figure means.
 """
 
@@ -52,7 +54,7 @@ from hild.config.model import RealtimeSection
 PACKAGES = ("hild", "numpy", "eclipse-zenoh", "python-can", "mujoco", "ruckig", "rerun-sdk", "pydantic")
 FLOOR_RATES = (500.0, 1000.0)
 SECTIONS = ("floor", *(s.name for s in SCENARIOS), "interference")
-NAMED_ONLY = ("motion", "soak", "contact", "record")  # not in a whole run: motion, endurance, contact, recording
+NAMED_ONLY = ("motion", "soak", "contact", "record", "teleop")  # not in a whole run: motion, endurance, contact, …
 SOAK_SECONDS = 180.0
 SOAK_QUICK_SECONDS = 20.0
 
@@ -229,7 +231,7 @@ def bench(settings: Settings, sections: list[str], workdir: Path) -> dict[str, A
     report["machine"]["busy"] = busy(report["machine"])
     report["bench"]["seconds_total"] = round(time.monotonic() - started, 1)
     report["targets"] = evaluate_targets(report) if set(sections) & set(SECTIONS) else []  # none for motion, soak
-    for name in ("contact", "record"):  # their own groups of targets
+    for name in ("contact", "record", "teleop"):  # their own groups of targets
         report["targets"] += report.get(name, {}).get("targets", [])
     return report
 
@@ -248,6 +250,10 @@ def run_named(name: str, settings: Settings) -> dict[str, Any]:
         from hild.bench.record import run_record
 
         return run_record(settings)
+    if name == "teleop":
+        from hild.bench.teleop import TeleopSettings, run_teleop
+
+        return run_teleop(TeleopSettings.make(settings.quick, settings.seed))
     from hild.bench.soak import run_soak
 
     seconds = settings.soak_seconds or (SOAK_QUICK_SECONDS if settings.quick else SOAK_SECONDS)
@@ -272,6 +278,11 @@ def format_named(report: dict[str, Any]) -> list[str]:
 
         record = report["record"]
         texts.append(f"RECORD error: {record['error']}" if "error" in record else format_record(record))
+    if "teleop" in report:
+        from hild.bench.teleop import format_teleop
+
+        teleop = report["teleop"]
+        texts.append(f"TELEOP error: {teleop['error']}" if "error" in teleop else format_teleop(teleop))
     if "soak" in report:
         from hild.bench.soak import Report
 
