@@ -280,6 +280,13 @@ class Controller:
         """Named command inputs (API side, see above). Each raises ValueError with a reason on bad input."""
         return {}
 
+    def subscriptions(self) -> Mapping[str, Callable[[Any], None]]:
+        """Other robots' outputs this controller reads (API side, like ``inputs``): absolute Zenoh keys (e.g.
+        ``hild/<leader>/joint_states``) → a callable given each decoded message. Handed over like an input, but
+        samples arriving while the controller is inactive are dropped silently (a publisher streams whether or not
+        anyone follows), and the callable is expected to judge the content itself: it is not a client to refuse."""
+        return {}
+
     def action_server(self) -> ActionServer[Any] | None:
         """The cycle half of the goals of a controller that runs goals; the API builds their client half
         (:class:`hild.api.goals.GoalEndpoint`) and its ``goal``/``cancel``/``result``/``feedback`` keys from it."""

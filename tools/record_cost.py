@@ -55,6 +55,7 @@ def trajectory(count: int, joints: int, rate: float) -> CycleRows:
         mode=np.ones((count, joints), np.int8),
         owner=owner,
         tau_ext=np.full((count, joints), np.nan),
+        source=np.ones((count, joints), np.int8),
     )
 
 

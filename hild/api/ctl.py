@@ -200,6 +200,14 @@ def add_ctl_parser(subparsers: Any) -> None:
     pub.add_argument("--rate", type=float, default=50.0, help=f"samples per second, {MIN_RATE:g}–{MAX_RATE:g} (50)")
     pub.add_argument("--input", metavar="NAME", help="the controller's input (default: its only streamed one)")
     pub.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: at Ctrl-C)")
+    deadman = sub.add_parser(
+        "deadman",
+        parents=[common],
+        help="hold a follow controller's dead-man: enable until Ctrl-C (or --duration), then release",
+    )
+    deadman.add_argument("controller", help="a follow controller, active")
+    deadman.add_argument("--rate", type=float, default=10.0, help="refreshes per second (default 10)")
+    deadman.add_argument("--duration", type=float, metavar="S", help="release after S seconds (default: at Ctrl-C)")
     watch = sub.add_parser("watch", parents=[common], help="live joint table (Ctrl-C to leave)")
     watch.add_argument("--once", action="store_true", help="print one table and exit")
     watch.add_argument("--rate", type=float, default=10.0, help="redraws per second (default 10)")
@@ -634,6 +642,39 @@ def _pub(client: HildClient, args: argparse.Namespace, as_json: bool) -> int:
     return EXIT_OK if result.error is None else EXIT_SERVICE
 
 
+def _deadman(client: HildClient, args: argparse.Namespace, as_json: bool) -> int:
+    """``{"enable": true}`` on ``ctrl/<follow>/enable`` every 1/rate s, then ``{"enable": false}``: the follower
+    moves only while this runs (docs/controllers.md, "follow")."""
+    entry = next((c for c in client.list_controllers() if c.get("name") == args.controller), None)
+    problem = (
+        f"no controller {args.controller!r}"
+        if entry is None
+        else f"{args.controller!r} is a {entry.get('type')}, not a follow controller"
+        if entry.get("type") != "follow"
+        else f"{args.controller!r} is {entry.get('state')}: hild ctl switch --activate {args.controller}"
+        if entry.get("state") != "active"
+        else None
+    )
+    if problem is not None or not 0.5 <= args.rate <= 1000.0:
+        return _fail(HildError(f"deadman: {problem or 'rate must be within 0.5–1000 Hz'}"), as_json, EXIT_SERVICE)
+    if not as_json:
+        until = f"for {args.duration:g} s" if args.duration is not None else "until Ctrl-C"
+        print(f"dead-man held on {args.controller} {until}", file=sys.stderr)
+    started, sent = time.monotonic(), 0
+    try:
+        while args.duration is None or time.monotonic() - started < args.duration:
+            client.put(args.controller, {"enable": True}, input="enable")
+            sent += 1
+            time.sleep(1.0 / args.rate)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        client.put(args.controller, {"enable": False}, input="enable")
+    seconds = time.monotonic() - started
+    print(json.dumps({"sent": sent, "seconds": round(seconds, 3)}) if as_json else f"released after {seconds:.1f} s")
+    return EXIT_OK
+
+
 def _cancel(client: HildClient, args: argparse.Namespace, as_json: bool) -> int:
     controller = _goal_controller(client, args.controller)
     try:
@@ -658,6 +699,7 @@ COMMANDS: dict[str, Callable[[HildClient, argparse.Namespace, bool], int]] = {
     "trajectory": _trajectory,
     "cancel": _cancel,
     "pub": _pub,
+    "deadman": _deadman,
     "set-zero": _set_zero,
     "enable": _service(
         "enable", lambda r: f"enabled {r.get('enabled') or []}; each holds once its drive confirms", _enable_request

@@ -203,6 +203,7 @@ class InputSlot:
     accept: Callable[[Any], None]
     subscriber: Any = None  # zenoh.Subscriber on a RingChannel, once declared
     active: Callable[[], bool] = _always  # whether the controller is active (read at each hand-over)
+    quiet: bool = False  # a subscription to another robot's output: dropped unreported while inactive
     taken: int = 0  # samples handed over so far (hand-over); a large one on the loop checks it is still newest
     pending: deque[tuple[Any, int, int]] = field(default_factory=lambda: deque(maxlen=1))  # (payload, taken, large)
     large: int = 0  # large samples put in ``pending`` so far (hand-over)
@@ -266,21 +267,21 @@ class ControllerPorts:
             check_chunk(name, "controller name")
             inputs = dict(instance.inputs())
             outputs = dict(instance.outputs())
+            subscriptions = dict(getattr(instance, "subscriptions", dict)())  # a plugin may predate the method
         except Exception as exc:
             self.engine.events.emit("error", "api", f"controller {name}: not exposed on Zenoh: {exc}")
             return endpoints
         for input_name, accept in inputs.items():
             try:
                 key = self.keys.input(name, check_chunk(input_name, "input name"))
-                slot = InputSlot(key, name, accept, None, _activity(instance))
-                if self.engine.inputs_on_arrival:  # the cycle is in its own process: hand over on arrival
-                    slot.subscriber = self.session.declare_subscriber(key, self._arrival_handler(slot))
-                else:
-                    slot.subscriber = self.session.declare_subscriber(key, zenoh.handlers.RingChannel(INTAKE_CAPACITY))
-                    endpoints.slots.append(slot)
-                endpoints.subscribers.append(slot.subscriber)
+                self._subscribe(endpoints, InputSlot(key, name, accept, None, _activity(instance)))
             except (ValueError, zenoh.ZError) as exc:
                 self.engine.events.emit("error", "api", f"controller {name}: input {input_name!r} not declared: {exc}")
+        for key, accept in subscriptions.items():  # other robots' outputs (Controller.subscriptions)
+            try:
+                self._subscribe(endpoints, InputSlot(str(key), name, accept, None, _activity(instance), quiet=True))
+            except (ValueError, zenoh.ZError) as exc:
+                self.engine.events.emit("error", "api", f"controller {name}: subscription {key!r} not declared: {exc}")
         taken = {p.topic for ep in self._controllers.values() for p in ep.outputs}
         for output_name, output in outputs.items():
             shaped = output if isinstance(output, ShapedOutput) else None
@@ -310,6 +311,16 @@ class ControllerPorts:
         except (ValueError, zenoh.ZError) as exc:
             self.engine.events.emit("error", "api", f"controller {name}: goals not exposed: {exc}")
         return endpoints
+
+    def _subscribe(self, endpoints: ControllerEndpoints, slot: InputSlot) -> None:
+        """An input's (or a subscription's) subscriber: handed over on arrival when the cycle is in its own
+        process, else queued for the cycle's ``take_inputs``."""
+        if self.engine.inputs_on_arrival:
+            slot.subscriber = self.session.declare_subscriber(slot.key, self._arrival_handler(slot))
+        else:
+            slot.subscriber = self.session.declare_subscriber(slot.key, zenoh.handlers.RingChannel(INTAKE_CAPACITY))
+            endpoints.slots.append(slot)
+        endpoints.subscribers.append(slot.subscriber)
 
     def _declare_action(self, name: str, action: ActionServer[Any]) -> ActionPort:
         server = GoalEndpoint.of(action)
@@ -463,6 +474,8 @@ class ControllerPorts:
         tally.superseded += count - 1
         slot.taken += 1
         if not slot.active():  # refused unread: a flood at an inactive controller costs a count per cycle
+            if slot.quiet:  # another robot's stream, not a command to this controller: nothing to report
+                return
             tally.rejected += 1
             self._report(slot, ValueError(f"controller {slot.controller} is not active"))
             return

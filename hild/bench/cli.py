@@ -7,16 +7,21 @@
 Order: machine facts and load average; the floor (empty thread, Zenoh, python-can, mj_step); the scenarios one
 after the other (never two daemons at once); the interference windows; targets from all of it. Names for
 ``--only`` (shell-style patterns): ``floor``, ``interference``, ``mock6@500`` … ``can6@1000`` and
-``twin6@500-nospin``, ``can6@500-nospin`` (or a base name such as ``can6`` for all of its). Every scenario runs
-with the cycle in a process of its own; ``--one-process`` runs them as before, the cycle a thread of the daemon.
+``twin6@500-nospin``, ``can6@500-nospin``, ``can6@1000-virtual`` (or a base name such as ``can6`` for all of its).
+Every scenario runs with the cycle in a process of its own (the emulated CAN drives in a process of theirs, reached
+over loopback; ``--stock-can-bridge``: beside the daemon as before [teleop]) but ``can6@1000-virtual`` (the cycle a
+thread of the daemon, the drives on its in-process virtual bus); ``--one-process`` runs them all as before, the
+cycle a thread of the daemon.
 Two sections run only when named, after the rest: ``motion`` (tracking on the lockstep twin, goal acceptance and
 servo latency over Zenoh: ``hild.bench.motion``) and ``soak`` (``hild run`` on the twin at 1 kHz under random
 goals, servo streams and faults for 3 min, ``--quick`` 20 s, or ``--seconds``: ``hild.bench.soak``), and
 ``contact`` (the [contact] targets on the emulated Damiao arm6 in lockstep, group ``contact`` in the targets:
 ``hild.bench.contact``; ``--quick`` a smoke run, ``--seconds`` the no-false-positive run's sim time), and ``record``
-(what recording costs the cycle: twin6@1000 with recording off and with an episode open, ``hild.bench.record``), and
-``chunks`` (a synthetic policy's action chunks into the servo vs JTC-style upsampling on the lockstep twin, group
-``teleop`` in the targets: ``hild.bench.chunks``; ``--quick`` 5 s of chunks, ``--seconds`` the sim time).
+(what recording costs the cycle: twin6@1000 with recording off and with an episode open, ``hild.bench.record``),
+``teleop`` (leader–follower between two twin daemons through a delaying, dropping relay, group ``teleop``:
+``hild.bench.teleop``), and ``chunks`` (a synthetic policy's action chunks into the servo vs JTC-style upsampling on
+the lockstep twin, group ``teleop`` in the targets: ``hild.bench.chunks``; ``--quick`` 5 s of chunks, ``--seconds``
+the sim time).
 See docs/performance.md for what each figure means.
 """
 
@@ -51,8 +56,7 @@ from hild.config.model import RealtimeSection
 PACKAGES = ("hild", "numpy", "eclipse-zenoh", "python-can", "mujoco", "ruckig", "rerun-sdk", "pydantic")
 FLOOR_RATES = (500.0, 1000.0)
 SECTIONS = ("floor", *(s.name for s in SCENARIOS), "interference")
-NAMED_ONLY = ("motion", "soak", "contact", "record", "chunks")  # not in a whole run: motion, endurance, contact,
-# recording, a policy's chunks
+NAMED_ONLY = ("motion", "soak", "contact", "record", "teleop", "chunks")  # not in a whole run: motion, endurance, …
 SOAK_SECONDS = 180.0
 SOAK_QUICK_SECONDS = 20.0
 
@@ -98,6 +102,12 @@ def register(subparsers: Any) -> None:
         action="store_true",
         help="with --one-process: serve the emulated CAN channels over loopback as the cycle-process mode must "
         "(same bus medium in both modes)",
+    )
+    parser.add_argument(
+        "--stock-can-bridge",
+        action="store_true",
+        help="bridged CAN scenarios as before [teleop]: the emulated drives in the daemon's process behind "
+        "python-can-remote's stock server (its per-client threads share the daemon's GIL), for before/after figures",
     )
     parser.add_argument(
         "--cycle-cpu",
@@ -223,7 +233,7 @@ def bench(settings: Settings, sections: list[str], workdir: Path) -> dict[str, A
     report["machine"]["busy"] = busy(report["machine"])
     report["bench"]["seconds_total"] = round(time.monotonic() - started, 1)
     report["targets"] = evaluate_targets(report) if set(sections) & set(SECTIONS) else []  # none for motion, soak
-    for name in ("contact", "record", "chunks"):  # their own groups of targets
+    for name in ("contact", "record", "teleop", "chunks"):  # their own groups of targets
         report["targets"] += report.get(name, {}).get("targets", [])
     return report
 
@@ -242,6 +252,10 @@ def run_named(name: str, settings: Settings) -> dict[str, Any]:
         from hild.bench.record import run_record
 
         return run_record(settings)
+    if name == "teleop":
+        from hild.bench.teleop import TeleopSettings, run_teleop
+
+        return run_teleop(TeleopSettings.make(settings.quick, settings.seed))
     if name == "chunks":
         from hild.bench.chunks import ChunkSettings, run_chunks
 
@@ -270,6 +284,11 @@ def format_named(report: dict[str, Any]) -> list[str]:
 
         record = report["record"]
         texts.append(f"RECORD error: {record['error']}" if "error" in record else format_record(record))
+    if "teleop" in report:
+        from hild.bench.teleop import format_teleop
+
+        teleop = report["teleop"]
+        texts.append(f"TELEOP error: {teleop['error']}" if "error" in teleop else format_teleop(teleop))
     if "chunks" in report:
         from hild.bench.chunks import format_chunks
 
@@ -315,6 +334,7 @@ def run(args: argparse.Namespace) -> int:
         cycle_process=not args.one_process,
         can_remote=args.can_remote,
         cycle_cpu=args.cycle_cpu,
+        stock_bridge=args.stock_can_bridge,
     )
     if args.keep is not None:
         args.keep.mkdir(parents=True, exist_ok=True)

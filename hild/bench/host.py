@@ -117,6 +117,11 @@ class Host:
             ids["bridge"] = self.bridge.threads()
         return ids
 
+    def rig_processes(self) -> dict[str, int]:
+        """Processes of the rig's own (not this one's threads): their CPU is reported apart, never subtracted."""
+        processes = getattr(self.rig, "processes", None)
+        return dict(processes()) if processes is not None else {}
+
     def side_groups(self) -> list[str]:
         """Thread groups of this process that are the bench's, not the daemon's (emulated drives, the bridge)."""
         return [*(self.rig.threads() if self.rig else {}), *(["bridge"] if self.bridge else [])]
@@ -126,6 +131,8 @@ class Host:
         snap = {"process": proc_ticks(f"/proc/{pid}/stat")}
         for name, tids in self.threads().items():
             snap[name] = sum(proc_ticks(f"/proc/{pid}/task/{tid}/stat") for tid in tids)
+        for name, pid in self.rig_processes().items():  # the rig's own process (the bridged CAN rig)
+            snap[name] = proc_ticks(f"/proc/{pid}/stat")
         if self.cycle_pid is not None:
             snap["cycle"] = proc_ticks(f"/proc/{self.cycle_pid}/stat")
         telemetry = self.daemon.telemetry
@@ -331,7 +338,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--listen", required=True, action="append")
     parser.add_argument("--rig", help="a rig from hild.bench.rigs (mit_can)")
     parser.add_argument(
-        "--can-bridge", action="store_true", help="serve the rig's virtual CAN channels to the daemon over loopback"
+        "--can-bridge",
+        action="store_true",
+        help="serve the rig's virtual CAN channels to the daemon over loopback, the emulated drives in a process of "
+        "their own (hild.bench.rigs.can_process)",
+    )
+    parser.add_argument(
+        "--stock-bridge",
+        action="store_true",
+        help="with --can-bridge: as before the [teleop] fix, the drives in this process behind python-can-remote's "
+        "stock server (hild.bench.rigs.can_bridge), for before/after figures",
     )
     parser.add_argument("--log-level", default="warning")
     args = parser.parse_args(argv)
@@ -343,12 +359,17 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as exc:
         out.write(json.dumps({"event": "failed", "error": str(exc)}) + "\n")
         return 1
-    rig = rig_class(args.rig)() if args.rig else None
+    rig: BenchRig | None = rig_class(args.rig)() if args.rig else None
     bridge = None
     try:
-        if rig is not None:
+        if rig is not None and args.can_bridge and not args.stock_bridge:
+            from hild.bench.rigs.can_process import CanRigProcess
+
+            rig = CanRigProcess()  # the drives and their loopback servers in a process of their own
+            loaded = load_config(rig.serve(Path(args.config)))  # the same robot, its buses served over loopback
+        elif rig is not None:
             rig.start(loaded)  # the drives must be there before the daemon configures them
-        if args.can_bridge:
+        if args.can_bridge and args.stock_bridge:
             from hild.bench.rigs.can_bridge import CanBridge
 
             bridge = CanBridge()

@@ -1,7 +1,9 @@
 """Latencies across processes: a Zenoh command → the first CAN frame carrying it; a CAN reply → its joint_states.
 
 Both ends are stamped on ``perf_counter_ns`` (CLOCK_MONOTONIC, one clock for the whole machine), the client's in
-this process, the frames' inside the daemon's process by the bench rig.
+this process, the frames' by the bench rig: in the daemon's process on the virtual bus, or in the rig's own process
+when the loop serving the loopback bridge reads them (``hild.bench.rigs.can_process``). ``hop_latencies`` splits the
+way into its hops (tools/command_hops.py).
 
 **Command → frame.** With ``forward_position`` active, the bench publishes targets whose first joint alternates
 between two positions ``delta`` apart (a few position LSBs, below one cycle's slew limit); the others hold. Each
@@ -21,6 +23,7 @@ the wait for the broadcaster's next sample (uniform in 0 … 1/publish_rate).
 from __future__ import annotations
 
 import bisect
+import itertools
 import random
 import time
 from collections.abc import Sequence
@@ -30,6 +33,7 @@ from hild.api.client import HildClient
 from hild.bench.window import lag_at
 
 WARMUP_COMMANDS = 5
+HOPS = ("put → accept", "accept → adopt", "adopt → send", "send → frame", "put → frame")
 READ_AFTER_WAKE_NS = 100_000  # a reply this soon after the wake may still be the one the read took
 
 
@@ -75,6 +79,63 @@ def match_commands(
                 latencies.append(int(t) - stamp)
                 break
     return latencies, ambiguous
+
+
+def first_carrying(
+    stamps: Sequence[tuple[int, float]], times: Sequence[int], after: int, value: float, tol: float
+) -> int | None:
+    """The time of the first stamp at or after ``after`` whose value is within ``tol`` of ``value``."""
+    for t, v in stamps[bisect.bisect_left(times, after) :]:
+        if abs(v - value) <= tol:
+            return t
+    return None
+
+
+def value_edges(stamps: Sequence[tuple[int, float]], tol: float) -> list[tuple[int, float]]:
+    """The stamps of a stream sent every cycle (frames) where its value changes: where a new command shows."""
+    out: list[tuple[int, float]] = []
+    for t, v in stamps:
+        if not out or abs(v - out[-1][1]) > tol:
+            out.append((t, v))
+    return out
+
+
+def hop_latencies(
+    probes: Sequence[tuple[int, float]],
+    chain: Sequence[Sequence[tuple[int, float]]],
+    tol: float,
+    every_cycle: Sequence[bool] = (False, False, True, True),
+) -> tuple[dict[str, list[int]], int]:
+    """Per hop (``HOPS``) the latencies (ns) of the probes that reached every stamp of ``chain`` (accept, adopt,
+    send, frame: each a time-ordered [(perf_counter_ns, first joint's value)]); also how many did not.
+
+    A probe's stamp at a hop is the first one carrying its value at or after its stamp at the hop before, and
+    after the previous matched probe's stamp at that hop (each hop is first in, first out). Streams stamped
+    ``every_cycle`` (the sends, the frames) count only where their value changes, so a frame still carrying the
+    probe before last does not pass for this one. Probes alternate between two values: a stamp later than the put
+    of the probe after next could be either's, so such a probe counts as not matched, and the last two probes
+    (no probe after next to bound them) are not judged (tools/command_hops.py)."""
+    streams = [value_edges(s, tol) if edge else list(s) for s, edge in zip(chain, every_cycle, strict=True)]
+    times = [[t for t, _ in stamps] for stamps in streams]
+    out: dict[str, list[int]] = {hop: [] for hop in HOPS}
+    last = [-1] * len(streams)
+    lost = 0
+    for k, (put, value) in enumerate(probes[:-2]):
+        bound = probes[k + 2][0]
+        at = [put]
+        for i, (stamps, ts) in enumerate(zip(streams, times, strict=True)):
+            t = first_carrying(stamps, ts, max(at[-1], last[i] + 1), value, tol)
+            if t is None or t >= bound:
+                break
+            at.append(t)
+        if len(at) < len(streams) + 1:
+            lost += 1
+            continue
+        last = at[1:]
+        for hop, (a, b) in zip(HOPS, itertools.pairwise(at), strict=False):  # the last hop is the whole way
+            out[hop].append(b - a)
+        out["put → frame"].append(at[-1] - at[0])
+    return out, lost
 
 
 def match_replies(

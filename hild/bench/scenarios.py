@@ -8,8 +8,13 @@ joint, the joint_state_broadcaster at 100 Hz, and telemetry recording to a file 
 * ``twin6`` — configs/arm6_twin.yaml, ``substeps`` set so the physics step stays 1 ms at either rate.
 * ``can3``, ``can6`` — Damiao motors emulated in the daemon's process by the ``mit_can`` bench rig
   (``hild.bench.rigs``), on a python-can virtual channel (served to the cycle process over loopback when the cycle
-  runs there: ``hild.bench.rigs.can_bridge``); these also measure the command → frame and
-  reply → sample latencies.
+  runs there: the drives then run in a process of their own, ``hild.bench.rigs.can_process``, or with
+  ``--stock-can-bridge`` as before behind python-can-remote's stock server, ``hild.bench.rigs.can_bridge``); these
+  also measure the command → frame and reply → sample latencies.
+* ``can6@1000-virtual`` — can6 at 1 kHz with the cycle a thread of the daemon and the emulated drives on the
+  in-process virtual bus (no loopback bridge, whatever the layout of the others): the command → frame figure of
+  hild's own path, reported beside can6@1000's across the bridge (docs/performance.md, "The command path: the
+  195 ms finding").
 * ``twin6@500-nospin``, ``can6@500-nospin`` — the same at 500 Hz with ``spin_us: 0`` (the cycle sleeps to its
   deadline): the whole daemon's CPU when the cycle does not spin.
 * ``interference`` — twin6 at 1 kHz with ``joint_trajectory_arm`` (the first three joints, trajectory) and
@@ -80,6 +85,7 @@ SETTLE_S = 0.3  # s between starting interference clients and opening the window
 POLL_RATE = 200.0
 SERVO_RATE = 1000.0
 NOSPIN = "-nospin"
+VIRTUAL = "-virtual"
 
 
 @dataclass(frozen=True)
@@ -89,10 +95,13 @@ class Scenario:
     joints: int
     rate: float
     spin_us: int | None = None  # realtime.spin_us for this scenario (None: the config's or --spin-us)
+    virtual_bus: bool = False  # the cycle a thread of the daemon, the drives on its in-process virtual bus
 
     @property
     def name(self) -> str:
-        return f"{self.base}@{self.rate:g}" + (NOSPIN if self.spin_us == 0 else "")
+        return (
+            f"{self.base}@{self.rate:g}" + (NOSPIN if self.spin_us == 0 else "") + (VIRTUAL if self.virtual_bus else "")
+        )
 
 
 ARMS = (("mock6", "mock", 6), ("twin6", "twin", 6), ("can3", "can", 3), ("can6", "can", 6))
@@ -100,6 +109,7 @@ SCENARIOS = (
     *(Scenario(base, kind, joints, rate) for base, kind, joints in ARMS for rate in (500.0, 1000.0)),
     Scenario("twin6", "twin", 6, 500.0, spin_us=0),
     Scenario("can6", "can", 6, 500.0, spin_us=0),
+    Scenario("can6", "can", 6, 1000.0, virtual_bus=True),
 )
 INTERFERENCE = Scenario("twin6", "twin", 6, 1000.0)
 
@@ -126,6 +136,7 @@ class Settings:
     quick: bool = False
     cycle_process: bool = True  # realtime.cycle_process for every scenario (False: hild bench --one-process)
     can_remote: bool = False  # serve the emulated CAN channels over loopback even with the cycle in the daemon
+    stock_bridge: bool = False  # bridged CAN drives in the daemon's process behind the stock server (before [teleop])
     cycle_cpu: int | None = None  # the cycle (and the floor's empty thread) on this CPU, everything else off it
     soak_seconds: float | None = None  # the soak's length when --seconds gives it (hild.bench.cli)
 
@@ -141,6 +152,7 @@ class Settings:
         cycle_process: bool = True,
         can_remote: bool = False,
         cycle_cpu: int | None = None,
+        stock_bridge: bool = False,
     ) -> Settings:
         if quick:
             s = cls(
@@ -167,6 +179,7 @@ class Settings:
         s.cpu_dma_latency_us = cpu_dma_latency_us
         s.cycle_process = cycle_process
         s.can_remote = can_remote
+        s.stock_bridge = stock_bridge
         s.cycle_cpu = cycle_cpu
         return s
 
@@ -244,7 +257,7 @@ def scenario_config(
     realtime.update(settings.realtime())
     if scenario.spin_us is not None:
         realtime["spin_us"] = scenario.spin_us
-    realtime["cycle_process"] = settings.cycle_process
+    realtime["cycle_process"] = settings.cycle_process and not scenario.virtual_bus
     data.update(overrides or {})
     return data, rig, scale
 
@@ -257,12 +270,14 @@ class HostError(RuntimeError):
 class HostProcess(LoggedChild):
     """A ``hild.bench.host`` child: the daemon of one scenario, plus its JSON-lines control channel."""
 
-    def __init__(self, config: Path, log: Path, rig: str | None, bridge: bool = False) -> None:
+    def __init__(self, config: Path, log: Path, rig: str | None, bridge: bool = False, stock: bool = False) -> None:
         self.endpoint = free_endpoint()
         self.cycle_pid: int | None = None
         self.bridged = bool(rig and bridge)
+        self.stock_bridge = self.bridged and stock
         command = [sys.executable, "-m", "hild.bench.host", str(config), "--listen", self.endpoint]
-        command += (["--rig", rig] if rig else []) + (["--can-bridge"] if rig and bridge else [])
+        command += (["--rig", rig] if rig else []) + (["--can-bridge"] if self.bridged else [])
+        command += ["--stock-bridge"] if self.stock_bridge else []
         super().__init__(command, log, control=True)
         self._lines: queue.Queue[str | None] = queue.Queue()
         threading.Thread(target=self._read, name="bench-host-reader", daemon=True).start()
@@ -363,7 +378,8 @@ def open_session(
     tag = scenario.name.replace("@", "_") + ("_interference" if interference else "")
     path = workdir / f"{tag}.yaml"
     path.write_text(json.dumps(data, indent=1))  # JSON is YAML
-    host = HostProcess(path, workdir / f"{tag}.log", rig, settings.bridged)
+    bridged = settings.bridged and not scenario.virtual_bus
+    host = HostProcess(path, workdir / f"{tag}.log", rig, bridged, settings.stock_bridge)
     client = None
     session = None
     try:
@@ -415,9 +431,8 @@ def run_scenario(scenario: Scenario, workdir: Path, settings: Settings) -> tuple
             "lost": window["lost"],
             "cycle_process": window["cycle_process"],
             "cycle_python_threads": window["cycle_python_threads"],
-            "can_bus": ("remote (loopback bridge)" if s.host.bridged else "virtual")
-            if scenario.kind == "can"
-            else None,
+            "can_bus": can_bus(s.host) if scenario.kind == "can" else None,
+            "can_bridge": can_bridge(s.host) if scenario.kind == "can" else None,
             "cpu": window["cpu"],
             "goals": dict(keeper.results),
             "mode": window["mode"],
@@ -486,8 +501,22 @@ def measure_latency(s: Session, settings: Settings) -> dict[str, Any]:
         "clock_spread_us": round(clock["spread_ns"] / 1e3, 1),
         "clock_method": clock.get("method", "cycle"),
         "control_clock_lag_us": round(history[-1][1] / 1e3, 1) if history else 0.0,
-        "can_bus": "remote (loopback bridge)" if s.host.bridged else "virtual",
+        "can_bus": can_bus(s.host),
+        "can_bridge": can_bridge(s.host),
     }
+
+
+def can_bus(host: HostProcess) -> str:
+    """Where the cycle's CAN frames go: the in-process virtual bus, or a loopback bridge to the emulated drives."""
+    return "remote (loopback bridge)" if host.bridged else "virtual"
+
+
+def can_bridge(host: HostProcess) -> str | None:
+    """Who serves the loopback bridge: the drives' own loop in the rig process (``hild.bench.rigs.can_process``),
+    or, with ``--stock-can-bridge``, python-can-remote's stock server beside the daemon (before [teleop])."""
+    if not host.bridged:
+        return None
+    return "stock server in the daemon's process" if host.stock_bridge else "rig process"
 
 
 INTERFERENCE_CONDITIONS = ("baseline", "polling", "polling+servo", "decoy polling", "decoy polling+servo", "flood")

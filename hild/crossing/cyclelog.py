@@ -2,20 +2,22 @@
 
 The cycle writes one row per cycle after its write (``CycleLogTap.record``, one in-place numpy copy, no
 allocation); the row holds everything a recording needs to be cycle-exact: the cycle's clock and wall time, the
-accepted reading, the final command (all five servo fields), each joint's mode, owner, plausibility and fault, and
-the external torque estimate. The ring keeps at least ``recording.blackbox_seconds`` of cycles, so it *is* the flight
-recorder's memory: nothing extra is kept on the cycle for it. It lives in the shared region (a cell carved by the
-region's creator), so it outlives a client domain that dies; single producer, any number of readers, each with its
-own position (a slow reader skips and counts, never slows the cycle).
+accepted reading, the final command (all five servo fields), each joint's mode, owner, plausibility and fault, the
+external torque estimate and who moved it (``hild.modes.Source``: a leader arm, a policy, a trajectory, hold). The
+ring keeps at least ``recording.blackbox_seconds`` of cycles, so it *is* the flight recorder's memory: nothing extra
+is kept on the cycle for it. It lives in the shared region (a cell carved by the region's creator), so it outlives a
+client domain that dies; single producer, any number of readers, each with its own position (a slow reader skips
+and counts, never slows the cycle).
 
 ``CycleRows`` is what a reader copies out, and what the episode files are written from and read back into.
 
 Layout (``cycle_log_bytes``): a 64-byte header of int64 cells (rows ever committed, a magic number, the joints, the
 capacity, the row's width), then ``capacity`` rows of float64, each one contiguous run: ``tick, t, wall, period,
 duration``, then per joint side by side ``measured_position, measured_velocity, measured_effort, fresh, fault,
-position, velocity, effort, kp, kd, mode, owner, tau_ext`` (small integers are exact in float64). The row's
-``owner`` is the code of the controller that *claims* the joint; a reader's ``CycleRows.owner`` keeps it only where
-the joint's mode is ``controlled`` (the cycle never spends a multiply on what a reader can mask).
+position, velocity, effort, kp, kd, mode, owner, tau_ext, source`` (small integers are exact in float64). The row's
+``owner`` is the code of the controller that *claims* the joint and ``source`` that controller's source; a reader's
+``CycleRows.owner`` and ``.source`` keep them only where the joint's mode is ``controlled`` (``OWNER_NONE`` and
+``Source.HOLD`` elsewhere: the cycle never spends a multiply on what a reader can mask).
 
 Protocol, as the telemetry ring's (``hild.crossing.telemetry``): the producer fills row ``head % capacity``, then
 publishes it by storing ``head + 1`` (an aligned 8-byte store; x86-64 keeps stores in order). A reader copies the
@@ -36,7 +38,7 @@ from typing import TYPE_CHECKING, Protocol
 import numpy as np
 
 from hild.crossing.stats import LoopStats
-from hild.modes import JointMode
+from hild.modes import JointMode, Source
 
 if TYPE_CHECKING:
     from hild.config.model import RobotConfig  # only a type: the crossing imports no config library
@@ -58,14 +60,22 @@ PER_JOINT = (  # then these, each ``joints`` wide, side by side
     "mode",
     "owner",
     "tau_ext",
+    "source",
 )
 _HEAD, _MAGIC, _JOINTS, _CAPACITY, _WIDTH = 0, 1, 2, 3, 4  # int64 header cells
 HEADER_BYTES = 64  # a cache line: the rows start on one of their own
-MAGIC = 0x68696C64634C0001  # "hildcL" + layout version
+MAGIC = 0x68696C64634C0002  # "hildcL" + layout version
 MIN_SECONDS = 2.0  # the ring keeps at least this many seconds of cycles, black box or not
 MARGIN_SECONDS = 2.0  # beyond the black box's seconds: its copy and a recorder's late take never lose rows
 MAX_BYTES = 1 << 30  # the shared region is 2 GiB (virtual); the ring takes at most half of it
-_INTEGERS = {"tick": np.int64, "fresh": np.bool_, "fault": np.int16, "mode": np.int8, "owner": np.int16}
+_INTEGERS = {
+    "tick": np.int64,
+    "fresh": np.bool_,
+    "fault": np.int16,
+    "mode": np.int8,
+    "owner": np.int16,
+    "source": np.int8,
+}
 
 
 class CycleLogError(RuntimeError):
@@ -94,6 +104,7 @@ class CycleRows:
     mode: np.ndarray  # int8 (k, n): hild.modes.JointMode
     owner: np.ndarray  # int16 (k, n): the commanding controller's code (OWNER_NONE: none); Snapshot.controller_codes
     tau_ext: np.ndarray  # float64 (k, n): the external torque estimate, NaN while no observer runs
+    source: np.ndarray  # int8 (k, n): who moved the joint (hild.modes.Source; HOLD where no controller commands it)
 
     def __len__(self) -> int:
         return len(self.tick)
@@ -112,13 +123,12 @@ class CycleRows:
     @classmethod
     def empty(cls, joints: int) -> CycleRows:
         scalar = {"tick": np.int64}
-        per_joint = {"fresh": np.bool_, "fault": np.int16, "mode": np.int8, "owner": np.int16}
         out = {}
         for f in fields(cls):
             if f.name in ("tick", "t", "wall", "period", "duration"):
                 out[f.name] = np.zeros(0, dtype=scalar.get(f.name, np.float64))
             else:
-                out[f.name] = np.zeros((0, joints), dtype=per_joint.get(f.name, np.float64))
+                out[f.name] = np.zeros((0, joints), dtype=_INTEGERS.get(f.name, np.float64))
         return cls(**out)
 
 
@@ -276,7 +286,9 @@ class CycleLog:
         n, first = self.joints, len(SCALARS)
         for k, name in enumerate(PER_JOINT):
             out[name] = block[:, first + k * n : first + (k + 1) * n].astype(_INTEGERS.get(name, np.float64))
-        out["owner"][out["mode"] != JointMode.CONTROLLED] = OWNER_NONE  # the ring holds the claim: see above
+        uncontrolled = out["mode"] != JointMode.CONTROLLED  # the ring holds the claim: see above
+        out["owner"][uncontrolled] = OWNER_NONE
+        out["source"][uncontrolled] = Source.HOLD
         return CycleRows(**out)
 
 

@@ -218,6 +218,7 @@ class Engine:
         self.available_interfaces = [i for slot in self.hardware for i in slot.command_interfaces()]
         self.manager = ControllerManager(self.joints, self.available_interfaces, self.events)
         self.manager.on_claims = self._claims_changed
+        self.manager.sources = self.row.field("source")  # who moves each joint, straight into the cycle log's row
         # Owner codes (the cycle log's owner column): each load gets the next code, never given again, so a row
         # recorded before an unload still names the controller that wrote it. code = the manager's slot + 1.
         self.controller_codes: dict[int, str] = {}

@@ -31,6 +31,7 @@ from hild.arrays import JointState, ServoCommand
 from hild.controller import Controller, ControllerState
 from hild.crossing.events import EventLog
 from hild.interfaces import ClaimError, ClaimMasks, build_masks, check_claims, parse_interface
+from hild.modes import Source
 
 
 @dataclass
@@ -50,6 +51,7 @@ class ControllerRecord:
     joint_index: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.intp))
     output: ServoCommand | None = None  # where its update writes while active: its following controller's references
     chained_claims: frozenset[str] = frozenset()  # of its references, what active chained controllers claim
+    source: int = -1  # its ``instance.source`` when the joints' sources were last worked out (-1: never)
 
 
 @dataclass(frozen=True)
@@ -120,6 +122,9 @@ class ControllerManager:
         self.change_seq = 0
         self.unavailable: dict[str, str] = {}  # interface → the inactive hardware component it belongs to
         self.on_claims: Callable[[ClaimMasks], None] = lambda masks: None  # the supervisor listens here
+        # Per joint, who moves it (hild.modes.Source, as float64: the engine points this at its cycle-log row's
+        # ``source`` view). Worked out at each switch and when an active controller's ``source`` changes.
+        self.sources = np.zeros(len(self.joints))
 
     # ---- lifecycle ------------------------------------------------------------------------------------------
     def load(
@@ -521,15 +526,20 @@ class ControllerManager:
         for references in self._chained_references:
             references.written.fill(False)
         failed: list[tuple[ControllerRecord, BaseException]] | None = None
+        sources_moved = False
         for rec in self.active:
             out = command if rec.output is None else rec.output
             try:
                 rec.instance.update(t, dt, state, out)
+                if rec.instance.source != rec.source:
+                    sources_moved = True
             except Exception as exc:
                 failed = failed or []
                 failed.append((rec, exc))
                 out.written[rec.joint_index] = False  # nothing it wrote this cycle is used
                 out.hold_effort[rec.joint_index] = 0.0
+        if sources_moved:
+            self._work_out_sources()
         if failed:
             for rec, exc in failed:
                 if rec.state is ControllerState.ACTIVE:  # not already taken along by a failed one it chains to
@@ -582,8 +592,33 @@ class ControllerManager:
                 continue
             rec.chained_claims = claims
             self._tell_chained(rec, claims)
+        self._work_out_sources()
         self.on_claims(self.masks)
         self._changed()
+
+    def _work_out_sources(self) -> None:
+        """Each joint's source: that of the controller at the head of the chain that moves it (a trajectory chained
+        into an impedance controller is a trajectory), ``HOLD`` where no controller claims it. Rare: at a switch,
+        or when a controller's source changes."""
+        for rec in self.active:
+            rec.source = int(rec.instance.source)
+        by_slot = {rec.slot: rec for rec in self.active}
+        for j, slot in enumerate(self.masks.owner.tolist()):
+            rec = by_slot.get(slot)
+            self.sources[j] = Source.HOLD if rec is None else self._head(rec, j).source
+
+    def _head(self, rec: ControllerRecord, joint: int) -> ControllerRecord:
+        """The controller at the head of the chain through ``rec`` on ``joint``."""
+        seen = {rec.name}
+        while True:
+            up = next(
+                (r for r in self.active if r.chain_to == rec.name and r.name not in seen and joint in r.joint_index),
+                None,
+            )
+            if up is None:
+                return rec
+            rec = up
+            seen.add(rec.name)
 
     def _tell_chained(self, rec: ControllerRecord, claims: frozenset[str]) -> None:
         """``rec.instance.set_chained`` with its claimed references as masks over the robot's joints (None: none)."""

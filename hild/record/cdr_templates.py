@@ -23,7 +23,7 @@ FLOAT64_ARRAY = "std_msgs/msg/Float64MultiArray"
 # /hild/cycle's labelled layout: one MultiArrayDimension per field, in this order (size 1, or one per joint);
 # ``wall`` rides along so that a row's wall time comes back bit-exact (the stamps are whole nanoseconds)
 SCALARS = ("tick", "t", "wall", "period", "duration")
-PER_JOINT = ("kp", "kd", "mode", "owner", "fresh", "fault", "tau_ext")
+PER_JOINT = ("kp", "kd", "mode", "owner", "fresh", "fault", "tau_ext", "source")
 
 
 class Cdr:

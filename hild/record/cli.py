@@ -1,7 +1,7 @@
 """``hild record``: recorded episodes offline: list, export to LeRobot, view in rerun, recover, replay.
 
   hild record list [DIR]                                 episodes under a recordings directory
-  hild record export --lerobot OUT [--fps F] EPISODE…    add episodes to a LeRobotDataset v3.0
+  hild record export --lerobot OUT [--fps F] [--source S]… EPISODE…   add episodes to a LeRobotDataset v3.0
   hild record view EPISODE [--save FILE.rrd]             open an episode in rerun, or save it as .rrd
   hild record recover [EPISODE|DIR …]                    close episodes a crash left open
   hild record replay EPISODE [--yes-on-hardware] [--speed S]   send the recorded path back to the arm
@@ -23,6 +23,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from hild.modes import SOURCE_NAMES
 from hild.record import locks
 from hild.record.model import EPISODE_JSON, Episode, EpisodeMeta, RecordError, mcap_name
 
@@ -97,6 +98,9 @@ def _list(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+SOURCE_CODES = {name: code for code, name in SOURCE_NAMES.items()}  # what --source takes: hold, trajectory, …
+
+
 def _export(args: argparse.Namespace) -> int:
     from hild.record.lerobot import DEFAULT_TASK, export_lerobot
 
@@ -108,7 +112,10 @@ def _export(args: argparse.Namespace) -> int:
                 "its file holds; `hild record recover` closes it",
                 file=sys.stderr,
             )
-    report = export_lerobot(episodes, Path(args.lerobot), args.fps, default_task=args.task or DEFAULT_TASK)
+    sources = [SOURCE_CODES[name] for name in args.source] if args.source else None
+    report = export_lerobot(
+        episodes, Path(args.lerobot), args.fps, default_task=args.task or DEFAULT_TASK, sources=sources
+    )
     if args.json:
         print(
             json.dumps(
@@ -285,6 +292,13 @@ def register(subparsers: Any) -> None:
     export.add_argument("--lerobot", required=True, metavar="OUT", help="the dataset's directory (created or added to)")
     export.add_argument("--fps", type=float, help="frames per second (default: the fps the episodes were recorded for)")
     export.add_argument("--task", metavar="TEXT", help="the task of episodes recorded without one")
+    export.add_argument(
+        "--source",
+        action="append",
+        choices=sorted(SOURCE_CODES),
+        help="keep only frames whose every joint this source moved (repeat for several; e.g. --source leader "
+        "--source hold: the teleoperated part); each run of such frames becomes an episode",
+    )
     export.add_argument("episodes", nargs="+", metavar="EPISODE")
 
     view = verbs.add_parser("view", help="open an episode in rerun, or save it as an .rrd file")

@@ -8,6 +8,9 @@ never an interpolation between two cycles that no controller ever saw. Rows the 
 held over the same way. ``timestamp`` is ``k/fps`` exactly, as LeRobot's own recorder writes it.
 ``observation.state`` is the accepted measured position, ``action`` the final command's position (the target the
 policy would have produced), both float32 in the robot's joint order, the joint names in the features' ``names``.
+``source`` (int64 per joint, ``hild.modes.Source``: 0 hold, 1 trajectory, 2 stream, 3 leader, 4 policy, 5 hand; -1
+not recorded) says who moved each joint in the frame's cycle, so a dataset can be filtered by it; ``export_lerobot``'s
+``sources`` keeps only frames moved by the sources given (each run of such frames becomes an episode of its own).
 
 **Layout.** What LeRobot's v3.0 loader reads (lerobot/datasets: ``utils.py`` for the paths and ``DatasetInfo``,
 ``dataset_metadata.py`` and ``io_utils.py`` for loading the metadata, ``dataset_writer.py`` for what a recorded
@@ -34,7 +37,7 @@ from __future__ import annotations
 import json
 import math
 import shutil
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -60,6 +63,7 @@ TASKS_PATH = "meta/tasks.parquet"
 
 STATE = "observation.state"
 ACTION = "action"
+SOURCE = "source"  # not an observation: a policy must not be fed it (who commanded is not what the robot senses)
 # LeRobot's DEFAULT_FEATURES (lerobot/utils/constants.py): every dataset has them, after its own features
 INDEX_FEATURES = {"frame_index": "int64", "episode_index": "int64", "index": "int64", "task_index": "int64"}
 QUANTILES = {"q01": 0.01, "q10": 0.10, "q50": 0.50, "q90": 0.90, "q99": 0.99}  # compute_stats.DEFAULT_QUANTILES
@@ -69,13 +73,14 @@ DEFAULT_TASK = "unspecified"  # the task of frames whose episode names none
 
 def feature_names() -> tuple[str, ...]:
     """The dataset's features in LeRobot's order: the robot's first, then the index features."""
-    return (ACTION, STATE, "timestamp", *INDEX_FEATURES)
+    return (ACTION, STATE, SOURCE, "timestamp", *INDEX_FEATURES)
 
 
 def features(joints: Sequence[str]) -> dict[str, dict[str, Any]]:
     """``info.json``'s features for an arm with these joints."""
     vector = {"dtype": "float32", "shape": [len(joints)], "names": list(joints)}
     out: dict[str, dict[str, Any]] = {ACTION: dict(vector), STATE: dict(vector)}
+    out[SOURCE] = {**vector, "dtype": "int64"}
     out["timestamp"] = {"dtype": "float32", "shape": [1], "names": None}
     out.update({name: {"dtype": dtype, "shape": [1], "names": None} for name, dtype in INDEX_FEATURES.items()})
     return out
@@ -120,10 +125,27 @@ def resample(episode: Episode, fps: float, default_task: str = DEFAULT_TASK) -> 
     columns = {
         ACTION: episode.rows.position[rows].astype(np.float32),
         STATE: episode.rows.measured_position[rows].astype(np.float32),
+        SOURCE: episode.rows.source[rows].astype(np.int64),
         "timestamp": offsets.astype(np.float32),
         "frame_index": np.arange(len(rows), dtype=np.int64),
     }
     return EpisodeFrames(columns, frame_tasks(episode, offsets, default_task), rows)
+
+
+def runs_from(frames: EpisodeFrames, sources: Collection[int], fps: float) -> list[EpisodeFrames]:
+    """The runs of consecutive frames in which every joint was moved by one of ``sources`` (hild.modes.Source
+    values), each renumbered as an episode of its own (``timestamp`` and ``frame_index`` from 0): "only the human
+    demonstrations" of an episode in which a trajectory also ran."""
+    keep = np.isin(frames.columns[SOURCE], list(sources)).all(axis=1)
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], keep.astype(np.int8), [0]])))
+    runs = []
+    for start, stop in zip(edges[::2], edges[1::2], strict=True):
+        columns = {name: values[start:stop] for name, values in frames.columns.items()}
+        n = stop - start
+        columns["timestamp"] = (np.arange(n) / fps).astype(np.float32)
+        columns["frame_index"] = np.arange(n, dtype=np.int64)
+        runs.append(EpisodeFrames(columns, frames.tasks[start:stop], frames.rows[start:stop]))
+    return runs
 
 
 # ---- statistics ----------------------------------------------------------------------------------------------
@@ -158,8 +180,8 @@ def _next_file(chunk: int, file: int) -> tuple[int, int]:
     return (chunk + 1, 0) if file == CHUNKS_SIZE - 1 else (chunk, file + 1)
 
 
-def _vector_array(values: np.ndarray) -> pa.FixedSizeListArray:
-    flat = pa.array(np.ascontiguousarray(values, dtype=np.float32).ravel(), type=pa.float32())
+def _vector_array(values: np.ndarray, item: pa.DataType) -> pa.FixedSizeListArray:
+    flat = pa.array(np.ascontiguousarray(values, dtype=item.to_pandas_dtype()).ravel(), type=item)
     return pa.FixedSizeListArray.from_arrays(flat, values.shape[1])
 
 
@@ -167,14 +189,16 @@ def data_schema(joints: int) -> pa.Schema:
     """The data files' columns: what ``datasets`` makes of the features (a vector of shape (n,) is a fixed-size
     list of n, a shape (1,) feature a plain value; lerobot/datasets/feature_utils.get_hf_features_from_features)."""
     vector = pa.list_(pa.float32(), joints)
-    types = {ACTION: vector, STATE: vector, "timestamp": pa.float32()}
+    types = {ACTION: vector, STATE: vector, SOURCE: pa.list_(pa.int64(), joints), "timestamp": pa.float32()}
     types.update({name: pa.int64() for name in INDEX_FEATURES})
     return pa.schema([pa.field(name, types[name]) for name in feature_names()])
 
 
 def _data_table(columns: dict[str, np.ndarray], schema: pa.Schema) -> pa.Table:
     arrays = [
-        _vector_array(columns[f.name]) if pa.types.is_fixed_size_list(f.type) else pa.array(columns[f.name], f.type)
+        _vector_array(columns[f.name], f.type.value_type)
+        if pa.types.is_fixed_size_list(f.type)
+        else pa.array(columns[f.name], f.type)
         for f in schema
     ]
     return pa.Table.from_arrays(arrays, schema=schema)
@@ -326,7 +350,11 @@ def _read_frames(paths: Sequence[Path], joints: int) -> dict[str, np.ndarray]:
         table = pq.read_table(path, columns=list(feature_names()))
         for name in feature_names():
             parts[name].append(_column(table, name, joints))
-    empty = {ACTION: np.zeros((0, joints), np.float32), STATE: np.zeros((0, joints), np.float32)}
+    empty = {
+        ACTION: np.zeros((0, joints), np.float32),
+        STATE: np.zeros((0, joints), np.float32),
+        SOURCE: np.zeros((0, joints), np.int64),
+    }
     return {
         name: np.concatenate(chunks) if chunks else empty.get(name, np.zeros(0, np.int64))
         for name, chunks in parts.items()
@@ -374,9 +402,11 @@ def export_lerobot(
     *,
     default_task: str = DEFAULT_TASK,
     robot_type: str | None = None,
+    sources: Collection[int] | None = None,
 ) -> ExportReport:
     """Add ``episodes`` to the LeRobotDataset v3.0 at ``out`` (created if absent), resampled to ``fps`` (default:
-    the episodes' own). The dataset's files are replaced at once: on any failure the previous dataset stays."""
+    the episodes' own). ``sources``: keep only the frames every joint of which one of these moved (``runs_from``).
+    The dataset's files are replaced at once: on any failure the previous dataset stays."""
     if not episodes:
         raise RecordError("no episodes to export")
     out = Path(out).absolute()
@@ -394,8 +424,10 @@ def export_lerobot(
     report = ExportReport(out, rate)
     new_tables: list[pa.Table] = []
     episode_rows: list[dict[str, Any]] = []
-    for episode in episodes:
-        frames = resample(episode, rate, default_task)
+    pieces = [(e, f) for e in episodes for f in _pieces(resample(e, rate, default_task), sources, rate)]
+    if not pieces:
+        raise RecordError(f"no frame of these episodes was moved only by the sources {sorted(sources or ())}")
+    for episode, frames in pieces:
         for task in frames.tasks:
             if task not in tasks:
                 tasks.append(task)
@@ -415,7 +447,8 @@ def export_lerobot(
                 "stats": all_stats(columns),
             }
         )
-        duration = float(episode.rows.t[-1] - episode.rows.t[0])
+        first, last = (0, -1) if sources is None else (frames.rows[0], frames.rows[-1])  # a run: its own span
+        duration = float(episode.rows.t[last] - episode.rows.t[first])
         report.episodes.append(ExportedEpisode(episode.meta.id, episode_index, n, duration))
         episode_index += 1
         frame_index += n
@@ -473,9 +506,13 @@ def export_lerobot(
     return report
 
 
+def _pieces(frames: EpisodeFrames, sources: Collection[int] | None, fps: float) -> list[EpisodeFrames]:
+    return [frames] if sources is None else runs_from(frames, sources, fps)
+
+
 def _column(table: pa.Table, name: str, joints: int) -> np.ndarray:
     column = table.column(name).combine_chunks()
-    if name in (ACTION, STATE):
+    if name in (ACTION, STATE, SOURCE):
         return column.flatten().to_numpy(zero_copy_only=False).reshape(-1, joints)
     return column.to_numpy(zero_copy_only=False)
 

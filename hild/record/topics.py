@@ -41,7 +41,17 @@ TOPIC_TYPES = {JOINT_STATES: JOINT_STATE, COMMAND: JOINT_STATE, CYCLE: FLOAT64_A
 # /joint_states' frame, the face's (hild.api.ros2.face.JOINT_STATES_FRAME: joint_state_broadcaster's default), so a
 # recorded reading is the bytes the face publishes; commands have none
 JOINT_STATES_FRAME = "base_link"
-INT_FIELDS = {"tick": np.int64, "mode": np.int8, "owner": np.int16, "fault": np.int16, "fresh": np.bool_}
+INT_FIELDS = {
+    "tick": np.int64,
+    "mode": np.int8,
+    "owner": np.int16,
+    "fault": np.int16,
+    "fresh": np.bool_,
+    "source": np.int8,
+}
+# /hild/cycle fields an older hild did not write, and what a reader takes for them: -1, "not recorded" (files from
+# before provenance carry no source)
+OPTIONAL_FIELDS = {"source": -1.0}
 
 
 def controller_topic(controller: str) -> str:
@@ -190,7 +200,7 @@ def decode_cycles(messages: list[bytes], joints: int) -> dict[str, np.ndarray]:
     data = np.stack([m.data for m in decoded]) if decoded else np.zeros((0, width))
     layouts = [(tuple((d.label, d.size) for d in msg.layout.dim), msg.layout.data_offset) for msg in decoded]
     out = {name: np.empty((len(decoded),)) for name in SCALARS}
-    out |= {name: np.empty((len(decoded), joints)) for name in PER_JOINT}
+    out |= {name: np.full((len(decoded), joints), OPTIONAL_FIELDS.get(name, np.nan)) for name in PER_JOINT}
     for layout in set(layouts):  # one, in any file hild wrote
         rows = np.array([other == layout for other in layouts])
         for name, at in _segments(*layout, joints).items():
@@ -205,6 +215,8 @@ def _segments(dims: tuple[tuple[str, int], ...], offset: int, joints: int) -> di
         at += size
     for name in (*SCALARS, *PER_JOINT):
         expected = joints if name in PER_JOINT else 1
+        if name not in where and name in OPTIONAL_FIELDS:
+            continue
         if name not in where or where[name].stop - where[name].start != expected:
             raise ValueError(f"/hild/cycle has no field {name!r} of {expected} values: layout {dims}")
     return where

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from hild.bench.latency import SampleLog, match_commands, match_replies
+from hild.bench.latency import SampleLog, hop_latencies, match_commands, match_replies
 
 MS = 1_000_000  # ns
 LSB = 0.0004
@@ -68,3 +68,37 @@ def test_the_sample_log_keeps_arrival_stamp_and_first_position() -> None:
     log({"stamp": 1.25, "position": [0.5, 0.7], "name": ["a", "b"]})
     ((arrived, stamp, position),) = log.samples
     assert arrived > 0 and stamp == 1.25 and position == 0.5
+
+
+def _every_ms(start_ms: int, end_ms: int, value: float, offset_us: int = 0) -> list[tuple[int, float]]:
+    return [(ms * 1_000_000 + offset_us * 1000, value) for ms in range(start_ms, end_ms)]
+
+
+def test_hops_follow_one_probe_through_each_stamp() -> None:
+    a, b = 0.0, 1.0
+    probes = [(10_000_000, b), (20_000_000, a), (30_000_000, b), (40_000_000, a)]  # the last two: not judged
+    accept = [(11_000_000, b), (21_000_000, a)]
+    adopt = [(11_400_000, b), (21_300_000, a)]
+    send = _every_ms(0, 12, a, 20) + _every_ms(12, 22, b, 20) + _every_ms(22, 40, a, 20)  # every cycle
+    frame = [(t + 200_000, v) for t, v in send]
+    hops, lost = hop_latencies(probes, [accept, adopt, send, frame], 0.1)
+    assert lost == 0
+    assert hops["put → accept"] == [1_000_000, 1_000_000]
+    assert hops["accept → adopt"] == [400_000, 300_000]
+    assert hops["adopt → send"] == [620_000, 720_000]  # the next cycle's frame, not the earlier ones carrying a
+    assert hops["send → frame"] == [200_000, 200_000]
+    assert hops["put → frame"] == [2_220_000, 2_220_000]
+
+
+def test_a_frame_queued_past_the_probe_after_next_is_not_taken_for_that_one() -> None:
+    a, b = 0.0, 1.0
+    probes = [(10_000_000, b), (20_000_000, a), (30_000_000, b), (40_000_000, a)]
+    accept = [(p + 500_000, v) for p, v in probes]
+    adopt = [(p + 900_000, v) for p, v in probes]
+    sends = [(p + 1_000_000, v) for p, v in probes]
+    frames = [(t + 25_000_000, v) for t, v in sends]  # a bridge 25 ms behind: each frame arrives after two more puts
+    hops, lost = hop_latencies(probes, [accept, adopt, sends, frames], 0.1)
+    assert lost == 2 and hops["put → frame"] == []  # neither matched to another probe's frame
+    quick = [(t + 5_000_000, v) for t, v in sends]
+    hops, lost = hop_latencies(probes, [accept, adopt, sends, quick], 0.1)
+    assert lost == 0 and hops["send → frame"] == [5_000_000] * 2

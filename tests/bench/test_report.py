@@ -304,3 +304,36 @@ def test_goal_acceptance_counts_only_the_goals_sent_inside_a_window() -> None:
     accepts = [(1.0, 0.010), (2.5, 0.030), (3.5, 0.020), (9.0, 5.0)]  # (sent at, seconds to accept)
     assert accepts_during(accepts, [(0.0, 3.0), (3.2, 4.0)]) == {"n": 3, "p50": 20.0, "max": 30.0}
     assert accepts_during(accepts, [(4.0, 5.0)]) == {"n": 0}
+
+
+def test_command_to_frame_has_a_row_per_medium_and_unmatched_probes_are_a_miss() -> None:
+    report = _rt_report()
+    report["scenarios"].append({**_scenario("can6", 1000.0, 200.0, 30.0, 0.0, 50.0), "name": "can6@1000-virtual"})
+    bridge = report["latency"][0]
+    bridge.update({"ambiguous_probes": 2, "can_bus": "remote (loopback bridge)", "can_bridge": "rig process"})
+    bridge["probes"] = 105  # 100 matched + 2 ambiguous: 3 probes never found their frame
+    report["latency"].append(
+        {**bridge, "scenario": "can6@1000-virtual", "probes": 100, "ambiguous_probes": 0, "can_bus": "virtual"}
+    )
+    report["latency"][1].pop("can_bridge")
+    t = _rt(report)
+    across = t[("Zenoh command → CAN frame p99", "can6@1000")]
+    assert across["measured"] == 1250.0 and across["limit"] == 1500.0  # within the bound, but …
+    assert across["status"] == "MISS" and "3 of 105 probes never matched a frame" in across["detail"]
+    assert "remote (loopback bridge), rig process; probes 105: matched 100, ambiguous 2" in across["basis"]
+    virtual = t[("Zenoh command → CAN frame p99", "can6@1000-virtual")]
+    assert virtual["limit"] == 1400.0 and virtual["status"] == "PASS"  # 150 + 1000 + its own cycle p99 200 + 50
+    assert "virtual; probes 100: matched 100, ambiguous 0, unmatched 0" in virtual["basis"]
+
+
+def test_command_to_frame_without_the_virtual_scenario_is_not_applicable() -> None:
+    t = _rt(_rt_report())
+    assert t[("Zenoh command → CAN frame p99", "can6@1000-virtual")]["status"] == "n/a"
+
+
+def test_command_to_frame_with_no_probe_matched_is_a_miss_not_a_gap() -> None:
+    report = _rt_report()
+    report["latency"][0].update({"probes": 300, "ambiguous_probes": 150, "command_to_frame_us": {"n": 0}})
+    frame = _rt(report)[("Zenoh command → CAN frame p99", "can6@1000")]
+    assert frame["measured"] is None and frame["status"] == "MISS"
+    assert "150 of 300 probes never matched a frame" in frame["detail"]

@@ -43,6 +43,7 @@ def cycle_rows(
         "mode": np.ones((n, joints), dtype=np.int8),
         "owner": np.ones((n, joints), dtype=np.int16),
         "tau_ext": np.full((n, joints), np.nan),
+        "source": np.full((n, joints), 1, dtype=np.int8),
     }
     return CycleRows(**{name: out[name].astype(values[name].dtype) for name in out})
 

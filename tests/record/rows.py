@@ -50,6 +50,7 @@ def make_rows(count: int, joints: int = len(JOINTS), *, start_tick: int = 1000, 
         mode=rng.integers(-128, 128, (count, joints)).astype(np.int8),
         owner=owner,
         tau_ext=tau_ext,
+        source=np.where(owner == OWNER_NONE, 0, rng.integers(1, 6, (count, joints))).astype(np.int8),
     )
 
 

@@ -16,9 +16,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from hild.modes import Source
 from hild.record import lerobot, swap
 from hild.record.frames import TIME_SLACK, frame_rows
-from hild.record.lerobot import ACTION, STATE, export_lerobot
+from hild.record.lerobot import ACTION, SOURCE, STATE, export_lerobot
 from hild.record.model import RecordedEvent, RecordError
 from tests.record import lerobot_reader
 from tests.record.episodes import JOINTS, cycle_rows, episode
@@ -316,3 +317,37 @@ def test_tasks_parquet_reads_back_with_pandas_index(tmp_path: Path) -> None:
     assert table.schema.field("task").type == pa.string()
     df = table.to_pandas()
     assert df.index.name == "task" and df.loc["place the cube"].task_index == 1
+
+
+def test_source_says_who_moved_each_joint_and_filters_the_export(tmp_path: Path) -> None:
+    """0–0.6 s a trajectory on every joint, 0.6–1.5 s a leader arm on j1 and j2 with j3 held, then a policy: every
+    frame's ``source`` is its cycle's; ``sources={leader, hold}`` keeps the teleoperated run alone, as an episode of
+    its own, renumbered from 0; a filter nothing passes is refused."""
+    rows = cycle_rows(2000)
+    t = rows.t - rows.t[0]
+    rows.source[:] = np.where(t < 0.6, Source.TRAJECTORY, np.where(t < 1.5, Source.LEADER, Source.POLICY))[:, None]
+    rows.source[(t >= 0.6) & (t < 1.5), 2] = Source.HOLD
+    ep = episode(rows=rows)
+    everything = export_lerobot([ep], tmp_path / "all", 30.0)
+    ds = lerobot_reader.load(tmp_path / "all")
+    assert ds.info.features[SOURCE] == {"dtype": "int64", "shape": (3,), "names": list(JOINTS)}
+    _, held = frame_rows(rows.t, 30.0)
+    np.testing.assert_array_equal(np.array(ds.data.column(SOURCE).to_pylist()), rows.source[held])
+    assert everything.total_frames == len(held)
+
+    teleop = export_lerobot([ep], tmp_path / "teleop", 30.0, sources={Source.LEADER, Source.HOLD})
+    ds = lerobot_reader.load(tmp_path / "teleop")
+    assert [e.frames for e in teleop.episodes] == [ds.info.total_frames]
+    kept = np.array(ds.data.column(SOURCE).to_pylist())
+    assert kept.tolist() == [[Source.LEADER, Source.LEADER, Source.HOLD]] * len(kept)
+    assert abs(len(kept) - 0.9 * 30) <= 1 and abs(teleop.episodes[0].duration - (len(kept) - 1) / 30) < 2e-3
+    assert ds.data.column("frame_index").to_pylist() == list(range(len(kept)))
+    np.testing.assert_array_equal(ds.data.column("timestamp").to_numpy(), (np.arange(len(kept)) / 30).astype("f4"))
+    first = int(np.flatnonzero(rows.source[held, 0] == Source.LEADER)[0])  # the frames are the held cycles'
+    np.testing.assert_array_equal(
+        np.array(ds.data.column(STATE).to_pylist(), dtype=np.float32),
+        rows.measured_position[held[first : first + len(kept)]].astype(np.float32),
+    )
+    with pytest.raises(RecordError, match="no frame"):
+        export_lerobot([ep], tmp_path / "none", 30.0, sources={Source.HAND})
+    assert not (tmp_path / "none").exists()

@@ -51,6 +51,7 @@ def cycle_rows(draw: st.DrawFn) -> tuple[CycleRows, tuple[str, ...]]:
         mode=per_joint(np.int8, st.integers(-128, 127)),
         owner=per_joint(np.int16, st.integers(0, 3)),
         tau_ext=per_joint(np.float64, any_float),
+        source=per_joint(np.int8, st.integers(-1, 5)),
     )
     return rows, joints
 
@@ -97,7 +98,9 @@ def test_the_templates_write_the_face_s_bytes_and_read_back_bit_exact(drawn: tup
     assert states.effort.tobytes() == np.stack([m.effort for m in by_decode]).tobytes()
     assert states.stamps.tolist() == [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in by_decode]
     data = np.stack([decode(raw, topics.FLOAT64_ARRAY).data for raw in encoded.cycle])
-    assert cycle["tau_ext"].tobytes() == data[:, -len(joints) :].tobytes()
+    n = len(joints)  # the last two per-joint fields: tau_ext, then source
+    assert cycle["tau_ext"].tobytes() == data[:, -2 * n : -n].tobytes()
+    assert cycle["source"].tolist() == data[:, -n:].astype(np.int8).tolist()
     back = CycleRows(
         **cycle,
         measured_position=states.position,
@@ -162,7 +165,24 @@ def test_messages_not_from_the_template_are_decoded_one_by_one() -> None:
     data = np.arange(len(dims), dtype=np.float64)
     raw = encode(message(topics.FLOAT64_ARRAY, layout=layout, data=data), topics.FLOAT64_ARRAY)
     fields = topics.decode_cycles([raw], 1)  # found by label, in another order
-    assert (fields["t"][0], fields["tick"][0], fields["tau_ext"][0, 0]) == (0.0, 1, len(dims) - 1)
+    assert (fields["t"][0], fields["tick"][0], fields["tau_ext"][0, 0]) == (0.0, 1, len(dims) - 2)
+    assert fields["source"][0, 0] == len(dims) - 1
+
+
+def test_a_cycle_message_from_before_provenance_reads_with_source_not_recorded() -> None:
+    """Episodes written before the ``source`` field (stop 37's) still read: their source is -1, "not recorded"."""
+    old = [name for name in topics.PER_JOINT if name != "source"]
+    dims = [(name, 1) for name in topics.SCALARS] + [(name, 2) for name in old]
+    layout = message(
+        "std_msgs/msg/MultiArrayLayout",
+        dim=[message("std_msgs/msg/MultiArrayDimension", label=lb, size=n, stride=n) for lb, n in dims],
+        data_offset=0,
+    )
+    data = np.arange(len(topics.SCALARS) + 2 * len(old), dtype=np.float64)
+    raw = encode(message(topics.FLOAT64_ARRAY, layout=layout, data=data), topics.FLOAT64_ARRAY)
+    fields = topics.decode_cycles([raw, raw], 2)
+    assert fields["source"].dtype == np.int8 and fields["source"].tolist() == [[-1, -1], [-1, -1]]
+    assert fields["tau_ext"][0].tolist() == data[-2:].tolist()
 
 
 def test_a_cycle_message_without_a_field_is_refused() -> None:

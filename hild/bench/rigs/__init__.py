@@ -1,7 +1,10 @@
 """Rigs: what a bench scenario adds to the daemon's process so a robot's hardware is there without a robot.
 
-``mit_can`` (:mod:`hild.bench.rigs.mit_can`) emulates Damiao drives on python-can virtual channels;
-:mod:`hild.bench.rigs.can_bridge` serves those channels to a cycle in another process. The measuring room may
+``mit_can`` (:mod:`hild.bench.rigs.mit_can`) emulates Damiao drives on python-can virtual channels in the
+daemon's process; with the cycle in a process of its own :mod:`hild.bench.rigs.can_process` runs them in a process
+of theirs instead, each bus served over loopback by their own loop (``--stock-can-bridge``: as before [teleop],
+in the daemon's process behind python-can-remote's stock server, :mod:`hild.bench.rigs.can_bridge`).
+:mod:`hild.bench.rigs.bridge_stall` measures those two servers alone. The measuring room may
 import python-can, like the tests (docs/architecture.md, "Rooms"), so a rig is found by name here, not through an
 entry-point group.
 """

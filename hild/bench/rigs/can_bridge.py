@@ -1,4 +1,9 @@
-"""The CAN bench rig's channels, served to a daemon's drivers in another process.
+"""The CAN bench rig's channels, served to a daemon's drivers in another process — as before [teleop].
+
+Only with ``hild bench --stock-can-bridge`` now (and for ``bridged_document``/``virtual_channels``, which the rig
+process shares): its stock server's per-client threads wait for the daemon's GIL once per blocking socket call,
+and beside busy Python threads the cycle's frames queue — the 195 ms command → frame finding (docs/performance.md,
+"The command path: the 195 ms finding"). The default is :mod:`hild.bench.rigs.can_process`.
 
 The ``mit_can`` bench rig emulates its drives on python-can ``virtual`` channels in the scenario's process
 (``hild.bench.host``). A virtual channel does not leave its process, and with ``realtime.cycle_process`` the

@@ -13,8 +13,10 @@ reply it sends. No extra bus joins the channel, so listening adds no frame copie
 ``time.time()`` (the virtual bus's clock) converted to ``perf_counter_ns`` (CLOCK_MONOTONIC, system-wide), so the
 bench compares them with stamps taken in its own process.
 
-The emulator thread competes with the cycle for the GIL (real drives answer from their own silicon), so CAN cycle
-figures are an upper bound; its CPU is reported apart from the daemon's.
+In one process the emulator thread competes with the cycle for the GIL (real drives answer from their own
+silicon), so CAN cycle figures are an upper bound; its CPU is reported apart from the daemon's. With the cycle in a
+process of its own the rig runs in a process of its own too (:mod:`hild.bench.rigs.can_process`), each bus a
+loopback server its loop reads: the frames are then stamped when that loop reads them off the socket.
 """
 
 from __future__ import annotations
@@ -24,12 +26,13 @@ import os
 import threading
 import time
 import uuid
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import can
 
-from drivers.can.bus import frame_bits, open_bus
+from drivers.can.bus import BusSpec, frame_bits, open_bus
 from drivers.can.emulator import Emulator, MotorPlant
 from drivers.can.emulator.runtime import build_firmware
 from drivers.can.mit_driver import MotorWiring, wire_motors
@@ -182,11 +185,14 @@ def wall_to_perf_offset_ns() -> int:
 class CanBenchRig:
     """The ``mit_can`` rig (a ``hild.bench.rigs.BenchRig``): see the module docstring.
 
-    One emulator per bus, all serviced by one thread (a drive answers the frame it got in the last service)."""
+    One emulator per bus, all serviced by one thread (a drive answers the frame it got in the last service).
+    ``open_channel`` opens an emulated drive's side of a bus: the config's own (a virtual channel in this process)
+    by default; the rig process (:mod:`hild.bench.rigs.can_process`) serves each over loopback instead."""
 
     trajectory_scale = 0.5  # the standard trajectory moves joints up to 1 rad; half of that suits these motors
 
-    def __init__(self) -> None:
+    def __init__(self, open_channel: Callable[[BusSpec], Any] = open_bus) -> None:
+        self._open_channel = open_channel
         self.emulators: list[Emulator] = []
         self.tap: FrameTap | None = None
         self.first: MotorWiring | None = None
@@ -212,7 +218,7 @@ class CanBenchRig:
                 wiring, problems = wire_motors(params, joints)
                 if problems:
                     raise ValueError("; ".join(problems))
-                bus: Any = open_bus(params.bus)
+                bus: Any = self._open_channel(params.bus)
                 if self.tap is None:  # the first motor's bus carries the latency probes
                     self.first = wiring[0]
                     bus = self.tap = FrameTap(bus, {wiring[0].command_id, wiring[0].reply_id})
