@@ -18,8 +18,10 @@ goals, servo streams and faults for 3 min, ``--quick`` 20 s, or ``--seconds``: `
 ``contact`` (the [contact] targets on the emulated Damiao arm6 in lockstep, group ``contact`` in the targets:
 ``hild.bench.contact``; ``--quick`` a smoke run, ``--seconds`` the no-false-positive run's sim time), and ``record``
 (what recording costs the cycle: twin6@1000 with recording off and with an episode open, ``hild.bench.record``),
-and ``teleop`` (leader–follower between two twin daemons through a delaying, dropping relay, group ``teleop``:
-``hild.bench.teleop``).
+``teleop`` (leader–follower between two twin daemons through a delaying, dropping relay, group ``teleop``:
+``hild.bench.teleop``), and ``chunks`` (a synthetic policy's action chunks into the servo vs JTC-style upsampling on
+the lockstep twin, group ``teleop`` in the targets: ``hild.bench.chunks``; ``--quick`` 5 s of chunks, ``--seconds``
+the sim time).
 See docs/performance.md for what each figure means.
 """
 
@@ -54,7 +56,7 @@ from hild.config.model import RealtimeSection
 PACKAGES = ("hild", "numpy", "eclipse-zenoh", "python-can", "mujoco", "ruckig", "rerun-sdk", "pydantic")
 FLOOR_RATES = (500.0, 1000.0)
 SECTIONS = ("floor", *(s.name for s in SCENARIOS), "interference")
-NAMED_ONLY = ("motion", "soak", "contact", "record", "teleop")  # not in a whole run: motion, endurance, contact, …
+NAMED_ONLY = ("motion", "soak", "contact", "record", "teleop", "chunks")  # not in a whole run: motion, endurance, …
 SOAK_SECONDS = 180.0
 SOAK_QUICK_SECONDS = 20.0
 
@@ -231,7 +233,7 @@ def bench(settings: Settings, sections: list[str], workdir: Path) -> dict[str, A
     report["machine"]["busy"] = busy(report["machine"])
     report["bench"]["seconds_total"] = round(time.monotonic() - started, 1)
     report["targets"] = evaluate_targets(report) if set(sections) & set(SECTIONS) else []  # none for motion, soak
-    for name in ("contact", "record", "teleop"):  # their own groups of targets
+    for name in ("contact", "record", "teleop", "chunks"):  # their own groups of targets
         report["targets"] += report.get(name, {}).get("targets", [])
     return report
 
@@ -254,6 +256,10 @@ def run_named(name: str, settings: Settings) -> dict[str, Any]:
         from hild.bench.teleop import TeleopSettings, run_teleop
 
         return run_teleop(TeleopSettings.make(settings.quick, settings.seed))
+    if name == "chunks":
+        from hild.bench.chunks import ChunkSettings, run_chunks
+
+        return run_chunks(ChunkSettings.make(settings.quick, settings.seed, settings.soak_seconds))
     from hild.bench.soak import run_soak
 
     seconds = settings.soak_seconds or (SOAK_QUICK_SECONDS if settings.quick else SOAK_SECONDS)
@@ -283,6 +289,11 @@ def format_named(report: dict[str, Any]) -> list[str]:
 
         teleop = report["teleop"]
         texts.append(f"TELEOP error: {teleop['error']}" if "error" in teleop else format_teleop(teleop))
+    if "chunks" in report:
+        from hild.bench.chunks import format_chunks
+
+        chunks = report["chunks"]
+        texts.append(f"CHUNKS error: {chunks['error']}" if "error" in chunks else format_chunks(chunks))
     if "soak" in report:
         from hild.bench.soak import Report
 

@@ -740,7 +740,11 @@ def _hild_lines(report: dict[str, Any]) -> list[str]:
             ("earlier", "EARLIER TARGETS (docs/performance.md, Targets)"),
             ("contact", "TARGETS [contact] (emulated Damiao arm6, 1 kHz, mass ×1.1, friction ×1.3; lockstep)"),
             ("record", "TARGETS [record] (twin6@1000, the cycle in its own process; recording off vs an episode open)"),
-            ("teleop", "TARGETS [teleop] (two arm6 twins on loopback, the relay between them; docs/performance.md)"),
+            (
+                "teleop",
+                "TARGETS [teleop] (follow: two arm6 twins on loopback, the relay between them; chunks: the arm6 twin "
+                "in lockstep, a synthetic policy; docs/performance.md)",
+            ),
         )
         w = (36, 17, 9, 9, 6, 6)
         for group, heading in groups:

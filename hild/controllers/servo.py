@@ -32,6 +32,8 @@ from hild.config.params import Field, Params, dynamic, model_validator
 from hild.controller import Controller, ControllerContext, and_more, unknown_keys
 from hild.controllers.motion_common import PlansMotion, first_taken_over
 from hild.crossing.mailboxes import LatestNumbers
+from hild.modes import Source
+from hild.motion.chunks import CHUNK_LEAD, ChunkPlayer, ChunkRecord, Verdict, clip_target, parse_chunk
 
 # Plan a hair inside the limits, so rounding in ruckig's profiles never trips the supervisor's velocity, slew
 # or soft position limits (which compare with no tolerance and would report a limit that is not really hit).
@@ -62,6 +64,13 @@ class ServoParams(Params):
     )
     acceleration_scale: float = dynamic(
         default=1.0, gt=0.0, le=1.0, description="Fraction of the acceleration limits; jerk scales with it."
+    )
+    chunk_slowdown: float = dynamic(
+        default=0.3,
+        ge=0.0,
+        le=10.0,
+        description="Chunk time (s) before a policy chunk's end from which, with no successor, playback slows "
+        "to reach its last point at rest (2× this long); 0: no slow-down.",
     )
 
     @model_validator(mode="after")
@@ -103,13 +112,13 @@ class Clamp(NamedTuple):
     result: float
 
 
-def clamp_note(joints: Sequence[str], clamps: Sequence[Sequence[float]]) -> str:
+def clamp_note(joints: Sequence[str], clamps: Sequence[Sequence[float]], heading: str = "target clamped") -> str:
     """The event text for ``clamps`` (rows of joint, reason, requested, result)."""
     notes = []
     for joint, reason, requested, result in clamps:
         what, why = _CLAMP_TEXT[ClampReason(int(reason))]
         notes.append(f"{joints[int(joint)]} {what} {requested:.4g} → {result:.4g} ({why})")
-    return "target clamped: " + "; ".join(notes)
+    return f"{heading}: " + "; ".join(notes)
 
 
 @dataclass(frozen=True, slots=True)
@@ -224,6 +233,8 @@ class ServoController(PlansMotion, Controller):
         self._lookahead = BRAKE_LOOKAHEAD_CYCLES * self._period
 
         self._slot = TargetRecord(context.mailboxes.latest_numbers("target", TargetRecord.width(n)), n)
+        self._chunks = ChunkPlayer(context.mailboxes.latest_numbers("chunk", ChunkRecord.width(n)), n)
+        self._last_chunk_note = [-math.inf] * len(Verdict)  # per refusal: one event a second of each
         self._zeros = [0.0] * n
         self._otg: Ruckig | None = None
         self._jerk_pending = False  # a lowered jerk not yet in ruckig's input (see on_params)
@@ -294,7 +305,13 @@ class ServoController(PlansMotion, Controller):
 
     # ---- API side -----------------------------------------------------------------------------------------
     def inputs(self) -> Mapping[str, Callable[[Any], None]]:
-        return {"target": self.accept}
+        return {"target": self.accept, "chunk": self.accept_chunk}
+
+    def accept_chunk(self, payload: Any) -> None:
+        """Validate a policy's action chunk (hild/motion/chunks.py), clamp each step as a target, hand it over."""
+        if not self.active:
+            raise ValueError(f"controller {self.name} is not active")
+        self._chunks.record.put(parse_chunk(payload, self.params.joints, self._clamp))
 
     def accept(self, payload: Any) -> None:
         """Validate ``{"positions": [...], "velocities"?: [...]}`` (controller joint order), clamp, hand over."""
@@ -364,8 +381,12 @@ class ServoController(PlansMotion, Controller):
         start = np.where(np.isfinite(q), q, last_command.position[self._index]).tolist()
         self._hold_at(start)
         self._slot.clear()
+        self._end_chunk()
+        self._chunks.reset()
+        self.source = Source.STREAM
         self._last_target = -math.inf
         self._last_clamp = -math.inf
+        self._last_chunk_note = [-math.inf] * len(Verdict)
 
     def _follow_measured(self, state: JointState) -> None:
         """A joint is faulted or e-stopped: forget the stream and rest where the arm is, so a reset resumes
@@ -373,22 +394,33 @@ class ServoController(PlansMotion, Controller):
         q = state.position[self._index]
         self._hold_at(np.where(np.isfinite(q), q, self._p).tolist())
         self._slot.clear()
+        self._end_chunk()
+        self._chunks.reset()
 
     def update(self, t: float, dt: float, state: JointState, command: ServoCommand) -> None:
         if first_taken_over(self.context.joint_modes, self._index, self._modes) >= 0:
             self._follow_measured(state)
             return
         if self._slot.take():
+            self._end_chunk()
+            self.source = Source.STREAM
             self._track(t)
+        elif self._chunks.record.take():
+            self._start_chunk(t)
         elif self.phase in (Phase.TRACK, Phase.CRUISE) and t - self._last_target > self.params.command_timeout:
             self.context.emit_event(
                 "warning", f"no target for {self.params.command_timeout:g} s: stopping, then holding"
             )
+            self._end_chunk()
             self._stop()
+        if self._chunks.playing:
+            self._play_chunk(dt)
         if self.phase == Phase.CRUISE:
             self._brake_before_soft_limits()
         if self.phase != Phase.HOLD:
             self._step(dt)
+            if self.phase == Phase.STOP:  # planning failed: the chunk is over too
+                self._end_chunk()
         command.position[self._where] = self._p
         if self._writes_velocity:
             command.velocity[self._where] = self._v
@@ -410,6 +442,50 @@ class ServoController(PlansMotion, Controller):
             if t - self._last_clamp >= CLAMP_EVENT_QUIET:
                 self.context.emit_event("warning", target.clamp_note(self.params.joints))
             self._last_clamp = t
+
+    def _start_chunk(self, t: float) -> None:
+        """A policy's chunk arrived: play it from ``t − stamp`` on (the inference delay skipped), or say why not."""
+        chunks = self._chunks
+        verdict = chunks.start(t)
+        if verdict != Verdict.STARTED:
+            if t - self._last_chunk_note[verdict] >= CLAMP_EVENT_QUIET:
+                # an overtaken chunk is normal when inference times jitter; a chunk out of time is the client's error
+                level = "info" if verdict == Verdict.STALE else "warning"
+                self.context.emit_event(level, chunks.refusal(verdict, t))
+                self._last_chunk_note[verdict] = t
+            return
+        self.source = Source.POLICY
+        self._moving = False
+        self._last_target = t
+        if chunks.clamped():
+            if t - self._last_clamp >= CLAMP_EVENT_QUIET:
+                step, row = chunks.first_clamp()
+                note = clamp_note(self.params.joints, [row], f"chunk clamped at step {step}")
+                self.context.emit_event("warning", note)
+            self._last_clamp = t
+
+    def _play_chunk(self, dt: float) -> None:
+        """Aim ruckig at the chunk ``CHUNK_LEAD`` ahead, to be reached in that time: a moving target whose path
+        ruckig follows within the limits instead of racing to it (time-optimal re-planning every cycle chatters)."""
+        chunks, inp = self._chunks, self._inp
+        chunks.aim(dt, self.params.chunk_slowdown, CHUNK_LEAD)
+        p, v, a = chunks.target.tolist()
+        clip_target(p, v, a, self._lo, self._hi, self._vmax, self._amax, self._jmax)
+        inp.control_interface = ControlInterface.Position
+        inp.synchronization = Synchronization.Time
+        inp.target_position = p
+        inp.target_velocity = v
+        inp.target_acceleration = a
+        inp.minimum_duration = chunks.lead_time  # the last approach too: no time-optimal dash to the end
+        self.phase = Phase.TRACK
+
+    def _end_chunk(self) -> None:
+        """Playback over (a target took over, a timeout, a planning error): plain targets are reached at rest
+        acceleration, time-optimally."""
+        if self._chunks.playing or self._inp.minimum_duration is not None:
+            self._chunks.stop()
+            self._inp.minimum_duration = None
+            self._inp.target_acceleration = self._zeros
 
     def _cruise(self) -> None:
         self._to_velocity(self._cruise_velocity, Phase.CRUISE)

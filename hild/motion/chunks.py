@@ -1,0 +1,328 @@
+"""Action chunks: a policy's timed joint positions, played back as a moving target for the servo's ruckig path.
+
+Policies (LeRobot's ACT, diffusion, pi0) emit *chunks*: e.g. 50 joint positions 20 ms apart, computed from an
+observation that is 50–300 ms old by the time the chunk arrives, a new one every 100 ms. JTC-style upsampling
+(each chunk a trajectory from the current state that comes to rest at its last point) jerks at every handoff and
+lags by the inference delay. Here a chunk is a function of time: step ``k`` is where the joints should be at
+``stamp + k·dt`` on the control clock (``stamp``: the joint_states stamp of the observation the policy used). Each
+cycle the player samples it at ``t − stamp`` (the part already in the past is skipped: the inference delay is
+compensated), interpolated as a cubic Hermite spline (position and velocity, C¹), and hands that moving target to
+the servo, whose ruckig tracking keeps the command within the velocity, acceleration and jerk limits. A new chunk
+simply replaces the sampled function: the target moves on, the arm never comes to rest between overlapping chunks.
+
+Late chunks: within ``slowdown`` (chunk time) of the running chunk's end, with no successor, playback slows:
+chunk time advances at ``s = sqrt(remaining / slowdown)`` of real time, a constant deceleration of time that
+reaches the last point at zero speed in ``2·slowdown`` s. A successor arriving meanwhile takes over at full
+speed; none, and the joints rest at the last point (the servo's ``command_timeout`` still stops them earlier).
+
+Two halves, as every streamed input: :func:`parse_chunk` (client domain) validates and clamps the JSON and
+:class:`ChunkRecord` hands it over as one fixed-size float64 record; :class:`ChunkPlayer` (cycle) copies it into
+arrays preallocated for :data:`MAX_CHUNK_STEPS` steps and samples them without allocating (the lists ruckig's
+bindings take aside).
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+import sys
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from hild.crossing.mailboxes import LatestNumbers
+
+# The servo aims at the chunk this far ahead (chunk time) and asks ruckig to take this long to get there: the plan
+# then follows the chunk's path instead of racing to each cycle's sample (time-optimal re-planning every cycle
+# bangs between the acceleration limits). On the bench's reference (hild bench --only chunks, seeds 1–4): no lead
+# 28 mrad RMS; 0.15 s 4.9; 0.1 s 1.8; 0.08 s 1.0 (max 1.8); 0.06 s 0.5 (but max 3.9–5.0: a plan now and then not
+# reachable in time); 0.04 s 12 (falls back to racing). Shorter lags less, longer forgives more.
+CHUNK_LEAD = 0.08  # s
+MAX_CHUNK_STEPS = 100  # fixes the record's size: 2 s at 50 Hz, more than any policy's chunk in use
+MAX_STEP_PERIOD = 1.0  # s; a longer step is no action chunk
+MIN_STEP_PERIOD = 1e-4  # s
+CHUNK_KEYS = ("stamp", "dt", "positions", "velocities")
+_FLOAT_MAX = sys.float_info.max
+
+# Clamps the servo applies to one step, in place: (positions, velocities) → rows (joint, reason, requested, result).
+Clamp = Callable[[list[float], list[float]], Sequence[Sequence[float]]]
+
+
+@dataclass(frozen=True, slots=True)
+class Chunk:
+    """A validated chunk, as the API side hands it over: clamped positions and velocities, (steps, n)."""
+
+    stamp: float
+    dt: float
+    positions: np.ndarray
+    velocities: np.ndarray
+    clamps: int = 0  # values changed by the clamp
+    first_clamp: tuple[float, ...] = ()  # (step, joint, reason, requested, result) of the first one
+
+
+def parse_chunk(payload: Any, joints: Sequence[str], clamp: Clamp) -> Chunk:
+    """Validate ``{"stamp", "dt", "positions": [[…n…] × steps], "velocities"?: […]}`` and clamp each step.
+
+    Without velocities each step gets the slope of its neighbours (central differences, one-sided at the ends),
+    so the interpolation passes through the points with a continuous velocity (a Catmull-Rom spline).
+    """
+    if not isinstance(payload, dict):
+        raise ValueError('expected an object {"stamp": s, "dt": s, "positions": [[...], ...], "velocities"?: [...]}')
+    unknown = [k for k in payload if k not in CHUNK_KEYS]
+    if unknown:
+        raise ValueError(f"unknown keys {sorted(map(str, unknown))[:3]}; expected {', '.join(CHUNK_KEYS)}")
+    missing = [k for k in CHUNK_KEYS[:3] if k not in payload]
+    if missing:
+        raise ValueError(f"missing {', '.join(missing)}")
+    stamp = _number(payload["stamp"], "stamp")
+    dt = _number(payload["dt"], "dt")
+    if not MIN_STEP_PERIOD <= dt <= MAX_STEP_PERIOD:
+        raise ValueError(f"dt must be within [{MIN_STEP_PERIOD:g}, {MAX_STEP_PERIOD:g}] s, not {dt:g}")
+    positions = _table(payload["positions"], "positions", joints, None)
+    given = payload.get("velocities")
+    if given is None:
+        velocities = np.gradient(positions, dt, axis=0)
+    else:
+        velocities = _table(given, "velocities", joints, len(positions))
+    clamps, first = 0, ()
+    p_rows, v_rows = positions.tolist(), velocities.tolist()
+    for step, (p, v) in enumerate(zip(p_rows, v_rows, strict=True)):
+        changed = clamp(p, v)
+        if changed and not clamps:
+            first = (float(step), *map(float, changed[0]))
+        clamps += len(changed)
+    return Chunk(stamp, dt, np.array(p_rows), np.array(v_rows), clamps, first)
+
+
+def _number(value: Any, what: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ValueError(f"{what} must be a number, not {value!r}")
+    if not -_FLOAT_MAX <= value <= _FLOAT_MAX:
+        raise ValueError(f"{what} must be finite, not {value!r}")
+    return float(value)
+
+
+def _table(rows: Any, what: str, joints: Sequence[str], steps: int | None) -> np.ndarray:
+    n = len(joints)
+    if not isinstance(rows, list):
+        raise ValueError(f"{what} must be a list of steps, each a list of {n} numbers; not {type(rows).__name__}")
+    if steps is not None and len(rows) != steps:
+        raise ValueError(f"{what} has {len(rows)} steps; positions has {steps}")
+    if not 2 <= len(rows) <= MAX_CHUNK_STEPS:
+        raise ValueError(f"a chunk has 2 to {MAX_CHUNK_STEPS} steps; {what} has {len(rows)}")
+    for k, row in enumerate(rows):
+        if not isinstance(row, list) or len(row) != n:
+            found = f"{len(row)} values" if isinstance(row, list) else type(row).__name__
+            raise ValueError(f"{what}[{k}] must be a list of {n} numbers for {list(joints)}; found {found}")
+        for i, value in enumerate(row):
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise ValueError(f"{what}[{k}][{i}] ({joints[i]}) is not a number: {value!r}")
+            if not -_FLOAT_MAX <= value <= _FLOAT_MAX:
+                raise ValueError(f"{what}[{k}][{i}] ({joints[i]}) must be finite, not {value!r}")
+    return np.array(rows, dtype=np.float64)
+
+
+class ChunkRecord:
+    """The door for chunks: one record of float64s, sized for :data:`MAX_CHUNK_STEPS`, so a chunk crosses as a
+    copy and the cycle never unpickles.
+
+    Layout for n joints: stamp, dt, steps, clamp count, the first clamp (step, joint, reason, requested, result),
+    then positions (MAX_CHUNK_STEPS × n) and velocities (MAX_CHUNK_STEPS × n), of which the first ``steps`` rows
+    are used.
+    """
+
+    HEADER = 9
+
+    def __init__(self, door: LatestNumbers, n: int) -> None:
+        self.n = n
+        self._door = door
+        record = door.values
+        size = MAX_CHUNK_STEPS * n
+        self.header = record[: self.HEADER]
+        self.positions = record[self.HEADER : self.HEADER + size].reshape(MAX_CHUNK_STEPS, n)
+        self.velocities = record[self.HEADER + size : self.HEADER + 2 * size].reshape(MAX_CHUNK_STEPS, n)
+
+    @classmethod
+    def width(cls, n: int) -> int:
+        return cls.HEADER + 2 * MAX_CHUNK_STEPS * n
+
+    def put(self, chunk: Chunk) -> None:
+        """API side: one record (allocated here, in the client domain: the cycle only copies it)."""
+        n, steps = self.n, len(chunk.positions)
+        record = np.zeros(self.width(n))
+        first = chunk.first_clamp or (0.0,) * 5
+        record[: self.HEADER] = (chunk.stamp, chunk.dt, steps, chunk.clamps, *first)
+        size = MAX_CHUNK_STEPS * n
+        record[self.HEADER : self.HEADER + steps * n] = chunk.positions.ravel()
+        record[self.HEADER + size : self.HEADER + size + steps * n] = chunk.velocities.ravel()
+        self._door.put(record)
+
+    def take(self) -> bool:
+        """Cycle side: whether a new chunk arrived; the views read it until the next take."""
+        return self._door.take() is not None
+
+    def clear(self) -> None:
+        self._door.clear()
+
+
+class Verdict(enum.IntEnum):
+    STARTED = 0
+    STALE = 1  # stamped before the running chunk: an older observation, dropped (counted)
+    PAST = 2  # ends before now: nothing of it left to play
+    FUTURE = 3  # stamped after now: not the control clock
+
+
+class ChunkPlayer:
+    """Cycle side: the running chunk, its playback time and speed; samples the servo's target each cycle."""
+
+    def __init__(self, door: LatestNumbers, n: int) -> None:
+        self.record = ChunkRecord(door, n)
+        self.n = n
+        self._pv = np.zeros((MAX_CHUNK_STEPS, 2, n))  # step k: position, velocity — two steps are one (4, n) view
+        self._steps = 0
+        self._step = 1.0  # the chunk's dt
+        self.stamp = -math.inf  # of the chunk last started: an older one is stale
+        self.tau = 0.0  # chunk time of the next sample, s since stamp
+        self.speed = 1.0  # chunk time per real time, < 1 while slowing down
+        self.playing = False
+        self.dropped = 0  # stale chunks dropped since activation
+        self.refused = 0  # chunks refused for their timing (past, future) since activation
+        self.target = np.zeros((3, n))  # the sample: position, velocity, acceleration
+        self.target_p, self.target_v, self.target_a = self.target
+        self.lead_time = 0.0  # s the servo gives ruckig to reach the target
+        self._weights = np.zeros((3, 4))  # Hermite weights of (p_k, v_k, p_k+1, v_k+1) for p, v, a
+
+    @property
+    def end(self) -> float:
+        """Chunk time of the last step."""
+        return (self._steps - 1) * self._step
+
+    def reset(self) -> None:
+        """Forget the running chunk and any waiting one (activation, a joint taken over)."""
+        self.record.clear()
+        self.playing = False
+        self.stamp = -math.inf
+        self.dropped = self.refused = 0
+
+    def stop(self) -> None:
+        self.playing = False
+
+    def start(self, t: float) -> Verdict:
+        """Take the chunk just arrived (``record.take()`` was true) at cycle time ``t``."""
+        header = self.record.header
+        stamp, dt, steps = header.item(0), header.item(1), int(header.item(2))
+        if stamp < self.stamp:
+            self.dropped += 1
+            return Verdict.STALE
+        if stamp > t:
+            self.refused += 1
+            return Verdict.FUTURE
+        if t - stamp > (steps - 1) * dt:
+            self.refused += 1
+            return Verdict.PAST
+        self._pv[:steps, 0] = self.record.positions[:steps]
+        self._pv[:steps, 1] = self.record.velocities[:steps]
+        self._steps, self._step, self.stamp = steps, dt, stamp
+        self.tau, self.speed, self.playing = t - stamp, 1.0, True
+        return Verdict.STARTED
+
+    def refusal(self, verdict: Verdict, t: float) -> str:
+        """The event text for a chunk :meth:`start` did not take (the values are still in the record)."""
+        header = self.record.header
+        stamp, dt, steps = header.item(0), header.item(1), int(header.item(2))
+        if verdict == Verdict.STALE:
+            return (
+                f"chunk dropped: stamped {stamp:.4f} s, before the running chunk's {self.stamp:.4f} s "
+                f"(an older observation; {self.dropped} dropped since activation)"
+            )
+        if verdict == Verdict.FUTURE:
+            return (
+                f"chunk refused: stamp {stamp:.4f} s is ahead of the control clock ({t:.4f} s); stamp each chunk "
+                "with the joint_states stamp of the observation the policy used"
+            )
+        return (
+            f"chunk refused: it ends at {stamp + (steps - 1) * dt:.4f} s (stamp {stamp:.4f} + {steps - 1} × {dt:g} s), "
+            f"before now ({t:.4f} s): all of it is in the past"
+        )
+
+    def clamped(self) -> bool:
+        return self.record.header.item(3) != 0.0
+
+    def first_clamp(self) -> tuple[int, list[float]]:
+        """The first clamped value's step and (joint, reason, requested, result) row, for the servo's note."""
+        header = self.record.header
+        return int(header.item(4)), header[5:9].tolist()
+
+    def aim(self, dt: float, slowdown: float, lead: float) -> bool:
+        """Sample the target for this cycle into :attr:`target` (position, velocity, acceleration) — the chunk
+        ``lead`` s of chunk time ahead, to be reached in ``lead`` s — and advance playback by ``dt``; False once the
+        chunk has ended (the target is then its last point, at rest)."""
+        end, tau = self.end, self.tau
+        if tau >= end:
+            self._rest_at_end()
+            self.playing = False
+            return False
+        remaining = end - tau
+        self.speed = math.sqrt(remaining / slowdown) if remaining < slowdown else 1.0
+        ahead = tau + (lead - dt) * self.speed  # the plan starts from the last command, one cycle back
+        self.lead_time = lead
+        if ahead >= end:  # the last point, at rest, in the time the slow-down takes to get there
+            self._rest_at_end()
+            if remaining < slowdown:
+                self.lead_time = max(2.0 * math.sqrt(slowdown * remaining), dt)
+        else:
+            self._sample(ahead, self.speed)
+        self.tau = min(tau + dt * self.speed, end)
+        return True
+
+    def _rest_at_end(self) -> None:
+        self.target_p[:] = self._pv[self._steps - 1, 0]
+        self.target[1:] = 0.0
+
+    def _sample(self, tau: float, speed: float) -> None:
+        """Cubic Hermite between the two steps around ``tau``: one (3, 4) × (4, n) product; velocity and acceleration
+        scaled by the playback speed."""
+        h = self._step
+        k = min(int(tau / h), self._steps - 2)
+        u = tau / h - k
+        u2, u3 = u * u, u * u * u
+        s, s2 = speed / h, speed * speed / (h * h)
+        self._weights[:] = (
+            (2 * u3 - 3 * u2 + 1, h * (u3 - 2 * u2 + u), 3 * u2 - 2 * u3, h * (u3 - u2)),
+            ((6 * u2 - 6 * u) * s, (3 * u2 - 4 * u + 1) * speed, (6 * u - 6 * u2) * s, (3 * u2 - 2 * u) * speed),
+            ((12 * u - 6) * s2, (6 * u - 4) * s2 * h, (6 - 12 * u) * s2, (6 * u - 2) * s2 * h),
+        )
+        np.dot(self._weights, self._pv[k : k + 2].reshape(4, self.n), out=self.target)
+
+
+def clip_target(
+    p: list[float],
+    v: list[float],
+    a: list[float],
+    lo: Sequence[float],
+    hi: Sequence[float],
+    vmax: Sequence[float],
+    amax: Sequence[float],
+    jmax: Sequence[float],
+) -> None:
+    """In place, a target ruckig can plan to: a sample between two clamped steps can still overshoot them a little;
+    its velocity within the limit; its acceleration within the limit and small enough that braking it at the jerk
+    limit keeps the velocity within its limit (|v| + a²/2j ≤ v_max: else ruckig refuses the target state)."""
+    for i in range(len(p)):
+        if p[i] < lo[i]:
+            p[i] = lo[i]
+        elif p[i] > hi[i]:
+            p[i] = hi[i]
+        limit = vmax[i]
+        if v[i] > limit:
+            v[i] = limit
+        elif v[i] < -limit:
+            v[i] = -limit
+        room = math.sqrt(2.0 * jmax[i] * (limit - abs(v[i])))
+        bound = min(amax[i], room)
+        if a[i] > bound:
+            a[i] = bound
+        elif a[i] < -bound:
+            a[i] = -bound

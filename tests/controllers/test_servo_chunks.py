@@ -1,0 +1,254 @@
+"""The servo's chunk input in lockstep: delay compensation, overlapping chunks without rest, limits, late chunks
+slowing to a hold, bad chunks refused while the servo runs on, and the source it reports (policy / stream)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import pytest
+
+from hild.bench.chunks import ChunkSettings, figures, play
+from hild.controllers.servo import Phase, ServoController
+from hild.crossing.mailboxes import Shared
+from hild.crossing.region import Region
+from hild.cycle.engine import Engine
+from hild.modes import Source
+from hild.motion.chunks import MAX_CHUNK_STEPS, ChunkPlayer, ChunkRecord, Verdict, parse_chunk
+from tests.controllers.test_servo import LimitProbe, servo_patch, started
+from tests.test_engine import events
+
+MakeEngine = Callable[..., Engine]
+STEP = 0.02
+
+
+def ramp(start: np.ndarray, slope: np.ndarray, steps: int = 50) -> list[list[float]]:
+    return (start + slope * STEP * np.arange(steps)[:, None]).tolist()
+
+
+def chunk(stamp: float, positions: list[list[float]], **more: Any) -> dict[str, Any]:
+    return {"stamp": stamp, "dt": STEP, "positions": positions, **more}
+
+
+def test_a_chunk_stamped_200_ms_ago_starts_200_ms_in(make_engine: MakeEngine) -> None:
+    """A ramp from where the joints are, stamped 0.2 s before now: the servo follows ramp(t − stamp), not ramp(t −
+    arrival) — 40 mrad apart at this slope."""
+    engine, servo = started(make_engine, command_timeout=5.0)
+    engine.run_cycles(10)
+    start, slope = engine.state.position.copy(), np.array([0.2, -0.2, 0.1])
+    stamp = engine.t - 0.2
+    servo.accept_chunk(chunk(stamp, ramp(start, slope, 100)))
+    probe = LimitProbe(engine, servo)
+    probe.run(1)
+    assert servo._chunks.stamp == stamp and servo.source == Source.POLICY
+    assert servo._chunks.tau == pytest.approx(0.2 + 2 * engine.period, abs=1e-9)  # the past 0.2 s skipped
+    probe.run(int(0.8 / engine.period))
+    expected = start + slope * (engine.t - stamp)
+    np.testing.assert_allclose(engine.command.position, expected, atol=2e-3)
+    assert np.abs(engine.command.position - (expected - 0.2 * slope)).max() > 0.015
+
+
+def test_overlapping_chunks_at_10_hz_never_rest_and_stay_within_the_limits() -> None:
+    """The bench's synthetic policy on the arm6 twin: 10 Hz chunks of 50 steps, 50–300 ms jittered delay."""
+    settings = ChunkSettings(seconds=4.0, seed=3)
+    result = figures(play("servo", settings), settings)
+    assert result["handoffs"] >= 15
+    assert result["handoff_speed_min"] >= 0.9
+    assert result["pauses"] == 0
+    for peak in ("velocity_peak", "acceleration_peak", "jerk_peak"):
+        assert result[peak] <= 1.0 + 1e-6, (peak, result)
+    assert result["rms_error_mrad"] < 5.0
+
+
+def test_chunks_beyond_the_limits_are_followed_within_them(make_engine: MakeEngine) -> None:
+    """A policy asking for more than the joints can do: velocity, acceleration and jerk are held every cycle, and
+    positions beyond the soft limits are clamped (one event)."""
+    engine, servo = started(make_engine, command_timeout=5.0, velocity_scale=0.8, acceleration_scale=0.5)
+    probe = LimitProbe(engine, servo, 0.8, 0.5)
+    for _ in range(20):
+        stamp = engine.t - 0.05
+        times = stamp + STEP * np.arange(50)
+        positions = 1.2 * np.sin(9.0 * times[:, None] + np.array([0.0, 1.0, 2.0]))  # beyond ±0.95, ~10 rad/s
+        servo.accept_chunk(chunk(stamp, positions.tolist()))
+        probe.run(int(0.1 / engine.period))
+    assert probe.peak["acceleration"] > 0.9 and probe.peak["jerk"] > 0.9
+    clamped = [e for e in events(engine) if "chunk clamped at step" in e]
+    assert 1 <= len(clamped) <= 3  # one per second of clamping
+
+
+def test_a_late_chunk_slows_down_then_holds_at_its_last_point(make_engine: MakeEngine) -> None:
+    engine, servo = started(make_engine, command_timeout=5.0, chunk_slowdown=0.3)
+    probe = LimitProbe(engine, servo)
+    start, slope = engine.state.position.copy(), np.array([0.3, -0.3, 0.2])
+    positions = ramp(start, slope)  # 0.98 s
+    servo.accept_chunk(chunk(engine.t, positions))
+    speeds, scale = [], []
+    for _ in range(int(2.0 / engine.period)):
+        probe.run(1)
+        speeds.append(float(np.linalg.norm(engine.command.velocity[:3])))
+        scale.append(servo._chunks.speed)
+    speeds_a = np.array(speeds)
+    full = float(np.linalg.norm(slope))
+    cruise = int(0.5 / engine.period)
+    assert speeds_a[cruise] == pytest.approx(full, rel=0.02)  # at full speed before the slow-down
+    assert min(scale) < 0.2  # playback slowed near the end …
+    slowing = speeds_a[cruise:]
+    rises = np.diff(slowing)
+    assert (rises <= 1e-3).all(), (np.argmax(rises), rises.max())  # … the speed only decreases (no stop-and-go) …
+    np.testing.assert_allclose(engine.command.position, positions[-1], atol=1e-6)  # … to rest at the last point
+    assert speeds_a[-1] < 1e-12
+    assert servo.phase == Phase.TRACK and not servo._chunks.playing
+    assert [e for e in events(engine) if "no target" in e] == []  # no timeout: the chunk truly ended
+
+
+def test_the_command_timeout_still_stops_a_policy_that_went_silent(make_engine: MakeEngine) -> None:
+    engine, servo = started(make_engine, command_timeout=0.3)
+    start = engine.state.position.copy()
+    servo.accept_chunk(chunk(engine.t, ramp(start, np.array([0.3, 0.3, 0.3]))))
+    LimitProbe(engine, servo).run(int(0.9 / engine.period))
+    assert any("no target for 0.3 s: stopping" in e for e in events(engine))
+    assert servo.phase == Phase.HOLD and not servo._chunks.playing
+    assert engine.command.position[0] < start[0] + 0.3 * 0.6  # stopped well before the chunk's end
+
+
+@pytest.mark.parametrize(
+    ("payload", "reason"),
+    [
+        ([1, 2], "expected an object"),
+        ({"dt": 0.02, "positions": [[0.0] * 3] * 2}, "missing stamp"),
+        ({"stamp": 0.0, "dt": 0.02, "positions": [[0.0] * 3] * 2, "speed": 1}, "unknown keys ['speed']"),
+        ({"stamp": "now", "dt": 0.02, "positions": [[0.0] * 3] * 2}, "stamp must be a number"),
+        ({"stamp": 0.0, "dt": 0.0, "positions": [[0.0] * 3] * 2}, "dt must be within"),
+        ({"stamp": 0.0, "dt": 0.02, "positions": [[0.0] * 3]}, "a chunk has 2 to 100 steps; positions has 1"),
+        ({"stamp": 0.0, "dt": 0.02, "positions": [[0.0] * 3] * (MAX_CHUNK_STEPS + 1)}, "2 to 100 steps"),
+        ({"stamp": 0.0, "dt": 0.02, "positions": [[0.0] * 3, [0.0] * 2]}, "positions[1] must be a list of 3"),
+        ({"stamp": 0.0, "dt": 0.02, "positions": [[0.0] * 3, [0.0, float("nan"), 0.0]]}, "positions[1][1] (b)"),
+        ({"stamp": 0.0, "dt": 0.02, "positions": [[0.0] * 3, [0.0, True, 0.0]]}, "is not a number: True"),
+        (
+            {"stamp": 0.0, "dt": 0.02, "positions": [[0.0] * 3] * 3, "velocities": [[0.0] * 3] * 2},
+            "velocities has 2 steps; positions has 3",
+        ),
+    ],
+)
+def test_a_malformed_chunk_is_refused_with_its_reason_and_the_running_one_plays_on(
+    make_engine: MakeEngine, payload: Any, reason: str
+) -> None:
+    engine, servo = started(make_engine, command_timeout=5.0)
+    start = engine.state.position.copy()
+    servo.accept_chunk(chunk(engine.t, ramp(start, np.array([0.2, 0.2, 0.2]))))
+    engine.run_cycles(50)
+    with pytest.raises(ValueError) as info:
+        servo.accept_chunk(payload)
+    assert reason in str(info.value)
+    before = engine.command.position.copy()
+    engine.run_cycles(50)
+    assert servo._chunks.playing and (engine.command.position > before + 0.01).all()
+
+
+def test_stale_past_and_future_chunks_are_dropped_with_an_event(make_engine: MakeEngine) -> None:
+    engine, servo = started(make_engine, command_timeout=5.0)
+    start = engine.state.position.copy()
+    positions = ramp(start, np.array([0.1, 0.1, 0.1]))
+    engine.run_cycles(200)
+    servo.accept_chunk(chunk(engine.t - 0.1, positions))
+    engine.run_cycles(1)
+    running = servo._chunks.stamp
+    servo.accept_chunk(chunk(running - 0.05, positions))  # an older observation, overtaken
+    engine.run_cycles(1)
+    assert servo._chunks.stamp == running and servo._chunks.dropped == 1
+    (dropped,) = [e for e in events(engine) if "chunk dropped" in e]
+    assert f"before the running chunk's {running:.4f} s" in dropped and "1 dropped since activation" in dropped
+    engine.run_cycles(int(1.1 / engine.period))  # quiet, so the next refusal is reported
+    servo.accept_chunk(chunk(engine.t - 0.5, positions[:3]))  # newer than the running one, but over
+    engine.run_cycles(1)
+    assert any("all of it is in the past" in e for e in events(engine))
+    engine.run_cycles(int(1.1 / engine.period))
+    servo.accept_chunk(chunk(engine.t + 1.0, positions))
+    engine.run_cycles(1)
+    assert any("ahead of the control clock" in e for e in events(engine))
+    assert servo._chunks.stamp == running and servo._chunks.refused == 2
+
+
+def test_the_source_is_policy_while_chunks_drive_and_stream_once_a_target_arrives(make_engine: MakeEngine) -> None:
+    engine, servo = started(make_engine, command_timeout=5.0)
+    assert servo.source == Source.STREAM
+    start = engine.state.position.copy()
+    probe = LimitProbe(engine, servo)
+    servo.accept_chunk(chunk(engine.t, ramp(start, np.array([0.3, 0.3, 0.3]))))
+    probe.run(100)
+    assert servo.source == Source.POLICY and servo._chunks.playing
+    servo.accept({"positions": start.tolist()})
+    probe.run(1)
+    assert servo.source == Source.STREAM and not servo._chunks.playing
+    assert servo._inp.minimum_duration is None  # plain targets are reached time-optimally again
+    probe.run(400)
+    np.testing.assert_allclose(engine.command.position, start, atol=1e-9)
+    servo.accept_chunk(chunk(engine.t, ramp(start, np.array([-0.3, 0.3, -0.3]))))
+    probe.run(1)
+    assert servo.source == Source.POLICY
+
+
+def test_a_chunk_for_an_inactive_servo_is_refused(make_engine: MakeEngine) -> None:
+    engine = make_engine(servo_patch())
+    servo = engine.manager.records["servo"].instance
+    assert isinstance(servo, ServoController)
+    with pytest.raises(ValueError, match="controller servo is not active"):
+        servo.accept_chunk(chunk(0.0, [[0.0] * 3] * 2))
+
+
+def test_a_chunk_crosses_the_shared_region_as_one_record_and_plays_through_its_points() -> None:
+    """The client domain's half puts a parsed chunk into a cell of the shared region; the cycle's half, attached to
+    the same region, takes it whole and its samples pass through the chunk's steps with their velocities."""
+    size = 4 << 20
+    region = Region(size)
+    n = 6
+    writer = ChunkRecord(Shared(region, create=True).latest_numbers("chunk", ChunkRecord.width(n)), n)
+    reader_door = Shared(Region.attach(region.fd, size), create=False).latest_numbers("chunk", ChunkRecord.width(n))
+    player = ChunkPlayer(reader_door, n)
+    positions = np.sin(0.3 * np.arange(MAX_CHUNK_STEPS)[:, None] + np.arange(n)).tolist()
+    writer.put(parse_chunk({"stamp": 2.0, "dt": STEP, "positions": positions}, list("abcdef"), lambda p, v: ()))
+    assert player.record.take()
+    assert player.start(2.0) == Verdict.STARTED
+    assert player.end == pytest.approx(STEP * (MAX_CHUNK_STEPS - 1))
+    for k in (0, 17, MAX_CHUNK_STEPS - 2):
+        player._sample(k * STEP, 1.0)
+        np.testing.assert_allclose(player.target_p, positions[k], atol=1e-12)
+        slope = (np.array(positions[k + 1]) - np.array(positions[max(k - 1, 0)])) / (STEP * (2 if k else 1))
+        np.testing.assert_allclose(player.target_v, slope, atol=1e-9)
+
+
+def test_a_fault_drops_the_chunk_and_reset_resumes_without_a_jump() -> None:
+    """Chunks keep coming while a joint is faulted: dropped, the servo rests where the arm is; after the reset it
+    stays there until a new chunk arrives, and that one starts from where the arm is."""
+    from hild.cycle.supervisor import Fault
+    from tests.test_engine import JumpGuard
+    from tests.test_twin_engine import twin
+
+    engine = twin("arm6_twin.yaml")
+    engine.load_controller("policy", "servo", {"joints": list(engine.joints), "command_timeout": 5.0})
+    assert engine.switch(["policy"], []).ok
+    servo = engine.manager.records["policy"].instance
+    assert isinstance(servo, ServoController)
+    guard = JumpGuard(engine)
+    start = engine.state.position.copy()
+    slope = np.full(len(start), 0.2)
+
+    def send() -> None:
+        servo.accept_chunk(chunk(engine.t, ramp(start + slope * engine.t, slope)))
+
+    for _ in range(10):
+        send()
+        guard.run(50)
+    engine.supervisor.trip(1, Fault.HARDWARE, "test fault")
+    for _ in range(6):
+        send()  # dropped while faulted
+        guard.run(50)
+    assert not servo._chunks.playing
+    held = engine.state.position.copy()
+    assert engine.reset()["cleared"]
+    guard.run(300)  # no chunk since the reset: it rests where the arm was
+    np.testing.assert_allclose(engine.final.position, held, atol=5e-3)
+    send()
+    guard.run(100)  # a new chunk far from the arm: reached within the limits, no jump (the guard checks)
+    assert servo.source == Source.POLICY and servo._chunks.playing
