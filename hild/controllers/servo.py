@@ -7,9 +7,10 @@ within the joints' velocity, acceleration and jerk limits whatever the stream do
 ``command_timeout`` (cycle clock) the joints brake, jerk-limited, to a stop and hold there.
 
 Phases: ``HOLD`` (at rest: before the first target and after a stop) → ``TRACK`` (ruckig position control
-toward the latest target) → ``CRUISE`` (a target with velocities was reached: keep its velocity until the next
-target, braking per joint in time for the soft limits) → ``STOP`` (ruckig velocity control to rest on timeout or
-planning error) → ``HOLD``. The API side validates and clamps targets and hands each over as one fixed-size
+toward the latest target; the joints planned together in time, or each on its own while the stream is fast, see
+``_track``) → ``CRUISE`` (a target with velocities was reached: keep its velocity until the next target, braking
+per joint in time for the soft limits) → ``STOP`` (ruckig velocity control to rest on timeout or planning error)
+→ ``HOLD``. The API side validates and clamps targets and hands each over as one fixed-size
 record of numbers (:class:`TargetRecord`); the cycle only copies it into ruckig and steps it, and spells out
 what was clamped only when it reports it. The ruckig bindings return fresh lists, so a cycle costs a few small
 lists; nothing else.
@@ -41,6 +42,9 @@ POSITION_MARGIN = 1e-6  # rad
 CLAMP_EVENT_QUIET = 1.0  # s
 # Cycles of travel allowed for when deciding to brake before a soft limit (one cycle may run late).
 BRAKE_LOOKAHEAD_CYCLES = 2.0
+# A target within this many cycles of the last one is part of a fast stream: its plan is replaced before it
+# ends, so each joint plans on its own (see ``_track``). A jittery 1 kHz stream at a 1 kHz cycle has gaps of 2.
+FAST_STREAM_CYCLES = 2.0
 
 ALLOWED_INTERFACES = ({"position"}, {"position", "velocity"})
 
@@ -222,6 +226,7 @@ class ServoController(PlansMotion, Controller):
         self._lo = [p + POSITION_MARGIN for p in self._soft_lower]
         self._hi = [p - POSITION_MARGIN for p in self._soft_upper]
         self._lookahead = BRAKE_LOOKAHEAD_CYCLES * self._period
+        self._fast_stream = FAST_STREAM_CYCLES * self._period * (1.0 + 1e-9)  # a hair over: clock rounding
 
         self._slot = TargetRecord(context.mailboxes.latest_numbers("target", TargetRecord.width(n)), n)
         self._zeros = [0.0] * n
@@ -232,6 +237,9 @@ class ServoController(PlansMotion, Controller):
         self._p: list[float] = list(self._zeros)  # desired state written each cycle
         self._v: list[float] = self._zeros
         self._cruise_velocity = list(self._zeros)  # per-joint target velocity while cruising (0 once braking)
+        self._target_p: list[float] = []  # the target being tracked, as handed to ruckig
+        self._target_v: list[float] = []
+        self._sync = Synchronization.Time  # what ruckig's input holds: set only when it changes
         self._moving = False
         self.phase = Phase.HOLD
         self._last_target = -math.inf
@@ -248,6 +256,7 @@ class ServoController(PlansMotion, Controller):
     def on_configure(self) -> None:
         self._otg = Ruckig(len(self._index), self._period)
         self._inp.target_acceleration = self._zeros
+        self._inp.synchronization = self._sync
         self._plan_within_limits()
 
     def _plan_within_limits(self) -> None:
@@ -272,7 +281,8 @@ class ServoController(PlansMotion, Controller):
             self._jerk_pending = self._inp.max_jerk != self._jmax
         vmax = self._vmax  # a target or cruise velocity above the new limit is one ruckig would refuse to plan
         self._cruise_velocity[:] = [min(max(v, -m), m) for v, m in zip(self._cruise_velocity, vmax, strict=True)]
-        self._inp.target_velocity = [min(max(v, -m), m) for v, m in zip(self._inp.target_velocity, vmax, strict=True)]
+        self._target_v = [min(max(v, -m), m) for v, m in zip(self._inp.target_velocity, vmax, strict=True)]
+        self._inp.target_velocity = self._target_v
 
     def _adopt_pending_jerk(self) -> None:
         """Each joint takes its lowered jerk once braking with it stays within its new limits."""
@@ -395,17 +405,32 @@ class ServoController(PlansMotion, Controller):
         command.written[self._where] = True
 
     def _track(self, t: float) -> None:
-        """Plan toward the target just taken (plain lists: ruckig's bindings copy them fastest)."""
+        """Plan toward the target just taken (plain lists: ruckig's bindings copy them fastest).
+
+        A target that is part of a fast stream is planned per joint (``Synchronization.No``): its plan is
+        replaced within a cycle or two, so only its first samples ever run, and synchronizing the joints only
+        slowed the ones that were not the slowest — at 35–45 % of ruckig's re-planning cost, every cycle
+        (docs/performance.md, "The servo's cost per target"). Every joint keeps its own limits either way. A
+        single target, or a slow stream, still moves the joints together in time (``Synchronization.Time``).
+        A target equal to the one being tracked changes nothing in the plan and is not handed to ruckig again.
+        """
         inp, target = self._inp, self._slot
-        velocities = target.velocities.tolist()
-        inp.control_interface = ControlInterface.Position
-        inp.synchronization = Synchronization.Time
-        inp.target_position = target.positions.tolist()
-        inp.target_velocity = velocities
-        self._cruise_velocity[:] = velocities
-        self._moving = target.moving()
+        positions, velocities = target.positions.tolist(), target.velocities.tolist()
+        fast = t - self._last_target <= self._fast_stream
         self._last_target = t
-        self.phase = Phase.TRACK
+        if self.phase == Phase.TRACK and positions == self._target_p and velocities == self._target_v:
+            pass  # the same target again (a stream holding still): the plan under way already goes there
+        else:
+            if self.phase != Phase.TRACK:
+                inp.control_interface = ControlInterface.Position
+            sync = Synchronization.No if fast else Synchronization.Time
+            if sync != self._sync:
+                inp.synchronization = self._sync = sync
+            inp.target_position = self._target_p = positions
+            inp.target_velocity = self._target_v = velocities
+            self._cruise_velocity[:] = velocities
+            self._moving = target.moving()
+            self.phase = Phase.TRACK
         if target.clamped():
             if t - self._last_clamp >= CLAMP_EVENT_QUIET:
                 self.context.emit_event("warning", target.clamp_note(self.params.joints))
@@ -421,7 +446,7 @@ class ServoController(PlansMotion, Controller):
         """Reach ``velocity`` jerk-limited, each joint on its own (no position target while streaming stops)."""
         inp = self._inp
         inp.control_interface = ControlInterface.Velocity
-        inp.synchronization = Synchronization.No
+        inp.synchronization = self._sync = Synchronization.No
         inp.target_velocity = velocity
         self.phase = phase
 
