@@ -245,7 +245,9 @@ class ServoController(PlansMotion, Controller):
         self._p: list[float] = list(self._zeros)  # desired state written each cycle
         self._v: list[float] = self._zeros
         self._cruise_velocity = list(self._zeros)  # per-joint target velocity while cruising (0 once braking)
-        self._target_p: list[float] = []  # the target being tracked, as handed to ruckig
+        # The target being tracked, as handed to ruckig: a target equal to it is not handed over again. Code that
+        # sets ruckig's target position or velocity other than through ``_track`` must clear these.
+        self._target_p: list[float] = []
         self._target_v: list[float] = []
         self._sync = Synchronization.Time  # what ruckig's input holds: set only when it changes
         self._moving = False
