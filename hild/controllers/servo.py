@@ -10,9 +10,9 @@ Phases: ``HOLD`` (at rest: before the first target and after a stop) → ``TRACK
 toward the latest target; the joints planned together in time, or each on its own while the stream is fast, see
 ``_track``) → ``CRUISE`` (a target with velocities was reached: keep its velocity until the next target, braking
 per joint in time for the soft limits) → ``STOP`` (ruckig velocity control to rest on timeout or planning error)
-→ ``HOLD``. The API side validates and clamps targets and hands each over as one fixed-size
-record of numbers (:class:`TargetRecord`); the cycle only copies it into ruckig and steps it, and spells out
-what was clamped only when it reports it. The ruckig bindings return fresh lists, so a cycle costs a few small
+→ ``HOLD``. The API side validates and clamps targets and hands each over as one fixed-size record of numbers
+(:class:`TargetRecord`); the cycle only copies it into ruckig and steps it, and spells out what was clamped only
+when it reports it. The ruckig bindings return fresh lists, so a cycle costs a few small
 lists; nothing else.
 """
 
@@ -86,7 +86,7 @@ class Phase(enum.IntEnum):
 
 
 # Enum members looked up once: reading ``Phase.TRACK`` or ruckig's ``Result.Finished`` costs 0.2–0.4 µs in Python
-# 3.11, a dozen times a cycle; comparing by identity with these costs nothing (tools/servo_cost.py).
+# 3.11, several times a cycle; comparing by identity with these costs nothing (tools/servo_cost.py).
 _HOLD, _TRACK, _CRUISE, _STOP = Phase.HOLD, Phase.TRACK, Phase.CRUISE, Phase.STOP
 _WORKING, _FINISHED = Result.Working, Result.Finished
 _POSITION, _VELOCITY = ControlInterface.Position, ControlInterface.Velocity
@@ -419,18 +419,19 @@ class ServoController(PlansMotion, Controller):
 
         A target that is part of a fast stream is planned per joint (``Synchronization.No``): its plan is
         replaced within a cycle or two, so only its first samples ever run, and synchronizing the joints only
-        slowed the ones that were not the slowest — at 35–45 % of ruckig's re-planning cost, every cycle
-        (docs/performance.md, "The servo's cost per target"). Every joint keeps its own limits either way. A
-        single target, or a slow stream, still moves the joints together in time (``Synchronization.Time``).
-        A target equal to the one being tracked changes nothing in the plan and is not handed to ruckig again.
+        held back the ones that were not the slowest, at twice ruckig's re-planning cost per joint (4.9 against
+        2.1 µs on 3 joints, 8.9 against 3.4 on 6, every cycle: docs/performance.md, "The servo's cost per
+        target"). Every joint keeps its own limits either way. A single target, or a slow stream, still moves
+        the joints together in time (``Synchronization.Time``). A target equal to the one being tracked changes
+        nothing in the plan and is not handed to ruckig again; it still counts for the timeout.
         """
         inp, target = self._inp, self._slot
         positions, velocities = target.positions.tolist(), target.velocities.tolist()
         fast = t - self._last_target <= self._fast_stream
         self._last_target = t
-        if self.phase is _TRACK and positions == self._target_p and velocities == self._target_v:
-            pass  # the same target again (a stream holding still): the plan under way already goes there
-        else:
+        # The same target again (a stream holding still): the plan under way already goes there.
+        same = self.phase is _TRACK and positions == self._target_p and velocities == self._target_v
+        if not same:
             if self.phase is not _TRACK:
                 inp.control_interface = _POSITION
             sync = _PER_JOINT if fast else _TOGETHER
