@@ -63,7 +63,7 @@ def main() -> None:
     parser.add_argument("--takes", type=int, default=20_000)
     args = parser.parse_args()
     n = args.joints
-    region = Region(1 << 20)
+    region = Region(1 << 22)
     positions, velocities = [0.1 * k for k in range(n)], [0.0] * n
 
     cell = region.carve("pickled", latest_bytes(LATEST_BYTES))
@@ -72,7 +72,7 @@ def main() -> None:
     old = PickledTarget(positions, velocities, False, "")
 
     api = Shared(region, create=True)
-    cycle = Shared(Region.attach(region.fd, 1 << 20), create=False)
+    cycle = Shared(Region.attach(region.fd, 1 << 22), create=False)
     put_side = TargetRecord(api.latest_numbers("target", TargetRecord.width(n)), n)
     take_side = TargetRecord(cycle.latest_numbers("target", TargetRecord.width(n)), n)
     new = ServoTarget(positions, velocities, False)

@@ -19,8 +19,9 @@ joint, the joint_state_broadcaster at 100 Hz, and telemetry recording to a file 
   deadline): the whole daemon's CPU when the cycle does not spin.
 * ``interference`` — twin6 at 1 kHz with ``joint_trajectory_arm`` (the first three joints, trajectory) and
   ``servo_wrist`` (the last three, streamed targets) active together, windows interleaved between no extra clients,
-  two pollers (``srv/status`` and ``srv/list_controllers`` at 200 Hz each), and the pollers plus a 1 kHz servo
-  stream; then the same two loads aimed at a decoy daemon in another process
+  two pollers (``srv/status`` and ``srv/list_controllers`` at 200 Hz each), the pollers plus a 1 kHz servo
+  stream, and the servo stream alone (what a target every cycle costs the cycle); then the same three loads aimed
+  at a decoy daemon in another process
   (``hild.bench.probes.zenoh_loopback.Decoy``), which load the machine alike while nothing reaches the daemon, so a
   rise can be split into the machine's part and hild's; and an observer flooding ``srv/status`` with 1 MiB queries
   as fast as they are answered (``flood``), while the trajectory's goals keep coming (their acceptance time is the
@@ -519,7 +520,16 @@ def can_bridge(host: HostProcess) -> str | None:
     return "stock server in the daemon's process" if host.stock_bridge else "rig process"
 
 
-INTERFERENCE_CONDITIONS = ("baseline", "polling", "polling+servo", "decoy polling", "decoy polling+servo", "flood")
+INTERFERENCE_CONDITIONS = (
+    "baseline",
+    "polling",
+    "polling+servo",
+    "servo",
+    "decoy polling",
+    "decoy polling+servo",
+    "decoy servo",
+    "flood",
+)
 DECOY = "decoy "  # the condition's clients load the machine the same way but talk to a decoy daemon
 
 
@@ -534,7 +544,7 @@ def interference_clients(condition: str, s: Session, decoy: Decoy) -> list[Paced
             Poller(endpoint, s.robot, "status", POLL_RATE),
             Poller(endpoint, s.robot, "list_controllers", POLL_RATE),
         ]
-    if load == "polling+servo":
+    if load in ("polling+servo", "servo"):
         clients.append(ServoStreamer(endpoint, s.robot, SERVO_WRIST, s.home[3:], SERVO_RATE))
     return clients
 

@@ -7,11 +7,12 @@ within the joints' velocity, acceleration and jerk limits whatever the stream do
 ``command_timeout`` (cycle clock) the joints brake, jerk-limited, to a stop and hold there.
 
 Phases: ``HOLD`` (at rest: before the first target and after a stop) → ``TRACK`` (ruckig position control
-toward the latest target) → ``CRUISE`` (a target with velocities was reached: keep its velocity until the next
-target, braking per joint in time for the soft limits) → ``STOP`` (ruckig velocity control to rest on timeout or
-planning error) → ``HOLD``. The API side validates and clamps targets and hands each over as one fixed-size
-record of numbers (:class:`TargetRecord`); the cycle only copies it into ruckig and steps it, and spells out
-what was clamped only when it reports it. The ruckig bindings return fresh lists, so a cycle costs a few small
+toward the latest target; the joints planned together in time, or each on its own while the stream is fast, see
+``_track``) → ``CRUISE`` (a target with velocities was reached: keep its velocity until the next target, braking
+per joint in time for the soft limits) → ``STOP`` (ruckig velocity control to rest on timeout or planning error)
+→ ``HOLD``. The API side validates and clamps targets and hands each over as one fixed-size record of numbers
+(:class:`TargetRecord`); the cycle only copies it into ruckig and steps it, and spells out what was clamped only
+when it reports it. The ruckig bindings return fresh lists, so a cycle costs a few small
 lists; nothing else.
 """
 
@@ -43,6 +44,9 @@ POSITION_MARGIN = 1e-6  # rad
 CLAMP_EVENT_QUIET = 1.0  # s
 # Cycles of travel allowed for when deciding to brake before a soft limit (one cycle may run late).
 BRAKE_LOOKAHEAD_CYCLES = 2.0
+# A target within this many cycles of the last one is part of a fast stream: its plan is replaced before it
+# ends, so each joint plans on its own (see ``_track``). A jittery 1 kHz stream at a 1 kHz cycle has gaps of 2.
+FAST_STREAM_CYCLES = 2.0
 
 ALLOWED_INTERFACES = ({"position"}, {"position", "velocity"})
 
@@ -88,6 +92,14 @@ class Phase(enum.IntEnum):
     TRACK = 1
     CRUISE = 2
     STOP = 3
+
+
+# Enum members looked up once: reading ``Phase.TRACK`` or ruckig's ``Result.Finished`` costs 0.2–0.4 µs in Python
+# 3.11, several times a cycle; comparing by identity with these costs nothing (tools/servo_cost.py).
+_HOLD, _TRACK, _CRUISE, _STOP = Phase.HOLD, Phase.TRACK, Phase.CRUISE, Phase.STOP
+_WORKING, _FINISHED = Result.Working, Result.Finished
+_POSITION, _VELOCITY = ControlInterface.Position, ControlInterface.Velocity
+_PER_JOINT, _TOGETHER = Synchronization.No, Synchronization.Time
 
 
 class ClampReason(enum.IntEnum):
@@ -231,6 +243,7 @@ class ServoController(PlansMotion, Controller):
         self._lo = [p + POSITION_MARGIN for p in self._soft_lower]
         self._hi = [p - POSITION_MARGIN for p in self._soft_upper]
         self._lookahead = BRAKE_LOOKAHEAD_CYCLES * self._period
+        self._fast_stream = FAST_STREAM_CYCLES * self._period * (1.0 + 1e-9)  # a hair over: clock rounding
 
         self._slot = TargetRecord(context.mailboxes.latest_numbers("target", TargetRecord.width(n)), n)
         self._chunks = ChunkPlayer(context.mailboxes.latest_numbers("chunk", ChunkRecord.width(n)), n)
@@ -243,6 +256,11 @@ class ServoController(PlansMotion, Controller):
         self._p: list[float] = list(self._zeros)  # desired state written each cycle
         self._v: list[float] = self._zeros
         self._cruise_velocity = list(self._zeros)  # per-joint target velocity while cruising (0 once braking)
+        # The target being tracked, as handed to ruckig: a target equal to it is not handed over again. Code that
+        # sets ruckig's target position or velocity other than through ``_track`` must clear these.
+        self._target_p: list[float] = []
+        self._target_v: list[float] = []
+        self._sync = Synchronization.Time  # what ruckig's input holds: set only when it changes
         self._moving = False
         self.phase = Phase.HOLD
         self._last_target = -math.inf
@@ -259,6 +277,7 @@ class ServoController(PlansMotion, Controller):
     def on_configure(self) -> None:
         self._otg = Ruckig(len(self._index), self._period)
         self._inp.target_acceleration = self._zeros
+        self._inp.synchronization = self._sync
         self._plan_within_limits()
 
     def _plan_within_limits(self) -> None:
@@ -283,7 +302,8 @@ class ServoController(PlansMotion, Controller):
             self._jerk_pending = self._inp.max_jerk != self._jmax
         vmax = self._vmax  # a target or cruise velocity above the new limit is one ruckig would refuse to plan
         self._cruise_velocity[:] = [min(max(v, -m), m) for v, m in zip(self._cruise_velocity, vmax, strict=True)]
-        self._inp.target_velocity = [min(max(v, -m), m) for v, m in zip(self._inp.target_velocity, vmax, strict=True)]
+        self._target_v = [min(max(v, -m), m) for v, m in zip(self._inp.target_velocity, vmax, strict=True)]
+        self._inp.target_velocity = self._target_v
 
     def _adopt_pending_jerk(self) -> None:
         """Each joint takes its lowered jerk once braking with it stays within its new limits."""
@@ -407,7 +427,7 @@ class ServoController(PlansMotion, Controller):
             self._track(t)
         elif self._chunks.record.take():
             self._start_chunk(t)
-        elif self.phase in (Phase.TRACK, Phase.CRUISE) and t - self._last_target > self.params.command_timeout:
+        elif (self.phase is _TRACK or self.phase is _CRUISE) and t - self._last_target > self.params.command_timeout:
             self.context.emit_event(
                 "warning", f"no target for {self.params.command_timeout:g} s: stopping, then holding"
             )
@@ -415,11 +435,11 @@ class ServoController(PlansMotion, Controller):
             self._stop()
         if self._chunks.playing:
             self._play_chunk(dt)
-        if self.phase == Phase.CRUISE:
+        if self.phase is _CRUISE:
             self._brake_before_soft_limits()
-        if self.phase != Phase.HOLD:
+        if self.phase is not _HOLD:
             self._step(dt)
-            if self.phase == Phase.STOP:  # planning failed: the chunk is over too
+            if self.phase is _STOP:  # planning failed: the chunk is over too
                 self._end_chunk()
         command.position[self._where] = self._p
         if self._writes_velocity:
@@ -427,17 +447,33 @@ class ServoController(PlansMotion, Controller):
         command.written[self._where] = True
 
     def _track(self, t: float) -> None:
-        """Plan toward the target just taken (plain lists: ruckig's bindings copy them fastest)."""
+        """Plan toward the target just taken (plain lists: ruckig's bindings copy them fastest).
+
+        A target that is part of a fast stream is planned per joint (``Synchronization.No``): its plan is
+        replaced within a cycle or two, so only its first samples ever run, and synchronizing the joints only
+        held back the ones that were not the slowest, at twice ruckig's re-planning cost per joint (4.9 against
+        2.1 µs on 3 joints, 8.9 against 3.4 on 6, every cycle: docs/performance.md, "The servo's cost per
+        target"). Every joint keeps its own limits either way. A single target, or a slow stream, still moves
+        the joints together in time (``Synchronization.Time``). A target equal to the one being tracked changes
+        nothing in the plan and is not handed to ruckig again; it still counts for the timeout.
+        """
         inp, target = self._inp, self._slot
-        velocities = target.velocities.tolist()
-        inp.control_interface = ControlInterface.Position
-        inp.synchronization = Synchronization.Time
-        inp.target_position = target.positions.tolist()
-        inp.target_velocity = velocities
-        self._cruise_velocity[:] = velocities
-        self._moving = target.moving()
+        positions, velocities = target.positions.tolist(), target.velocities.tolist()
+        fast = t - self._last_target <= self._fast_stream
         self._last_target = t
-        self.phase = Phase.TRACK
+        # The same target again (a stream holding still): the plan under way already goes there.
+        same = self.phase is _TRACK and positions == self._target_p and velocities == self._target_v
+        if not same:
+            if self.phase is not _TRACK:
+                inp.control_interface = _POSITION
+            sync = _PER_JOINT if fast else _TOGETHER
+            if sync is not self._sync:
+                inp.synchronization = self._sync = sync
+            inp.target_position = self._target_p = positions
+            inp.target_velocity = self._target_v = velocities
+            self._cruise_velocity[:] = velocities
+            self._moving = target.moving()
+            self.phase = _TRACK
         if target.clamped():
             if t - self._last_clamp >= CLAMP_EVENT_QUIET:
                 self.context.emit_event("warning", target.clamp_note(self.params.joints))
@@ -488,16 +524,16 @@ class ServoController(PlansMotion, Controller):
             self._inp.target_acceleration = self._zeros
 
     def _cruise(self) -> None:
-        self._to_velocity(self._cruise_velocity, Phase.CRUISE)
+        self._to_velocity(self._cruise_velocity, _CRUISE)
 
     def _stop(self) -> None:
-        self._to_velocity(self._zeros, Phase.STOP)
+        self._to_velocity(self._zeros, _STOP)
 
     def _to_velocity(self, velocity: list[float], phase: Phase) -> None:
         """Reach ``velocity`` jerk-limited, each joint on its own (no position target while streaming stops)."""
         inp = self._inp
-        inp.control_interface = ControlInterface.Velocity
-        inp.synchronization = Synchronization.No
+        inp.control_interface = _VELOCITY
+        inp.synchronization = self._sync = _PER_JOINT
         inp.target_velocity = velocity
         self.phase = phase
 
@@ -507,7 +543,7 @@ class ServoController(PlansMotion, Controller):
         inp.current_velocity = self._zeros
         inp.current_acceleration = self._zeros
         self._p, self._v = position, self._zeros
-        self.phase = Phase.HOLD
+        self.phase = _HOLD
         if self._jerk_pending:
             inp.max_jerk = self._jmax
             self._jerk_pending = False
@@ -535,7 +571,7 @@ class ServoController(PlansMotion, Controller):
             otg.delta_time = dt  # the wall clock's real period: the plan advances with real time
         try:
             result = otg.update(inp, out)
-            reason = "" if result in (Result.Working, Result.Finished) else result.name
+            reason = "" if result is _WORKING or result is _FINISHED else result.name
         except RuckigError as exc:
             result, reason = Result.ErrorInvalidInput, str(exc).strip().removeprefix("[ruckig] ")
         if not reason:
@@ -549,15 +585,15 @@ class ServoController(PlansMotion, Controller):
         self._p, self._v = p, v
         if self._jerk_pending:
             self._adopt_pending_jerk()
-        if result == Result.Finished:
-            if self.phase == Phase.TRACK and self._moving:
+        if result is _FINISHED:
+            if self.phase is _TRACK and self._moving:
                 self._cruise()
-            elif self.phase == Phase.STOP:
+            elif self.phase is _STOP:
                 self._hold_at(p)
 
     def _planning_failed(self, reason: str, dt: float) -> None:
         """Stop as on timeout; if even the stop cannot be planned, hold the last desired position. Never a NaN."""
-        if self.phase != Phase.STOP:
+        if self.phase is not _STOP:
             self.context.emit_event("error", f"ruckig could not plan ({reason}): stopping, then holding")
             self._stop()
             self._step(dt)

@@ -82,7 +82,8 @@ def test_a_quick_run_writes_every_section(tmp_path: Path) -> None:
     assert cpu["whole"] >= cpu["hild"] and cpu["emulator"] > 0  # the rig process: drives and their servers
 
     conditions = report["interference"]["conditions"]
-    names = ["baseline", "polling", "polling+servo", "decoy polling", "decoy polling+servo", "flood"]
+    names = ["baseline", "polling", "polling+servo", "servo", "decoy polling", "decoy polling+servo", "decoy servo"]
+    names.append("flood")
     assert [c["name"] for c in conditions] == names
     assert all(c["cycles"] > 0 and ordered(c["duration_us"]) for c in conditions)
     decoy = {c["name"]: c["clients"] for c in conditions}["decoy polling+servo"]
@@ -94,6 +95,7 @@ def test_a_quick_run_writes_every_section(tmp_path: Path) -> None:
 
     statuses = {(t["target"], t["scenario"]): t["status"] for t in report["targets"]}
     assert statuses[("polling 200/s + servo 1 kHz: p99 rise", "twin6@1000")] in ("PASS", "MISS")
+    assert statuses[("servo stream 1 kHz: p99 rise", "twin6@1000")] in ("PASS", "MISS")
     assert statuses[("1 MiB flood: p99 rise", "twin6@1000")] in ("PASS", "MISS")
     assert statuses[("polling raises cycle p99 by", "twin6@1000")] in ("PASS", "MISS")  # measured, so decided
     assert statuses[("… of which serving it (vs decoy)", "twin6@1000")] in ("PASS", "MISS")

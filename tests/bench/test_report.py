@@ -251,6 +251,21 @@ def test_rt_targets_pass_or_miss_and_a_miss_names_its_numbers() -> None:
     assert cpu["status"] == "MISS" and "daemon 14 + cycle 20 (process) + telemetry 3 %" in cpu["detail"]
 
 
+def test_the_servo_stream_alone_has_its_own_row_beside_polling_plus_servo() -> None:
+    report = _rt_report()
+    servo = _rt(report)[("servo stream 1 kHz: p99 rise", "twin6@1000")]
+    assert servo["status"] == "n/a" and "interleaved baseline" in servo["detail"]  # a report from before the row
+    report["interference"]["conditions"] += [
+        _condition("servo", 90.0, 1, 12.5),
+        _condition("decoy servo", 82.0, 1, 2.5),
+    ]
+    t = _rt(report)
+    servo = t[("servo stream 1 kHz: p99 rise", "twin6@1000")]
+    assert servo["group"] == "rt-split" and servo["limit"] == 10.0 and servo["status"] == "MISS"
+    assert "90 µs vs baseline 80 µs; the same stream to a decoy +2.5 %" in servo["detail"]
+    assert t[("polling 200/s + servo 1 kHz: p99 rise", "twin6@1000")]["status"] == "PASS"  # kept, decided apart
+
+
 def test_a_floor_below_10_us_gives_floor_plus_20_and_the_floors_own_overruns_count() -> None:
     t = _rt(_rt_report(floor_perr=5.0, floor_ovr=1.5))
     perr = t[("period error p99", "twin6@1000")]
