@@ -508,7 +508,7 @@ class ServoController(PlansMotion, Controller):
         p, v, a = chunks.target.tolist()
         clip_target(p, v, a, self._lo, self._hi, self._vmax, self._amax, self._jmax)
         inp.control_interface = ControlInterface.Position
-        inp.synchronization = Synchronization.Time
+        inp.synchronization = self._sync = _TOGETHER
         inp.target_position = p
         inp.target_velocity = v
         inp.target_acceleration = a
@@ -522,6 +522,7 @@ class ServoController(PlansMotion, Controller):
             self._chunks.stop()
             self._inp.minimum_duration = None
             self._inp.target_acceleration = self._zeros
+            self._target_p = self._target_v = []  # ruckig was aimed at the chunk: no streamed target is "the same"
 
     def _cruise(self) -> None:
         self._to_velocity(self._cruise_velocity, _CRUISE)
