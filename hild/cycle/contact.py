@@ -116,6 +116,7 @@ class ContactMonitor:
         self._qd_prev = [0.0] * n
         self._load = [0.0] * n  # low-passed |motor torque|: what model_margin scales
         self._extra = [0.0] * n  # what model_margin adds to each joint's thresholds this cycle (N·m)
+        self._deferred = -1.0  # a quiet check's load update still to do: this cycle's low-pass share, or < 0: none
 
         size = max(2, round(HISTORY * update_rate))
         self._history = np.zeros((size, n))
@@ -137,6 +138,8 @@ class ContactMonitor:
 
         ``last``: the final command sent at the interval's start. ``trusted``: every reading fresh and accepted, no
         joint faulted but by a collision, no e-stop and no stop descent: the torque the observer is told acted."""
+        if self._deferred >= 0.0:  # the last check's load update is still due (no after_write since)
+            self._settle_load()
         q, qd = state.position, state.velocity
         if self._keeps_path:
             np.copyto(self._rows[self._head], q)
@@ -148,13 +151,19 @@ class ContactMonitor:
         tau = self._motor_torque(state, last)
         r = self.observer.update(q, qd, tau, dt)
         np.copyto(self.tau_ext, r)
-        worst = self._classify(r.tolist(), min(1.0, self._gain * dt))
+        values, alpha = r.tolist(), min(1.0, self._gain * dt)
+        if self._quiet(values):  # nothing near a threshold: the load's update waits until after the writes
+            self._deferred, worst = alpha, -1
+        else:
+            worst = self._classify(values, alpha)
         return worst if self.tool_force is None else self._classify_force(q, r, dt, worst)  # the force at the tool
 
     def after_write(self, q: np.ndarray) -> None:
         """After the cycle's writes: what the next cycle's check needs and this cycle's command does not — the force
         estimate's G at this reading (``q``) and the image of the joints' model margins at the tool. Off the path
-        of the command, so it never delays one."""
+        of the command, so it never delays one. Also the load update a quiet check left for now (`_quiet`)."""
+        if self._deferred >= 0.0:
+            self._settle_load()
         if self.running and self.tool_force is not None:
             self._margin[:] = self._extra  # each joint's model margin, as its thresholds rose in this cycle's check
             self.tool_force.refresh(q, self._margin)
@@ -207,6 +216,29 @@ class ContactMonitor:
             tau = self._tau.tolist()
         self._net = tau
         return self._tau
+
+    def _quiet(self, r: list[float]) -> bool:
+        """Every joint's estimate within its own contact threshold before the model margin, no joint in a contact
+        episode, and the force check's margin image not due now: then this check can neither report nor release
+        anything (the margin only raises the thresholds, and contact ≤ collision), so the per-joint load update is
+        all `_classify` would do, and it waits until after the writes (`_settle_load`). Exact: the same arithmetic,
+        later."""
+        if any(self.level) or (self.tool_force is not None and not self.tool_force.fresh):
+            return False
+        for x, contact in zip(r, self._contact, strict=True):
+            if x > contact or -x > contact:
+                return False
+        return True
+
+    def _settle_load(self) -> None:
+        """The load update and model margin a quiet check deferred (the same arithmetic as `_classify`'s, on this
+        interval's torques, still in ``_raw`` and ``_net``)."""
+        alpha, self._deferred = self._deferred, -1.0
+        margin, load, extras = self.settings.model_margin, self._load, self._extra
+        for i, (m, t) in enumerate(zip(self._raw, self._net, strict=True)):
+            held = load[i] = load[i] + alpha * ((m if m >= 0.0 else -m) - load[i])
+            t = t if t >= 0.0 else -t
+            extras[i] = margin * (held if held > t else t)
 
     def _classify(self, r: list[float], alpha: float) -> int:
         """The contact events, and the joint whose collision threshold ``r`` crossed most (or -1). Low-passes the

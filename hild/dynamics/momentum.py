@@ -97,11 +97,13 @@ class MomentumObserver:
 
         self.residual = np.zeros(n)
         self._with_gravity = gravity
-        self.gravity = np.zeros(n)  # g(q) at the last reading evaluated (with ``gravity``)
-        self.evaluated_at: list[float] = []  # that reading's positions, as floats
+        self.evaluated_at: list[float] = []  # the positions of the last reading evaluated with ``gravity``, as floats
         self._gravity_full = np.zeros(m.nv)
         self._cvel, self._cdof_dot = d.cvel, d.cdof_dot
         self._gravity_j = self._gravity_full[db] if db is not None else None
+        # g(q) at that reading (with ``gravity``): the joints' block of the RNE's output itself when they are one
+        # block (no copy per cycle), else gathered into its own array
+        self.gravity = self._gravity_j if self._gravity_j is not None else np.zeros(n)
         self._r = [0.0] * n  # the residual as floats: the recursion's state
         self._bias_prev = [0.0] * n  # qfrc_bias and qfrc_passive at the interval's start
         self._passive_prev = [0.0] * n
@@ -177,9 +179,7 @@ class MomentumObserver:
             self._cvel.fill(0.0)
             self._cdof_dot.fill(0.0)
             mujoco.mj_rne(m, d, 0, self._gravity_full)
-            if self._gravity_j is not None:
-                np.copyto(self.gravity, self._gravity_j)
-            else:
+            if self._gravity_j is None:
                 np.take(self._gravity_full, self._dofadr, out=self.gravity)
             self.evaluated_at = q.tolist()
         mujoco.mj_fwdVelocity(m, d)  # qfrc_passive, and qfrc_bias = C(q, q̇)q̇ + g(q)
