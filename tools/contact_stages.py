@@ -51,6 +51,7 @@ def stages(rig: ContactRig) -> dict[str, Timed]:
         "  observer.update": (contact.observer, "update"),
         "  motor torque": (contact, "_motor_torque"),
         "  joint thresholds": (contact, "_classify"),
+        "  quiet screen": (contact, "_quiet"),
         "  force at the tool (judge)": (contact.tool_force, "judge"),
         "gravity feed-forward (shared)": (engine.supervisor, "gravity"),
         "after_write (G for the next cycle)": (contact, "after_write"),
@@ -85,7 +86,8 @@ def in_cycle(cycles: int, seed: int) -> None:
     finally:
         rig.close()
     print(f"in-cycle, {cycles} cycles (ns per call: median / p99)")
-    print(f"  {'cycle duration (start → writes done)':40s} {np.median(durations):8.0f} / {np.percentile(durations, 99):8.0f}")
+    label = "cycle duration (start → writes done)"
+    print(f"  {label:40s} {np.median(durations):8.0f} / {np.percentile(durations, 99):8.0f}")
     for label, timer in timers.items():
         if timer.samples:
             s = np.array(timer.samples)

@@ -150,7 +150,7 @@ class ContactMonitor:
             return -1
         tau = self._motor_torque(state, last)
         r = self.observer.update(q, qd, tau, dt)
-        np.copyto(self.tau_ext, r)
+        self.tau_ext[:] = r  # slice assignment: cheaper than np.copyto's dispatch on n numbers
         values, alpha = r.tolist(), min(1.0, self._gain * dt)
         if self._quiet(values):  # nothing near a threshold: the load's update waits until after the writes
             self._deferred, worst = alpha, -1
@@ -225,10 +225,12 @@ class ContactMonitor:
         later."""
         if any(self.level) or (self.tool_force is not None and not self.tool_force.fresh):
             return False
-        for x, contact in zip(r, self._contact, strict=True):
+        for x, contact in zip(r, self._contact):  # noqa: B905 (strict= costs more than this loop; both are n long)
             if x > contact or -x > contact:
-                return False
-        return True
+                break
+        else:
+            return True
+        return False
 
     def _settle_load(self) -> None:
         """The load update and model margin a quiet check deferred (the same arithmetic as `_classify`'s, on this

@@ -151,10 +151,11 @@ class MomentumObserver:
         # r_k = K·e_k = (1 − K·dt)·r_{k−1} + K·(½(M_k + M_{k−1})·Δq̇ − (τ − ½(known_k + known_{k−1}))·dt), with
         # known = qfrc_bias − qfrc_passive
         decay, half_k, k_dt = 1.0 - self.gain * dt, 0.5 * self.gain, self.gain * dt
+        # zip without strict=: the keyword alone costs more than the arithmetic here (every list is n long)
         self._r = r = [
             decay * r0 + half_k * (a + b) - k_dt * (t - 0.5 * (g - p + g0 - p0))
-            for r0, a, b, t, g, p, g0, p0 in zip(
-                self._r, x, y, tau.tolist(), bias, passive, self._bias_prev, self._passive_prev, strict=True
+            for r0, a, b, t, g, p, g0, p0 in zip(  # noqa: B905
+                self._r, x, y, tau.tolist(), bias, passive, self._bias_prev, self._passive_prev
             )
         ]
         self.residual[:] = r
@@ -163,9 +164,9 @@ class MomentumObserver:
 
     def _evaluate(self, q: np.ndarray, qd: np.ndarray) -> None:
         m, d = self.model, self.data
-        if self._blocks:
-            np.copyto(self._qpos_j, q)
-            np.copyto(self._qvel_j, qd)
+        if self._blocks:  # slice assignment: np.copyto's dispatch costs more than the copy of n numbers
+            self._qpos_j[:] = q
+            self._qvel_j[:] = qd
         else:
             np.put(self._qpos, self._qposadr, q)
             np.put(self._qvel, self._dofadr, qd)
@@ -189,7 +190,7 @@ class MomentumObserver:
         the reading the observer just took) and say so; False, leaving ``out`` alone, otherwise."""
         if not self._with_gravity or q.tolist() != self.evaluated_at:
             return False
-        np.copyto(out, self.gravity)
+        out[:] = self.gravity
         return True
 
     def _joints(self, full: np.ndarray, view: str) -> list[float]:
