@@ -4,6 +4,8 @@ real cycles (caches as the cycle leaves them) and in a tight loop (hot), on the 
 arm6, configs/arm6_can.yaml with ``safety.contact`` on as shipped, seeded random moves).
 
     python tools/contact_stages.py [--cycles 5000] [--runs 3]
+    python tools/contact_stages.py --durations [--cycles 20000]   # off / on / on alone: wall and CPU time
+
 
 In-cycle: each stage's method is wrapped in a timer (a wrapper adds ~0.1 µs to each figure); the table gives the
 median and p99 per call, ns, over ``--cycles`` cycles after a warm-up. Tight loop: the same calls repeated on one
@@ -135,12 +137,63 @@ def tight(runs: int, calls: int) -> None:
         print(f"  {label:40s} {ns:8.0f}")
 
 
+def cpu_durations(cycles: int, seed: int) -> None:
+    """The cycle's duration (start → writes done) in wall time and in the cycle thread's CPU time, observer off, on
+    (as shipped) and on alone, three rigs interleaved in chunks of 200 as ``measure_cost`` runs them. CPU time leaves
+    out the time other processes held the core, so on a loaded machine it shows the work the observer adds."""
+    adapters = ContactAdapters()
+    on = adapters.observer_safety(True)
+    configs = {"off": adapters.observer_safety(False), "on": on, "only": {"contact": {**on["contact"], "force": None}}}
+    rigs = {mode: ContactRig(RigSpec(safety=safety)) for mode, safety in configs.items()}
+    wall: dict[str, list[int]] = {mode: [] for mode in rigs}
+    cpu: dict[str, list[int]] = {mode: [] for mode in rigs}
+    try:
+        marks: dict[str, int] = {}
+        for mode, rig in rigs.items():
+            engine = rig.engine
+            assert engine is not None
+            write = engine._write
+
+            def timed_write(t: float, dt: float, write: Callable[..., None] = write, mode: str = mode) -> None:
+                write(t, dt)
+                marks[mode] = time.thread_time_ns()
+
+            engine._write = timed_write  # type: ignore[method-assign]
+            rig.activate(JTC)
+        rngs = {mode: np.random.default_rng(seed) for mode in rigs}
+        goals: dict[str, str | None] = dict.fromkeys(rigs)
+        while len(wall["off"]) < cycles:
+            for mode, rig in rigs.items():
+                for _ in range(200):
+                    goal = goals[mode]
+                    if goal is None or goal_done(rig, goal):
+                        goals[mode] = rig.move(sample_pose(rngs[mode]))
+                    start = time.thread_time_ns()
+                    wall[mode].append(rig.timed_cycle()[0])
+                    cpu[mode].append(marks[mode] - start)
+    finally:
+        for rig in rigs.values():
+            rig.close()
+    print(f"cycle duration, {cycles} cycles per rig (µs: p50 / p99; rise of p99 over off)")
+    base = {k: float(np.percentile(v, 99)) for k, v in (("wall", wall["off"]), ("cpu", cpu["off"]))}
+    for mode in rigs:
+        row = []
+        for kind, values in (("wall", wall[mode]), ("cpu", cpu[mode])):
+            p50, p99 = np.percentile(values, 50) / 1e3, np.percentile(values, 99) / 1e3
+            row.append(f"{kind} {p50:6.1f} / {p99:6.1f} ({100 * (p99 * 1e3 / base[kind] - 1):+5.1f} %)")
+        print(f"  {mode:5s} " + "   ".join(row))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cycles", type=int, default=5000)
     parser.add_argument("--runs", type=int, default=3)
     parser.add_argument("--seed", type=int, default=6)
+    parser.add_argument("--durations", action="store_true", help="only the wall/CPU durations, off vs on")
     args = parser.parse_args()
+    if args.durations:
+        cpu_durations(args.cycles, args.seed)
+        return
     in_cycle(args.cycles, args.seed)
     tight(args.runs, 5000)
 

@@ -117,6 +117,8 @@ class ContactMonitor:
         self._load = [0.0] * n  # low-passed |motor torque|: what model_margin scales
         self._extra = [0.0] * n  # what model_margin adds to each joint's thresholds this cycle (N·m)
         self._deferred = -1.0  # a quiet check's load update still to do: this cycle's low-pass share, or < 0: none
+        self._judge_due = 0.0  # a quiet force check's judgement still to do: this cycle's dt, or 0: none
+        self._force_limit = min(settings.force_contact, settings.force_collision)
 
         size = max(2, round(HISTORY * update_rate))
         self._history = np.zeros((size, n))
@@ -130,6 +132,8 @@ class ContactMonitor:
         self.tool_force = tool_force  # the Cartesian check, or None (per-joint thresholds only)
         self.force_level = NONE
         self._margin = np.zeros(n)
+        self._values: list[float] = []  # this cycle's estimate as floats
+        self._last_dt = 0.0
 
     # ---- every cycle ------------------------------------------------------------------------------------------
     def observe(self, state: JointState, last: ServoCommand, trusted: bool, dt: float) -> int:
@@ -140,6 +144,8 @@ class ContactMonitor:
         joint faulted but by a collision, no e-stop and no stop descent: the torque the observer is told acted."""
         if self._deferred >= 0.0:  # the last check's load update is still due (no after_write since)
             self._settle_load()
+        if self._judge_due > 0.0:  # and its force judgement (tau_ext still holds the estimate it was for)
+            self._judge_later(state.position)
         q, qd = state.position, state.velocity
         if self._keeps_path:
             np.copyto(self._rows[self._head], q)
@@ -151,7 +157,8 @@ class ContactMonitor:
         tau = self._motor_torque(state, last)
         r = self.observer.update(q, qd, tau, dt)
         self.tau_ext[:] = r  # slice assignment: cheaper than np.copyto's dispatch on n numbers
-        values, alpha = r.tolist(), min(1.0, self._gain * dt)
+        self._values = values = r.tolist()
+        alpha = min(1.0, self._gain * dt)
         if self._quiet(values):  # nothing near a threshold: the load's update waits until after the writes
             self._deferred, worst = alpha, -1
         else:
@@ -164,9 +171,19 @@ class ContactMonitor:
         of the command, so it never delays one. Also the load update a quiet check left for now (`_quiet`)."""
         if self._deferred >= 0.0:
             self._settle_load()
+        if self._judge_due > 0.0:  # before the refresh: with the G the check would have used
+            dt = self._judge_due
+            self._judge_later(q)
+            if self.tool_force is not None:
+                self._margin[:] = self._extra
+                self.tool_force.refresh(q, self._margin)
+                self.tool_force.predict(self.tau_ext, dt)
+            return
         if self.running and self.tool_force is not None:
             self._margin[:] = self._extra  # each joint's model margin, as its thresholds rose in this cycle's check
             self.tool_force.refresh(q, self._margin)
+            if self.tool_force.fresh and not math.isnan(self.tool_force.excess):
+                self.tool_force.predict(self.tau_ext, self._last_dt)
 
     def _restart(self, q: np.ndarray, qd: np.ndarray) -> None:
         self.running = False
@@ -282,6 +299,10 @@ class ContactMonitor:
         levels; returns ``worst``, or ``len(joints)`` (the tool) for a collision there that no joint reported."""
         tf = self.tool_force
         assert tf is not None
+        self._last_dt = dt
+        if self.force_level == NONE and tf.quiet(self._values, dt, self._force_limit):
+            self._judge_due = dt  # nothing this judgement can find: after the writes (`after_write`)
+            return worst
         if not tf.fresh:  # the first check after a restart: G and the margin's image are taken now
             self._margin[:] = self._extra
         excess = tf.judge(q, r, self._margin, dt)
@@ -304,6 +325,14 @@ class ContactMonitor:
             if not self.collided:
                 self._emit("info", "contact", "contact at the tool released")
         return worst
+
+    def _judge_later(self, q: np.ndarray) -> None:
+        """The judgement a quiet force check left for after the writes: on the same estimate (``tau_ext``), with the
+        same G; `quiet` proved its excess below every level, so it reports nothing."""
+        tf = self.tool_force
+        assert tf is not None
+        tf.judge(q, self.tau_ext, self._margin, self._judge_due)
+        self._judge_due = 0.0
 
     def _force_words(self) -> str:
         tf = self.tool_force
