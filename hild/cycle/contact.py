@@ -156,7 +156,8 @@ class ContactMonitor:
             return -1
         tau = self._motor_torque(state, last)
         r = self.observer.update(q, qd, tau, dt)
-        self.tau_ext[:] = r  # slice assignment: cheaper than np.copyto's dispatch on n numbers
+        if r is not self.tau_ext:  # the engine's observer writes it there itself
+            self.tau_ext[:] = r  # slice assignment: cheaper than np.copyto's dispatch on n numbers
         self._values = values = r.tolist()
         alpha = min(1.0, self._gain * dt)
         if self._quiet(values):  # nothing near a threshold: the load's update waits until after the writes
@@ -193,6 +194,7 @@ class ContactMonitor:
         if not (np.isfinite(q).all() and np.isfinite(qd).all()):
             return
         self.observer.reset(q, qd)
+        self.tau_ext.fill(np.nan)  # the observer may keep its residual (0 after a reset) in this very array
         self._q_prev, self._qd_prev = q.tolist(), qd.tolist()
         self.running = True
 

@@ -52,10 +52,19 @@ class MomentumObserver:
     """
 
     def __init__(
-        self, model_path: Path, joint_names: Sequence[str], gain: float, period: float, *, gravity: bool = False
+        self,
+        model_path: Path,
+        joint_names: Sequence[str],
+        gain: float,
+        period: float,
+        *,
+        gravity: bool = False,
+        residual: np.ndarray | None = None,
     ) -> None:
         """``gravity``: also compute the gravity torque at each reading it evaluates (``gravity``, `gravity_at`), for
-        the supervisor's feed-forward: one evaluation of the arm's dynamics per cycle serves both."""
+        the supervisor's feed-forward: one evaluation of the arm's dynamics per cycle serves both. ``residual``: the
+        array to keep ``r`` in (one entry per joint; written in place, never rebound), e.g. where the contact monitor
+        publishes its estimate — no copy per cycle."""
         if not gain > 0.0:
             raise ValueError(f"observer gain {gain} must be > 0 (1/s)")
         if gain * period >= 1.0:
@@ -95,7 +104,9 @@ class MomentumObserver:
             self._bias_j, self._passive_j = d.qfrc_bias[db], d.qfrc_passive[db]
             self._mass_j = self._mass[:, db]
 
-        self.residual = np.zeros(n)
+        if residual is not None and residual.shape != (n,):
+            raise ValueError(f"the residual's array has shape {residual.shape}, not ({n},)")
+        self.residual = np.zeros(n) if residual is None else residual
         self._with_gravity = gravity
         self.evaluated_at: list[float] = []  # the positions of the last reading evaluated with ``gravity``, as floats
         self._gravity_full = np.zeros(m.nv)
