@@ -54,7 +54,8 @@ def stages(rig: ContactRig) -> dict[str, Timed]:
         "  motor torque": (contact, "_motor_torque"),
         "  joint thresholds": (contact, "_classify"),
         "  quiet screen": (contact, "_quiet"),
-        "  force at the tool (judge)": (contact.tool_force, "judge"),
+        "  force at the tool (bound or judge)": (contact, "_classify_force"),
+        "    its judgement (either side)": (contact.tool_force, "judge"),
         "gravity feed-forward (shared)": (engine.supervisor, "gravity"),
         "after_write (G for the next cycle)": (contact, "after_write"),
     }
