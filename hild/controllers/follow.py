@@ -37,7 +37,7 @@ from ruckig import Synchronization
 from hild.arrays import JointState, ServoCommand
 from hild.config.params import Field, Params, dynamic, model_validator
 from hild.controller import ControllerContext, and_more, unknown_keys
-from hild.controllers.servo import Phase, ServoController, ServoParams, ServoTarget, stopping_distance
+from hild.controllers.servo import Phase, ServoController, ServoParams, ServoTarget
 from hild.modes import Source
 
 # The velocity scale changes ruckig's limits only when it moved by this much: no new limits on every cycle.
@@ -48,6 +48,16 @@ GAP_RECOVERY = 0.2
 # restarted: its seq this far below, or its stamp (the leader's cycle clock, which restarts at 0) this much older.
 SEQ_RESTART = 1000
 STAMP_RESTART = 1.0  # s
+# Each leader sample is aimed at where the leader will be a *lead* after it arrived (its position extrapolated at its
+# velocity), with its velocity, and ruckig is asked to take exactly the lead to get there (``minimum_duration``, the
+# chunk player's technique): the plan follows the leader's path instead of racing to each sample. Racing (a
+# time-optimal plan to each sample's position and velocity) is a feedback loop of unbounded gain behind a jerk limit:
+# it overshoots, brakes, overshoots — 0.16 rad on a 0.8 rad/s wave. A lead shorter than the time the jerk limit
+# needs to build up the acceleration limit is that loop again: in lockstep (tests/controllers/test_follow.py's wave,
+# a/j = 0.1 s) a lead of 0.4·a/j oscillates (50 ms lag, 0.19 rad errors); 0.8·a/j lags 2 ms (errors 1.7 mrad), 1.5·a/j
+# 2.6 ms, 2.5·a/j 3.6 ms, at a 500 Hz stream and at a 100 Hz one alike.
+LEAD_PER_JERK_TIME = 0.8  # the lead, in units of the slowest joint's acceleration / jerk
+MIN_LEAD_CYCLES = 4
 
 
 class JointMapping(Params):
@@ -84,8 +94,9 @@ class FollowParams(ServoParams):
     )
     anticipate: bool = Field(
         default=True,
-        description="Aim ahead of the leader by the distance the follower needs to brake from its velocity (and half "
-        "a stream period of travel): no lag at a steady speed, without chasing a moving target (which overshoots).",
+        description="Aim at the leader's position extrapolated at its velocity a lead ahead (0.8 · the slowest "
+        "joint's acceleration/jerk, at least 4 cycles), with its velocity, reached in exactly the lead: lag about a "
+        "control period. false: aim at the leader's position at rest, time-optimally (lags a few stream periods).",
     )
 
     @model_validator(mode="after")
@@ -109,6 +120,11 @@ class FollowController(ServoController):
         self._leader_joints = [m.joint or j for m, j in zip(mapping, params.joints, strict=True)]
         self._scale = [m.scale for m in mapping]
         self._offset = [m.offset for m in mapping]
+        period = 1.0 / context.update_rate
+        jerk_time = max(a / j for a, j in zip(self._amax, self._jmax, strict=True))
+        self.lead = max(LEAD_PER_JERK_TIME * jerk_time, MIN_LEAD_CYCLES * period)  # s: see LEAD_PER_JERK_TIME
+        # The extrapolation: to a lead after the plan's start, which is the last command, a cycle back.
+        self._ahead = self.lead - period
         # Doors beside the servo's target: the enable (1 = on) and the sample's seq (written before its target).
         self._enable_door = context.mailboxes.latest_numbers("enable", 1)
         self._seq_door = context.mailboxes.latest_numbers("leader_seq", 1)
@@ -203,8 +219,8 @@ class FollowController(ServoController):
         if not (isinstance(velocity, list) and len(velocity) == len(names)):
             velocity = None
         fresh = message.get("fresh")
-        half_period = 0.5 / self._follow_params().rate
-        positions = []
+        ahead = self._ahead
+        positions, velocities = [], []
         for k, i in enumerate(index):
             p = position[i]
             v = velocity[i] if velocity is not None else 0.0
@@ -213,14 +229,12 @@ class FollowController(ServoController):
             if isinstance(fresh, list) and len(fresh) == len(names) and fresh[i] == 0:
                 raise ValueError(f"{names[i]}: reading not fresh")
             v = self._scale[k] * v
-            speed = min(abs(v), self._vmax[k])
-            # Braking distance, plus half a stream period of travel: the sample is that old on average while it
-            # is the target (it stays one until the next arrives).
-            ahead = stopping_distance(speed, self._amax[k], self._jmax[k]) + speed * half_period if speed else 0.0
-            positions.append(self._scale[k] * p + self._offset[k] + math.copysign(ahead, v))
-        velocities = list(self._zeros)
+            # Where the leader will be when the plan gets there, at the speed it will have: the plan reaches it
+            # in exactly the lead (see _track).
+            positions.append(self._scale[k] * p + self._offset[k] + v * ahead)
+            velocities.append(v)
         clamped = self._clamp(positions, velocities)
-        return seq, ServoTarget(positions, velocities, False, clamped)
+        return seq, ServoTarget(positions, velocities, any(v != 0.0 for v in velocities), clamped)
 
     def _index_in(self, names: list[Any]) -> list[int]:
         key = tuple(names)
@@ -304,7 +318,14 @@ class FollowController(ServoController):
         self._seq, self._arrived = seq, t
         super()._track(t)
         self.source = Source.LEADER  # whatever the servo's own streams would record: this one is a human's
-        self._inp.synchronization = self._sync = Synchronization.No  # each joint chases its own leader joint
+        if self._follow_params().anticipate and self._slot.moving():
+            # Reach the extrapolated sample in the lead, not as fast as possible (ruckig's per-joint planning
+            # ignores a minimum duration: the joints are timed together, which changes nothing while they all
+            # can get there in the lead — only a far target, the first sample, takes them there together).
+            self._inp.synchronization = self._sync = Synchronization.Time
+            self._inp.minimum_duration = self.lead
+        else:
+            self._inp.synchronization = self._sync = Synchronization.No  # each joint chases its own leader joint
         self._slow_down_for(self._gap, force=True)
 
     def _follow_params(self) -> FollowParams:

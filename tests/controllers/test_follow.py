@@ -363,3 +363,35 @@ def test_whatever_the_stream_and_the_dead_man_do_the_command_stays_within_the_li
         leader.run(int(rng.integers(20, 200)), enable=bool(rng.random() < 0.7))
     assert follow.released_at > 0.0  # it did engage and release
     assert leader.probe.peak["velocity"] > 0.3  # and moved meanwhile
+
+
+def fitted_lag(times: np.ndarray, leader: np.ndarray, command: np.ndarray) -> float:
+    """The time shift τ (s, 0.1 ms steps) minimising the RMS of command(t) − leader(t − τ), as the bench fits it."""
+    shifts = np.arange(-0.02, 0.05, 1e-4)
+    rms = [np.sqrt(np.mean((command - np.interp(times - tau, times, leader)) ** 2)) for tau in shifts]
+    return float(shifts[int(np.argmin(rms))])
+
+
+@pytest.mark.parametrize("every", [1, EVERY])
+def test_a_wave_streamed_at_the_control_rate_is_followed_within_two_periods(
+    make_engine: MakeEngine, every: int
+) -> None:
+    """The [teleop] target: joint lag ≤ 2 control periods (+ the network's delay, none here) for a leader streaming
+    at the control rate, and no step beyond the limits on the way (the probe checks every cycle)."""
+    rate = 500.0 / every
+    engine, follow = started(make_engine, deadman={"required": False}, rate=rate)
+    wave = lambda t: [0.1 + 0.4 * math.sin(2.0 * t), -0.2 + 0.3 * math.sin(1.5 * t), 0.3]  # noqa: E731
+    leader = Leader(engine, follow, wave, every=every)
+    leader.run(1000)  # settle onto the wave
+    times, lead, command = [], [], []
+    for _ in range(1500):
+        leader.run(1)
+        times.append(engine.t)
+        lead.append(wave(engine.t)[:2])
+        command.append(engine.command.position[:2].copy())
+    t, p, c = np.array(times), np.array(lead), np.array(command)
+    lags = [fitted_lag(t, p[:, j], c[:, j]) for j in range(2)]
+    errors = [float(np.abs(c[:, j] - np.interp(t - lags[j], t, p[:, j])).max()) for j in range(2)]
+    print(f"every {every}: lags {[round(x * 1e3, 2) for x in lags]} ms, errors {errors}, peak {leader.probe.peak}")
+    assert max(abs(x) for x in lags) <= 2 * engine.period, lags
+    assert max(errors) < 0.002, errors
