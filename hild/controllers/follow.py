@@ -32,13 +32,14 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
-from ruckig import Synchronization
+from ruckig import InputParameter, OutputParameter, Result, Ruckig, RuckigError, Synchronization
 
 from hild.arrays import JointState, ServoCommand
 from hild.config.params import Field, Params, dynamic, model_validator
 from hild.controller import ControllerContext, and_more, unknown_keys
 from hild.controllers.servo import Phase, ServoController, ServoParams, ServoTarget
 from hild.modes import Source
+from hild.motion.chunks import clip_target
 
 # The velocity scale changes ruckig's limits only when it moved by this much: no new limits on every cycle.
 SPEED_STEP = 0.02
@@ -58,6 +59,9 @@ STAMP_RESTART = 1.0  # s
 # 2.6 ms, 2.5·a/j 3.6 ms, at a 500 Hz stream and at a 100 Hz one alike.
 LEAD_PER_JERK_TIME = 0.8  # the lead, in units of the slowest joint's acceleration / jerk
 MIN_LEAD_CYCLES = 4
+LEAD_SLACK = 1.001  # a joint's plan this much longer than the lead is not one in the lead (see _step)
+MAX_REAIMS = 3  # per joint and sample: aims further along the leader's path when the lead cannot be made
+MAX_LEAD_FACTOR = 4.0  # … at most this many leads ahead
 
 
 class JointMapping(Params):
@@ -125,6 +129,17 @@ class FollowController(ServoController):
         self.lead = max(LEAD_PER_JERK_TIME * jerk_time, MIN_LEAD_CYCLES * period)  # s: see LEAD_PER_JERK_TIME
         # The extrapolation: to a lead after the plan's start, which is the last command, a cycle back.
         self._ahead = self.lead - period
+        # Per joint, a ruckig of its own: ruckig honours a minimum duration only for joints timed together, and
+        # timing them together sends all the joints the long way round whenever one of them cannot make it in the
+        # lead (a target velocity blocks some durations: a synchronized plan of 0.3 s where each joint alone needs
+        # 0.08 s, measured on the bench's recorded stream — joints moving backwards).
+        self._joint_inp = [InputParameter(1) for _ in params.joints]
+        self._joint_out = [OutputParameter(1) for _ in params.joints]
+        self._joint_otg: list[Ruckig] = []
+        self._leading = False  # the joints follow their per-joint plans (TRACK of a moving leader)
+        self._sample_p: list[float] = []  # the last sample's target and velocity (cycle side)
+        self._sample_v: list[float] = []
+        self.reaims = 0  # joint plans aimed further along: the lead could not be made (tests, bench)
         # Doors beside the servo's target: the enable (1 = on) and the sample's seq (written before its target).
         self._enable_door = context.mailboxes.latest_numbers("enable", 1)
         self._seq_door = context.mailboxes.latest_numbers("leader_seq", 1)
@@ -174,7 +189,7 @@ class FollowController(ServoController):
             return  # the leader streams whether or not we follow: nothing to say
         with self._api_lock:  # one sample at a time: the seq order and the episode count are ours
             try:
-                seq, target = self._leader_target(message)
+                seq, positions, velocities = self._leader_sample(message)
             except ValueError as exc:
                 self._invalid(str(exc))
                 return
@@ -183,6 +198,7 @@ class FollowController(ServoController):
             if self._last_seq is not None and self._late(seq, stamp):
                 self.stale_samples += 1
                 return
+            target = self._aim(positions, velocities)
             self._last_seq, self._last_stamp = seq, stamp
             if self._invalid_run:
                 self.context.emit_event(
@@ -191,6 +207,18 @@ class FollowController(ServoController):
                 self._invalid_run = 0
             self._seq_door.put((float(seq),))
             self._slot.put(target)
+
+    def _aim(self, positions: list[float], velocities: list[float]) -> ServoTarget:
+        """Where the leader will be a lead after the plan starts (the last command, a cycle back), at its velocity:
+        the plan reaches it in the lead (see _track). Clamped as the servo clamps.
+
+        Not with the leader's acceleration: differenced from its velocities (2 ms apart, or over 20 ms) it is
+        noisy enough to make things worse — 10–27 mrad RMS against 1–3 on the bench's recorded stream."""
+        t = self._ahead
+        p = [q + v * t for q, v in zip(positions, velocities, strict=True)]
+        v = list(velocities)
+        clamped = self._clamp(p, v)
+        return ServoTarget(p, v, any(x != 0.0 for x in v), clamped)
 
     def _late(self, seq: int, stamp: float) -> bool:
         assert self._last_seq is not None
@@ -205,7 +233,9 @@ class FollowController(ServoController):
                 "warning", f"leader {self.params.leader}: sample not followed ({reason}); counting until valid again"
             )
 
-    def _leader_target(self, message: Any) -> tuple[int, ServoTarget]:
+    def _leader_sample(self, message: Any) -> tuple[int, list[float], list[float]]:
+        """The message's seq, and its positions and velocities mapped to the follower's joints; ValueError if it
+        cannot be followed."""
         if not isinstance(message, dict):
             raise ValueError("not a joint_states object")
         names, position = message.get("name"), message.get("position")
@@ -219,7 +249,6 @@ class FollowController(ServoController):
         if not (isinstance(velocity, list) and len(velocity) == len(names)):
             velocity = None
         fresh = message.get("fresh")
-        ahead = self._ahead
         positions, velocities = [], []
         for k, i in enumerate(index):
             p = position[i]
@@ -228,13 +257,9 @@ class FollowController(ServoController):
                 raise ValueError(f"{names[i]}: non-finite or not a number")
             if isinstance(fresh, list) and len(fresh) == len(names) and fresh[i] == 0:
                 raise ValueError(f"{names[i]}: reading not fresh")
-            v = self._scale[k] * v
-            # Where the leader will be when the plan gets there, at the speed it will have: the plan reaches it
-            # in exactly the lead (see _track).
-            positions.append(self._scale[k] * p + self._offset[k] + v * ahead)
-            velocities.append(v)
-        clamped = self._clamp(positions, velocities)
-        return seq, ServoTarget(positions, velocities, any(v != 0.0 for v in velocities), clamped)
+            positions.append(self._scale[k] * p + self._offset[k])
+            velocities.append(self._scale[k] * v)
+        return seq, positions, velocities
 
     def _index_in(self, names: list[Any]) -> list[int]:
         key = tuple(names)
@@ -247,6 +272,20 @@ class FollowController(ServoController):
         return self._lookup[1]
 
     # ---- cycle side ---------------------------------------------------------------------------------------
+    def on_configure(self) -> None:
+        super().on_configure()
+        self._joint_otg = [Ruckig(1, self._period) for _ in self._joint_inp]
+        for joint in self._joint_inp:
+            joint.synchronization = Synchronization.Time  # one joint: with None, ruckig pads the end instead
+
+    def on_cleanup(self) -> None:
+        super().on_cleanup()
+        self._joint_otg = []
+
+    def _hold_at(self, position: list[float]) -> None:
+        super()._hold_at(position)
+        self._leading = False
+
     def on_activate(self, state: JointState, last_command: ServoCommand) -> None:
         super().on_activate(state, last_command)
         self._enable_door.clear()
@@ -318,15 +357,91 @@ class FollowController(ServoController):
         self._seq, self._arrived = seq, t
         super()._track(t)
         self.source = Source.LEADER  # whatever the servo's own streams would record: this one is a human's
-        if self._follow_params().anticipate and self._slot.moving():
-            # Reach the extrapolated sample in the lead, not as fast as possible (ruckig's per-joint planning
-            # ignores a minimum duration: the joints are timed together, which changes nothing while they all
-            # can get there in the lead — only a far target, the first sample, takes them there together).
-            self._inp.synchronization = self._sync = Synchronization.Time
-            self._inp.minimum_duration = self.lead
-        else:
-            self._inp.synchronization = self._sync = Synchronization.No  # each joint chases its own leader joint
+        inp = self._inp
+        inp.synchronization = self._sync = Synchronization.No  # each joint chases its own leader joint
         self._slow_down_for(self._gap, force=True)
+        self._leading = False
+        if self._follow_params().anticipate and self._slot.moving():
+            self._plan_in_the_lead()
+
+    def _plan_in_the_lead(self) -> None:
+        """Each joint: reach the extrapolated sample in the lead, from where it is, on a ruckig of its own (see
+        __init__); a joint that cannot aims further along the leader's path (see _step)."""
+        inp = self._inp
+        self._sample_p, self._sample_v = inp.target_position, inp.target_velocity  # the leader, at the lead
+        cp, cv, ca = inp.current_position, inp.current_velocity, inp.current_acceleration
+        vmax, amax, jmax = inp.max_velocity, inp.max_acceleration, inp.max_jerk
+        for i, joint in enumerate(self._joint_inp):
+            joint.current_position, joint.current_velocity, joint.current_acceleration = [cp[i]], [cv[i]], [ca[i]]
+            joint.max_velocity, joint.max_acceleration, joint.max_jerk = [vmax[i]], [amax[i]], [jmax[i]]
+            self._aim_joint(i, self.lead)
+        self._leading = True
+
+    def _aim_joint(self, i: int, horizon: float) -> None:
+        """Joint ``i``'s target: the leader ``horizon`` after the plan starts (extrapolated on from the lead at
+        the sample's velocity), within the limits, reached in ``horizon``."""
+        joint, later, v = self._joint_inp[i], horizon - self.lead, self._sample_v[i]
+        tp, tv, ta = [self._sample_p[i] + v * later], [v], [0.0]
+        k = slice(i, i + 1)
+        clip_target(tp, tv, ta, self._lo[k], self._hi[k], joint.max_velocity, self._amax[k], self._jmax[k])
+        joint.target_position, joint.target_velocity, joint.target_acceleration = tp, tv, ta
+        joint.minimum_duration = horizon
+
+    def _step(self, dt: float) -> None:
+        if not (self._leading and self.phase is Phase.TRACK):
+            self._leading = False
+            super()._step(dt)
+            return
+        inp, vmax = self._inp, self._inp.max_velocity
+        p, v, a = list(self._zeros), list(self._zeros), list(self._zeros)
+        finished = True
+        for i, (joint, out, otg) in enumerate(zip(self._joint_inp, self._joint_out, self._joint_otg, strict=True)):
+            if joint.max_velocity[0] != vmax[i]:  # the stream degraded (or recovered): re-planned from here
+                joint.max_velocity = [vmax[i]]
+                tp, tv, ta = joint.target_position, joint.target_velocity, joint.target_acceleration
+                k = slice(i, i + 1)
+                clip_target(tp, tv, ta, self._lo[k], self._hi[k], [vmax[i]], self._amax[k], self._jmax[k])
+                joint.target_position, joint.target_velocity, joint.target_acceleration = tp, tv, ta
+            if dt > 0.0 and dt != otg.delta_time:
+                otg.delta_time = dt
+            try:
+                result = otg.update(joint, out)
+                tries = 0
+                while out.new_calculation and out.trajectory.duration > joint.minimum_duration * LEAD_SLACK:
+                    # Not in the lead: the joint is too far from the leader's path to join it that soon — often
+                    # ahead of it, where it would have to slow down and speed up again, more than the jerk limit
+                    # allows in the lead (then ruckig's plan is a long detour that stays ahead). Aim further along
+                    # the leader's path instead, at the horizon ruckig said it needs.
+                    tries += 1
+                    self.reaims += 1
+                    if tries > MAX_REAIMS:
+                        break
+                    self._aim_joint(i, min(out.trajectory.duration, MAX_LEAD_FACTOR * self.lead))
+                    result = otg.update(joint, out)
+            except RuckigError as exc:
+                self._fall_back(str(exc).strip().removeprefix("[ruckig] "), dt)
+                return
+            if result is not Result.Working and result is not Result.Finished:
+                self._fall_back(result.name, dt)
+                return
+            finished = finished and result is Result.Finished
+            out.pass_to_input(joint)
+            p[i], v[i], a[i] = out.new_position[0], out.new_velocity[0], out.new_acceleration[0]
+        if not math.isfinite(sum(p) + sum(v)):
+            self._fall_back("non-finite output", dt)
+            return
+        inp.current_position, inp.current_velocity, inp.current_acceleration = p, v, a
+        self._p, self._v = p, v
+        if finished:  # every joint got there: cruise at the leader's velocity, as the servo does
+            self._leading = False
+            if self._moving:
+                self._cruise_velocity[:] = [j.target_velocity[0] for j in self._joint_inp]
+                self._cruise()
+
+    def _fall_back(self, reason: str, dt: float) -> None:
+        """A joint's plan failed: stop all of them as the servo does (from the state they are in)."""
+        self._leading = False
+        self._planning_failed(reason, dt)
 
     def _follow_params(self) -> FollowParams:
         assert isinstance(self.params, FollowParams)
