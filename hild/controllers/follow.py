@@ -55,8 +55,9 @@ STAMP_RESTART = 1.0  # s
 # time-optimal plan to each sample's position and velocity) is a feedback loop of unbounded gain behind a jerk limit:
 # it overshoots, brakes, overshoots — 0.16 rad on a 0.8 rad/s wave. A lead shorter than the time the jerk limit
 # needs to build up the acceleration limit is that loop again: in lockstep (tests/controllers/test_follow.py's wave,
-# a/j = 0.1 s) a lead of 0.4·a/j oscillates (50 ms lag, 0.19 rad errors); 0.8·a/j lags 2 ms (errors 1.7 mrad), 1.5·a/j
-# 2.6 ms, 2.5·a/j 3.6 ms, at a 500 Hz stream and at a 100 Hz one alike.
+# a/j = 0.1 s, the extrapolation then a cycle short) a lead of 0.4·a/j oscillates (50 ms lag, 0.19 rad errors);
+# 0.8·a/j lagged 2 ms (errors 1.7 mrad), 1.5·a/j 2.6 ms, 2.5·a/j 3.6 ms, at a 500 Hz stream and a 100 Hz one alike.
+# On the bench's recorded streams (hard moves, at the follower's acceleration limits) 0.8–1.2·a/j did best.
 LEAD_PER_JERK_TIME = 0.8  # the lead, in units of the slowest joint's acceleration / jerk
 MIN_LEAD_CYCLES = 4
 LEAD_SLACK = 1.001  # a joint's plan this much longer than the lead is not one in the lead (see _step)
@@ -127,8 +128,11 @@ class FollowController(ServoController):
         period = 1.0 / context.update_rate
         jerk_time = max(a / j for a, j in zip(self._amax, self._jmax, strict=True))
         self.lead = max(LEAD_PER_JERK_TIME * jerk_time, MIN_LEAD_CYCLES * period)  # s: see LEAD_PER_JERK_TIME
-        # The extrapolation: to a lead after the plan's start, which is the last command, a cycle back.
-        self._ahead = self.lead - period
+        # The extrapolation: a lead past the sample. The cycle that takes it plans from the command of the cycle
+        # before and writes one cycle on, so the plan ends a lead after the cycle that took the sample — a cycle or
+        # less after it arrived (extrapolating a cycle less lagged a cycle: 2 ms, in lockstep and on the bench's
+        # recorded streams).
+        self._ahead = self.lead
         # Per joint, a ruckig of its own: ruckig honours a minimum duration only for joints timed together, and
         # timing them together sends all the joints the long way round whenever one of them cannot make it in the
         # lead (a target velocity blocks some durations: a synchronized plan of 0.3 s where each joint alone needs
@@ -209,8 +213,8 @@ class FollowController(ServoController):
             self._slot.put(target)
 
     def _aim(self, positions: list[float], velocities: list[float]) -> ServoTarget:
-        """Where the leader will be a lead after the plan starts (the last command, a cycle back), at its velocity:
-        the plan reaches it in the lead (see _track). Clamped as the servo clamps.
+        """Where the leader will be a lead after the sample, at its velocity: the plan reaches it in the lead (see
+        _track). Clamped as the servo clamps.
 
         Not with the leader's acceleration: differenced from its velocities (2 ms apart, or over 20 ms) it is
         noisy enough to make things worse — 10–27 mrad RMS against 1–3 on the bench's recorded stream."""
