@@ -32,12 +32,12 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
-from ruckig import InputParameter, OutputParameter, Result, Ruckig, RuckigError, Synchronization
+from ruckig import ControlInterface, InputParameter, OutputParameter, Result, Ruckig, RuckigError, Synchronization
 
 from hild.arrays import JointState, ServoCommand
 from hild.config.params import Field, Params, dynamic, model_validator
 from hild.controller import ControllerContext, and_more, unknown_keys
-from hild.controllers.servo import Phase, ServoController, ServoParams, ServoTarget
+from hild.controllers.servo import Phase, ServoController, ServoParams, ServoTarget, stopping_distance
 from hild.modes import Source
 from hild.motion.chunks import clip_target
 
@@ -389,6 +389,7 @@ class FollowController(ServoController):
         k = slice(i, i + 1)
         clip_target(tp, tv, ta, self._lo[k], self._hi[k], joint.max_velocity, self._amax[k], self._jmax[k])
         joint.target_position, joint.target_velocity, joint.target_acceleration = tp, tv, ta
+        joint.control_interface = ControlInterface.Position
         joint.minimum_duration = horizon
 
     def _step(self, dt: float) -> None:
@@ -406,12 +407,18 @@ class FollowController(ServoController):
                 k = slice(i, i + 1)
                 clip_target(tp, tv, ta, self._lo[k], self._hi[k], [vmax[i]], self._amax[k], self._jmax[k])
                 joint.target_position, joint.target_velocity, joint.target_acceleration = tp, tv, ta
+            if joint.control_interface == ControlInterface.Velocity:
+                self._brake_joint_before_soft_limits(i, joint)
             if dt > 0.0 and dt != otg.delta_time:
                 otg.delta_time = dt
             try:
                 result = otg.update(joint, out)
                 tries = 0
-                while out.new_calculation and out.trajectory.duration > joint.minimum_duration * LEAD_SLACK:
+                while (
+                    out.new_calculation
+                    and joint.minimum_duration is not None  # None: cruising on its own
+                    and out.trajectory.duration > joint.minimum_duration * LEAD_SLACK
+                ):
                     # Not in the lead: the joint is too far from the leader's path to join it that soon — often
                     # ahead of it, where it would have to slow down and speed up again, more than the jerk limit
                     # allows in the lead (then ruckig's plan is a long detour that stays ahead). Aim further along
@@ -428,6 +435,12 @@ class FollowController(ServoController):
             if result is not Result.Working and result is not Result.Finished:
                 self._fall_back(result.name, dt)
                 return
+            if result is Result.Finished and joint.control_interface == ControlInterface.Position:
+                # There, a lead after the sample (the next one is late; a joint at rest is there all along):
+                # cruise on at the leader's velocity, as the servo does. Left to plan to its target, a joint
+                # that passed it with a velocity would be planned back to it.
+                joint.control_interface = ControlInterface.Velocity
+                joint.minimum_duration = None
             finished = finished and result is Result.Finished
             out.pass_to_input(joint)
             p[i], v[i], a[i] = out.new_position[0], out.new_velocity[0], out.new_acceleration[0]
@@ -436,11 +449,21 @@ class FollowController(ServoController):
             return
         inp.current_position, inp.current_velocity, inp.current_acceleration = p, v, a
         self._p, self._v = p, v
-        if finished:  # every joint got there: cruise at the leader's velocity, as the servo does
+        if finished:  # every joint cruises: the servo's cruise from here (dead reckoning until the next sample)
             self._leading = False
-            if self._moving:
-                self._cruise_velocity[:] = [j.target_velocity[0] for j in self._joint_inp]
-                self._cruise()
+            self._cruise_velocity[:] = [j.target_velocity[0] for j in self._joint_inp]
+            self._cruise()
+
+    def _brake_joint_before_soft_limits(self, i: int, joint: InputParameter) -> None:
+        """A joint cruising on its own: brake if one more cycle of travel would leave too little room to stop (as
+        the servo's cruise does for all of them)."""
+        v = joint.target_velocity[0]
+        if v == 0.0:
+            return
+        p = joint.current_position[0]
+        room = (self._hi[i] - p if v > 0.0 else p - self._lo[i]) - abs(v) * self._lookahead
+        if stopping_distance(abs(v), self._amax[i], self._jmax[i]) >= room:
+            joint.target_velocity = [0.0]
 
     def _fall_back(self, reason: str, dt: float) -> None:
         """A joint's plan failed: stop all of them as the servo does (from the state they are in)."""

@@ -392,6 +392,6 @@ def test_a_wave_streamed_at_the_control_rate_is_followed_within_two_periods(
     t, p, c = np.array(times), np.array(lead), np.array(command)
     lags = [fitted_lag(t, p[:, j], c[:, j]) for j in range(2)]
     errors = [float(np.abs(c[:, j] - np.interp(t - lags[j], t, p[:, j])).max()) for j in range(2)]
-    print(f"every {every}: lags {[round(x * 1e3, 2) for x in lags]} ms, errors {errors}, peak {leader.probe.peak}")
     assert max(abs(x) for x in lags) <= 2 * engine.period, lags
     assert max(errors) < 0.002, errors
+    assert not [e for e in events(engine) if e.startswith(("error", "warning"))]  # never fell back nor stopped
