@@ -48,6 +48,9 @@ BRAKE_LOOKAHEAD_CYCLES = 2.0
 # ends, so each joint plans on its own (see ``_track``). A jittery 1 kHz stream at a 1 kHz cycle has gaps of 2.
 FAST_STREAM_CYCLES = 2.0
 
+# How a chunk's target is planned: the joints together in time (``Synchronization.Time``) or each on its own.
+CHUNK_SYNC = Synchronization.Time
+
 ALLOWED_INTERFACES = ({"position"}, {"position", "velocity"})
 
 
@@ -247,6 +250,7 @@ class ServoController(PlansMotion, Controller):
 
         self._slot = TargetRecord(context.mailboxes.latest_numbers("target", TargetRecord.width(n)), n)
         self._chunks = ChunkPlayer(context.mailboxes.latest_numbers("chunk", ChunkRecord.width(n)), n)
+        self._chunks.blend.limits(self._vmax, self._amax, self._jmax)
         self._last_chunk_note = [-math.inf] * len(Verdict)  # per refusal: one event a second of each
         self._zeros = [0.0] * n
         self._otg: Ruckig | None = None
@@ -296,6 +300,7 @@ class ServoController(PlansMotion, Controller):
         assert isinstance(self.params, ServoParams)
         jerk_before = self._inp.max_jerk
         self._scale_limits(self.params)
+        self._chunks.blend.limits(self._vmax, self._amax, self._jmax)
         self._plan_within_limits()
         if self.phase != Phase.HOLD:
             self._inp.max_jerk = [max(a, b) for a, b in zip(jerk_before, self._jmax, strict=True)]
@@ -507,13 +512,15 @@ class ServoController(PlansMotion, Controller):
         chunks.aim(dt, self.params.chunk_slowdown, CHUNK_LEAD)
         p, v, a = chunks.target.tolist()
         clip_target(p, v, a, self._lo, self._hi, self._vmax, self._amax, self._jmax)
-        inp.control_interface = ControlInterface.Position
-        inp.synchronization = Synchronization.Time
+        inp.control_interface = _POSITION
+        if self._sync is not CHUNK_SYNC:
+            inp.synchronization = self._sync = CHUNK_SYNC
         inp.target_position = p
         inp.target_velocity = v
         inp.target_acceleration = a
+        self._target_p = self._target_v = []  # not a streamed target: the next one is handed to ruckig
         inp.minimum_duration = chunks.lead_time  # the last approach too: no time-optimal dash to the end
-        self.phase = Phase.TRACK
+        self.phase = _TRACK
 
     def _end_chunk(self) -> None:
         """Playback over (a target took over, a timeout, a planning error): plain targets are reached at rest

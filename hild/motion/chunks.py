@@ -193,6 +193,9 @@ class ChunkPlayer:
         self.target_p, self.target_v, self.target_a = self.target
         self.lead_time = 0.0  # s the servo gives ruckig to reach the target
         self._weights = np.zeros((3, 4))  # Hermite weights of (p_k, v_k, p_k+1, v_k+1) for p, v, a
+        self.blend = HandoffBlend(n)
+        self._last = np.zeros((3, n))  # the last target handed out (chunk + offset): where a successor blends from
+        self._blend_pending = False  # a successor started while a chunk played: absorb the difference next aim
 
     @property
     def end(self) -> float:
@@ -202,12 +205,14 @@ class ChunkPlayer:
     def reset(self) -> None:
         """Forget the running chunk and any waiting one (activation, a joint taken over)."""
         self.record.clear()
-        self.playing = False
+        self.stop()
         self.stamp = -math.inf
         self.dropped = self.refused = 0
 
     def stop(self) -> None:
         self.playing = False
+        self._blend_pending = False
+        self.blend.clear()
 
     def start(self, t: float) -> Verdict:
         """Take the chunk just arrived (``record.take()`` was true) at cycle time ``t``."""
@@ -225,6 +230,7 @@ class ChunkPlayer:
         self._pv[:steps, 0] = self.record.positions[:steps]
         self._pv[:steps, 1] = self.record.velocities[:steps]
         self._steps, self._step, self.stamp = steps, dt, stamp
+        self._blend_pending = self.playing  # overlapping: blend from the running target into the new chunk
         self.tau, self.speed, self.playing = t - stamp, 1.0, True
         return Verdict.STARTED
 
@@ -274,8 +280,23 @@ class ChunkPlayer:
                 self.lead_time = max(2.0 * math.sqrt(slowdown * remaining), dt)
         else:
             self._sample(ahead, self.speed)
+        self._absorb_handoff(dt)
         self.tau = min(tau + dt * self.speed, end)
         return True
+
+    def _absorb_handoff(self, dt: float) -> None:
+        """At a handoff, start blending out the difference between the running target (the last one, carried one
+        cycle on) and the new chunk's sample; every cycle, add what is left of it: the target stays continuous."""
+        target, last = self.target, self._last
+        if self._blend_pending:
+            self._blend_pending = False
+            # the last target one cycle on (p + v·dt + a·dt²/2, v + a·dt, a), minus the new chunk's sample
+            last[0] += dt * last[1] + (0.5 * dt * dt) * last[2]
+            last[1] += dt * last[2]
+            np.subtract(last, target, out=last)
+            self.blend.start(last)
+        self.blend.add_to(target, dt)
+        last[:] = target
 
     def _rest_at_end(self) -> None:
         self.target_p[:] = self._pv[self._steps - 1, 0]
@@ -295,6 +316,115 @@ class ChunkPlayer:
             ((12 * u - 6) * s2, (6 * u - 4) * s2 * h, (6 - 12 * u) * s2, (6 * u - 2) * s2 * h),
         )
         np.dot(self._weights, self._pv[k : k + 2].reshape(4, self.n), out=self.target)
+
+
+class HandoffBlend:
+    """The offset between two chunks where they meet, decaying to zero on a quintic (minimum-jerk) profile.
+
+    A new chunk rarely starts where the running one is: a real policy's successive predictions differ by a few mrad
+    (and in velocity). Jumping to the new one puts the target out of reach within the tracker's short lead, and the
+    longer synchronized plan that follows leaves the path. Instead the played target is the new chunk plus an offset
+    that starts at the difference (position Δp, velocity Δv, acceleration Δa: the target stays continuous in all
+    three across the handoff) and reaches zero, with zero velocity and acceleration, after a blend time chosen per
+    joint so that each of the offset's terms stays within ``BLEND_FRACTION`` of the joint's velocity, acceleration
+    and jerk limits (:func:`blend_time`). A handoff during a blend starts from the blended target: offsets never
+    stack.
+
+    Per joint the offset is a polynomial in the time since the handoff, ``Σ c_k·s^k`` (k ≤ 5), until its blend time;
+    the coefficients live in a preallocated (6, n) array, evaluated with one (3, 6) × (6, n) product.
+    """
+
+    def __init__(self, n: int) -> None:
+        self.n = n
+        self.coefficients = np.zeros((6, n))
+        self.duration = [0.0] * n  # s per joint; 0 once blended out
+        self.age = 0.0  # s since the handoff
+        self.active = False
+        self._powers = np.zeros((3, 6))
+        self._offset = np.zeros((3, n))
+        self.vmax = [math.inf] * n
+        self.amax = [math.inf] * n
+        self.jmax = [math.inf] * n
+
+    def limits(self, vmax: Sequence[float], amax: Sequence[float], jmax: Sequence[float]) -> None:
+        """The (scaled) limits the blend time is computed from."""
+        self.vmax, self.amax, self.jmax = list(vmax), list(amax), list(jmax)
+
+    def clear(self) -> None:
+        self.active = False
+        self.coefficients[:] = 0.0
+        self.duration[:] = [0.0] * self.n
+
+    def start(self, difference: np.ndarray) -> None:
+        """Start from ``difference`` (3, n): position, velocity and acceleration, the running target − the new."""
+        c = self.coefficients
+        self.age = 0.0
+        self.active = False
+        for i in range(self.n):
+            p0, v0, a0 = difference.item(0, i), difference.item(1, i), difference.item(2, i)
+            if p0 == 0.0 and v0 == 0.0 and a0 == 0.0:
+                self.duration[i] = 0.0
+                c[:, i] = 0.0
+                continue
+            T = blend_time(p0, v0, a0, self.vmax[i], self.amax[i], self.jmax[i])
+            T2, T3 = T * T, T * T * T
+            c[0, i], c[1, i], c[2, i] = p0, v0, 0.5 * a0
+            c[3, i] = -10.0 * p0 / T3 - 6.0 * v0 / T2 - 1.5 * a0 / T
+            c[4, i] = 15.0 * p0 / (T3 * T) + 8.0 * v0 / T3 + 1.5 * a0 / T2
+            c[5, i] = -6.0 * p0 / (T3 * T2) - 3.0 * v0 / (T2 * T2) - 0.5 * a0 / T3
+            self.duration[i] = T
+            self.active = True
+
+    def add_to(self, target: np.ndarray, dt: float) -> None:
+        """Add the offset at its current age to ``target`` (3, n: p, v, a) in place, then age it by ``dt``."""
+        if not self.active:
+            return
+        s, c, duration = self.age, self.coefficients, self.duration
+        blending = False
+        for i in range(self.n):  # past its blend time a joint's polynomial is not zero: zero it
+            if duration[i] != 0.0:
+                if s >= duration[i]:
+                    duration[i] = 0.0
+                    c[:, i] = 0.0
+                else:
+                    blending = True
+        if not blending:
+            self.active = False
+            return
+        s2, s3 = s * s, s * s * s
+        self._powers[:] = (
+            (1.0, s, s2, s3, s3 * s, s3 * s2),
+            (0.0, 1.0, 2.0 * s, 3.0 * s2, 4.0 * s3, 5.0 * s3 * s),
+            (0.0, 0.0, 2.0, 6.0 * s, 12.0 * s2, 20.0 * s3),
+        )
+        np.dot(self._powers, c, out=self._offset)
+        target += self._offset
+        self.age = s + dt
+
+
+# The offset's share of each limit, per term (its start in position, velocity, acceleration): the chunk's own motion
+# and the tracker's corrections need the rest. The constants below are the peaks of the quintic's basis functions on
+# [0, 1] (H0 for the position difference, H1 velocity, H2 acceleration): velocity H0' 1.875; acceleration H0'' 5.774,
+# H1'' 3.94; jerk H0''' 60, H1''' 36, H2''' 9.
+BLEND_FRACTION = 0.1
+MIN_BLEND = 0.05  # s
+MAX_BLEND = 1.0  # s: a difference that needs longer is no disagreement but a jump; the tracker takes the rest
+
+
+def blend_time(dp: float, dv: float, da: float, vmax: float, amax: float, jmax: float) -> float:
+    """The shortest blend time, within [``MIN_BLEND``, ``MAX_BLEND``], at which each term of an offset starting at
+    (dp, dv, da) stays within ``BLEND_FRACTION`` of the velocity, acceleration and jerk limits."""
+    f = BLEND_FRACTION
+    dp, dv, da = abs(dp), abs(dv), abs(da)
+    needed = max(
+        1.875 * dp / (f * vmax),
+        math.sqrt(5.774 * dp / (f * amax)),
+        3.94 * dv / (f * amax),
+        (60.0 * dp / (f * jmax)) ** (1.0 / 3.0),
+        math.sqrt(36.0 * dv / (f * jmax)),
+        9.0 * da / (f * jmax),
+    )
+    return min(max(needed, MIN_BLEND), MAX_BLEND)
 
 
 def clip_target(
