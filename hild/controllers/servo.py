@@ -48,9 +48,6 @@ BRAKE_LOOKAHEAD_CYCLES = 2.0
 # ends, so each joint plans on its own (see ``_track``). A jittery 1 kHz stream at a 1 kHz cycle has gaps of 2.
 FAST_STREAM_CYCLES = 2.0
 
-# How a chunk's target is planned: the joints together in time (``Synchronization.Time``) or each on its own.
-CHUNK_SYNC = Synchronization.Time
-
 ALLOWED_INTERFACES = ({"position"}, {"position", "velocity"})
 
 
@@ -78,6 +75,14 @@ class ServoParams(Params):
         le=10.0,
         description="Chunk time (s) before a policy chunk's end from which, with no successor, playback slows "
         "to reach its last point at rest (2× this long); 0: no slow-down.",
+    )
+    chunk_ensemble: float = dynamic(
+        default=0.3,
+        ge=0.0,
+        le=10.0,
+        description="Time constant (s) of temporal ensembling: the target averages the running policy chunk with "
+        "the older ones still overlapping it, each weighted exp(−age/this), age its stamp's before the running "
+        "chunk's; 0: the running chunk alone.",
     )
 
     @model_validator(mode="after")
@@ -251,6 +256,7 @@ class ServoController(PlansMotion, Controller):
         self._slot = TargetRecord(context.mailboxes.latest_numbers("target", TargetRecord.width(n)), n)
         self._chunks = ChunkPlayer(context.mailboxes.latest_numbers("chunk", ChunkRecord.width(n)), n)
         self._chunks.blend.limits(self._vmax, self._amax, self._jmax)
+        self._chunks.ensemble = params.chunk_ensemble
         self._last_chunk_note = [-math.inf] * len(Verdict)  # per refusal: one event a second of each
         self._zeros = [0.0] * n
         self._otg: Ruckig | None = None
@@ -301,6 +307,7 @@ class ServoController(PlansMotion, Controller):
         jerk_before = self._inp.max_jerk
         self._scale_limits(self.params)
         self._chunks.blend.limits(self._vmax, self._amax, self._jmax)
+        self._chunks.ensemble = self.params.chunk_ensemble
         self._plan_within_limits()
         if self.phase != Phase.HOLD:
             self._inp.max_jerk = [max(a, b) for a, b in zip(jerk_before, self._jmax, strict=True)]
@@ -512,15 +519,13 @@ class ServoController(PlansMotion, Controller):
         chunks.aim(dt, self.params.chunk_slowdown, CHUNK_LEAD)
         p, v, a = chunks.target.tolist()
         clip_target(p, v, a, self._lo, self._hi, self._vmax, self._amax, self._jmax)
-        inp.control_interface = _POSITION
-        if self._sync is not CHUNK_SYNC:
-            inp.synchronization = self._sync = CHUNK_SYNC
+        inp.control_interface = ControlInterface.Position
+        inp.synchronization = self._sync = _TOGETHER
         inp.target_position = p
         inp.target_velocity = v
         inp.target_acceleration = a
-        self._target_p = self._target_v = []  # not a streamed target: the next one is handed to ruckig
         inp.minimum_duration = chunks.lead_time  # the last approach too: no time-optimal dash to the end
-        self.phase = _TRACK
+        self.phase = Phase.TRACK
 
     def _end_chunk(self) -> None:
         """Playback over (a target took over, a timeout, a planning error): plain targets are reached at rest
@@ -529,6 +534,7 @@ class ServoController(PlansMotion, Controller):
             self._chunks.stop()
             self._inp.minimum_duration = None
             self._inp.target_acceleration = self._zeros
+            self._target_p = self._target_v = []  # ruckig was aimed at the chunk: no streamed target is "the same"
 
     def _cruise(self) -> None:
         self._to_velocity(self._cruise_velocity, _CRUISE)

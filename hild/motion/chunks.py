@@ -40,6 +40,10 @@ from hild.crossing.mailboxes import LatestNumbers
 # 28 mrad RMS; 0.15 s 4.9; 0.1 s 1.8; 0.08 s 1.0 (max 1.8); 0.06 s 0.5 (but max 3.9–5.0: a plan now and then not
 # reachable in time); 0.04 s 12 (falls back to racing). Shorter lags less, longer forgives more.
 CHUNK_LEAD = 0.08  # s
+# Chunks kept for temporal ensembling (the running one and the newest older ones); an older chunk leaves once its
+# weight is below MIN_WEIGHT (at 10 Hz and the default ensemble time constant, after 3 handoffs).
+ENSEMBLE_SLOTS = 6
+MIN_WEIGHT = 0.02
 MAX_CHUNK_STEPS = 100  # fixes the record's size: 2 s at 50 Hz, more than any policy's chunk in use
 MAX_STEP_PERIOD = 1.0  # s; a longer step is no action chunk
 MIN_STEP_PERIOD = 1e-4  # s
@@ -180,9 +184,19 @@ class ChunkPlayer:
     def __init__(self, door: LatestNumbers, n: int) -> None:
         self.record = ChunkRecord(door, n)
         self.n = n
-        self._pv = np.zeros((MAX_CHUNK_STEPS, 2, n))  # step k: position, velocity — two steps are one (4, n) view
-        self._steps = 0
-        self._step = 1.0  # the chunk's dt
+        # The newest chunks, a ring of ENSEMBLE_SLOTS: slot i, step k: position, velocity (two steps: one (4, n) view)
+        self._pv = np.zeros((ENSEMBLE_SLOTS, MAX_CHUNK_STEPS, 2, n))
+        self._slot_steps = [0] * ENSEMBLE_SLOTS
+        self._slot_dt = [1.0] * ENSEMBLE_SLOTS
+        self._slot_stamp = [-math.inf] * ENSEMBLE_SLOTS
+        self._live = [False] * ENSEMBLE_SLOTS  # in the ensemble
+        self._newest = 0  # the running chunk's slot
+        self._steps = 0  # the running chunk's
+        self._step = 1.0  # the running chunk's dt
+        self.ensemble = 0.0  # s: the older chunks' weights decay with their age by this time constant; 0: newest only
+        self._at_end = False  # the target was the running chunk's last point, at rest
+        self._mixed = False  # the last sample averaged older chunks in
+        self._sampled = np.zeros((3, n))
         self.stamp = -math.inf  # of the chunk last started: an older one is stale
         self.tau = 0.0  # chunk time of the next sample, s since stamp
         self.speed = 1.0  # chunk time per real time, < 1 while slowing down
@@ -195,7 +209,7 @@ class ChunkPlayer:
         self._weights = np.zeros((3, 4))  # Hermite weights of (p_k, v_k, p_k+1, v_k+1) for p, v, a
         self.blend = HandoffBlend(n)
         self._last = np.zeros((3, n))  # the last target handed out (chunk + offset): where a successor blends from
-        self._blend_pending = False  # a successor started while a chunk played: absorb the difference next aim
+        self._blend_pending = False  # the target's source changed: absorb the difference at the next aim
 
     @property
     def end(self) -> float:
@@ -227,10 +241,17 @@ class ChunkPlayer:
         if t - stamp > (steps - 1) * dt:
             self.refused += 1
             return Verdict.PAST
-        self._pv[:steps, 0] = self.record.positions[:steps]
-        self._pv[:steps, 1] = self.record.velocities[:steps]
+        if self.playing:  # overlapping: the ensemble gains a member; blend from the running target into it
+            slot = (self._newest + 1) % ENSEMBLE_SLOTS
+            self._blend_pending = True
+        else:
+            slot = 0
+            self._live[:] = [False] * ENSEMBLE_SLOTS
+        self._pv[slot, :steps, 0] = self.record.positions[:steps]
+        self._pv[slot, :steps, 1] = self.record.velocities[:steps]
+        self._slot_steps[slot], self._slot_dt[slot], self._slot_stamp[slot] = steps, dt, stamp
+        self._live[slot], self._newest, self._at_end = True, slot, False
         self._steps, self._step, self.stamp = steps, dt, stamp
-        self._blend_pending = self.playing  # overlapping: blend from the running target into the new chunk
         self.tau, self.speed, self.playing = t - stamp, 1.0, True
         return Verdict.STARTED
 
@@ -275,11 +296,14 @@ class ChunkPlayer:
         ahead = tau + (lead - dt) * self.speed  # the plan starts from the last command, one cycle back
         self.lead_time = lead
         if ahead >= end:  # the last point, at rest, in the time the slow-down takes to get there
+            if not self._at_end:
+                self._at_end = True
+                self._blend_pending |= self._mixed  # older chunks were in the target: they leave it now
             self._rest_at_end()
             if remaining < slowdown:
                 self.lead_time = max(2.0 * math.sqrt(slowdown * remaining), dt)
         else:
-            self._sample(ahead, self.speed)
+            self._sample_ensemble(ahead, self.speed)
         self._absorb_handoff(dt)
         self.tau = min(tau + dt * self.speed, end)
         return True
@@ -299,14 +323,46 @@ class ChunkPlayer:
         last[:] = target
 
     def _rest_at_end(self) -> None:
-        self.target_p[:] = self._pv[self._steps - 1, 0]
+        self.target_p[:] = self._pv[self._newest, self._steps - 1, 0]
         self.target[1:] = 0.0
 
-    def _sample(self, tau: float, speed: float) -> None:
-        """Cubic Hermite between the two steps around ``tau``: one (3, 4) × (4, n) product; velocity and acceleration
-        scaled by the playback speed."""
-        h = self._step
-        k = min(int(tau / h), self._steps - 2)
+    def _sample_ensemble(self, tau: float, speed: float) -> None:
+        """The running chunk at ``tau``, averaged with the older chunks still in the ring at the same instant (ACT's
+        temporal ensembling), each weighted ``exp(−age/ensemble)`` (age: its stamp's, before the running chunk's).
+        The weights are constant between handoffs, so the average is as smooth as the chunks; each change of members
+        (a new chunk, an older one ending or weighing less than ``MIN_WEIGHT``) is blended in (:meth:`_absorb_handoff`).
+        """
+        newest, stamp, target, sampled = self._newest, self.stamp, self.target, self._sampled
+        self._sample(newest, tau, speed, target)
+        self._mixed = False
+        ensemble = self.ensemble
+        if ensemble <= 0.0:
+            return
+        total = 1.0
+        live = self._live
+        for slot in range(ENSEMBLE_SLOTS):
+            if slot == newest or not live[slot]:
+                continue
+            age = stamp - self._slot_stamp[slot]
+            weight = math.exp(-age / ensemble)
+            at = tau + age  # the same instant in that chunk's time
+            if weight < MIN_WEIGHT or at >= (self._slot_steps[slot] - 1) * self._slot_dt[slot]:
+                live[slot] = False
+                self._blend_pending = True
+                continue
+            self._sample(slot, at, speed, sampled)
+            sampled *= weight
+            target += sampled
+            total += weight
+        if total != 1.0:
+            target *= 1.0 / total
+            self._mixed = True
+
+    def _sample(self, slot: int, tau: float, speed: float, out: np.ndarray) -> None:
+        """Cubic Hermite between the two steps of ``slot`` around ``tau``: one (3, 4) × (4, n) product; velocity and
+        acceleration scaled by the playback speed."""
+        h = self._slot_dt[slot]
+        k = min(int(tau / h), self._slot_steps[slot] - 2)
         u = tau / h - k
         u2, u3 = u * u, u * u * u
         s, s2 = speed / h, speed * speed / (h * h)
@@ -315,7 +371,7 @@ class ChunkPlayer:
             ((6 * u2 - 6 * u) * s, (3 * u2 - 4 * u + 1) * speed, (6 * u - 6 * u2) * s, (3 * u2 - 2 * u) * speed),
             ((12 * u - 6) * s2, (6 * u - 4) * s2 * h, (6 - 12 * u) * s2, (6 * u - 2) * s2 * h),
         )
-        np.dot(self._weights, self._pv[k : k + 2].reshape(4, self.n), out=self.target)
+        np.dot(self._weights, self._pv[slot, k : k + 2].reshape(4, self.n), out=out)
 
 
 class HandoffBlend:
@@ -406,7 +462,7 @@ class HandoffBlend:
 # and the tracker's corrections need the rest. The constants below are the peaks of the quintic's basis functions on
 # [0, 1] (H0 for the position difference, H1 velocity, H2 acceleration): velocity H0' 1.875; acceleration H0'' 5.774,
 # H1'' 3.94; jerk H0''' 60, H1''' 36, H2''' 9.
-BLEND_FRACTION = 0.1
+BLEND_FRACTION = 0.2
 MIN_BLEND = 0.05  # s
 MAX_BLEND = 1.0  # s: a difference that needs longer is no disagreement but a jump; the tracker takes the rest
 

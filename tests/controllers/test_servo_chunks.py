@@ -212,7 +212,7 @@ def test_a_chunk_crosses_the_shared_region_as_one_record_and_plays_through_its_p
     assert player.start(2.0) == Verdict.STARTED
     assert player.end == pytest.approx(STEP * (MAX_CHUNK_STEPS - 1))
     for k in (0, 17, MAX_CHUNK_STEPS - 2):
-        player._sample(k * STEP, 1.0)
+        player._sample(0, k * STEP, 1.0, player.target)
         np.testing.assert_allclose(player.target_p, positions[k], atol=1e-12)
         slope = (np.array(positions[k + 1]) - np.array(positions[max(k - 1, 0)])) / (STEP * (2 if k else 1))
         np.testing.assert_allclose(player.target_v, slope, atol=1e-9)
