@@ -658,3 +658,45 @@ def format_contact(report: dict[str, Any]) -> str:
         text += f", on {cpu_on['p99']} µs" if cpu_on else ""
         lines.append(text)
     return "\n".join(lines)
+
+
+# ---- some parts only ------------------------------------------------------------------------------------------------
+PARTS: dict[str, Callable[[ContactSettings, ContactAdapters], dict[str, Any]]] = {
+    "detection": measure_detection,
+    "quiet": measure_quiet,
+    "obstacle": measure_obstacle,
+    "walls": measure_walls,
+    "guiding": measure_guiding,
+    "cost": lambda settings, adapters: measure_cost(settings, adapters, True),
+}
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    """``python -m hild.bench.contact --parts obstacle,cost``: some parts of the group (the whole one takes long), their
+    figures as JSON (the same as in ``hild bench --only contact --json``'s ``contact`` section)."""
+    import argparse
+    import json
+
+    parser = argparse.ArgumentParser(prog="python -m hild.bench.contact", description=main.__doc__)
+    parser.add_argument("--parts", default="cost", help=f"comma-separated, of: {', '.join(PARTS)}")
+    parser.add_argument("--quick", action="store_true", help="the smoke run's sizes")
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--hits", type=int, help="detection hits")
+    parser.add_argument("--obstacle-hits", type=int, help="sweeps per speed")
+    parser.add_argument("--cost-cycles", type=int, help="cycles per configuration")
+    args = parser.parse_args(argv)
+    parts = [p.strip() for p in args.parts.split(",") if p.strip()]
+    unknown = [p for p in parts if p not in PARTS]
+    if unknown:
+        parser.error(f"unknown parts {', '.join(unknown)} (known: {', '.join(PARTS)})")
+    settings = ContactSettings.make(args.quick, args.seed)
+    for field, value in (("hits", args.hits), ("obstacle_hits", args.obstacle_hits), ("cost_cycles", args.cost_cycles)):
+        if value is not None:
+            setattr(settings, field, value)
+    adapters = ContactAdapters()
+    report = {"settings": asdict(settings), **{part: guarded(PARTS[part], settings, adapters) for part in parts}}
+    print(json.dumps(report, indent=1))
+
+
+if __name__ == "__main__":
+    main()

@@ -304,7 +304,7 @@ class FollowController(ServoController):
         self._seq, self._arrived = seq, t
         super()._track(t)
         self.source = Source.LEADER  # whatever the servo's own streams would record: this one is a human's
-        self._inp.synchronization = Synchronization.No  # each joint chases its own leader joint, time-optimal
+        self._inp.synchronization = self._sync = Synchronization.No  # each joint chases its own leader joint
         self._slow_down_for(self._gap, force=True)
 
     def _follow_params(self) -> FollowParams:

@@ -116,6 +116,9 @@ class ContactMonitor:
         self._qd_prev = [0.0] * n
         self._load = [0.0] * n  # low-passed |motor torque|: what model_margin scales
         self._extra = [0.0] * n  # what model_margin adds to each joint's thresholds this cycle (N·m)
+        self._deferred = -1.0  # a quiet check's load update still to do: this cycle's low-pass share, or < 0: none
+        self._judge_due = 0.0  # a quiet force check's judgement still to do: this cycle's dt, or 0: none
+        self._force_limit = min(settings.force_contact, settings.force_collision)
 
         size = max(2, round(HISTORY * update_rate))
         self._history = np.zeros((size, n))
@@ -129,6 +132,8 @@ class ContactMonitor:
         self.tool_force = tool_force  # the Cartesian check, or None (per-joint thresholds only)
         self.force_level = NONE
         self._margin = np.zeros(n)
+        self._values: list[float] = []  # this cycle's estimate as floats
+        self._last_dt = 0.0
 
     # ---- every cycle ------------------------------------------------------------------------------------------
     def observe(self, state: JointState, last: ServoCommand, trusted: bool, dt: float) -> int:
@@ -137,6 +142,10 @@ class ContactMonitor:
 
         ``last``: the final command sent at the interval's start. ``trusted``: every reading fresh and accepted, no
         joint faulted but by a collision, no e-stop and no stop descent: the torque the observer is told acted."""
+        if self._deferred >= 0.0:  # the last check's load update is still due (no after_write since)
+            self._settle_load()
+        if self._judge_due > 0.0:  # and its force judgement (tau_ext still holds the estimate it was for)
+            self._judge_later(state.position)
         q, qd = state.position, state.velocity
         if self._keeps_path:
             np.copyto(self._rows[self._head], q)
@@ -147,17 +156,35 @@ class ContactMonitor:
             return -1
         tau = self._motor_torque(state, last)
         r = self.observer.update(q, qd, tau, dt)
-        np.copyto(self.tau_ext, r)
-        worst = self._classify(r.tolist(), min(1.0, self._gain * dt))
+        if r is not self.tau_ext:  # the engine's observer writes it there itself
+            self.tau_ext[:] = r  # slice assignment: cheaper than np.copyto's dispatch on n numbers
+        self._values = values = r.tolist()
+        alpha = min(1.0, self._gain * dt)
+        if self._quiet(values):  # nothing near a threshold: the load's update waits until after the writes
+            self._deferred, worst = alpha, -1
+        else:
+            worst = self._classify(values, alpha)
         return worst if self.tool_force is None else self._classify_force(q, r, dt, worst)  # the force at the tool
 
     def after_write(self, q: np.ndarray) -> None:
         """After the cycle's writes: what the next cycle's check needs and this cycle's command does not — the force
         estimate's G at this reading (``q``) and the image of the joints' model margins at the tool. Off the path
-        of the command, so it never delays one."""
+        of the command, so it never delays one. Also the load update a quiet check left for now (`_quiet`)."""
+        if self._deferred >= 0.0:
+            self._settle_load()
+        if self._judge_due > 0.0:  # before the refresh: with the G the check would have used
+            dt = self._judge_due
+            self._judge_later(q)
+            if self.tool_force is not None:
+                self._margin[:] = self._extra
+                self.tool_force.refresh(q, self._margin)
+                self.tool_force.predict(self.tau_ext, dt)
+            return
         if self.running and self.tool_force is not None:
             self._margin[:] = self._extra  # each joint's model margin, as its thresholds rose in this cycle's check
             self.tool_force.refresh(q, self._margin)
+            if self.tool_force.fresh and not math.isnan(self.tool_force.excess):
+                self.tool_force.predict(self.tau_ext, self._last_dt)
 
     def _restart(self, q: np.ndarray, qd: np.ndarray) -> None:
         self.running = False
@@ -167,6 +194,7 @@ class ContactMonitor:
         if not (np.isfinite(q).all() and np.isfinite(qd).all()):
             return
         self.observer.reset(q, qd)
+        self.tau_ext.fill(np.nan)  # the observer may keep its residual (0 after a reset) in this very array
         self._q_prev, self._qd_prev = q.tolist(), qd.tolist()
         self.running = True
 
@@ -208,6 +236,31 @@ class ContactMonitor:
         self._net = tau
         return self._tau
 
+    def _quiet(self, r: list[float]) -> bool:
+        """Every joint's estimate within its own contact threshold before the model margin, no joint in a contact
+        episode, and the force check's margin image not due now: then this check can neither report nor release
+        anything (the margin only raises the thresholds, and contact ≤ collision), so the per-joint load update is
+        all `_classify` would do, and it waits until after the writes (`_settle_load`). Exact: the same arithmetic,
+        later."""
+        if any(self.level) or (self.tool_force is not None and not self.tool_force.fresh):
+            return False
+        for x, contact in zip(r, self._contact):  # noqa: B905 (strict= costs more than this loop; both are n long)
+            if x > contact or -x > contact:
+                break
+        else:
+            return True
+        return False
+
+    def _settle_load(self) -> None:
+        """The load update and model margin a quiet check deferred (the same arithmetic as `_classify`'s, on this
+        interval's torques, still in ``_raw`` and ``_net``)."""
+        alpha, self._deferred = self._deferred, -1.0
+        margin, load, extras = self.settings.model_margin, self._load, self._extra
+        for i, (m, t) in enumerate(zip(self._raw, self._net, strict=True)):
+            held = load[i] = load[i] + alpha * ((m if m >= 0.0 else -m) - load[i])
+            t = t if t >= 0.0 else -t
+            extras[i] = margin * (held if held > t else t)
+
     def _classify(self, r: list[float], alpha: float) -> int:
         """The contact events, and the joint whose collision threshold ``r`` crossed most (or -1). Low-passes the
         load (``alpha``: this cycle's share) on the way: the thresholds rise with it."""
@@ -248,6 +301,10 @@ class ContactMonitor:
         levels; returns ``worst``, or ``len(joints)`` (the tool) for a collision there that no joint reported."""
         tf = self.tool_force
         assert tf is not None
+        self._last_dt = dt
+        if self.force_level == NONE and tf.quiet(self._values, dt, self._force_limit):
+            self._judge_due = dt  # nothing this judgement can find: after the writes (`after_write`)
+            return worst
         if not tf.fresh:  # the first check after a restart: G and the margin's image are taken now
             self._margin[:] = self._extra
         excess = tf.judge(q, r, self._margin, dt)
@@ -270,6 +327,14 @@ class ContactMonitor:
             if not self.collided:
                 self._emit("info", "contact", "contact at the tool released")
         return worst
+
+    def _judge_later(self, q: np.ndarray) -> None:
+        """The judgement a quiet force check left for after the writes: on the same estimate (``tau_ext``), with the
+        same G; `quiet` proved its excess below every level, so it reports nothing."""
+        tf = self.tool_force
+        assert tf is not None
+        tf.judge(q, self.tau_ext, self._margin, self._judge_due)
+        self._judge_due = 0.0
 
     def _force_words(self) -> str:
         tf = self.tool_force

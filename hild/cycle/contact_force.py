@@ -25,6 +25,13 @@ Allocation-free per cycle: every array is built here; the 3 × 3 inverse and the
 changes with the pose only, so it is not computed on the way to the command: `refresh` runs after the cycle's
 writes, at that cycle's reading, and the next cycle's `judge` uses it — one cycle old: at 3 rad/s, 3 mrad of pose,
 well under 1 % of the force.
+
+**Most cycles judge after the writes** (docs/performance.md, "Contact safety"). The next `judge` is affine in the
+next ``τ_ext``: with ``H = (1 − a)·F̄ + a·G·τ_ext`` at this cycle's estimate (`predict`, after the writes), the next
+``F̄`` is ``H + a·G·Δτ_ext``, and ``‖G·Δτ_ext‖ ≤ ‖G‖_F·‖Δτ_ext‖``. So `quiet` bounds the next ``excess`` by
+``max(‖H‖ − bound, ‖H − B‖) + a·‖G‖_F·‖Δτ_ext‖`` — one distance between two lists of floats — and when that bound
+is below every level nothing can be reported: the cycle's command does not wait for the judgement, which runs
+after the writes on the same numbers (the same arithmetic, later: the same figures to the bit).
 """
 
 from __future__ import annotations
@@ -77,6 +84,12 @@ class ToolForce:
         self._base = (0.0, 0.0, 0.0)
         self._primed = False
         self._armed_in = 0.0
+        # `predict`'s bound on the next judgement: valid after a predict, until the next judge or restart
+        self._predicted = False
+        self._share = 0.0  # the filter's share ``a`` the prediction assumed (the next judge's dt must give the same)
+        self._reach = 0.0  # max(‖H‖ − bound, ‖H − B‖) (N)
+        self._norm = 0.0  # ‖G‖_F (1/m), as of the last refresh
+        self._told: list[float] = []  # the estimate the prediction was made at
 
     @property
     def force(self) -> np.ndarray:
@@ -87,6 +100,7 @@ class ToolForce:
         """The observer restarted: forget the filter and the baseline, disarm the change until it settled."""
         self._primed = False
         self.fresh = False
+        self._predicted = False
         self._filtered = (math.nan, math.nan, math.nan)
         self.change = self.level = self.excess = math.nan
 
@@ -98,6 +112,7 @@ class ToolForce:
         """Estimate the force at the tool for ``tau_ext`` at ``q``, filter it and return ``excess`` (N): the larger of
         its sudden change and its level above the model margin's image (``margin``: N·m per joint, ≥ 0; taken with G
         after a restart, else the image `refresh` computed after the last cycle's writes)."""
+        self._predicted = False
         if not self.fresh:
             self.refresh(q, margin)
         self._gain.dot(tau_ext, out=self._raw)  # ndarray.dot with out: on these sizes a third of np.matmul's cost
@@ -142,7 +157,38 @@ class ToolForce:
         self._gain_abs.dot(margin, out=self._image)
         ix, iy, iz = self._image.tolist()
         self._bound = math.sqrt(ix * ix + iy * iy + iz * iz)
+        self._norm = math.hypot(*self._gain.ravel().tolist())
+        self._predicted = False
         self.fresh = True
+
+    def predict(self, tau_ext: np.ndarray, dt: float) -> None:
+        """After the writes, once `judge` ran on this cycle's estimate ``tau_ext`` and `refresh` gave the G the next
+        judge uses: what `quiet` needs to bound the next judgement (``H``, its reach; ``dt``: the next cycle's
+        period as this one's)."""
+        if not (self._primed and self.fresh):
+            return
+        a = min(1.0, self.bandwidth * dt)
+        self._gain.dot(tau_ext, out=self._raw)
+        gx, gy, gz = self._raw.tolist()
+        f0, f1, f2 = self._filtered
+        b0, b1, b2 = self._base
+        hx, hy, hz = f0 + a * (gx - f0), f1 + a * (gy - f1), f2 + a * (gz - f2)
+        level = math.sqrt(hx * hx + hy * hy + hz * hz) - self._bound
+        dx, dy, dz = hx - b0, hy - b1, hz - b2
+        change = math.sqrt(dx * dx + dy * dy + dz * dz)
+        self._reach = change if change > level else level
+        self._share = a
+        self._told = tau_ext.tolist()
+        self._predicted = True
+
+    def quiet(self, tau_ext: list[float], dt: float, limit: float) -> bool:
+        """Whether the next `judge`, on ``tau_ext`` after ``dt``, is sure to find an ``excess`` at most ``limit`` (N):
+        then it may run after the writes. False whenever no prediction stands (after a restart, a refresh without
+        a predict, a judge) or the period changed."""
+        if not self._predicted or min(1.0, self.bandwidth * dt) != self._share:
+            return False
+        reach = self._reach + self._share * self._norm * math.dist(tau_ext, self._told)
+        return reach * (1.0 + 1e-9) + 1e-9 < limit  # float rounding of H's arithmetic against judge's: ~1e-15 N
 
     def _invert(self, a: list[list[float]]) -> None:
         """``(a + λ²I)⁻¹`` of the symmetric 3 × 3 ``a`` into ``_inverse`` (cofactors: no solver call, no array)."""

@@ -308,7 +308,10 @@ class Engine:
             force_collision=c.force.collision if c.force else math.inf,
         )
         shares_gravity = self.supervisor.gravity is not None  # one evaluation of the dynamics per cycle serves both
-        observer = MomentumObserver(path, self.joints, c.observer_gain, self.period, gravity=shares_gravity)
+        tau_ext = self.row.field("tau_ext")  # the estimate is written where the cycle log reads it
+        observer = MomentumObserver(
+            path, self.joints, c.observer_gain, self.period, gravity=shares_gravity, residual=tau_ext
+        )
         if shares_gravity:
             from hild.dynamics.gravity import SharedGravity
 
@@ -324,7 +327,7 @@ class Engine:
             update_rate=self.update_rate,
             tool=ToolPoint(path, self.joints, site=c.tool_site).position if c.reflex == "retract" else None,
             tool_force=self._build_tool_force(loaded, observer) if c.force else None,
-            tau_ext=self.row.field("tau_ext"),  # the estimate is written where the cycle log reads it
+            tau_ext=tau_ext,
         )
 
     def _build_tool_force(self, loaded: LoadedConfig, observer: MomentumObserver) -> ToolForce:

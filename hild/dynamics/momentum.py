@@ -52,10 +52,19 @@ class MomentumObserver:
     """
 
     def __init__(
-        self, model_path: Path, joint_names: Sequence[str], gain: float, period: float, *, gravity: bool = False
+        self,
+        model_path: Path,
+        joint_names: Sequence[str],
+        gain: float,
+        period: float,
+        *,
+        gravity: bool = False,
+        residual: np.ndarray | None = None,
     ) -> None:
         """``gravity``: also compute the gravity torque at each reading it evaluates (``gravity``, `gravity_at`), for
-        the supervisor's feed-forward: one evaluation of the arm's dynamics per cycle serves both."""
+        the supervisor's feed-forward: one evaluation of the arm's dynamics per cycle serves both. ``residual``: the
+        array to keep ``r`` in (one entry per joint; written in place, never rebound), e.g. where the contact monitor
+        publishes its estimate — no copy per cycle."""
         if not gain > 0.0:
             raise ValueError(f"observer gain {gain} must be > 0 (1/s)")
         if gain * period >= 1.0:
@@ -95,13 +104,17 @@ class MomentumObserver:
             self._bias_j, self._passive_j = d.qfrc_bias[db], d.qfrc_passive[db]
             self._mass_j = self._mass[:, db]
 
-        self.residual = np.zeros(n)
+        if residual is not None and residual.shape != (n,):
+            raise ValueError(f"the residual's array has shape {residual.shape}, not ({n},)")
+        self.residual = np.zeros(n) if residual is None else residual
         self._with_gravity = gravity
-        self.gravity = np.zeros(n)  # g(q) at the last reading evaluated (with ``gravity``)
-        self.evaluated_at: list[float] = []  # that reading's positions, as floats
+        self.evaluated_at: list[float] = []  # the positions of the last reading evaluated with ``gravity``, as floats
         self._gravity_full = np.zeros(m.nv)
         self._cvel, self._cdof_dot = d.cvel, d.cdof_dot
         self._gravity_j = self._gravity_full[db] if db is not None else None
+        # g(q) at that reading (with ``gravity``): the joints' block of the RNE's output itself when they are one
+        # block (no copy per cycle), else gathered into its own array
+        self.gravity = self._gravity_j if self._gravity_j is not None else np.zeros(n)
         self._r = [0.0] * n  # the residual as floats: the recursion's state
         self._bias_prev = [0.0] * n  # qfrc_bias and qfrc_passive at the interval's start
         self._passive_prev = [0.0] * n
@@ -149,10 +162,11 @@ class MomentumObserver:
         # r_k = K·e_k = (1 − K·dt)·r_{k−1} + K·(½(M_k + M_{k−1})·Δq̇ − (τ − ½(known_k + known_{k−1}))·dt), with
         # known = qfrc_bias − qfrc_passive
         decay, half_k, k_dt = 1.0 - self.gain * dt, 0.5 * self.gain, self.gain * dt
+        # zip without strict=: the keyword alone costs more than the arithmetic here (every list is n long)
         self._r = r = [
             decay * r0 + half_k * (a + b) - k_dt * (t - 0.5 * (g - p + g0 - p0))
-            for r0, a, b, t, g, p, g0, p0 in zip(
-                self._r, x, y, tau.tolist(), bias, passive, self._bias_prev, self._passive_prev, strict=True
+            for r0, a, b, t, g, p, g0, p0 in zip(  # noqa: B905
+                self._r, x, y, tau.tolist(), bias, passive, self._bias_prev, self._passive_prev
             )
         ]
         self.residual[:] = r
@@ -161,9 +175,9 @@ class MomentumObserver:
 
     def _evaluate(self, q: np.ndarray, qd: np.ndarray) -> None:
         m, d = self.model, self.data
-        if self._blocks:
-            np.copyto(self._qpos_j, q)
-            np.copyto(self._qvel_j, qd)
+        if self._blocks:  # slice assignment: np.copyto's dispatch costs more than the copy of n numbers
+            self._qpos_j[:] = q
+            self._qvel_j[:] = qd
         else:
             np.put(self._qpos, self._qposadr, q)
             np.put(self._qvel, self._dofadr, qd)
@@ -177,9 +191,7 @@ class MomentumObserver:
             self._cvel.fill(0.0)
             self._cdof_dot.fill(0.0)
             mujoco.mj_rne(m, d, 0, self._gravity_full)
-            if self._gravity_j is not None:
-                np.copyto(self.gravity, self._gravity_j)
-            else:
+            if self._gravity_j is None:
                 np.take(self._gravity_full, self._dofadr, out=self.gravity)
             self.evaluated_at = q.tolist()
         mujoco.mj_fwdVelocity(m, d)  # qfrc_passive, and qfrc_bias = C(q, q̇)q̇ + g(q)
@@ -189,7 +201,7 @@ class MomentumObserver:
         the reading the observer just took) and say so; False, leaving ``out`` alone, otherwise."""
         if not self._with_gravity or q.tolist() != self.evaluated_at:
             return False
-        np.copyto(out, self.gravity)
+        out[:] = self.gravity
         return True
 
     def _joints(self, full: np.ndarray, view: str) -> list[float]:

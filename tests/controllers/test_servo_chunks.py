@@ -189,6 +189,28 @@ def test_the_source_is_policy_while_chunks_drive_and_stream_once_a_target_arrive
     assert servo.source == Source.POLICY
 
 
+def test_the_streamed_target_sent_before_a_chunk_is_followed_again_after_it(make_engine: MakeEngine) -> None:
+    """A stream target, a chunk moving elsewhere, then the very same target: the servo goes back to it (an unchanged
+    target is not re-planned — but ruckig was aimed at the chunk meanwhile), planned per joint like the stream."""
+    engine, servo = started(make_engine, command_timeout=5.0)
+    start = engine.state.position.copy()
+    target = (start + 0.05).tolist()
+    probe = LimitProbe(engine, servo)
+    servo.accept({"positions": target})
+    probe.run(1)
+    servo.accept({"positions": target})
+    probe.run(300)
+    np.testing.assert_allclose(engine.command.position, target, atol=1e-9)
+    servo.accept_chunk(chunk(engine.t, ramp(np.array(target), np.array([0.3, -0.3, 0.3]))))
+    probe.run(300)
+    assert np.abs(engine.command.position - target).max() > 0.05  # the chunk took it away
+    for _ in range(400):  # the same target, streamed every cycle
+        servo.accept({"positions": target})
+        probe.run(1)
+    assert servo._inp.synchronization == servo._sync  # what ruckig holds is what the servo thinks it holds
+    np.testing.assert_allclose(engine.command.position, target, atol=1e-6)
+
+
 def test_a_chunk_for_an_inactive_servo_is_refused(make_engine: MakeEngine) -> None:
     engine = make_engine(servo_patch())
     servo = engine.manager.records["servo"].instance
