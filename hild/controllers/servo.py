@@ -524,10 +524,10 @@ class ServoController(PlansMotion, Controller):
 
         Except toward a first chunk (after a rest, a stream or a stop: nothing to blend from), often far from the
         joints and moving: there each joint races to the target on its own, time-optimally, until the next chunk
-        starts or the plan reaches the target within ``RACE_UNTIL`` leads. A synchronized plan with the lead as its minimum
-        duration, asked for a target out of reach, stretches to whatever duration every joint can meet (0.3–0.6 s:
-        a joint's reachable durations have gaps) and leaves the path; on the bench that relapsed once in five seeds
-        (80 mrad 1.2–1.4 s after the start), never with the race (seeds 1–8)."""
+        starts or the plan reaches the target within ``RACE_UNTIL`` leads. A synchronized plan with the lead as its
+        minimum duration, asked for a target out of reach, stretches to whatever duration every joint can meet
+        (0.3–0.6 s: a joint's reachable durations have gaps) and leaves the path; on the bench that relapsed once in
+        five seeds (80 mrad 1.2–1.4 s after the start), never with the race (seeds 1–8)."""
         chunks, inp = self._chunks, self._inp
         chunks.aim(dt, self.params.chunk_slowdown, CHUNK_LEAD)
         p, v, a = chunks.target.tolist()
