@@ -196,7 +196,9 @@ class ChunkPlayer:
         self.ensemble = 0.0  # s: the older chunks' weights decay with their age by this time constant; 0: newest only
         self._at_end = False  # the target was the running chunk's last point, at rest
         self._mixed = False  # the last sample averaged older chunks in
-        self._sampled = np.zeros((3, n))
+        self._stack = np.zeros((4 * ENSEMBLE_SLOTS, n))  # the members' steps around the instant (see _sample_ensemble)
+        self._stack_weights = [np.zeros((3, 4 * m)) for m in range(ENSEMBLE_SLOTS + 1)]  # per member count
+        self._rows: tuple[list[float], list[float], list[float]] = ([], [], [])
         self.stamp = -math.inf  # of the chunk last started: an older one is stale
         self.tau = 0.0  # chunk time of the next sample, s since stamp
         self.speed = 1.0  # chunk time per real time, < 1 while slowing down
@@ -332,29 +334,44 @@ class ChunkPlayer:
         The weights are constant between handoffs, so the average is as smooth as the chunks; each change of members
         (a new chunk, an older one ending or weighing less than ``MIN_WEIGHT``) is blended in (:meth:`_absorb_handoff`).
         """
-        newest, stamp, target, sampled = self._newest, self.stamp, self.target, self._sampled
-        self._sample(newest, tau, speed, target)
+        newest, target = self._newest, self.target
         self._mixed = False
         ensemble = self.ensemble
         if ensemble <= 0.0:
+            self._sample(newest, tau, speed, target)
             return
-        total = 1.0
-        live = self._live
+        # Every member's two steps around the instant go into one stack, its Hermite weights (times its ensemble
+        # weight) into one row each for p, v, a: one (3, 4m) × (4m, n) product for the m members.
+        stack, rows, live, stamp = self._stack, self._rows, self._live, self.stamp
+        wp, wv, wa = rows
+        wp.clear(), wv.clear(), wa.clear()
+        total, m = 0.0, 0
         for slot in range(ENSEMBLE_SLOTS):
-            if slot == newest or not live[slot]:
+            if not live[slot]:
                 continue
             age = stamp - self._slot_stamp[slot]
-            weight = math.exp(-age / ensemble)
+            weight = 1.0 if slot == newest else math.exp(-age / ensemble)
             at = tau + age  # the same instant in that chunk's time
-            if weight < MIN_WEIGHT or at >= (self._slot_steps[slot] - 1) * self._slot_dt[slot]:
+            if slot != newest and (weight < MIN_WEIGHT or at >= (self._slot_steps[slot] - 1) * self._slot_dt[slot]):
                 live[slot] = False
                 self._blend_pending = True
                 continue
-            self._sample(slot, at, speed, sampled)
-            sampled *= weight
-            target += sampled
+            h = self._slot_dt[slot]
+            k = min(int(at / h), self._slot_steps[slot] - 2)
+            u = at / h - k
+            u2, u3 = u * u, u * u * u
+            c, cv, ca = weight, weight * speed, weight * speed * speed / (h * h)
+            cs = cv / h
+            wp += (c * (2 * u3 - 3 * u2 + 1), c * h * (u3 - 2 * u2 + u), c * (3 * u2 - 2 * u3), c * h * (u3 - u2))
+            wv += (cs * (6 * u2 - 6 * u), cv * (3 * u2 - 4 * u + 1), cs * (6 * u - 6 * u2), cv * (3 * u2 - 2 * u))
+            wa += (ca * (12 * u - 6), ca * h * (6 * u - 4), ca * (6 - 12 * u), ca * h * (6 * u - 2))
+            stack[4 * m : 4 * m + 4] = self._pv[slot, k : k + 2].reshape(4, self.n)
             total += weight
-        if total != 1.0:
+            m += 1
+        weights = self._stack_weights[m]
+        weights[0], weights[1], weights[2] = wp, wv, wa
+        np.dot(weights, stack[: 4 * m], out=target)
+        if m > 1:
             target *= 1.0 / total
             self._mixed = True
 
