@@ -7,8 +7,13 @@ lags by the inference delay. Here a chunk is a function of time: step ``k`` is w
 ``stamp + k·dt`` on the control clock (``stamp``: the joint_states stamp of the observation the policy used). Each
 cycle the player samples it at ``t − stamp`` (the part already in the past is skipped: the inference delay is
 compensated), interpolated as a cubic Hermite spline (position and velocity, C¹), and hands that moving target to
-the servo, whose ruckig tracking keeps the command within the velocity, acceleration and jerk limits. A new chunk
-simply replaces the sampled function: the target moves on, the arm never comes to rest between overlapping chunks.
+the servo, whose ruckig tracking keeps the command within the velocity, acceleration and jerk limits.
+
+Handoffs: a new chunk joins the older ones still overlapping it (temporal ensembling: the target is their average at
+the same instant, weighted ``exp(−age/ensemble)``), and whatever the change of members makes the target jump by
+(position, velocity, acceleration) is absorbed by :class:`HandoffBlend`, an offset decaying to zero on a quintic
+within a share of the limits: the target stays continuous, so ruckig's short lead keeps it within reach even when
+successive chunks disagree, and the arm never comes to rest between overlapping chunks.
 
 Late chunks: within ``slowdown`` (chunk time) of the running chunk's end, with no successor, playback slows:
 chunk time advances at ``s = sqrt(remaining / slowdown)`` of real time, a constant deceleration of time that
