@@ -13,6 +13,7 @@ from hild.bench.chunks import ChunkSettings, figures, play
 from hild.controllers.servo import Phase, ServoController
 from hild.crossing.mailboxes import Shared
 from hild.crossing.region import Region
+from hild.crossing.requests import SetParams
 from hild.cycle.engine import Engine
 from hild.modes import Source
 from hild.motion.chunks import (
@@ -368,3 +369,35 @@ def test_older_chunks_are_ensembled_with_exponential_weights_by_age() -> None:
             player.aim(0.002, 0.3, 0.08)
         assert not player.blend.active
         np.testing.assert_allclose(player.target_p, expected, atol=1e-12)
+
+
+def test_chunk_ensemble_and_lowered_scales_apply_while_chunks_play(make_engine: MakeEngine) -> None:
+    """Set at runtime between two cycles: ``chunk_ensemble`` 0 plays the newest chunk alone from the next cycle, and
+    lowered scales bound both the tracking and the blend time computed at the next handoff; every step stays within
+    the new limits."""
+    engine, servo = started(make_engine, command_timeout=5.0)
+    probe = LimitProbe(engine, servo)
+    assert servo._chunks.ensemble == 0.3
+    start, slope = engine.state.position.copy(), np.array([0.2, -0.2, 0.1])
+
+    def send(offset: float) -> None:
+        stamp = engine.t - 0.05
+        servo.accept_chunk(chunk(stamp, ramp(start + slope * stamp + offset, slope)))
+        probe.run(round(0.1 / engine.period))
+
+    for i in range(10):
+        send(0.008 * (-1) ** i)
+    limits_before = list(servo._chunks.blend.jmax)
+    changes = {"chunk_ensemble": 0.0, "acceleration_scale": 0.5}
+    future = engine.request(SetParams("servo", servo.params.model_copy(update=changes), tuple(changes)))
+    probe.run(1)
+    assert future.result(0)["changed"] == list(changes)
+    assert servo._chunks.ensemble == 0.0
+    assert servo._chunks.blend.jmax == pytest.approx([0.5 * j for j in limits_before])
+    for i in range(20):
+        send(0.008 * (-1) ** i)
+    probe.__init__(engine, servo, scale_a=0.5)  # from here on, every step within the lowered limits
+    for i in range(10):
+        send(0.008 * (-1) ** i)
+    assert servo._chunks.playing and not servo._chunks._mixed  # the newest chunk alone
+    assert probe.peak["jerk"] > 0.5
