@@ -396,7 +396,7 @@ def test_chunk_ensemble_and_lowered_scales_apply_while_chunks_play(make_engine: 
     assert servo._chunks.blend.jmax == pytest.approx([0.5 * j for j in limits_before])
     for i in range(20):
         send(0.008 * (-1) ** i)
-    probe.__init__(engine, servo, scale_a=0.5)  # from here on, every step within the lowered limits
+    probe = LimitProbe(engine, servo, scale_a=0.5)  # from here on, every step within the lowered limits
     for i in range(10):
         send(0.008 * (-1) ** i)
     assert servo._chunks.playing and not servo._chunks._mixed  # the newest chunk alone
