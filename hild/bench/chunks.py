@@ -109,10 +109,7 @@ class Reference:
 def twin_engine() -> Engine:
     """configs/arm6_twin.yaml on the sim clock (lockstep), started."""
     loaded = load_config(ARM6)
-    cfg = loaded.config
-    loaded.config = cfg.model_copy(
-        update={"clock": cfg.clock.model_copy(update={"source": "sim", "real_time_factor": 0.0})}
-    )
+    loaded.in_lockstep()
     engine = Engine(loaded)
     engine.start()
     return engine
