@@ -22,9 +22,10 @@ The same chunks, at the same cycles, go to two controllers on two fresh twins:
 
 The RMS target compares the arm's measured error with the servo against the better of the two JTC variants.
 
-Reported, not judged: the same three with chunks that disagree, as a real policy's do — each chunk drifts from the
-reference by a per-joint N(0, ``PREDICTION_ERROR``) × k/steps (0 at its observation, the full error at its end), so
-successive chunks differ by a few mrad where they meet.
+Judged the same way (rows ``chunks disagreeing: …``): the same three with chunks that disagree, as a real policy's
+do — each chunk drifts from the reference by a per-joint N(0, ``PREDICTION_ERROR``) × k/steps (0 at its observation,
+the full error at its end; seeded), so successive chunks differ by a few mrad where they meet. The reference stays the
+truth the errors are measured against, and the JTC variants get the same chunks.
 
 Figures, on the commanded positions (what the controller writes, every cycle, once the first chunk arrived):
 speed at every handoff (each chunk's arrival, the 100 ms after it) as a fraction of the reference's speed there
@@ -108,10 +109,7 @@ class Reference:
 def twin_engine() -> Engine:
     """configs/arm6_twin.yaml on the sim clock (lockstep), started."""
     loaded = load_config(ARM6)
-    cfg = loaded.config
-    loaded.config = cfg.model_copy(
-        update={"clock": cfg.clock.model_copy(update={"source": "sim", "real_time_factor": 0.0})}
-    )
+    loaded.in_lockstep()
     engine = Engine(loaded)
     engine.start()
     return engine
@@ -260,27 +258,38 @@ def run_chunks(settings: ChunkSettings) -> dict[str, Any]:
     }
     for kind in KINDS:
         report[kind] = figures(play(kind, settings), settings)
-    report["targets"] = chunk_targets(report)
     noisy = replace(settings, prediction_error=PREDICTION_ERROR)
     report["disagreeing"] = {"prediction_error_rad": PREDICTION_ERROR}
-    for kind in KINDS:  # reported: what successive chunks that disagree do to each controller
+    for kind in KINDS:  # what successive chunks that disagree do to each controller
         report["disagreeing"][kind] = figures(play(kind, noisy), noisy)
+    report["targets"] = chunk_targets(report)
     return report
 
 
 def chunk_targets(report: dict[str, Any]) -> list[dict[str, Any]]:
-    servo, jtc, stamped = report["servo"], report["jtc"], report["jtc_stamped"]
+    """The same four rows for the exact chunks (``chunks: …``) and, when run, for the disagreeing ones
+    (``chunks disagreeing: …``), each against the JTC variants fed the same chunks."""
     s = report["settings"]
     basis = (
         f"{s['chunk_rate_hz']:g} Hz chunks of {s['steps']} × {1e3 * s['step_dt']:g} ms, delay "
         f"{1e3 * s['delay_s'][0]:g}–{1e3 * s['delay_s'][1]:g} ms jittered, {s['seconds']:g} s sim time"
     )
+    rows = _variant_targets("chunks", report, basis)
+    disagreeing = report.get("disagreeing")
+    if disagreeing:
+        drift = f"each chunk drifting N(0, {1e3 * disagreeing['prediction_error_rad']:g} mrad) × k/steps; {basis}"
+        rows += _variant_targets("chunks disagreeing", disagreeing, drift)
+    return rows
+
+
+def _variant_targets(name: str, variant: dict[str, Any], basis: str) -> list[dict[str, Any]]:
+    servo, jtc, stamped = variant["servo"], variant["jtc"], variant["jtc_stamped"]
     shortfall = None if servo["handoff_speed_min"] is None else 100.0 * (1.0 - servo["handoff_speed_min"])
     best = min(jtc["measured_rms_error_mrad"], stamped["measured_rms_error_mrad"])  # the better JTC, as the arm moved
     ratio = 100.0 * servo["measured_rms_error_mrad"] / best if best > 0 else None
     rows = [
         target_row(
-            "chunks: handoff speed shortfall",
+            f"{name}: handoff speed shortfall",
             shortfall,
             round(100.0 * (1.0 - HANDOFF_SPEED), 6),
             "%",
@@ -289,7 +298,7 @@ def chunk_targets(report: dict[str, Any]) -> list[dict[str, Any]]:
             group=GROUP,
         ),
         target_row(
-            "chunks: peak jerk / limit",
+            f"{name}: peak jerk / limit",
             100.0 * servo["jerk_peak"] / (1.0 + JERK_SLACK),  # finite differences may round a hair above
             100.0,
             "%",
@@ -299,7 +308,7 @@ def chunk_targets(report: dict[str, Any]) -> list[dict[str, Any]]:
             group=GROUP,
         ),
         target_row(
-            "chunks: cycles at rest while moving",
+            f"{name}: cycles at rest while moving",
             float(servo["pauses"]),
             0.0,
             "",
@@ -308,7 +317,7 @@ def chunk_targets(report: dict[str, Any]) -> list[dict[str, Any]]:
             group=GROUP,
         ),
         target_row(
-            "chunks: arm RMS / JTC upsampling",
+            f"{name}: arm RMS / JTC upsampling",
             ratio,
             100.0,
             "%",
@@ -348,7 +357,7 @@ def format_chunks(report: dict[str, Any]) -> str:
     if disagreeing:
         lines.append(
             f"  chunks that disagree (each drifts from the reference by N(0, {disagreeing['prediction_error_rad']:g} "
-            "rad) × k/steps: reported, not judged):"
+            "rad) × k/steps; judged as `chunks disagreeing: …`):"
         )
         for kind in KINDS:
             r = disagreeing[kind]

@@ -30,6 +30,7 @@ from __future__ import annotations
 import argparse
 import datetime as dt
 import fnmatch
+import importlib
 import os
 import platform
 import shlex
@@ -266,34 +267,27 @@ def run_named(name: str, settings: Settings) -> dict[str, Any]:
     return run_soak(seconds).as_dict()
 
 
+# Each named section's formatter (module, function), in the order they print; imported only when it ran.
+NAMED_FORMATTERS = {
+    "motion": ("hild.bench.motion", "format_motion"),
+    "contact": ("hild.bench.contact", "format_contact"),
+    "record": ("hild.bench.record", "format_record"),
+    "teleop": ("hild.bench.teleop", "format_teleop"),
+    "chunks": ("hild.bench.chunks", "format_chunks"),
+}
+
+
 def format_named(report: dict[str, Any]) -> list[str]:
     """The ``NAMED_ONLY`` sections' text, one entry each that ran."""
     texts = []
-    if "motion" in report:
-        from hild.bench.motion import format_motion
-
-        motion = report["motion"]
-        texts.append(f"MOTION error: {motion['error']}" if "error" in motion else format_motion(motion))
-    if "contact" in report:
-        from hild.bench.contact import format_contact
-
-        contact = report["contact"]
-        texts.append(f"CONTACT error: {contact['error']}" if "error" in contact else format_contact(contact))
-    if "record" in report:
-        from hild.bench.record import format_record
-
-        record = report["record"]
-        texts.append(f"RECORD error: {record['error']}" if "error" in record else format_record(record))
-    if "teleop" in report:
-        from hild.bench.teleop import format_teleop
-
-        teleop = report["teleop"]
-        texts.append(f"TELEOP error: {teleop['error']}" if "error" in teleop else format_teleop(teleop))
-    if "chunks" in report:
-        from hild.bench.chunks import format_chunks
-
-        chunks = report["chunks"]
-        texts.append(f"CHUNKS error: {chunks['error']}" if "error" in chunks else format_chunks(chunks))
+    for name, (module, function) in NAMED_FORMATTERS.items():
+        if name not in report:
+            continue
+        section = report[name]
+        if "error" in section:
+            texts.append(f"{name.upper()} error: {section['error']}")
+        else:
+            texts.append(getattr(importlib.import_module(module), function)(section))
     if "soak" in report:
         from hild.bench.soak import Report
 

@@ -759,11 +759,11 @@ def _hild_lines(report: dict[str, Any]) -> list[str]:
                 "in lockstep, a synthetic policy; docs/performance.md)",
             ),
         )
-        w = (36, 17, 9, 9, 6, 6)
         for group, heading in groups:
             mine = [t for t in targets if t.get("group", "earlier") == group]
             if not mine:
                 continue
+            w = (max(36, *(len(t["target"]) for t in mine)), 17, 9, 9, 6, 6)  # the group's longest name fits
             lines.append(heading)
             lines.append(_row(["target", "scenario", "measured", "limit", "unit", ""], w))
             for t in mine:

@@ -286,10 +286,7 @@ def replay(config: Path, relayed: Stream, release_after: float | None) -> Replay
     """The relayed stream into the follower config in lockstep: each message handed over in the first cycle at or
     after its arrival; the dead-man held (refreshed every cycle) until ``release_after`` s into the stream."""
     loaded = load_config(config)
-    cfg = loaded.config
-    loaded.config = cfg.model_copy(
-        update={"clock": cfg.clock.model_copy(update={"source": "sim", "real_time_factor": 0.0})}
-    )
+    loaded.in_lockstep()
     engine = Engine(loaded)
     engine.start()
     try:

@@ -80,6 +80,13 @@ class LoadedConfig:
     def directory(self) -> Path:
         return self.path.parent
 
+    def in_lockstep(self) -> LoadedConfig:
+        """This config on the sim clock at no real-time pacing: the cycle steps as fast as it computes, the twin
+        inside each cycle, deterministic (tests, benches, offline replays). Changes it in place; returns it."""
+        clock = self.config.clock.model_copy(update={"source": "sim", "real_time_factor": 0.0})
+        self.config = self.config.model_copy(update={"clock": clock})
+        return self
+
     @property
     def recording_dir(self) -> Path:
         """``recording.dir``, absolute (a relative one is beside the config file)."""

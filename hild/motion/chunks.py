@@ -7,8 +7,13 @@ lags by the inference delay. Here a chunk is a function of time: step ``k`` is w
 ``stamp + k·dt`` on the control clock (``stamp``: the joint_states stamp of the observation the policy used). Each
 cycle the player samples it at ``t − stamp`` (the part already in the past is skipped: the inference delay is
 compensated), interpolated as a cubic Hermite spline (position and velocity, C¹), and hands that moving target to
-the servo, whose ruckig tracking keeps the command within the velocity, acceleration and jerk limits. A new chunk
-simply replaces the sampled function: the target moves on, the arm never comes to rest between overlapping chunks.
+the servo, whose ruckig tracking keeps the command within the velocity, acceleration and jerk limits.
+
+Handoffs: a new chunk joins the older ones still overlapping it (temporal ensembling: the target is their average at
+the same instant, weighted ``exp(−age/ensemble)``), and whatever the change of members makes the target jump by
+(position, velocity, acceleration) is absorbed by :class:`HandoffBlend`, an offset decaying to zero on a quintic
+within a share of the limits: the target stays continuous, so ruckig's short lead keeps it within reach even when
+successive chunks disagree, and the arm never comes to rest between overlapping chunks.
 
 Late chunks: within ``slowdown`` (chunk time) of the running chunk's end, with no successor, playback slows:
 chunk time advances at ``s = sqrt(remaining / slowdown)`` of real time, a constant deceleration of time that
@@ -40,6 +45,10 @@ from hild.crossing.mailboxes import LatestNumbers
 # 28 mrad RMS; 0.15 s 4.9; 0.1 s 1.8; 0.08 s 1.0 (max 1.8); 0.06 s 0.5 (but max 3.9–5.0: a plan now and then not
 # reachable in time); 0.04 s 12 (falls back to racing). Shorter lags less, longer forgives more.
 CHUNK_LEAD = 0.08  # s
+# Chunks kept for temporal ensembling (the running one and the newest older ones); an older chunk leaves once its
+# weight is below MIN_WEIGHT (at 10 Hz and the default ensemble time constant, after 3 handoffs).
+ENSEMBLE_SLOTS = 6
+MIN_WEIGHT = 0.02
 MAX_CHUNK_STEPS = 100  # fixes the record's size: 2 s at 50 Hz, more than any policy's chunk in use
 MAX_STEP_PERIOD = 1.0  # s; a longer step is no action chunk
 MIN_STEP_PERIOD = 1e-4  # s
@@ -180,9 +189,21 @@ class ChunkPlayer:
     def __init__(self, door: LatestNumbers, n: int) -> None:
         self.record = ChunkRecord(door, n)
         self.n = n
-        self._pv = np.zeros((MAX_CHUNK_STEPS, 2, n))  # step k: position, velocity — two steps are one (4, n) view
-        self._steps = 0
-        self._step = 1.0  # the chunk's dt
+        # The newest chunks, a ring of ENSEMBLE_SLOTS: slot i, step k: position, velocity (two steps: one (4, n) view)
+        self._pv = np.zeros((ENSEMBLE_SLOTS, MAX_CHUNK_STEPS, 2, n))
+        self._slot_steps = [0] * ENSEMBLE_SLOTS
+        self._slot_dt = [1.0] * ENSEMBLE_SLOTS
+        self._slot_stamp = [-math.inf] * ENSEMBLE_SLOTS
+        self._live = [False] * ENSEMBLE_SLOTS  # in the ensemble
+        self._newest = 0  # the running chunk's slot
+        self._steps = 0  # the running chunk's
+        self._step = 1.0  # the running chunk's dt
+        self.ensemble = 0.0  # s: the older chunks' weights decay with their age by this time constant; 0: newest only
+        self._at_end = False  # the target was the running chunk's last point, at rest
+        self._mixed = False  # the last sample averaged older chunks in
+        self._stack = np.zeros((4 * ENSEMBLE_SLOTS, n))  # the members' steps around the instant (see _sample_ensemble)
+        self._stack_weights = [np.zeros((3, 4 * m)) for m in range(ENSEMBLE_SLOTS + 1)]  # per member count
+        self._rows: tuple[list[float], list[float], list[float]] = ([], [], [])
         self.stamp = -math.inf  # of the chunk last started: an older one is stale
         self.tau = 0.0  # chunk time of the next sample, s since stamp
         self.speed = 1.0  # chunk time per real time, < 1 while slowing down
@@ -193,6 +214,9 @@ class ChunkPlayer:
         self.target_p, self.target_v, self.target_a = self.target
         self.lead_time = 0.0  # s the servo gives ruckig to reach the target
         self._weights = np.zeros((3, 4))  # Hermite weights of (p_k, v_k, p_k+1, v_k+1) for p, v, a
+        self.blend = HandoffBlend(n)
+        self._last = np.zeros((3, n))  # the last target handed out (chunk + offset): where a successor blends from
+        self._blend_pending = False  # the target's source changed: absorb the difference at the next aim
 
     @property
     def end(self) -> float:
@@ -202,12 +226,14 @@ class ChunkPlayer:
     def reset(self) -> None:
         """Forget the running chunk and any waiting one (activation, a joint taken over)."""
         self.record.clear()
-        self.playing = False
+        self.stop()
         self.stamp = -math.inf
         self.dropped = self.refused = 0
 
     def stop(self) -> None:
         self.playing = False
+        self._blend_pending = False
+        self.blend.clear()
 
     def start(self, t: float) -> Verdict:
         """Take the chunk just arrived (``record.take()`` was true) at cycle time ``t``."""
@@ -222,8 +248,16 @@ class ChunkPlayer:
         if t - stamp > (steps - 1) * dt:
             self.refused += 1
             return Verdict.PAST
-        self._pv[:steps, 0] = self.record.positions[:steps]
-        self._pv[:steps, 1] = self.record.velocities[:steps]
+        if self.playing:  # overlapping: the ensemble gains a member; blend from the running target into it
+            slot = (self._newest + 1) % ENSEMBLE_SLOTS
+            self._blend_pending = True
+        else:
+            slot = 0
+            self._live[:] = [False] * ENSEMBLE_SLOTS
+        self._pv[slot, :steps, 0] = self.record.positions[:steps]
+        self._pv[slot, :steps, 1] = self.record.velocities[:steps]
+        self._slot_steps[slot], self._slot_dt[slot], self._slot_stamp[slot] = steps, dt, stamp
+        self._live[slot], self._newest, self._at_end = True, slot, False
         self._steps, self._step, self.stamp = steps, dt, stamp
         self.tau, self.speed, self.playing = t - stamp, 1.0, True
         return Verdict.STARTED
@@ -269,23 +303,88 @@ class ChunkPlayer:
         ahead = tau + (lead - dt) * self.speed  # the plan starts from the last command, one cycle back
         self.lead_time = lead
         if ahead >= end:  # the last point, at rest, in the time the slow-down takes to get there
+            if not self._at_end:
+                self._at_end = True
+                self._blend_pending |= self._mixed  # older chunks were in the target: they leave it now
             self._rest_at_end()
             if remaining < slowdown:
                 self.lead_time = max(2.0 * math.sqrt(slowdown * remaining), dt)
         else:
-            self._sample(ahead, self.speed)
+            self._sample_ensemble(ahead, self.speed)
+        self._absorb_handoff(dt)
         self.tau = min(tau + dt * self.speed, end)
         return True
 
+    def _absorb_handoff(self, dt: float) -> None:
+        """At a handoff, start blending out the difference between the running target (the last one, carried one
+        cycle on) and the new chunk's sample; every cycle, add what is left of it: the target stays continuous."""
+        target, last = self.target, self._last
+        if self._blend_pending:
+            self._blend_pending = False
+            # the last target one cycle on (p + v·dt + a·dt²/2, v + a·dt, a), minus the new chunk's sample
+            last[0] += dt * last[1] + (0.5 * dt * dt) * last[2]
+            last[1] += dt * last[2]
+            np.subtract(last, target, out=last)
+            self.blend.start(last)
+        self.blend.add_to(target, dt)
+        last[:] = target
+
     def _rest_at_end(self) -> None:
-        self.target_p[:] = self._pv[self._steps - 1, 0]
+        self.target_p[:] = self._pv[self._newest, self._steps - 1, 0]
         self.target[1:] = 0.0
 
-    def _sample(self, tau: float, speed: float) -> None:
-        """Cubic Hermite between the two steps around ``tau``: one (3, 4) × (4, n) product; velocity and acceleration
-        scaled by the playback speed."""
-        h = self._step
-        k = min(int(tau / h), self._steps - 2)
+    def _sample_ensemble(self, tau: float, speed: float) -> None:
+        """The running chunk at ``tau``, averaged with the older chunks still in the ring at the same instant (ACT's
+        temporal ensembling), each weighted ``exp(−age/ensemble)`` (age: its stamp's, before the running chunk's).
+        The weights are constant between handoffs, so the average is as smooth as the chunks; each change of members
+        (a new chunk, an older one ending or weighing less than ``MIN_WEIGHT``) is blended in (:meth:`_absorb_handoff`).
+        """
+        newest, target = self._newest, self.target
+        self._mixed = False
+        ensemble = self.ensemble
+        if ensemble <= 0.0:
+            self._sample(newest, tau, speed, target)
+            return
+        # Every member's two steps around the instant go into one stack, its Hermite weights (times its ensemble
+        # weight) into one row each for p, v, a: one (3, 4m) × (4m, n) product for the m members.
+        stack, rows, live, stamp = self._stack, self._rows, self._live, self.stamp
+        wp, wv, wa = rows
+        wp.clear(), wv.clear(), wa.clear()
+        total, m = 0.0, 0
+        for slot in range(ENSEMBLE_SLOTS):
+            if not live[slot]:
+                continue
+            age = stamp - self._slot_stamp[slot]
+            weight = 1.0 if slot == newest else math.exp(-age / ensemble)
+            at = tau + age  # the same instant in that chunk's time
+            if slot != newest and (weight < MIN_WEIGHT or at >= (self._slot_steps[slot] - 1) * self._slot_dt[slot]):
+                live[slot] = False
+                self._blend_pending = True
+                continue
+            h = self._slot_dt[slot]
+            k = min(int(at / h), self._slot_steps[slot] - 2)
+            u = at / h - k
+            u2, u3 = u * u, u * u * u
+            c, cv, ca = weight, weight * speed, weight * speed * speed / (h * h)
+            cs = cv / h
+            wp += (c * (2 * u3 - 3 * u2 + 1), c * h * (u3 - 2 * u2 + u), c * (3 * u2 - 2 * u3), c * h * (u3 - u2))
+            wv += (cs * (6 * u2 - 6 * u), cv * (3 * u2 - 4 * u + 1), cs * (6 * u - 6 * u2), cv * (3 * u2 - 2 * u))
+            wa += (ca * (12 * u - 6), ca * h * (6 * u - 4), ca * (6 - 12 * u), ca * h * (6 * u - 2))
+            stack[4 * m : 4 * m + 4] = self._pv[slot, k : k + 2].reshape(4, self.n)
+            total += weight
+            m += 1
+        weights = self._stack_weights[m]
+        weights[0], weights[1], weights[2] = wp, wv, wa
+        np.dot(weights, stack[: 4 * m], out=target)
+        if m > 1:
+            target *= 1.0 / total
+            self._mixed = True
+
+    def _sample(self, slot: int, tau: float, speed: float, out: np.ndarray) -> None:
+        """Cubic Hermite between the two steps of ``slot`` around ``tau``: one (3, 4) × (4, n) product; velocity and
+        acceleration scaled by the playback speed."""
+        h = self._slot_dt[slot]
+        k = min(int(tau / h), self._slot_steps[slot] - 2)
         u = tau / h - k
         u2, u3 = u * u, u * u * u
         s, s2 = speed / h, speed * speed / (h * h)
@@ -294,7 +393,116 @@ class ChunkPlayer:
             ((6 * u2 - 6 * u) * s, (3 * u2 - 4 * u + 1) * speed, (6 * u - 6 * u2) * s, (3 * u2 - 2 * u) * speed),
             ((12 * u - 6) * s2, (6 * u - 4) * s2 * h, (6 - 12 * u) * s2, (6 * u - 2) * s2 * h),
         )
-        np.dot(self._weights, self._pv[k : k + 2].reshape(4, self.n), out=self.target)
+        np.dot(self._weights, self._pv[slot, k : k + 2].reshape(4, self.n), out=out)
+
+
+class HandoffBlend:
+    """The offset between two chunks where they meet, decaying to zero on a quintic (minimum-jerk) profile.
+
+    A new chunk rarely starts where the running one is: a real policy's successive predictions differ by a few mrad
+    (and in velocity). Jumping to the new one puts the target out of reach within the tracker's short lead, and the
+    longer synchronized plan that follows leaves the path. Instead the played target is the new chunk plus an offset
+    that starts at the difference (position Δp, velocity Δv, acceleration Δa: the target stays continuous in all
+    three across the handoff) and reaches zero, with zero velocity and acceleration, after a blend time chosen per
+    joint so that each of the offset's terms stays within ``BLEND_FRACTION`` of the joint's velocity, acceleration
+    and jerk limits (:func:`blend_time`). A handoff during a blend starts from the blended target: offsets never
+    stack.
+
+    Per joint the offset is a polynomial in the time since the handoff, ``Σ c_k·s^k`` (k ≤ 5), until its blend time;
+    the coefficients live in a preallocated (6, n) array, evaluated with one (3, 6) × (6, n) product.
+    """
+
+    def __init__(self, n: int) -> None:
+        self.n = n
+        self.coefficients = np.zeros((6, n))
+        self.duration = [0.0] * n  # s per joint; 0 once blended out
+        self.age = 0.0  # s since the handoff
+        self.active = False
+        self._powers = np.zeros((3, 6))
+        self._offset = np.zeros((3, n))
+        self.vmax = [math.inf] * n
+        self.amax = [math.inf] * n
+        self.jmax = [math.inf] * n
+
+    def limits(self, vmax: Sequence[float], amax: Sequence[float], jmax: Sequence[float]) -> None:
+        """The (scaled) limits the blend time is computed from."""
+        self.vmax, self.amax, self.jmax = list(vmax), list(amax), list(jmax)
+
+    def clear(self) -> None:
+        self.active = False
+        self.coefficients[:] = 0.0
+        self.duration[:] = [0.0] * self.n
+
+    def start(self, difference: np.ndarray) -> None:
+        """Start from ``difference`` (3, n): position, velocity and acceleration, the running target − the new."""
+        c = self.coefficients
+        self.age = 0.0
+        self.active = False
+        for i in range(self.n):
+            p0, v0, a0 = difference.item(0, i), difference.item(1, i), difference.item(2, i)
+            if p0 == 0.0 and v0 == 0.0 and a0 == 0.0:
+                self.duration[i] = 0.0
+                c[:, i] = 0.0
+                continue
+            T = blend_time(p0, v0, a0, self.vmax[i], self.amax[i], self.jmax[i])
+            T2, T3 = T * T, T * T * T
+            c[0, i], c[1, i], c[2, i] = p0, v0, 0.5 * a0
+            c[3, i] = -10.0 * p0 / T3 - 6.0 * v0 / T2 - 1.5 * a0 / T
+            c[4, i] = 15.0 * p0 / (T3 * T) + 8.0 * v0 / T3 + 1.5 * a0 / T2
+            c[5, i] = -6.0 * p0 / (T3 * T2) - 3.0 * v0 / (T2 * T2) - 0.5 * a0 / T3
+            self.duration[i] = T
+            self.active = True
+
+    def add_to(self, target: np.ndarray, dt: float) -> None:
+        """Add the offset at its current age to ``target`` (3, n: p, v, a) in place, then age it by ``dt``."""
+        if not self.active:
+            return
+        s, c, duration = self.age, self.coefficients, self.duration
+        blending = False
+        for i in range(self.n):  # past its blend time a joint's polynomial is not zero: zero it
+            if duration[i] != 0.0:
+                if s >= duration[i]:
+                    duration[i] = 0.0
+                    c[:, i] = 0.0
+                else:
+                    blending = True
+        if not blending:
+            self.active = False
+            return
+        s2, s3 = s * s, s * s * s
+        self._powers[:] = (
+            (1.0, s, s2, s3, s3 * s, s3 * s2),
+            (0.0, 1.0, 2.0 * s, 3.0 * s2, 4.0 * s3, 5.0 * s3 * s),
+            (0.0, 0.0, 2.0, 6.0 * s, 12.0 * s2, 20.0 * s3),
+        )
+        np.dot(self._powers, c, out=self._offset)
+        target += self._offset
+        self.age = s + dt
+
+
+# The offset's share of each limit, per term (its start in position, velocity, acceleration): the chunk's own motion
+# and the tracker's corrections need the rest. The constants below are the peaks of the quintic's basis functions on
+# [0, 1] (H0 for the position difference, H1 velocity, H2 acceleration): velocity H0' 1.875; acceleration H0'' 5.774,
+# H1'' 3.94; jerk H0''' 60, H1''' 36, H2''' 9.
+BLEND_FRACTION = 0.2
+MIN_BLEND = 0.05  # s
+MAX_BLEND = 1.0  # s: a difference that needs longer is no disagreement but a jump; the tracker takes the rest
+
+
+def blend_time(dp: float, dv: float, da: float, vmax: float, amax: float, jmax: float) -> float:
+    """The shortest blend time, within [``MIN_BLEND``, ``MAX_BLEND``], at which each term of an offset starting at
+    (dp, dv, da) stays within ``BLEND_FRACTION`` of the velocity, acceleration and jerk limits."""
+    f = BLEND_FRACTION
+    dp, dv, da = abs(dp), abs(dv), abs(da)
+    needed = max(
+        1.875 * dp / (f * vmax),
+        math.sqrt(5.774 * dp / (f * amax)),
+        3.94 * dv / (f * amax),
+        (60.0 * dp / (f * jmax)) ** (1.0 / 3.0),
+        math.sqrt(36.0 * dv / (f * jmax)),
+        9.0 * da / (f * jmax),
+    )
+    return min(max(needed, MIN_BLEND), MAX_BLEND)
 
 
 def clip_target(

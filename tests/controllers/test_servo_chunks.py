@@ -13,9 +13,19 @@ from hild.bench.chunks import ChunkSettings, figures, play
 from hild.controllers.servo import Phase, ServoController
 from hild.crossing.mailboxes import Shared
 from hild.crossing.region import Region
+from hild.crossing.requests import SetParams
 from hild.cycle.engine import Engine
 from hild.modes import Source
-from hild.motion.chunks import MAX_CHUNK_STEPS, ChunkPlayer, ChunkRecord, Verdict, parse_chunk
+from hild.motion.chunks import (
+    BLEND_FRACTION,
+    MAX_BLEND,
+    MAX_CHUNK_STEPS,
+    ChunkPlayer,
+    ChunkRecord,
+    HandoffBlend,
+    Verdict,
+    parse_chunk,
+)
 from tests.controllers.test_servo import LimitProbe, servo_patch, started
 from tests.test_engine import events
 
@@ -234,7 +244,7 @@ def test_a_chunk_crosses_the_shared_region_as_one_record_and_plays_through_its_p
     assert player.start(2.0) == Verdict.STARTED
     assert player.end == pytest.approx(STEP * (MAX_CHUNK_STEPS - 1))
     for k in (0, 17, MAX_CHUNK_STEPS - 2):
-        player._sample(k * STEP, 1.0)
+        player._sample(0, k * STEP, 1.0, player.target)
         np.testing.assert_allclose(player.target_p, positions[k], atol=1e-12)
         slope = (np.array(positions[k + 1]) - np.array(positions[max(k - 1, 0)])) / (STEP * (2 if k else 1))
         np.testing.assert_allclose(player.target_v, slope, atol=1e-9)
@@ -274,3 +284,120 @@ def test_a_fault_drops_the_chunk_and_reset_resumes_without_a_jump() -> None:
     send()
     guard.run(100)  # a new chunk far from the arm: reached within the limits, no jump (the guard checks)
     assert servo.source == Source.POLICY and servo._chunks.playing
+
+
+def test_disagreeing_chunks_blend_in_without_a_step_a_pause_or_leaving_the_limits(make_engine: MakeEngine) -> None:
+    """Overlapping chunks at 10 Hz, each off the truth by its own 5–10 mrad, alternating in sign (so where two meet they
+    differ by 10–20 mrad), and drifting on by N(0, 10 mrad/s): the target moves on without a jump at any handoff, the
+    command keeps within the velocity, acceleration and jerk limits every cycle (position, velocity and acceleration
+    never step), never slows to rest while the truth moves, and stays within the chunks' own disagreement of it."""
+    engine, servo = started(make_engine, command_timeout=5.0)
+    probe = LimitProbe(engine, servo)
+    dt, home = engine.period, engine.state.position.copy()
+    amplitude, w = np.array([0.2, -0.15, 0.1]), 2.0
+
+    def truth(t: np.ndarray) -> np.ndarray:
+        return home + amplitude * np.sin(w * t[..., None])
+
+    rng = np.random.default_rng(5)
+    jumps, speeds, truth_speeds, errors, blending = [], [], [], [], []
+    for i in range(40):
+        stamp = engine.t - 0.1  # the inference delay
+        offset = (-1) ** i * rng.uniform(0.005, 0.010, 3)
+        times = stamp + STEP * np.arange(50)
+        positions = truth(times) + offset + rng.normal(0.0, 0.01, 3) * (times - stamp)[:, None]
+        servo.accept_chunk(chunk(stamp, positions.tolist()))
+        for _ in range(round(0.1 / dt)):
+            before = servo._chunks.target_p.copy()
+            probe.run(1)
+            if i >= 10:  # after a second: the start from rest caught up
+                jumps.append(np.abs(servo._chunks.target_p - before).max())
+                speeds.append(np.linalg.norm(engine.command.velocity[:3]))
+                truth_speeds.append(np.linalg.norm(amplitude * w * np.cos(w * engine.t)))
+                errors.append(np.abs(engine.command.position[:3] - truth(np.array(engine.t))).max())
+                blending.append(servo._chunks.blend.active)
+    assert servo._chunks.dropped == 0 and servo.source == Source.POLICY
+    assert np.mean(blending) > 0.5  # most of the time a handoff's offset is being absorbed …
+    assert max(jumps) < 0.005 / 2  # … so the target never jumps by the 10–20 mrad between two chunks
+    ratio = np.array(speeds) / np.array(truth_speeds)
+    moving = np.array(truth_speeds) >= 0.25 * max(truth_speeds)
+    assert ratio[moving].min() > 0.8  # no pause, no slowing down at a handoff
+    assert max(errors) < 0.02 and float(np.sqrt(np.mean(np.square(errors)))) < 0.01  # 5–10 mrad off, drifting
+
+
+def test_a_handoff_offset_decays_from_the_difference_to_zero_within_the_limits() -> None:
+    """The blend starts at the difference in position, velocity and acceleration (the target stays continuous) and
+    reaches zero at rest within its blend time; its own velocity, acceleration and jerk stay within three times
+    BLEND_FRACTION of the limits (one share per term)."""
+    vmax, amax, jmax = np.array([2.0, 2.0]), np.array([8.0, 8.0]), np.array([80.0, 80.0])
+    blend = HandoffBlend(2)
+    blend.limits(vmax.tolist(), amax.tolist(), jmax.tolist())
+    difference = np.array([[0.008, -0.03], [0.05, 0.2], [-0.4, 1.0]])  # rows p, v, a; joint 1 far more than joint 0
+    blend.start(difference)
+    assert blend.duration[0] < blend.duration[1] <= MAX_BLEND  # each joint its own blend time
+    dt, samples = 0.001, []
+    for _ in range(round(1.2 / dt)):
+        target = np.zeros((3, 2))
+        blend.add_to(target, dt)
+        samples.append(target)
+    offset = np.array(samples)
+    np.testing.assert_allclose(offset[0], difference, atol=1e-12)
+    assert not blend.active and (offset[-1] == 0.0).all()
+    jerk = np.abs(np.diff(offset[:, 2], axis=0)) / dt
+    peaks = ((vmax, np.abs(offset[:, 1]).max(0)), (amax, np.abs(offset[:, 2]).max(0)), (jmax, jerk.max(0)))
+    for limit, peak in peaks:
+        assert (peak <= 3 * BLEND_FRACTION * limit * (1 + 1e-3)).all(), (peak, limit)
+
+
+def test_older_chunks_are_ensembled_with_exponential_weights_by_age() -> None:
+    """Two constant chunks 0.1 s apart in stamp, 10 mrad apart: once the handoff is blended out, the target is their
+    average weighted 1 : exp(−0.1/ensemble); with ensemble 0 it is the newer chunk alone."""
+    size, n = 4 << 20, 2
+    for ensemble, expected in ((0.3, 0.01 / (1.0 + np.exp(-0.1 / 0.3))), (0.0, 0.01)):
+        region = Region(size)
+        door = Shared(region, create=True).latest_numbers("chunk", ChunkRecord.width(n))
+        player = ChunkPlayer(door, n)
+        player.ensemble = ensemble
+        player.blend.limits([2.0] * n, [8.0] * n, [80.0] * n)
+        for stamp, value in ((0.0, 0.0), (0.1, 0.01)):
+            player.record.put(
+                parse_chunk({"stamp": stamp, "dt": STEP, "positions": [[value] * n] * 50}, "ab", lambda p, v: ())
+            )
+            assert player.record.take() and player.start(0.1) == Verdict.STARTED
+            player.aim(0.002, 0.3, 0.08)
+        for _ in range(400):
+            player.aim(0.002, 0.3, 0.08)
+        assert not player.blend.active
+        np.testing.assert_allclose(player.target_p, expected, atol=1e-12)
+
+
+def test_chunk_ensemble_and_lowered_scales_apply_while_chunks_play(make_engine: MakeEngine) -> None:
+    """Set at runtime between two cycles: ``chunk_ensemble`` 0 plays the newest chunk alone from the next cycle, and
+    lowered scales bound both the tracking and the blend time computed at the next handoff; every step stays within
+    the new limits."""
+    engine, servo = started(make_engine, command_timeout=5.0)
+    probe = LimitProbe(engine, servo)
+    assert servo._chunks.ensemble == 0.3
+    start, slope = engine.state.position.copy(), np.array([0.2, -0.2, 0.1])
+
+    def send(offset: float) -> None:
+        stamp = engine.t - 0.05
+        servo.accept_chunk(chunk(stamp, ramp(start + slope * stamp + offset, slope)))
+        probe.run(round(0.1 / engine.period))
+
+    for i in range(10):
+        send(0.008 * (-1) ** i)
+    limits_before = list(servo._chunks.blend.jmax)
+    changes = {"chunk_ensemble": 0.0, "acceleration_scale": 0.5}
+    future = engine.request(SetParams("servo", servo.params.model_copy(update=changes), tuple(changes)))
+    probe.run(1)
+    assert future.result(0)["changed"] == list(changes)
+    assert servo._chunks.ensemble == 0.0
+    assert servo._chunks.blend.jmax == pytest.approx([0.5 * j for j in limits_before])
+    for i in range(20):
+        send(0.008 * (-1) ** i)
+    probe = LimitProbe(engine, servo, scale_a=0.5)  # from here on, every step within the lowered limits
+    for i in range(10):
+        send(0.008 * (-1) ** i)
+    assert servo._chunks.playing and not servo._chunks._mixed  # the newest chunk alone
+    assert probe.peak["jerk"] > 0.5

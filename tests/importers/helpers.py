@@ -34,10 +34,7 @@ def copy_robot(source: Path, tmp_path: Path) -> Path:
 def lockstep(config: Path) -> Engine:
     """The imported config on the sim clock (the twin steps inside each cycle), started."""
     loaded = load_config(config)
-    cfg = loaded.config
-    loaded.config = cfg.model_copy(
-        update={"clock": cfg.clock.model_copy(update={"source": "sim", "real_time_factor": 0.0})}
-    )
+    loaded.in_lockstep()
     engine = Engine(loaded)
     engine.start()
     return engine

@@ -99,10 +99,7 @@ def simulate(config: Path, controller: str) -> Tracking:
     assert isinstance(params, JointTrajectoryParams)
     unchecked = Constraints(goal_time=params.constraints.goal_time, stopped_velocity_tolerance=0.0)
     loaded.controller_params[controller] = params.model_copy(update={"constraints": unchecked})
-    cfg = loaded.config
-    loaded.config = cfg.model_copy(
-        update={"clock": cfg.clock.model_copy(update={"source": "sim", "real_time_factor": 0.0})}
-    )
+    loaded.in_lockstep()
     engine = Engine(loaded)
     engine.start()
     try:

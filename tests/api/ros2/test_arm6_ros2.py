@@ -25,10 +25,7 @@ STRING = "std_msgs/msg/String"
 
 
 def lockstep(loaded: LoadedConfig) -> LoadedConfig:
-    cfg = loaded.config
-    loaded.config = cfg.model_copy(
-        update={"clock": cfg.clock.model_copy(update={"source": "sim", "real_time_factor": 0.0})}
-    )
+    loaded.in_lockstep()
     return loaded
 
 
