@@ -15,7 +15,7 @@ import pytest
 
 from hild.config import ConfigError, load_config
 from hild.controllers.follow import FollowController, FollowParams
-from hild.controllers.servo import Phase
+from hild.controllers.servo import Phase, stopping_distance
 from hild.cycle.engine import Engine
 from hild.modes import Source
 from tests.conftest import merge, mock_robot
@@ -395,3 +395,26 @@ def test_a_wave_streamed_at_the_control_rate_is_followed_within_two_periods(
     assert max(abs(x) for x in lags) <= 2 * engine.period, lags
     assert max(errors) < 0.002, errors
     assert not [e for e in events(engine) if e.startswith(("error", "warning"))]  # never fell back nor stopped
+
+
+def test_a_leader_that_stops_dead_is_overshot_by_no_more_than_the_braking_distance(make_engine: MakeEngine) -> None:
+    """Aiming a lead ahead costs this much and no more: at a hard stop the follower brakes from the leader's speed
+    (jerk-limited: the probe checks every cycle) and comes back to where the leader stopped."""
+    engine, follow = started(make_engine, deadman={"required": False}, rate=500.0)
+    stop, speed, rise = 0.8, 1.0, 0.3  # the joints start at 0.1, -0.2, 0.3; the leader speeds up smoothly …
+
+    def ramp(t: float) -> list[float]:  # … to 1 rad/s in 0.3 s (a cosine), goes on, and stops dead at 0.8 s
+        t = min(t, stop)
+        up = min(t, rise)
+        travel = speed * (up - rise / math.pi * math.sin(math.pi * up / rise)) / 2 + speed * max(t - rise, 0.0)
+        return [0.1 + travel, -0.2, 0.3]
+
+    leader = Leader(engine, follow, ramp, every=1)
+    furthest = -math.inf
+    for _ in range(int(stop / engine.period) + 600):
+        leader.run(1)
+        furthest = max(furthest, float(engine.command.position[0]))
+    final = ramp(stop)
+    np.testing.assert_allclose(engine.command.position, final, atol=1e-6)
+    assert furthest > final[0]  # it did overshoot: it was ahead of the leader's path, not behind it
+    assert furthest - final[0] <= stopping_distance(speed, ACCELERATION, JERK) + 1e-3, furthest - final[0]
