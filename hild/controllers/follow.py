@@ -32,13 +32,14 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
-from ruckig import Synchronization
+from ruckig import ControlInterface, InputParameter, OutputParameter, Result, Ruckig, RuckigError, Synchronization
 
 from hild.arrays import JointState, ServoCommand
 from hild.config.params import Field, Params, dynamic, model_validator
 from hild.controller import ControllerContext, and_more, unknown_keys
 from hild.controllers.servo import Phase, ServoController, ServoParams, ServoTarget, stopping_distance
 from hild.modes import Source
+from hild.motion.chunks import clip_target
 
 # The velocity scale changes ruckig's limits only when it moved by this much: no new limits on every cycle.
 SPEED_STEP = 0.02
@@ -48,6 +49,20 @@ GAP_RECOVERY = 0.2
 # restarted: its seq this far below, or its stamp (the leader's cycle clock, which restarts at 0) this much older.
 SEQ_RESTART = 1000
 STAMP_RESTART = 1.0  # s
+# Each leader sample is aimed at where the leader will be a *lead* after it arrived (its position extrapolated at its
+# velocity), with its velocity, and ruckig is asked to take exactly the lead to get there (``minimum_duration``, the
+# chunk player's technique): the plan follows the leader's path instead of racing to each sample. Racing (a
+# time-optimal plan to each sample's position and velocity) is a feedback loop of unbounded gain behind a jerk limit:
+# it overshoots, brakes, overshoots — 0.16 rad on a 0.8 rad/s wave. A lead shorter than the time the jerk limit
+# needs to build up the acceleration limit is that loop again: in lockstep (tests/controllers/test_follow.py's wave,
+# a/j = 0.1 s, the extrapolation then a cycle short) a lead of 0.4·a/j oscillates (50 ms lag, 0.19 rad errors);
+# 0.8·a/j lagged 2 ms (errors 1.7 mrad), 1.5·a/j 2.6 ms, 2.5·a/j 3.6 ms, at a 500 Hz stream and a 100 Hz one alike.
+# On the bench's recorded streams (hard moves, at the follower's acceleration limits) 0.8–1.2·a/j did best.
+LEAD_PER_JERK_TIME = 0.8  # the lead, in units of the slowest joint's acceleration / jerk
+MIN_LEAD_CYCLES = 4
+LEAD_SLACK = 1.001  # a joint's plan this much longer than the lead is not one in the lead (see _step)
+MAX_REAIMS = 3  # per joint and sample: aims further along the leader's path when the lead cannot be made
+MAX_LEAD_FACTOR = 4.0  # … at most this many leads ahead
 
 
 class JointMapping(Params):
@@ -84,8 +99,9 @@ class FollowParams(ServoParams):
     )
     anticipate: bool = Field(
         default=True,
-        description="Aim ahead of the leader by the distance the follower needs to brake from its velocity (and half "
-        "a stream period of travel): no lag at a steady speed, without chasing a moving target (which overshoots).",
+        description="Aim at the leader's position extrapolated at its velocity a lead ahead (0.8 · the slowest "
+        "joint's acceleration/jerk, at least 4 cycles), with its velocity, reached in exactly the lead: lag about a "
+        "control period. false: aim at the leader's position at rest, time-optimally (lags a few stream periods).",
     )
 
     @model_validator(mode="after")
@@ -109,6 +125,25 @@ class FollowController(ServoController):
         self._leader_joints = [m.joint or j for m, j in zip(mapping, params.joints, strict=True)]
         self._scale = [m.scale for m in mapping]
         self._offset = [m.offset for m in mapping]
+        period = 1.0 / context.update_rate
+        jerk_time = max(a / j for a, j in zip(self._amax, self._jmax, strict=True))
+        self.lead = max(LEAD_PER_JERK_TIME * jerk_time, MIN_LEAD_CYCLES * period)  # s: see LEAD_PER_JERK_TIME
+        # The extrapolation: a lead past the sample. The cycle that takes it plans from the command of the cycle
+        # before and writes one cycle on, so the plan ends a lead after the cycle that took the sample — a cycle or
+        # less after it arrived (extrapolating a cycle less lagged a cycle: 2 ms, in lockstep and on the bench's
+        # recorded streams).
+        self._ahead = self.lead
+        # Per joint, a ruckig of its own: ruckig honours a minimum duration only for joints timed together, and
+        # timing them together sends all the joints the long way round whenever one of them cannot make it in the
+        # lead (a target velocity blocks some durations: a synchronized plan of 0.3 s where each joint alone needs
+        # 0.08 s, measured on the bench's recorded stream — joints moving backwards).
+        self._joint_inp = [InputParameter(1) for _ in params.joints]
+        self._joint_out = [OutputParameter(1) for _ in params.joints]
+        self._joint_otg: list[Ruckig] = []
+        self._leading = False  # the joints follow their per-joint plans (TRACK of a moving leader)
+        self._sample_p: list[float] = []  # the last sample's target and velocity (cycle side)
+        self._sample_v: list[float] = []
+        self.reaims = 0  # joint plans aimed further along: the lead could not be made (tests, bench)
         # Doors beside the servo's target: the enable (1 = on) and the sample's seq (written before its target).
         self._enable_door = context.mailboxes.latest_numbers("enable", 1)
         self._seq_door = context.mailboxes.latest_numbers("leader_seq", 1)
@@ -158,7 +193,7 @@ class FollowController(ServoController):
             return  # the leader streams whether or not we follow: nothing to say
         with self._api_lock:  # one sample at a time: the seq order and the episode count are ours
             try:
-                seq, target = self._leader_target(message)
+                seq, positions, velocities = self._leader_sample(message)
             except ValueError as exc:
                 self._invalid(str(exc))
                 return
@@ -167,6 +202,7 @@ class FollowController(ServoController):
             if self._last_seq is not None and self._late(seq, stamp):
                 self.stale_samples += 1
                 return
+            target = self._aim(positions, velocities)
             self._last_seq, self._last_stamp = seq, stamp
             if self._invalid_run:
                 self.context.emit_event(
@@ -175,6 +211,18 @@ class FollowController(ServoController):
                 self._invalid_run = 0
             self._seq_door.put((float(seq),))
             self._slot.put(target)
+
+    def _aim(self, positions: list[float], velocities: list[float]) -> ServoTarget:
+        """Where the leader will be a lead after the sample, at its velocity: the plan reaches it in the lead (see
+        _track). Clamped as the servo clamps.
+
+        Not with the leader's acceleration: differenced from its velocities (2 ms apart, or over 20 ms) it is
+        noisy enough to make things worse — 10–27 mrad RMS against 1–3 on the bench's recorded stream."""
+        t = self._ahead
+        p = [q + v * t for q, v in zip(positions, velocities, strict=True)]
+        v = list(velocities)
+        clamped = self._clamp(p, v)
+        return ServoTarget(p, v, any(x != 0.0 for x in v), clamped)
 
     def _late(self, seq: int, stamp: float) -> bool:
         assert self._last_seq is not None
@@ -189,7 +237,9 @@ class FollowController(ServoController):
                 "warning", f"leader {self.params.leader}: sample not followed ({reason}); counting until valid again"
             )
 
-    def _leader_target(self, message: Any) -> tuple[int, ServoTarget]:
+    def _leader_sample(self, message: Any) -> tuple[int, list[float], list[float]]:
+        """The message's seq, and its positions and velocities mapped to the follower's joints; ValueError if it
+        cannot be followed."""
         if not isinstance(message, dict):
             raise ValueError("not a joint_states object")
         names, position = message.get("name"), message.get("position")
@@ -203,8 +253,7 @@ class FollowController(ServoController):
         if not (isinstance(velocity, list) and len(velocity) == len(names)):
             velocity = None
         fresh = message.get("fresh")
-        half_period = 0.5 / self._follow_params().rate
-        positions = []
+        positions, velocities = [], []
         for k, i in enumerate(index):
             p = position[i]
             v = velocity[i] if velocity is not None else 0.0
@@ -212,15 +261,9 @@ class FollowController(ServoController):
                 raise ValueError(f"{names[i]}: non-finite or not a number")
             if isinstance(fresh, list) and len(fresh) == len(names) and fresh[i] == 0:
                 raise ValueError(f"{names[i]}: reading not fresh")
-            v = self._scale[k] * v
-            speed = min(abs(v), self._vmax[k])
-            # Braking distance, plus half a stream period of travel: the sample is that old on average while it
-            # is the target (it stays one until the next arrives).
-            ahead = stopping_distance(speed, self._amax[k], self._jmax[k]) + speed * half_period if speed else 0.0
-            positions.append(self._scale[k] * p + self._offset[k] + math.copysign(ahead, v))
-        velocities = list(self._zeros)
-        clamped = self._clamp(positions, velocities)
-        return seq, ServoTarget(positions, velocities, False, clamped)
+            positions.append(self._scale[k] * p + self._offset[k])
+            velocities.append(self._scale[k] * v)
+        return seq, positions, velocities
 
     def _index_in(self, names: list[Any]) -> list[int]:
         key = tuple(names)
@@ -233,6 +276,20 @@ class FollowController(ServoController):
         return self._lookup[1]
 
     # ---- cycle side ---------------------------------------------------------------------------------------
+    def on_configure(self) -> None:
+        super().on_configure()
+        self._joint_otg = [Ruckig(1, self._period) for _ in self._joint_inp]
+        for joint in self._joint_inp:
+            joint.synchronization = Synchronization.Time  # one joint: with None, ruckig pads the end instead
+
+    def on_cleanup(self) -> None:
+        super().on_cleanup()
+        self._joint_otg = []
+
+    def _hold_at(self, position: list[float]) -> None:
+        super()._hold_at(position)
+        self._leading = False
+
     def on_activate(self, state: JointState, last_command: ServoCommand) -> None:
         super().on_activate(state, last_command)
         self._enable_door.clear()
@@ -304,8 +361,114 @@ class FollowController(ServoController):
         self._seq, self._arrived = seq, t
         super()._track(t)
         self.source = Source.LEADER  # whatever the servo's own streams would record: this one is a human's
-        self._inp.synchronization = self._sync = Synchronization.No  # each joint chases its own leader joint
+        inp = self._inp
+        inp.synchronization = self._sync = Synchronization.No  # each joint chases its own leader joint
         self._slow_down_for(self._gap, force=True)
+        self._leading = False
+        if self._follow_params().anticipate and self._slot.moving():
+            self._plan_in_the_lead()
+
+    def _plan_in_the_lead(self) -> None:
+        """Each joint: reach the extrapolated sample in the lead, from where it is, on a ruckig of its own (see
+        __init__); a joint that cannot aims further along the leader's path (see _step)."""
+        inp = self._inp
+        self._sample_p, self._sample_v = inp.target_position, inp.target_velocity  # the leader, at the lead
+        cp, cv, ca = inp.current_position, inp.current_velocity, inp.current_acceleration
+        vmax, amax, jmax = inp.max_velocity, inp.max_acceleration, inp.max_jerk
+        for i, joint in enumerate(self._joint_inp):
+            joint.current_position, joint.current_velocity, joint.current_acceleration = [cp[i]], [cv[i]], [ca[i]]
+            joint.max_velocity, joint.max_acceleration, joint.max_jerk = [vmax[i]], [amax[i]], [jmax[i]]
+            self._aim_joint(i, self.lead)
+        self._leading = True
+
+    def _aim_joint(self, i: int, horizon: float) -> None:
+        """Joint ``i``'s target: the leader ``horizon`` after the plan starts (extrapolated on from the lead at
+        the sample's velocity), within the limits, reached in ``horizon``."""
+        joint, later, v = self._joint_inp[i], horizon - self.lead, self._sample_v[i]
+        tp, tv, ta = [self._sample_p[i] + v * later], [v], [0.0]
+        k = slice(i, i + 1)
+        clip_target(tp, tv, ta, self._lo[k], self._hi[k], joint.max_velocity, self._amax[k], self._jmax[k])
+        joint.target_position, joint.target_velocity, joint.target_acceleration = tp, tv, ta
+        joint.control_interface = ControlInterface.Position
+        joint.minimum_duration = horizon
+
+    def _step(self, dt: float) -> None:
+        if not (self._leading and self.phase is Phase.TRACK):
+            self._leading = False
+            super()._step(dt)
+            return
+        inp, vmax = self._inp, self._inp.max_velocity
+        p, v, a = list(self._zeros), list(self._zeros), list(self._zeros)
+        finished = True
+        for i, (joint, out, otg) in enumerate(zip(self._joint_inp, self._joint_out, self._joint_otg, strict=True)):
+            if joint.max_velocity[0] != vmax[i]:  # the stream degraded (or recovered): re-planned from here
+                joint.max_velocity = [vmax[i]]
+                tp, tv, ta = joint.target_position, joint.target_velocity, joint.target_acceleration
+                k = slice(i, i + 1)
+                clip_target(tp, tv, ta, self._lo[k], self._hi[k], [vmax[i]], self._amax[k], self._jmax[k])
+                joint.target_position, joint.target_velocity, joint.target_acceleration = tp, tv, ta
+            if joint.control_interface == ControlInterface.Velocity:
+                self._brake_joint_before_soft_limits(i, joint)
+            if dt > 0.0 and dt != otg.delta_time:
+                otg.delta_time = dt
+            try:
+                result = otg.update(joint, out)
+                tries = 0
+                while (
+                    out.new_calculation
+                    and joint.minimum_duration is not None  # None: cruising on its own
+                    and out.trajectory.duration > joint.minimum_duration * LEAD_SLACK
+                ):
+                    # Not in the lead: the joint is too far from the leader's path to join it that soon — often
+                    # ahead of it, where it would have to slow down and speed up again, more than the jerk limit
+                    # allows in the lead (then ruckig's plan is a long detour that stays ahead). Aim further along
+                    # the leader's path instead, at the horizon ruckig said it needs.
+                    tries += 1
+                    self.reaims += 1
+                    if tries > MAX_REAIMS:
+                        break
+                    self._aim_joint(i, min(out.trajectory.duration, MAX_LEAD_FACTOR * self.lead))
+                    result = otg.update(joint, out)
+            except RuckigError as exc:
+                self._fall_back(str(exc).strip().removeprefix("[ruckig] "), dt)
+                return
+            if result is not Result.Working and result is not Result.Finished:
+                self._fall_back(result.name, dt)
+                return
+            if result is Result.Finished and joint.control_interface == ControlInterface.Position:
+                # There, a lead after the sample (the next one is late; a joint at rest is there all along):
+                # cruise on at the leader's velocity, as the servo does. Left to plan to its target, a joint
+                # that passed it with a velocity would be planned back to it.
+                joint.control_interface = ControlInterface.Velocity
+                joint.minimum_duration = None
+            finished = finished and result is Result.Finished
+            out.pass_to_input(joint)
+            p[i], v[i], a[i] = out.new_position[0], out.new_velocity[0], out.new_acceleration[0]
+        if not math.isfinite(sum(p) + sum(v)):
+            self._fall_back("non-finite output", dt)
+            return
+        inp.current_position, inp.current_velocity, inp.current_acceleration = p, v, a
+        self._p, self._v = p, v
+        if finished:  # every joint cruises: the servo's cruise from here (dead reckoning until the next sample)
+            self._leading = False
+            self._cruise_velocity[:] = [j.target_velocity[0] for j in self._joint_inp]
+            self._cruise()
+
+    def _brake_joint_before_soft_limits(self, i: int, joint: InputParameter) -> None:
+        """A joint cruising on its own: brake if one more cycle of travel would leave too little room to stop (as
+        the servo's cruise does for all of them)."""
+        v = joint.target_velocity[0]
+        if v == 0.0:
+            return
+        p = joint.current_position[0]
+        room = (self._hi[i] - p if v > 0.0 else p - self._lo[i]) - abs(v) * self._lookahead
+        if stopping_distance(abs(v), self._amax[i], self._jmax[i]) >= room:
+            joint.target_velocity = [0.0]
+
+    def _fall_back(self, reason: str, dt: float) -> None:
+        """A joint's plan failed: stop all of them as the servo does (from the state they are in)."""
+        self._leading = False
+        self._planning_failed(reason, dt)
 
     def _follow_params(self) -> FollowParams:
         assert isinstance(self.params, FollowParams)

@@ -15,7 +15,7 @@ import pytest
 
 from hild.config import ConfigError, load_config
 from hild.controllers.follow import FollowController, FollowParams
-from hild.controllers.servo import Phase
+from hild.controllers.servo import Phase, stopping_distance
 from hild.cycle.engine import Engine
 from hild.modes import Source
 from tests.conftest import merge, mock_robot
@@ -363,3 +363,58 @@ def test_whatever_the_stream_and_the_dead_man_do_the_command_stays_within_the_li
         leader.run(int(rng.integers(20, 200)), enable=bool(rng.random() < 0.7))
     assert follow.released_at > 0.0  # it did engage and release
     assert leader.probe.peak["velocity"] > 0.3  # and moved meanwhile
+
+
+def fitted_lag(times: np.ndarray, leader: np.ndarray, command: np.ndarray) -> float:
+    """The time shift τ (s, 0.1 ms steps) minimising the RMS of command(t) − leader(t − τ), as the bench fits it."""
+    shifts = np.arange(-0.02, 0.05, 1e-4)
+    rms = [np.sqrt(np.mean((command - np.interp(times - tau, times, leader)) ** 2)) for tau in shifts]
+    return float(shifts[int(np.argmin(rms))])
+
+
+@pytest.mark.parametrize("every", [1, EVERY])
+def test_a_wave_streamed_at_the_control_rate_is_followed_within_two_periods(
+    make_engine: MakeEngine, every: int
+) -> None:
+    """The [teleop] target: joint lag ≤ 2 control periods (+ the network's delay, none here) for a leader streaming
+    at the control rate, and no step beyond the limits on the way (the probe checks every cycle)."""
+    rate = 500.0 / every
+    engine, follow = started(make_engine, deadman={"required": False}, rate=rate)
+    wave = lambda t: [0.1 + 0.4 * math.sin(2.0 * t), -0.2 + 0.3 * math.sin(1.5 * t), 0.3]  # noqa: E731
+    leader = Leader(engine, follow, wave, every=every)
+    leader.run(1000)  # settle onto the wave
+    times, lead, command = [], [], []
+    for _ in range(1500):
+        leader.run(1)
+        times.append(engine.t)
+        lead.append(wave(engine.t)[:2])
+        command.append(engine.command.position[:2].copy())
+    t, p, c = np.array(times), np.array(lead), np.array(command)
+    lags = [fitted_lag(t, p[:, j], c[:, j]) for j in range(2)]
+    errors = [float(np.abs(c[:, j] - np.interp(t - lags[j], t, p[:, j])).max()) for j in range(2)]
+    assert max(abs(x) for x in lags) <= 2 * engine.period, lags
+    assert max(errors) < 0.002, errors
+    assert not [e for e in events(engine) if e.startswith(("error", "warning"))]  # never fell back nor stopped
+
+
+def test_a_leader_that_stops_dead_is_overshot_by_no_more_than_the_braking_distance(make_engine: MakeEngine) -> None:
+    """Aiming a lead ahead costs this much and no more: at a hard stop the follower brakes from the leader's speed
+    (jerk-limited: the probe checks every cycle) and comes back to where the leader stopped."""
+    engine, follow = started(make_engine, deadman={"required": False}, rate=500.0)
+    stop, speed, rise = 0.8, 1.0, 0.3  # the joints start at 0.1, -0.2, 0.3; the leader speeds up smoothly …
+
+    def ramp(t: float) -> list[float]:  # … to 1 rad/s in 0.3 s (a cosine), goes on, and stops dead at 0.8 s
+        t = min(t, stop)
+        up = min(t, rise)
+        travel = speed * (up - rise / math.pi * math.sin(math.pi * up / rise)) / 2 + speed * max(t - rise, 0.0)
+        return [0.1 + travel, -0.2, 0.3]
+
+    leader = Leader(engine, follow, ramp, every=1)
+    furthest = -math.inf
+    for _ in range(int(stop / engine.period) + 600):
+        leader.run(1)
+        furthest = max(furthest, float(engine.command.position[0]))
+    final = ramp(stop)
+    np.testing.assert_allclose(engine.command.position, final, atol=1e-6)
+    assert furthest > final[0]  # it did overshoot: it was ahead of the leader's path, not behind it
+    assert furthest - final[0] <= stopping_distance(speed, ACCELERATION, JERK) + 1e-3, furthest - final[0]
