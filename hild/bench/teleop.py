@@ -103,6 +103,11 @@ class Stream:
         with self.lock:
             return np.array(self.arrival), np.array(self.position)
 
+    def stamped_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Arrival, position and the daemon's stamp of the same messages (one lock: the stream goes on meanwhile)."""
+        with self.lock:
+            return np.array(self.arrival), np.array(self.position), np.array(self.stamp)
+
 
 def config_pair(
     directory: Path, leader_port: int, follower_port: int, stream_rate: float | None = None
