@@ -33,6 +33,7 @@ import threading
 from pathlib import Path
 from typing import IO, Any
 
+from hild.bench.children import end_child
 from hild.bench.rigs.can_bridge import HOST, bridged_document, virtual_channels
 from hild.config.documents import load_document
 
@@ -169,15 +170,10 @@ class CanRigProcess:
         process, self.process = self.process, None
         if process is None:
             return
-        with contextlib.suppress(OSError, ValueError):
+        with contextlib.suppress(OSError, ValueError):  # gone already, or its stdin closed: end_child still ends it
             assert process.stdin is not None
             process.stdin.write(json.dumps({"op": "stop"}) + "\n")
-            process.stdin.close()
-        try:
-            process.wait(STOP_TIMEOUT)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait()
+        end_child(process, STOP_TIMEOUT)
 
 
 def main(argv: list[str] | None = None) -> int:
