@@ -117,7 +117,12 @@ def test_a_fault_writes_one_black_box_and_an_open_episode_is_closed_at_the_stop(
         box = recordings(tmp_path) / "blackbox"
         await until(lambda: box.is_dir() and list(box.glob("*-fault.mcap")), "the black box")
         seen["files"] = sorted(box.glob("*.mcap"))
-        seen["status"] = await asyncio.to_thread(client.record_status)
+        # the file is on disk before the recorder's reply reaches the client domain's status: ask until it says so
+        deadline = time.monotonic() + 30.0
+        while "blackbox" not in (status := await asyncio.to_thread(client.record_status)):
+            assert time.monotonic() < deadline, f"record status never named the black box: {status}"
+            await asyncio.sleep(0.05)
+        seen["status"] = status
         seen["manual"] = await asyncio.to_thread(client.blackbox, 0.2)
         seen["cycle"] = daemon.link.cycle
         seen["written"] = list(daemon.triggers.written)
