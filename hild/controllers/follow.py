@@ -360,7 +360,6 @@ class FollowController(ServoController):
             self._gap = 0.0
         self._seq, self._arrived = seq, t
         super()._track(t)
-        self.source = Source.LEADER  # whatever the servo's own streams would record: this one is a human's
         inp = self._inp
         inp.synchronization = self._sync = Synchronization.No  # each joint chases its own leader joint
         self._slow_down_for(self._gap, force=True)

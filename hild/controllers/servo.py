@@ -228,6 +228,7 @@ def speed_to_stop_within(distance: float, acceleration: float, jerk: float) -> f
 class ServoController(PlansMotion, Controller):
     Params = ServoParams
     KIND = "servo"
+    SOURCE = Source.STREAM  # its targets; its chunks are Source.POLICY
     MEASURED = ("position",)  # starts from and follows the measured position
 
     def __init__(self, context: ControllerContext, params: ServoParams) -> None:
@@ -419,7 +420,7 @@ class ServoController(PlansMotion, Controller):
         self._slot.clear()
         self._end_chunk()
         self._chunks.reset()
-        self.source = Source.STREAM
+        self.source = self.SOURCE  # what its targets are (a subclass's own: follow's leader)
         self._last_target = -math.inf
         self._last_clamp = -math.inf
         self._last_chunk_note = [-math.inf] * len(Verdict)
@@ -439,7 +440,7 @@ class ServoController(PlansMotion, Controller):
             return
         if self._slot.take():
             self._end_chunk()
-            self.source = Source.STREAM
+            self.source = self.SOURCE
             self._track(t)
         elif self._chunks.record.take():
             self._start_chunk(t)
