@@ -44,6 +44,15 @@ class Lifecycle(enum.StrEnum):
     FAULT = "fault"
 
 
+class Homing(enum.StrEnum):
+    """Where a drive's own homing procedure stands (``HardwareComponent.homing``)."""
+
+    IDLE = "idle"  # never started, or its outcome already reported
+    RUNNING = "running"
+    ATTAINED = "attained"  # the drive says its home is found; the joint's position origin may have moved
+    FAILED = "failed"
+
+
 @dataclass(frozen=True, slots=True)
 class HardwareContext:
     """What a component may know about the daemon it runs in."""
@@ -213,6 +222,20 @@ class HardwareComponent(abc.ABC):
     def set_zero(self, joint: str) -> None:
         """Make the drive's current position its zero. Only ever called on an explicit operator command."""
         raise HardwareError(f"driver {type(self).__name__} cannot set a zero position")
+
+    def start_homing(self, joint: str) -> None:
+        """Operator command (between cycles): start the drive's own homing of `joint` (CiA 402 mode 6).
+
+        The engine calls it only for a held, still joint; until `homing` reports the end, the component ignores
+        the servo command for that joint (the drive moves by itself), the engine lets no controller claim it and
+        hold follows the measured position. At the end the component puts the drive back in its cyclic mode,
+        aimed at where it is. Raises HardwareError when the drive cannot home."""
+        raise HardwareError(f"driver {type(self).__name__} cannot home its drives")
+
+    def homing(self, joint: str) -> tuple[Homing, str]:
+        """Where the homing of `joint` stands, with the drive's words when it failed. Polled every cycle while it
+        runs (on the cycle thread: cheap, no I/O); reading ATTAINED or FAILED returns the component to IDLE."""
+        return Homing.IDLE, ""
 
 
 def joint_index(joints: Sequence[str]) -> dict[str, int]:

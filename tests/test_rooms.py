@@ -20,6 +20,7 @@ LIBRARY_ROOMS = {
     "xxhash": ("hild/api/ros2",),
     "mujoco": ("drivers/mujoco", "hild/dynamics"),
     "can": ("drivers/can",),
+    "canopen": ("drivers/can",),
     "ruckig": ("hild/motion", "hild/controllers"),
     "rerun": ("hild/telemetry",),
     "simpleeval": ("hild/api/expressions.py",),
