@@ -232,6 +232,11 @@ class HardwareComponent(abc.ABC):
         aimed at where it is. Raises HardwareError when the drive cannot home."""
         raise HardwareError(f"driver {type(self).__name__} cannot home its drives")
 
+    def stop_homing(self, joint: str) -> None:
+        """Abort a running homing of `joint` (e-stop, a fault of the joint, shutdown): the drive halts under its own
+        deceleration and returns to its cyclic mode aimed at where it is; `homing` then reports FAILED ("stopped").
+        Called between cycles or from the cycle; a joint that is not homing is left alone."""
+
     def homing(self, joint: str) -> tuple[Homing, str]:
         """Where the homing of `joint` stands, with the drive's words when it failed. Polled every cycle while it
         runs (on the cycle thread: cheap, no I/O); reading ATTAINED or FAILED returns the component to IDLE."""
