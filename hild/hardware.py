@@ -139,6 +139,18 @@ class HardwareComponent(abc.ABC):
         return []
 
     @classmethod
+    def review_files(cls, params: Params, joints: Sequence[str], update_rate: float, config_dir: Path) -> list[Finding]:
+        """Like ``review``, for checks that read the files the params name (e.g. a drive's EDS), relative to
+        `config_dir` (a missing file is the driver's own finding too)."""
+        return []
+
+    @classmethod
+    def command_fields(cls, params: Params, joints: Sequence[str]) -> Mapping[str, frozenset[str]]:
+        """Per joint, the servo-command fields its drive applies when the params decide them (e.g. a CiA 402
+        drive's mode); the loader refuses a controller claiming another. Default: ``COMMAND_FIELDS`` for all."""
+        return {joint: cls.COMMAND_FIELDS for joint in joints}
+
+    @classmethod
     def gain_ranges(cls, params: Params, joints: Sequence[str]) -> dict[str, GainRange]:
         """Per joint, the largest kp and kd the drive accepts (actuator space); the loader refuses configured gains
         above them after the transmission. Empty when the drive has no such limit or it is unknown."""

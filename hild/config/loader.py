@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import types
 import typing
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -500,9 +500,22 @@ def _available_claims(loaded: LoadedConfig, owner: dict[str, str]) -> set[str]:
     """Every command interface the joints' drivers offer."""
     available = set()
     for joint, hw_name in owner.items():
-        fields = getattr(loaded.driver_classes.get(hw_name), "COMMAND_FIELDS", FIELDS)
+        fields = _joint_fields(loaded, hw_name, joint)
         available.update(interface_name(joint, f) for f in FIELDS if f in fields)
     return available
+
+
+def _joint_fields(loaded: LoadedConfig, hw_name: str, joint: str) -> Collection[str]:
+    """The command fields `joint`'s driver applies: per joint when its params decide (``command_fields``, e.g. a
+    CiA 402 drive's mode), else the class's ``COMMAND_FIELDS``."""
+    cls, params = loaded.driver_classes.get(hw_name), loaded.driver_params.get(hw_name)
+    if cls is None:
+        return FIELDS
+    if params is not None and hasattr(cls, "command_fields"):
+        per_joint = cls.command_fields(params, [joint])
+        if joint in per_joint:
+            return per_joint[joint]
+    return getattr(cls, "COMMAND_FIELDS", FIELDS)
 
 
 def _check_controller(
@@ -548,7 +561,12 @@ def _check_controller(
         claims.append(claim)
         if joint in c.joints and claim not in available and not chained:  # a chained one claims references
             driver = c.hardware[owner[joint]].driver if joint in owner else "?"
-            report(("controllers", name, "params"), f"claims {claim!r}, which driver {driver!r} does not offer")
+            offered = sorted(_joint_fields(loaded, owner[joint], joint)) if joint in owner else []
+            report(
+                ("controllers", name, "params"),
+                f"claims {claim!r}, which driver {driver!r} does not offer (it applies {', '.join(offered)} "
+                f"for {joint})",
+            )
     return claims
 
 
@@ -661,7 +679,9 @@ def _review_hardware(loaded: LoadedConfig, issues: list[ConfigIssue]) -> None:
             continue
         loc = ("hardware", name, "params")
         joints = list(hw.joints)
-        for finding in cls.review(params, joints, c.update_rate):
+        findings = cls.review(params, joints, c.update_rate)
+        findings += cls.review_files(params, joints, c.update_rate, loaded.directory)
+        for finding in findings:
             if finding.level == "error":
                 issues.append(loaded.issue(loc, finding.message))
             else:
