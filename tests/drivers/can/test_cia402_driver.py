@@ -45,7 +45,7 @@ class Rig:
         self.events: list[tuple[str, str]] = []
         self.joints = tuple(nodes)
         raw = {
-            "bus": {"interface": "virtual", "channel": self.channel},
+            "bus": {"interface": "virtual", **params.pop("bus", {}), "channel": self.channel},
             "eds": "cia402_generic.eds",
             "drives": {joint: {"node_id": node} for joint, node in nodes.items()},
             "reply_timeout_ms": 100,
@@ -420,3 +420,37 @@ def test_not_a_following_error_in_other_states(rigs: Any) -> None:
     assert math.isfinite(float(rig.state.position[0]))
     np.testing.assert_array_equal(rig.state.fault != 0, [True])  # not enabled, though
     assert FAULT in (FAULT,)
+
+
+def test_velocity_pdo_is_read_and_both_tpdos_make_a_fresh_reading(rigs: Any) -> None:
+    rig = rigs({"hip": 3}, velocity_feedback="pdo")
+    rig.driver.on_configure()
+    rig.slaves.service(rig.now)
+    node = rig.drives[0].node
+    assert [v.index for v in node.tpdo[2].map] == [0x606C] and node.tpdo[2].trans_type == 1
+    rig.driver.read(0.0, DT, rig.state)
+    rig.driver.on_activate()
+    rig.hold()
+    rig.drives[0].velocity = 5000
+    rig.cycle(2)
+    w = rig.driver.wiring[0]
+    assert rig.state.velocity[0] == pytest.approx(5000 / w.velocity_per_rad_s)
+    assert rig.state.fresh.all()
+
+
+def test_fd_maps_velocity_and_error_code_into_the_one_tpdo(rigs: Any) -> None:
+    rig = rigs({"hip": 3}, bus={"fd": True})
+    rig.driver.on_configure()
+    rig.slaves.service(rig.now)
+    tpdo = rig.drives[0].node.tpdo[1]
+    assert [v.index for v in tpdo.map] == [0x6041, 0x6064, 0x6077, 0x606C, 0x603F]
+    rig.driver.read(0.0, DT, rig.state)
+    rig.driver.on_activate()
+    rig.hold()
+    rig.drives[0].velocity = -3000
+    rig.drives[0].error_code = 0x4310
+    rig.cycle(2)
+    w = rig.driver.wiring[0]
+    assert rig.state.velocity[0] == pytest.approx(-3000 / w.velocity_per_rad_s)
+    assert int(rig.state.fault[0]) & 0xFFFF == 0x4310
+    assert "excess drive temperature (0x4310)" in rig.driver.describe_fault(int(rig.state.fault[0]))
