@@ -2,6 +2,7 @@
 
 from drivers.can.emulator.core import Emulator
 from drivers.can.emulator.firmware import (
+    Cia402Firmware,
     DamiaoFirmware,
     MotorFirmware,
     MyActuatorFirmware,
@@ -12,6 +13,7 @@ from drivers.can.emulator.firmware import (
 from drivers.can.emulator.plant import MotorPlant, Plant
 
 __all__ = [
+    "Cia402Firmware",
     "DamiaoFirmware",
     "Emulator",
     "MotorFirmware",

@@ -2,8 +2,9 @@
 
 `service(now)` is the whole cycle and never blocks: advance the plant from the previous call to `now` under the
 drives' control laws (sub-stepped, since real drives close their loops far faster than a host cycle), drain the
-bus and hand every frame to the drive it addresses, run the drives' timers, send what they answer. Called with
-sim time it is deterministic, so lockstep tests can interleave host writes, `service(t)` and host reads.
+bus and hand every frame to the drives it addresses (every one that listens: CANopen's NMT and SYNC are
+broadcasts), run the drives' timers, send what they answer. Called with sim time it is deterministic, so
+lockstep tests can interleave host writes, `service(t)` and host reads.
 `bus_off(now, duration)` takes the bus down for a while (fault injection): an error frame of the bus-off class to
 every node, then no frame passes either way until it is back, when an error frame of the restarted class follows.
 """
@@ -81,11 +82,13 @@ class Emulator:
             if msg.is_error_frame:
                 self.counters["error_frames"] += 1
                 continue
-            motor = self._route(msg)
-            if motor is None:
+            heard = False
+            for motor in self.motors:  # every drive that listens: CANopen's NMT and SYNC are broadcasts
+                if motor.accepts(msg):
+                    heard = True
+                    self._send(motor.handle(msg, now))
+            if not heard:
                 self.counters["unknown"] += 1
-                continue
-            self._send(motor.handle(msg, now))
         for motor in self.motors:
             self._send(motor.tick(now))
 
@@ -122,12 +125,6 @@ class Emulator:
             for key, value in motor.counters.items():
                 total[key] = total.get(key, 0) + value
         return total
-
-    def _route(self, msg: can.Message) -> MotorFirmware | None:
-        for motor in self.motors:
-            if motor.accepts(msg):
-                return motor
-        return None
 
     def _advance(self, now: float) -> None:
         last, self.time = self.time, now if self.time is None else max(self.time, now)

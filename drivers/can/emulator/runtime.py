@@ -1,8 +1,9 @@
 """`hild emulate`'s engine room: the CAN drives a robot config names, emulated on their buses, with a plant behind.
 
-`build_runtime(loaded, options)` reads the config's CAN hardware sections (drivers ``mit_can`` and ``odrive_can``)
-and makes one firmware model per configured motor — flavour, ids, model ranges and range overrides exactly as the
-host driver resolves them (``wire_motors``), so both ends of the bus scale values identically. Components on the
+`build_runtime(loaded, options)` reads the config's CAN hardware sections (drivers ``mit_can``, ``odrive_can`` and
+``cia402``) and makes one firmware model per configured motor — flavour, ids, model ranges and range overrides
+exactly as the host driver resolves them (``wire_motors``; ``wire_drives`` and the same EDS for CiA 402 drives),
+so both ends of the bus scale values identically. Components on the
 same bus share one `Emulator`. Behind the drives sits a plant in actuator space:
 
 * ``twin`` — the robot's MuJoCo model (``robot.model``), joint names kept, each joint seen through its
@@ -26,7 +27,9 @@ every emulated joint.
   space; 0 elsewhere), ``longest_command_gap_ms`` (MIT drives: the longest silence their watchdog saw since the
   drive was enabled; 0 elsewhere).
 * ``{"op": "fault", "joint": J, "code": C}`` — latch a drive fault (Damiao 0x5…0xE, T-Motor 1…6, MyActuator
-  flags, ODrive axis error bits); the drive disables itself like the firmware does.
+  flags, ODrive axis error bits, CiA 402 EMCY error codes such as 0x2310 overcurrent, 0x3210 DC link
+  overvoltage, 0x4310 over-temperature, 0x5530 hardware, 0x8611 following error: the drive goes to FAULT,
+  latches 0x603F and sends the EMCY); the drive disables itself like the firmware does.
 * ``{"op": "clear", "joint": J?}`` — clear latched faults on the drive side (an operator power-cycling a supply).
 * ``{"op": "reboot", "joint": J?}`` — power cycle: back disabled, RAM settings lost.
 * ``{"op": "set", "joint": J?, "drop_replies": P, "reply_delay": S, "silent": B, "over_temperature": C,
@@ -58,20 +61,23 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Future
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Literal
 
 import can
 import numpy as np
 
 from drivers.can.bus import BusSpec, open_bus
+from drivers.can.cia402.wiring import wire_drives
 from drivers.can.emulator.base import MotorFirmware
+from drivers.can.emulator.cia402_firmware import Cia402Firmware
 from drivers.can.emulator.core import Emulator
 from drivers.can.emulator.disturbances import Obstacle, PlantMismatch, Push
 from drivers.can.emulator.mit_firmware import DamiaoFirmware, MitFirmware, MyActuatorFirmware, TMotorFirmware
 from drivers.can.emulator.odrive_firmware import ODriveFirmware
 from drivers.can.emulator.plant import MotorPlant, Plant
 from drivers.can.emulator.remote_host import RemoteServerBus
-from drivers.can.params import MitCanParams, ODriveCanParams
+from drivers.can.params import Cia402Params, MitCanParams, ODriveCanParams
 from drivers.can.wiring import wire_motors
 from hild.config.loader import LoadedConfig
 
@@ -89,7 +95,7 @@ __all__ = [
 
 log = logging.getLogger("hild.emulate")
 
-CAN_DRIVERS = ("mit_can", "odrive_can")
+CAN_DRIVERS = ("mit_can", "odrive_can", "cia402")
 PlantKind = Literal["twin", "motors"]
 
 
@@ -144,8 +150,17 @@ class RuntimeOptions:
         return [name for name, on in given.items() if on]
 
 
-def build_firmware(params: MitCanParams | ODriveCanParams, joints: Sequence[str]) -> list[MotorFirmware]:
-    """One firmware per joint (component joint order), configured as the host driver expects to find it."""
+def build_firmware(
+    params: MitCanParams | ODriveCanParams | Cia402Params, joints: Sequence[str], config_dir: Path = Path(".")
+) -> list[MotorFirmware]:
+    """One firmware per joint (component joint order), configured as the host driver expects to find it.
+
+    ``config_dir`` resolves a CiA 402 component's EDS paths (relative to the config's directory)."""
+    if isinstance(params, Cia402Params):
+        drives, problems = wire_drives(params, joints, config_dir)
+        if problems:
+            raise ValueError("; ".join(problems))
+        return [Cia402Firmware(drive, seed=k) for k, drive in enumerate(drives)]
     if isinstance(params, ODriveCanParams):
         return [
             ODriveFirmware(
@@ -601,9 +616,9 @@ def build_runtime(loaded: LoadedConfig, options: RuntimeOptions | None = None) -
     for name in names:
         hw = cfg.hardware[name]
         params = loaded.driver_params[name]
-        assert isinstance(params, MitCanParams | ODriveCanParams)
+        assert isinstance(params, MitCanParams | ODriveCanParams | Cia402Params)
         joints = list(hw.joints)
-        firmwares = build_firmware(params, joints)
+        firmwares = build_firmware(params, joints, loaded.directory)
         spec = params.bus
         entry = by_bus.setdefault(spec.name, (spec, []))
         for joint, fw in zip(joints, firmwares, strict=True):
@@ -699,4 +714,6 @@ def _ident(fw: MotorFirmware) -> str:
         return f"{fw.flavour.name} {fw.motor_id:#x}"
     if isinstance(fw, ODriveFirmware):
         return f"odrive node {fw.node_id}"
+    if isinstance(fw, Cia402Firmware):
+        return f"cia402 node {fw.node_id}"
     return type(fw).__name__

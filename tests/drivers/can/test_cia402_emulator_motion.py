@@ -1,0 +1,349 @@
+"""The emulated CiA 402 drive's profile side, driven by `canopen`'s own master: the 402 state machine, the cyclic
+synchronous modes moving the plant, following error, injected faults, reboot, the watchdog and homing.
+
+See tests/drivers/can/cia402_rig.py for how time passes (only in `advance`, in sim time).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from pathlib import Path
+
+import canopen
+import pytest
+from canopen.profiles.p402 import State402
+
+from drivers.can.emulator.cia402_firmware import NmtState
+from drivers.can.emulator.runtime import build_runtime
+from drivers.can.params import Cia402Params
+from hild.config.loader import LoadedConfig
+from hild.config.model import RobotConfig
+from tests.drivers.can.cia402_rig import EDS, Cia402Rig, wait_until
+
+NODE = 3
+
+
+@pytest.fixture
+def rig() -> Iterator[Cia402Rig]:
+    made = Cia402Rig((NODE,))
+    yield made
+    made.close()
+
+
+def operational(rig: Cia402Rig) -> None:
+    rig.node.nmt.state = "OPERATIONAL"
+    wait_until(lambda: rig.firmware.nmt_state == NmtState.OPERATIONAL, "NMT operational")
+
+
+def command_pdo(rig: Cia402Rig) -> canopen.pdo.PdoMap:
+    """RPDO1 of type 1: controlword, target position; applied at the next SYNC."""
+    rig.node.rpdo.read()
+    rpdo = rig.node.rpdo[1]
+    rpdo.clear()
+    rpdo.add_variable(0x6040)
+    rpdo.add_variable(0x607A)
+    rpdo.trans_type = 1
+    rpdo.enabled = True
+    rpdo.save()
+    return rpdo
+
+
+def enable(rig: Cia402Rig, mode: int) -> None:
+    rig.node.sdo[0x6060].raw = mode
+    rig.node.state = "OPERATION ENABLED"  # canopen walks 2, 3, 4 over SDO (no statusword TPDO mapped)
+    assert rig.firmware.state == "OPERATION ENABLED"
+
+
+def emcy(rig: Cia402Rig, code: int) -> canopen.emcy.EmcyError:
+    """The EMCY `code` once canopen's EmcyConsumer has logged it (its `wait` misses one that came before it waits)."""
+    log = rig.node.emcy.log
+    return wait_until(lambda: next((e for e in list(log) if e.code == code), None), f"EMCY {code:#06x}")
+
+
+def cw(state: str) -> int:
+    return State402.CW_COMMANDS_CODE[state]
+
+
+# ---- state machine --------------------------------------------------------------------------------------------------
+
+
+def test_the_402_state_machine_walked_by_canopen(rig: Cia402Rig) -> None:
+    node = rig.node
+    assert node.state == "SWITCH ON DISABLED"
+    node.state = "OPERATION ENABLED"
+    assert node.sdo[0x6041].raw & 0x6F == 0x27
+    assert node.sdo[0x6041].raw & 0x0200  # remote
+    assert rig.firmware.enabled
+    node.state = "SWITCHED ON"  # transition 5
+    assert not rig.firmware.enabled
+    node.state = "OPERATION ENABLED"
+    node.sdo[0x6040].raw = cw("QUICK STOP ACTIVE")  # transition 11, then 0x605A = 2: brake, Switch On Disabled
+    rig.advance(0.01)
+    assert node.state == "SWITCH ON DISABLED"
+    node.state = "READY TO SWITCH ON"
+    node.sdo[0x6040].raw = cw("SWITCH ON DISABLED") & 0  # disable voltage: transition 7
+    assert node.state == "SWITCH ON DISABLED"
+    node.sdo[0x6040].raw = 0x0F  # enable operation from Switch On Disabled: no transition exists
+    assert node.state == "SWITCH ON DISABLED"
+
+
+def test_quick_stop_option_6_stays_in_quick_stop_active_and_enables_again(rig: Cia402Rig) -> None:
+    rig.node.sdo[0x605A].raw = 6
+    enable(rig, 9)
+    rig.node.sdo[0x60FF].raw = round(2.0 * rig.firmware.wiring.velocity_per_rad_s)  # 2 rad/s
+    rig.advance(0.3)
+    assert rig.plant.velocities[0] == pytest.approx(2.0, abs=0.1)
+    rig.node.sdo[0x6040].raw = cw("QUICK STOP ACTIVE")
+    rig.advance(0.3)
+    assert rig.node.state == "QUICK STOP ACTIVE"
+    assert abs(rig.plant.velocities[0]) < 0.05  # braked to standstill, held
+    assert rig.node.sdo[0x6041].raw & 0x0400  # target reached: stopped
+    rig.node.sdo[0x6040].raw = 0x0F  # transition 16
+    assert rig.node.state == "OPERATION ENABLED"
+
+
+def test_fault_reset_needs_a_rising_edge_of_bit_7(rig: Cia402Rig) -> None:
+    rig.node.sdo[0x6040].raw = 0x80  # bit 7 already high before the fault
+    rig.on_drive(lambda: rig.firmware.inject_fault(0x5530))
+    assert rig.node.state == "FAULT"
+    rig.node.sdo[0x6040].raw = 0x80  # still high: no edge
+    assert rig.node.state == "FAULT"
+    rig.node.sdo[0x6040].raw = 0x0F  # enable does nothing in FAULT
+    assert rig.node.state == "FAULT"
+    rig.node.sdo[0x6040].raw = 0x00
+    rig.node.sdo[0x6040].raw = 0x80  # 0 → 1
+    assert rig.node.state == "SWITCH ON DISABLED"
+    assert rig.node.sdo[0x603F].raw == 0
+
+
+# ---- modes -----------------------------------------------------------------------------------------------------------
+
+
+def test_csp_moves_the_plant_to_the_target_within_the_window(rig: Cia402Rig) -> None:
+    rig.node.sdo[0x6065].raw = 2000  # following error window: counts
+    rig.node.sdo[0x6066].raw = 50
+    rpdo = command_pdo(rig)
+    operational(rig)
+    enable(rig, 8)
+    assert rig.node.sdo[0x6041].raw & 0x1000  # CSP: the drive follows the command value
+    cpr = rig.firmware.wiring.counts_per_rad
+    step = 0.3 / 500  # 0.3 rad in 0.5 s, one target per 1 ms SYNC
+    targets = iter([round(min(k * step, 0.3) * cpr) for k in range(1, 1000)])
+
+    def cycle() -> None:
+        rpdo["Controlword"].raw = 0x0F
+        rpdo["Target position"].raw = next(targets)
+        rpdo.transmit()
+        rig.network.sync.transmit()
+
+    rig.advance(0.8, each=cycle)
+    assert rig.plant.positions[0] == pytest.approx(0.3, abs=0.002)
+    assert rig.firmware.state == "OPERATION ENABLED"  # never outside the window for 50 ms
+    assert abs(rig.node.sdo[0x60F4].raw) < 2000
+    assert rig.node.sdo[0x6064].raw == pytest.approx(0.3 * cpr, abs=50)
+
+
+def test_cst_applies_the_target_torque_in_per_mille_of_the_rated_torque(rig: Cia402Rig) -> None:
+    enable(rig, 10)
+    rig.node.sdo[0x6071].raw = 250  # 25 % of 10 N·m
+    rig.node.sdo[0x60B2].raw = 50  # + 5 % torque offset
+    rig.advance(0.01)
+    assert rig.firmware.applied_torque == pytest.approx(3.0)
+    assert rig.node.sdo[0x6077].raw == 300
+    assert rig.plant.velocities[0] > 0.0
+    rig.node.sdo[0x6071].raw = 30000  # far above 0x6072 = 3000 ‰
+    rig.advance(0.001)
+    assert rig.firmware.applied_torque == pytest.approx(30.0)
+    assert rig.node.sdo[0x6041].raw & 0x0800  # internal limit active
+
+
+def test_following_error_faults_with_emcy_8611(rig: Cia402Rig) -> None:
+    node = rig.node
+    node.sdo[0x6065].raw = 1000
+    node.sdo[0x6066].raw = 20
+    node.sdo[0x6072].raw = 10  # 0.1 N·m: too weak to follow
+    enable(rig, 8)
+    node.emcy.reset()
+    node.sdo[0x607A].raw = round(1.0 * rig.firmware.wiring.counts_per_rad)
+    assert node.sdo[0x6041].raw & 0x2000  # bit 13: following error, before the timeout
+    rig.advance(0.015)
+    assert node.state == "OPERATION ENABLED"  # not yet 20 ms
+    rig.advance(0.02)
+    error = emcy(rig, 0x8611)
+    assert error.register & 0x21 == 0x21  # generic + device profile
+    assert node.state == "FAULT"
+    assert node.sdo[0x603F].raw == 0x8611
+    assert node.sdo[0x1001].raw & 0x01
+    assert node.sdo[0x1003][1].raw == 0x8611
+    assert rig.firmware.applied_torque == 0.0
+
+
+# ---- faults, reboot, watchdog ----------------------------------------------------------------------------------------
+
+
+def test_injected_fault_sends_its_emcy_and_disables(rig: Cia402Rig) -> None:
+    enable(rig, 10)
+    rig.on_drive(lambda: rig.firmware.inject_fault(0x2310))
+    error = emcy(rig, 0x2310)
+    assert error.register & 0x03 == 0x03  # generic + current
+    assert rig.node.state == "FAULT"
+    assert not rig.firmware.enabled
+    rig.node.sdo[0x6040].raw = 0x80
+    wait_until(lambda: not rig.node.emcy.active, "the EMCY error reset (0x0000)")
+    assert rig.node.state == "SWITCH ON DISABLED"
+    with pytest.raises(ValueError, match="EMCY error code"):
+        rig.firmware.inject_fault(0x10000)
+
+
+def test_over_temperature_faults_with_emcy_4310(rig: Cia402Rig) -> None:
+    enable(rig, 10)
+    rig.on_drive(lambda: setattr(rig.firmware, "over_temperature", rig.firmware.temperature_rotor + 0.01))
+    rig.node.sdo[0x6071].raw = 2000
+    rig.advance(0.5)
+    emcy(rig, 0x4310)
+    assert rig.firmware.fault == 0x4310
+
+
+def test_reboot_boots_up_again_in_pre_operational_with_ram_settings_lost(rig: Cia402Rig) -> None:
+    states: list[int] = []
+    rig.node.nmt.add_heartbeat_callback(states.append)
+    rig.node.sdo[0x6065].raw = 1234
+    operational(rig)
+    enable(rig, 8)
+    rig.on_drive(rig.firmware.reboot)
+    wait_until(lambda: 0 in states, "the boot-up frame")
+    assert rig.firmware.nmt_state == NmtState.PRE_OPERATIONAL
+    assert rig.node.state == "SWITCH ON DISABLED"
+    assert rig.node.sdo[0x6065].raw == 0xFFFFFFFF
+    assert rig.node.sdo[0x6061].raw == 0
+
+
+def test_sync_watchdog_faults_with_emcy_8130(rig: Cia402Rig) -> None:
+    rig.node.sdo[0x1006].raw = 1000  # 1 ms: the watchdog is 20 periods
+    operational(rig)
+    enable(rig, 10)
+    rig.advance(0.2, each=rig.network.sync.transmit)
+    assert rig.node.state == "OPERATION ENABLED"
+    rig.advance(0.019)
+    assert rig.firmware.state == "OPERATION ENABLED"  # 19 ms of silence: still inside
+    rig.advance(0.003)
+    emcy(rig, 0x8130)
+    assert rig.node.state == "FAULT"
+
+
+def test_consumer_heartbeat_watchdog_faults_with_emcy_8130(rig: Cia402Rig) -> None:
+    rig.node.sdo[0x1016][1].raw = (0x7F << 16) | 50  # the master, node 127, every ≤ 50 ms
+    operational(rig)
+    enable(rig, 10)
+
+    def master_heartbeat() -> None:
+        rig.network.send_message(0x77F, [NmtState.OPERATIONAL])
+
+    for _ in range(10):
+        master_heartbeat()
+        rig.advance(0.02)
+    assert rig.node.state == "OPERATION ENABLED"
+    rig.advance(0.06)
+    emcy(rig, 0x8130)
+    assert rig.firmware.fault == 0x8130
+
+
+def test_the_watchdog_is_off_outside_operation_enabled(rig: Cia402Rig) -> None:
+    rig.node.sdo[0x1006].raw = 1000
+    operational(rig)
+    rig.advance(0.2)
+    assert rig.node.state == "SWITCH ON DISABLED"
+    assert rig.firmware.fault == 0
+
+
+# ---- homing ----------------------------------------------------------------------------------------------------------
+
+
+def test_homing_method_37_makes_the_current_position_the_home_offset(rig: Cia402Rig) -> None:
+    rig.on_drive(lambda: rig.plant.positions.__setitem__(0, 1.2))
+    rig.advance(0.001)
+    rig.node.sdo[0x6098].raw = 37
+    rig.node.sdo[0x607C].raw = 5000
+    enable(rig, 6)
+    assert rig.node.sdo[0x6041].raw & 0x3400 == 0x0400  # not started: target reached only
+    rig.node.sdo[0x6040].raw = 0x1F  # homing operation start
+    status = rig.node.sdo[0x6041].raw
+    assert status & 0x3400 == 0x1400  # attained + target reached
+    assert rig.node.sdo[0x6064].raw == pytest.approx(5000, abs=1)
+    rig.advance(0.1)
+    assert rig.plant.positions[0] == pytest.approx(1.2, abs=0.01)  # held where it was
+
+
+def test_homing_to_the_index_pulse_moves_and_takes_time(rig: Cia402Rig) -> None:
+    rig.on_drive(lambda: rig.plant.positions.__setitem__(0, 0.3))
+    rig.advance(0.001)
+    rig.node.sdo[0x6098].raw = 34  # index pulse in the positive direction
+    rig.node.sdo[0x6099][2].raw = round(2.0 * rig.firmware.wiring.velocity_per_rad_s)  # 2 rad/s
+    enable(rig, 6)
+    rig.node.sdo[0x6040].raw = 0x1F
+    rig.advance(0.5)
+    assert rig.node.sdo[0x6041].raw & 0x3400 == 0  # in progress
+    assert rig.plant.velocities[0] == pytest.approx(2.0, abs=0.1)
+    rig.advance(3.0)
+    assert rig.node.sdo[0x6041].raw & 0x3400 == 0x1400
+    assert rig.plant.positions[0] == pytest.approx(2 * math.pi, abs=0.05)  # held at the next index
+    assert rig.node.sdo[0x6064].raw == pytest.approx(0, abs=0.05 * rig.firmware.wiring.counts_per_rad)
+
+
+def test_halt_interrupts_homing(rig: Cia402Rig) -> None:
+    rig.node.sdo[0x6098].raw = 33
+    rig.node.sdo[0x6099][2].raw = round(1.0 * rig.firmware.wiring.velocity_per_rad_s)
+    rig.on_drive(lambda: rig.plant.positions.__setitem__(0, 3.0))
+    rig.advance(0.001)
+    enable(rig, 6)
+    rig.node.sdo[0x6040].raw = 0x1F
+    rig.advance(0.2)
+    rig.node.sdo[0x6040].raw = 0x11F  # halt
+    rig.advance(0.3)
+    assert rig.node.sdo[0x6041].raw & 0x3400 == 0x0400  # interrupted
+    assert abs(rig.plant.velocities[0]) < 0.05
+
+
+# ---- runtime ---------------------------------------------------------------------------------------------------------
+
+
+def test_build_runtime_serves_cia402_sections(tmp_path: Path) -> None:
+    params = {
+        "bus": {"interface": "virtual", "channel": "cia402-runtime"},
+        "eds": str(EDS),
+        "drives": {"a": {"node_id": 1}, "b": {"node_id": 2, "mode": "cst"}},
+    }
+    data = {
+        "robot": {"name": "two"},
+        "update_rate": 500,
+        "clock": {"source": "sim", "real_time_factor": 0},
+        "hardware": {"arm": {"driver": "cia402", "params": params, "joints": {"a": {}, "b": {"reduction": 2.0}}}},
+        "joints": {
+            name: {
+                "limits": {"position": {"lower": -3.0, "upper": 3.0}, "velocity": 2.0, "effort": 20.0},
+                "hold": {"kp": 50.0, "kd": 2.0},
+            }
+            for name in ("a", "b")
+        },
+    }
+    # built by hand: the cia402 host driver is not needed to emulate its drives
+    loaded = LoadedConfig(
+        path=tmp_path / "robot.yaml",
+        config=RobotConfig.model_validate(data),
+        driver_params={"arm": Cia402Params.model_validate(params)},
+    )
+    runtime = build_runtime(loaded)
+    firmwares = [j.firmware for j in runtime.joints]
+    assert [fw.node_id for fw in firmwares] == [1, 2]
+    assert [fw.wiring.mode for fw in firmwares] == ["csp", "cst"]
+    assert runtime.joints[1].reduction == 2.0
+    runtime.open()
+    try:
+        runtime.service(0.0)
+        reply = runtime.handle({"op": "fault", "joint": "b", "code": 0x3210})
+        assert reply["ok"], reply
+        status = runtime.status()
+        assert [j["fault"] for j in status["joints"]] == [0, 0x3210]
+    finally:
+        runtime.close()
