@@ -62,11 +62,12 @@ WALK_CW: tuple[int, ...] = tuple(
         READY: _CW["SWITCHED ON"],  # switch on: 3
         SWITCHED_ON: _CW["OPERATION ENABLED"],  # enable operation: 4
         OPERATION_ENABLED: _CW["OPERATION ENABLED"],
-        QUICK_STOP: _CW["QUICK STOP ACTIVE"],  # never left by a walk (16 would re-enable it)
     }.get(state, _CW["DISABLE VOLTAGE"])
     for state in range(len(STATE_NAMES))
 )
-"""The controlword that takes a drive one step toward Operation Enabled; FAULT and QUICK STOP ACTIVE stay."""
+"""The controlword that takes a drive one step toward Operation Enabled (only ever on activate or an operator's
+enable). QUICK STOP ACTIVE goes through Switch On Disabled (disable voltage, transition 12), never straight back
+(16); FAULT stays (only a fault reset leaves it)."""
 
 HOLD_CW: tuple[int, ...] = tuple(
     {
