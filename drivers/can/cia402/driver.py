@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 import struct
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import can
@@ -32,7 +32,7 @@ import canopen
 from canopen.nmt import NMT_STATES
 from canopen.sdo.constants import EXPEDITED, REQUEST_DOWNLOAD, RESPONSE_ABORTED, RESPONSE_DOWNLOAD, SIZE_SPECIFIED
 
-from drivers.can.bus import BusSpec, bits_per_second, frame_bits
+from drivers.can.bus import bits_per_second, frame_bits
 from drivers.can.cia402 import pdo, state
 from drivers.can.cia402.errors import describe_error_code, emcy_code
 from drivers.can.cia402.pdo import Layout, layout_for
@@ -95,6 +95,7 @@ _SDO_6060 = struct.Struct("<BHBb3x")
 _SDO_REPLY = struct.Struct("<BHB")
 _SDO_DOWNLOAD_1 = REQUEST_DOWNLOAD | EXPEDITED | SIZE_SPECIFIED | (3 << 2)  # 0x2F: expedited, 1 byte
 _SDO_ABORT_CODE = struct.Struct("<I")
+_VELOCITY_UNPACK = pdo.Pdo(2, (pdo.VELOCITY_ACTUAL,)).layout.unpack_from
 
 # Thresholds of review's resolution warnings (at the actuator): a command step coarser than this is noticeable.
 POSITION_STEP_LIMIT = 1e-4  # rad: one position unit above 0.1 mrad
@@ -289,10 +290,10 @@ class Cia402Driver(CanComponent):
             ids.add(pdo.rpdo_cob_id(layout.rpdo.number, node))
             ids.update(pdo.tpdo_cob_id(p.number, node) for p in layout.tpdos)
             ids.update({EMCY_BASE + node, HEARTBEAT_BASE + node, SDO_REQUEST_BASE + node, SDO_RESPONSE_BASE + node})
-            if params.heartbeat_ms:
-                frames.append((1, 1000.0 / params.heartbeat_ms))
         bps = bits_per_second(params.bus, frames)
-        bps += update_rate * _classic_bits(params.bus, 0)  # SYNC, no counter
+        bps += update_rate * frame_bits(0)  # SYNC: a classic frame without counter, also on an FD bus
+        if params.heartbeat_ms:  # classic 1-byte frames
+            bps += len(params.drives) * 1000.0 / params.heartbeat_ms * frame_bits(1)
         ids.add(params.sync_id)
         return [BusUsage(params.bus.name, bps, float(params.bus.bitrate), frozenset(ids))]
 
@@ -365,7 +366,7 @@ class Cia402Driver(CanComponent):
         ]
         self._pack = [layout.rpdo.layout.pack_into for layout in self.layouts]
         self._has_offset = [layout.has_torque_offset for layout in self.layouts]
-        self._sync = self.link.make_message(params.sync_id)
+        self._sync = can.Message(arbitration_id=params.sync_id, data=b"", is_extended_id=False)  # classic
         self._counts_per_rad = [w.counts_per_rad for w in wiring]
         self._velocity_per_rad_s = [w.velocity_per_rad_s for w in wiring]
         self._permille_per_nm = [w.permille_per_nm for w in wiring]
@@ -802,7 +803,7 @@ class Cia402Driver(CanComponent):
             if len(data) < 4:
                 self.bad_frames.note("wrong length", ident)
                 return
-            units = int.from_bytes(data[:4], "little", signed=True)
+            (units,) = _VELOCITY_UNPACK(data)
             self.velocity_units[k] = units
             self.velocity[k] = units / self._velocity_per_rad_s[k]
             self._new_velocity[k] = True
@@ -980,14 +981,3 @@ class Cia402Driver(CanComponent):
             "syncs": self.syncs,
             "clamped": sum(r.clamped[k] for k, r in enumerate(self._target_range)),
         }
-
-
-def _classic_bits(spec: BusSpec, payload: int) -> float:
-    """A frame's bits on `spec` (FD buses carry SYNC as an FD frame, counted as such)."""
-    ratio = spec.data_bitrate / spec.bitrate if spec.fd and spec.data_bitrate else 1.0
-    return frame_bits(payload, fd=spec.fd, brs_ratio=ratio)
-
-
-def command_fields_of(params: Cia402Params, joints: Sequence[str]) -> Mapping[str, frozenset[str]]:
-    """Per joint, what its drive's mode applies (for tools that have params, not a class)."""
-    return Cia402Driver.command_fields(params, joints)
