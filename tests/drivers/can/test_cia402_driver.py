@@ -481,3 +481,41 @@ def test_an_sdo_abort_at_configure_names_the_drive(rigs: Any) -> None:
         rig.driver.on_configure()
     assert rig.driver.link.bus is None
     assert not any(t.name == "cia402-sdo" for t in threading.enumerate())
+
+
+def test_external_sync_sends_only_rpdos_and_reads_what_the_other_masters_sync_triggers(rigs: Any) -> None:
+    rig = rigs({"hip": 3}, sync="external")
+    rig.driver.on_configure()
+    rig.slaves.service(rig.now)
+    assert _sdo(rig, 0, 0x1006) == 0  # hild does not produce SYNC: the period object is the other master's
+    rig.driver.read(0.0, DT, rig.state)
+    drive = rig.drives[0]
+
+    def other_master_sync() -> None:  # the other master's SYNC, as the slave hears it
+        drive._on_sync(0x80, bytearray(), rig.now)
+
+    rig.driver.serve_while_waiting = lambda: (rig.serve(), other_master_sync())
+    rig.driver.on_activate()
+    assert drive.statusword == OE
+    assert rig.driver.syncs == 0
+    w = rig.driver.wiring[0]
+    for _ in range(5):
+        rig.command.position[:] = (drive.position + 50) / w.counts_per_rad
+        rig.driver.write(rig.t, DT, rig.command)
+        rig.slaves.service(rig.now)
+        other_master_sync()
+        rig.t += DT
+        rig.driver.read(rig.t, DT, rig.state)
+    assert rig.driver.syncs == 0  # only RPDOs went out
+    assert rig.state.fresh.all()
+    assert rig.state.velocity[0] == pytest.approx(50 / w.counts_per_rad / DT, rel=1e-6)  # over the cycle time
+
+
+def test_a_nan_position_target_holds_the_actual_position_and_says_so(rigs: Any) -> None:
+    rig = rigs({"hip": 3})
+    rig.drives[0].position = 777
+    rig.start()
+    rig.command.position[:] = float("nan")
+    rig.cycle(3)
+    assert rig.drives[0].targets[-1][0x607A] == 777
+    assert sum("0x607a target nan" in msg for _, msg in rig.events) == 1
