@@ -482,8 +482,8 @@ class Cia402Driver(CanComponent):
         sdo, od = node.sdo, node.object_dictionary
         p = w.params
         sdo[0x6060].raw = MODE_CODES[w.mode]
-        self._map_pdos(node.rpdo, layout.rpdo, layout, w.node_id, receive=True)
-        self._map_pdos(node.tpdo, layout.tpdos[0], layout, w.node_id, receive=False)
+        self._map_pdos(node.rpdo, layout, w.node_id, receive=True)
+        self._map_pdos(node.tpdo, layout, w.node_id, receive=False)
         ipp = interpolation_period(self._period)
         if ipp is not None and 0x60C2 in od:
             sdo[0x60C2][1].raw, sdo[0x60C2][2].raw = ipp
@@ -513,7 +513,8 @@ class Cia402Driver(CanComponent):
             raise HardwareError(f"{w.joint}: the drive shows mode {mode} in 0x6061 after 0x6060 = {MODE_CODES[w.mode]}")
         return int(sdo[0x6041].raw), int(sdo[0x6064].raw)
 
-    def _map_pdos(self, maps: object, used: pdo.Pdo, layout: Layout, node_id: int, *, receive: bool) -> None:
+    @staticmethod
+    def _map_pdos(maps: object, layout: Layout, node_id: int, *, receive: bool) -> None:
         """canopen's PdoMap.save: disable (COB-ID bit 31), write the mapping, transmission type 1, re-enable.
         Every PDO of the drive the layout does not use is disabled."""
         wanted = {p.number: p for p in ((layout.rpdo,) if receive else layout.tpdos)}
@@ -577,7 +578,10 @@ class Cia402Driver(CanComponent):
         def disabled(k: int) -> bool:
             return state.state_of(self.statusword[k]) == state.SWITCH_ON_DISABLED
 
-        self._pump(lambda: all(disabled(k) for k in range(n)), self._wait)
+        try:
+            self._pump(lambda: all(disabled(k) for k in range(n)), self._wait)
+        except HardwareError as exc:  # the bus failed under us: say so, and which drives are not confirmed
+            self.context.emit_event("error", f"disable voltage not sent to every drive: {exc}")
         failed = [k for k in range(n) if not disabled(k)]
         for k in failed:
             self.context.emit_event(
