@@ -120,3 +120,21 @@ def test_stop_ends_in_a_confirmed_switch_on_disabled(rig: Any) -> None:
     rig.seconds(0.1)
     rig.engine.stop()
     assert all(fw.state == "SWITCH ON DISABLED" for fw in rig.firmwares)
+
+
+def test_a_silent_drive_faults_within_the_stale_bound(rig: Any) -> None:
+    rig.seconds(0.1)
+    rig.firmwares[0].silent = True
+    cycles = rig.until(lambda: "j1" in rig.faulted(), 0.1, "j1 faulted")
+    assert cycles <= 10 + 2  # safety.stale_feedback_cycles: a missing TPDO is stale the cycle it is missed
+    assert "j2" not in rig.faulted()
+
+
+def test_a_rebooted_drive_faults_and_is_not_re_enabled(rig: Any) -> None:
+    rig.seconds(0.1)
+    rig.firmwares[1].reboot()
+    rig.until(lambda: "j2" in rig.faulted(), 0.3, "j2 faulted")
+    words = [e.message for _, e in rig.events if e.level == "error"]
+    assert any("left NMT OPERATIONAL" in w or "not OPERATION ENABLED" in w for w in words), words
+    rig.seconds(0.2)
+    assert rig.firmwares[1].state != "OPERATION ENABLED"
