@@ -679,7 +679,10 @@ class Cia402Driver(CanComponent):
         derived = not self._fd_feedback
         for k, counts in enumerate(self.position_counts):
             if new[k]:
-                if derived and not needs_velocity[k]:
+                if self._homing_phase[k] != _IDLE and self.statusword[k] & SW_HOMING_ATTAINED:
+                    velocity[k] = 0.0  # the drive set its home: the position jumped without moving
+                    self._prev_counts[k] = counts
+                elif derived and not needs_velocity[k]:
                     elapsed = (syncs - self._sync_mark[k]) * period if produce else since[k]
                     if self._have_prev[k] and elapsed > 0.0:
                         velocity[k] = (counts - self._prev_counts[k]) / self._counts_per_rad[k] / elapsed

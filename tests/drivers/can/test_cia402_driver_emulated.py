@@ -123,9 +123,11 @@ def test_homing_method_37_against_the_emulated_drive(rigs: Any) -> None:
     rig.cycle(5)
     rig.driver.start_homing("shoulder")
     outcome = None
+    speeds = []
     for _ in range(500):
         rig.hold()  # as the engine does while a joint homes: hold follows the measured position
         rig.cycle()
+        speeds.append(abs(float(rig.state.velocity[0])))
         outcome, detail = rig.driver.homing("shoulder")
         if outcome.value in ("attained", "failed"):
             break
@@ -133,6 +135,8 @@ def test_homing_method_37_against_the_emulated_drive(rigs: Any) -> None:
     for _ in range(10):
         rig.hold()
         rig.cycle()
+        speeds.append(abs(float(rig.state.velocity[0])))
+    assert max(speeds) < 0.5  # the home moved the position origin by 0.3 rad: no velocity spike from that jump
     assert rig.firmwares[0].mode == 8  # back in CSP
     assert rig.state.position[0] == pytest.approx(0.0, abs=1e-3)  # the current position became home (offset 0)
     rig.hold()
