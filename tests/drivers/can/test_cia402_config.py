@@ -140,3 +140,10 @@ def test_review_names_a_mode_the_eds_lacks_and_a_missing_file(tmp_path: Path) ->
     params = Cia402Params.model_validate(raw)
     findings = Cia402Driver.review_files(params, ["j1"], 500.0, tmp_path)
     assert [f.level for f in findings] == ["error"] and "cannot read the EDS" in findings[0].message
+
+
+def test_a_missing_eds_is_refused_at_load(tmp_path: Path) -> None:
+    config = robot(1)
+    config["hardware"]["arm"]["params"]["eds"] = "nowhere.eds"
+    with pytest.raises(ConfigError, match=r"hardware\.arm\.params\.eds: file not found: .*nowhere\.eds"):
+        load(tmp_path, config)
