@@ -45,7 +45,7 @@ class Rig:
             "bus": {"interface": "virtual", **params.pop("bus", {}), "channel": self.channel},
             "eds": "cia402_generic.eds",
             "drives": {joint: {"node_id": node} for joint, node in nodes.items()},
-            "reply_timeout_ms": 100,
+            "reply_timeout_ms": 300,  # SDO answers under load; lockstep otherwise
             **params,
         }
         self.params = Cia402Params.model_validate(raw)

@@ -28,7 +28,7 @@ class Rig(LockstepRig):
             "bus": {"interface": "virtual", "channel": self.channel},
             "eds": "cia402_generic.eds",
             "drives": {joint: {"node_id": node} for joint, node in nodes.items()},
-            "reply_timeout_ms": 100,
+            "reply_timeout_ms": 300,  # SDO answers under load; lockstep otherwise
             **params,
         }
         validated = Cia402Params.model_validate(raw)
