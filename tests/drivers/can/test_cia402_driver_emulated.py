@@ -142,3 +142,16 @@ def test_homing_method_37_against_the_emulated_drive(rigs: Any) -> None:
     rig.hold()
     rig.cycle(20)
     assert not rig.state.fault.any()
+
+
+def test_csv_follows_the_velocity_command(rigs: Any) -> None:
+    rig = rigs({"wrist": 5}, mode="csv")
+    rig.start()
+    assert sorted(rig.driver.COMMAND_FIELDS) == ["effort", "velocity"]
+    rig.hold()
+    rig.command.velocity[:] = 0.5
+    rig.cycle(250)
+    w = rig.driver.wiring[0]
+    assert rig.firmwares[0].target_velocity == round(0.5 * w.velocity_per_rad_s)
+    assert rig.state.velocity[0] == pytest.approx(0.5, abs=0.02)  # derived from the SYNC-latched positions
+    assert not rig.state.fault.any()
