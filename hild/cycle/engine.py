@@ -243,6 +243,7 @@ class Engine:
         self._estop_waiters: deque[concurrent.futures.Future[Any]] = deque(maxlen=256)
         self._deferred: list[tuple[Deferred, concurrent.futures.Future[Any], bool]] = []  # …, clears an e-stop
         self.homings = Homings(self.joints)  # drives homing on an operator's command (hild/cycle/homing.py)
+        self._homing_confirm = max(1, round(STOP_CONFIRM * self.update_rate))  # cycles a drive has to confirm a stop
         self._health_every = max(1, round(self.update_rate / HEALTH_POLL_HZ))
         self.tuning = ManagerParams.of(cfg)  # the daemon's own parameters (hold gains): set_parameters changes them
         self.tuning_floor = [j.soft_margin for j in self.tuning.joints.values()]  # the config's soft margins
@@ -1207,7 +1208,7 @@ class Engine:
     def _poll_homing(self) -> None:
         """Each cycle while a drive homes: hold follows its joint's reading (in a frame the drive may move), and a
         homing that must stop (e-stop, a fault) is stopped; one that ended is latched where it stopped."""
-        confirm = max(1, round(STOP_CONFIRM * self.update_rate))
+        confirm = self._homing_confirm
         for run in self.homings.poll(self.cycle, self.state.position, self._homing_must_stop, confirm):
             self._homing_ended(run)
         for i in self.homings.runs:
@@ -1224,10 +1225,9 @@ class Engine:
         return ""
 
     def _stop_homing(self, cause: str) -> None:
-        confirm = max(1, round(STOP_CONFIRM * self.update_rate))
         for run in list(self.homings.runs.values()):
             if not run.stopping:
-                self.homings.stop(run, cause, self.cycle, confirm)
+                self.homings.stop(run, cause, self.cycle, self._homing_confirm)
 
     def _homing_ended(self, run: HomingRun) -> None:
         """Controllers may claim the joint again; hold follows the reading a little longer (a drive's new origin

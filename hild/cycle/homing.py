@@ -68,12 +68,12 @@ class Homings:
 
     def poll(
         self, cycle: int, position: Sequence[float], cause_to_stop: Callable[[HomingRun], str], confirm_cycles: int
-    ) -> list[HomingRun]:
+    ) -> tuple[HomingRun, ...]:
         """Once per cycle while any run is under way (after the read): stop the runs that must stop, and return the
         runs that ended, their entries updated with the joint's reading then (in its new frame once attained); the
-        engine latches their joints and lets controllers claim them again."""
-        ended: list[HomingRun] = []
-        for run in list(self.runs.values()):
+        engine latches their joints and lets controllers claim them again. Allocates only when one ends."""
+        ended: tuple[HomingRun, ...] = ()
+        for run in self.runs.values():
             if not run.stopping and (cause := cause_to_stop(run)):
                 self.stop(run, cause, cycle, confirm_cycles)
             try:
@@ -88,9 +88,10 @@ class Homings:
                 state, detail = Homing.FAILED, "the drive reports no homing under way"
             if state is Homing.FAILED and run.stopping:
                 detail = f"{run.stopping}: {detail}" if detail else run.stopping
-            del self.runs[run.joint]
             self._enter(run, state, detail or None, float(position[run.joint]))
-            ended.append(run)
+            ended = (*ended, run)
+        for run in ended:
+            del self.runs[run.joint]
         return ended
 
     def abandon(self, position: Sequence[float]) -> list[HomingRun]:

@@ -119,6 +119,9 @@ def test_ctl_home_gives_up_waiting_and_the_homing_goes_on(
     assert "a is still homing: it goes on" in capsys.readouterr().err
     with HildClient(ROBOT, connect=[homing_daemon.endpoint], timeout=5.0) as client:
         assert (homing_entry(client) or {}).get("state") == "running"
+    assert ctl(homing_daemon, "status") == EXIT_OK
+    rows = {line.split()[0]: line for line in capsys.readouterr().out.splitlines() if line.strip()}
+    assert "hold (homing)" in rows["a"] and "homing" not in rows["b"]
 
 
 def test_an_estop_while_ctl_waits_ends_the_homing_failed(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
