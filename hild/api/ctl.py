@@ -229,14 +229,15 @@ HOME_WAIT = 120.0  # s: homing methods that search for a switch at creep speed t
 HOME_POLL = 0.1  # s between two looks at the status while waiting
 HOME_DESCRIPTION = """\
 Start the drive's own homing of JOINT (a CiA 402 drive: homing mode, the method its config names) and wait for
-its end.
-The drive moves the joint by itself: the joint must be held and still (no controller claims it, no fault, no
-e-stop), no controller may claim it until the homing ends, and the daemon holds it where the drive takes it. An
-e-stop, a fault of the joint or of its hardware, or stopping the daemon stop the homing: it ends failed where
-the drive halted. Once attained the joint's position origin may have moved; hold latches the new reading.
+its end. The drive moves the joint by itself: the joint must be held and still (no controller claims it, no
+fault, no e-stop), no controller may claim it until the homing ends, and the daemon's hold follows it wherever
+the drive takes it. An e-stop, a fault of the joint or of its hardware, or stopping the daemon stop the homing:
+it ends failed where the drive halted. Once attained the joint's position origin may have moved; hold latches
+the new reading.
 
-Exit code 0 when the drive reports it attained its home, 1 when it failed, was refused, or is still homing after
---wait (the homing goes on; Ctrl-C stops waiting, not the homing: e-stop stops it). docs/operations.md, "Homing".
+Exit code 0 when the drive reports it attained its home; 1 when it failed, was refused, or is still homing after
+--wait (the homing goes on; Ctrl-C stops the waiting, not the homing: e-stop stops it). docs/operations.md,
+"Homing".
 """
 
 PUB_DESCRIPTION = """\
