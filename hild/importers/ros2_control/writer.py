@@ -17,6 +17,7 @@ from typing import Any
 
 from hild.config.stop_review import SUGGESTED_DESCENT
 from hild.importers.ros2_control.can_template import CanFacts, template_lines
+from hild.importers.ros2_control.canopen import Cia402Section
 from hild.importers.ros2_control.controllers import ControllerPlan, ControllersPlan
 from hild.importers.ros2_control.mapping import JointPlan, MimicPlan, SensorPlan
 
@@ -47,6 +48,7 @@ def build_document(
     exclude_contacts: Sequence[tuple[str, str]] = (),
     mimic_joints: Sequence[MimicPlan] = (),
     sensors: Sequence[SensorPlan] = (),
+    cia402: Mapping[str, Cia402Section] | None = None,  # per ros2_canopen block: its cia402 section
 ) -> Document:
     twin_params: dict[str, Any] = {"model": urdf_name, "substeps": substeps}
     initial = {j.name: j.initial_position for j in joints if j.initial_position is not None}
@@ -89,8 +91,22 @@ def build_document(
         "Hardware is the MuJoCo twin over the URDF beside this file. Read the import report (approximations) and",
         "check limits and gains before running on hardware; the CAN section at the end is a template to fill in.",
     ]
-    doc.footer = template_lines(joints, can)
+    cia402 = cia402 or {}
+    others = [j for j in joints if j.block not in cia402]
+    doc.footer = template_lines(others, can) if others else []
+    for section in cia402.values():
+        doc.footer.extend(["", *cia402_lines(section)] if doc.footer else cia402_lines(section))
     return doc
+
+
+def cia402_lines(section: Cia402Section) -> list[str]:
+    """A ``cia402`` component as YAML lines (commented out by ``render``), each value with its source."""
+    root: KeyPath = ("hardware", section.name)
+    comments = {(*root, *path): text for path, text in section.comments.items()}
+    comments[root] = f"was <ros2_control name={section.block!r}> {section.plugin}"
+    lines = [*section.heading, *_block({"hardware": {section.name: section.component}}, comments, 0, ())]
+    lines.extend(f"  # TODO: {why}" for why in section.missing)  # still a comment once uncommented
+    return lines
 
 
 def render(doc: Document) -> str:
