@@ -240,6 +240,19 @@ def test_each_unsupported_feature_is_reported_by_name(tmp_path: Path, old: str, 
     Cia402Params.model_validate(component["params"])
 
 
+def test_two_blocks_on_one_can_interface_are_two_masters(tmp_path: Path) -> None:
+    arm = robot(tmp_path)
+    ros2_control = arm / "urdf" / "canopen_arm.ros2_control.xacro"
+    text = ros2_control.read_text()
+    hardware = text[text.index("      <hardware>") : text.index("      </hardware>") + len("      </hardware>\n")]
+    second = f'    </ros2_control>\n    <ros2_control name="${{name}}_wrist" type="system">\n{hardware}'
+    edit(ros2_control, '      <joint name="${prefix}joint2">', second + '      <joint name="${prefix}joint2">')
+    result = run_import(arm, tmp_path)
+    assert "'canopen_arm_wrist' is a second master on CAN interface can0" in findings(result, "unsupported")
+    text = result.config.read_text()
+    assert text.count(HEADING) == 2  # each block still gets its section, to merge by hand
+
+
 def test_a_joint_left_out_is_a_todo_in_the_section(tmp_path: Path) -> None:
     arm = robot(tmp_path)
     edit(
@@ -393,3 +406,15 @@ def test_what_the_driver_refuses_is_reported(tmp_path: Path) -> None:
     assert "cia402 section: hild check refuses it:" in unsupported
     assert "does not list csp in 0x6502 supported modes" in unsupported
     assert result.config.exists()  # a template the import reports on, not a reason to write nothing
+
+
+@pytest.mark.parametrize(
+    "form",
+    ["package://canopen_arm/config/robot_control/bus.yml", "../config/robot_control/bus.yml"],
+    ids=["package_uri", "relative_to_the_urdf"],
+)
+def test_bus_config_forms_resolve_like_the_urdfs_other_paths(tmp_path: Path, form: str) -> None:
+    arm = robot(tmp_path)
+    edit(arm / "urdf" / "canopen_arm.urdf.xacro", "$(find canopen_arm)/config/robot_control/bus.yml", form)
+    result = run_import(arm, tmp_path)
+    assert f"bus_config → {bus_yml(arm).resolve()}" in findings(result, "mapped")

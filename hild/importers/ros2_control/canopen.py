@@ -157,7 +157,7 @@ def plan_canopen(
     for block in robot.ros2_control:
         if block.plugin not in DRIVE_PLUGINS:
             continue
-        section = _Block(block, robot, packages, config_dir, update_rate, report).plan(
+        section = _Block(block, packages, config_dir, update_rate, report).plan(
             commanded.get(block.name, ()), interfaces
         )
         channel = str(section.component["params"]["bus"]["channel"])
@@ -186,7 +186,6 @@ class _Block:
     def __init__(
         self,
         block: Ros2Control,
-        robot: Robot,
         packages: PackageRoots,
         config_dir: Path,
         update_rate: float,
@@ -194,7 +193,7 @@ class _Block:
     ) -> None:
         self.block, self.packages, self.config_dir, self.report = block, packages, config_dir, report
         self.update_rate = update_rate
-        self.urdf_dir = Path(robot.where.file).resolve().parent
+        self.urdf_dir = packages.near  # the given URDF's (or xacro's) directory, not the expansion's
         self.comments: dict[KeyPath, str] = {}
         self.name = re.sub(r"[^A-Za-z0-9_]+", "_", block.name).strip("_").lower() or "drives"
 
