@@ -404,7 +404,10 @@ def test_what_the_driver_refuses_is_reported(tmp_path: Path) -> None:
     result = run_import(arm, tmp_path)
     unsupported = findings(result, "unsupported")
     assert "cia402 section: hild check refuses it:" in unsupported
-    assert "does not list csp in 0x6502 supported modes" in unsupported
+    assert (
+        "refuses it: hardware.canopen_arm.params: joint1: the drive's EDS (cia402_generic.eds) does not list csp"
+        in (unsupported)
+    )
     assert result.config.exists()  # a template the import reports on, not a reason to write nothing
 
 
@@ -418,3 +421,30 @@ def test_bus_config_forms_resolve_like_the_urdfs_other_paths(tmp_path: Path, for
     edit(arm / "urdf" / "canopen_arm.urdf.xacro", "$(find canopen_arm)/config/robot_control/bus.yml", form)
     result = run_import(arm, tmp_path)
     assert f"bus_config → {bus_yml(arm).resolve()}" in findings(result, "mapped")
+
+
+def test_ros2_canopens_own_robot_control_bus_yml(tmp_path: Path) -> None:
+    """ros2_canopen's robot_control example as it is: profile position (1) everywhere, 0x6060 := 7 (interpolated)
+    in its sdo list, no scales (ros2_canopen's default thousandths), switching_state, PDO blocks."""
+    arm = robot(tmp_path)
+    original = arm / "config" / "ros2_canopen_robot_control"
+    shutil.copy(EDS, original / "cia402_slave.eds")
+    edit(
+        arm / "urdf" / "canopen_arm.urdf.xacro",
+        "/config/robot_control/bus.yml",
+        "/config/ros2_canopen_robot_control/bus.yml",
+    )
+    result = run_import(arm, tmp_path)
+    unsupported, approximated = findings(result, "unsupported"), findings(result, "approximated")
+    assert unsupported.count("position_mode 1 (profile position): hild drives the cyclic synchronous modes only") == 2
+    assert "0x6083:0 = 2000 (profile acceleration" in unsupported
+    assert "sdo 0x6060:0 = 7 (mode of operation): the mode hild sets itself" in approximated
+    assert "switching_state: not needed" in approximated
+    assert "no scale_pos_to_dev: ros2_canopen's default 1000 device units per rad" in approximated
+    params = Cia402Params.model_validate(section(result.config)["params"])
+    wiring, problems = wire_drives(params, ["joint1", "joint2"], result.config.parent)
+    assert problems == []
+    assert [(w.node_id, w.mode, w.counts_per_rad, w.velocity_per_rad_s) for w in wiring] == [
+        (2, "csp", pytest.approx(1000.0), pytest.approx(1000.0)),
+        (3, "csp", pytest.approx(1000.0), pytest.approx(1000.0)),
+    ]

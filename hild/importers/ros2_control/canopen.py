@@ -318,11 +318,11 @@ class _Block:
         return note
 
     # ---- one joint --------------------------------------------------------------------------------------------
-    def _device(self, hw: HardwareJoint, bus: Bus) -> BusNode | None:
+    def _device(self, hw: HardwareJoint, bus: Bus) -> BusNode:
         where = hw.param_where
         if self.block.plugin == ROBOT_SYSTEM:
-            name = hw.params.get("device_name")
-            if name is None:
+            name = hw.params.get("device_name", "").strip()
+            if not name:
                 raise hw.where.fail(
                     f'{ROBOT_SYSTEM}: joint {hw.name!r} needs <param name="device_name"> naming its bus.yml device'
                 )
@@ -348,8 +348,6 @@ class _Block:
 
     def _drive(self, hw: HardwareJoint, bus: Bus, interface: str, missing: list[str]) -> _Drive | None:
         device = self._device(hw, bus)
-        if device is None:
-            return None
         report, values = self.report, device.values
         driver = str(values.get("driver", ""))
         if driver not in CIA402_DRIVERS:
@@ -362,7 +360,8 @@ class _Block:
             missing.append(f"{hw.name}: {device.name} is {what} (not CiA 402)")
             return None
         channels = as_int(values.get("num_channels")) or 1
-        if channels > 1 or "channel" in hw.params:
+        channel = as_int(hw.params.get("channel", "0"))
+        if channels > 1 or channel != 0:
             report.unsupported(
                 device.ref("num_channels") if channels > 1 else hw.param_where.get("channel", hw.where),
                 f"{hw.name}: {device.name!r} is a CiA 402-2 multi-channel device: hild drives one axis per node",
@@ -384,12 +383,11 @@ class _Block:
         self.comments[("params", "drives", hw.name)] = f"{device.where.short} {device.name}"
         drive["mode"] = self._mode(hw.name, device, interface)
         transmission = self._scales(hw.name, device, drive)
-        heartbeat = self._heartbeat(hw.name, device)
         self._sdo(hw.name, device, drive)
+        sdo_heartbeat = drive.pop("_heartbeat", None)  # a 0x1017 write in the sdo list
         self._homing(hw.name, device, drive, eds)
         self._leftovers(hw.name, device)
-        heartbeat = heartbeat or drive.pop("_heartbeat", None)
-        drive.pop("_heartbeat", None)
+        heartbeat = self._heartbeat(hw.name, device) or sdo_heartbeat
         return _Drive(hw.name, drive, transmission, eds, device.where, heartbeat)
 
     def _eds(self, device: BusNode, bus: Bus) -> Path:

@@ -283,17 +283,19 @@ def _check_cia402(
         loaded = load_config(check)
         check_with_model(loaded)
     except ConfigError as exc:
-        detail = str(exc).replace(f"{check}:", "")
+        detail = str(exc)
         if "unknown driver 'cia402'" in detail:
             report.approximated(where, "cia402 section not checked: no cia402 driver is installed")
             return
         for line in detail.splitlines():
-            if line.strip():
-                report.unsupported(where, f"cia402 section: hild check refuses it: {line.strip()}")
+            line = re.sub(rf"^\s*{re.escape(str(check))}(:\d+)?:\s*", "", line).strip()  # lines of the check file
+            if line:
+                report.unsupported(where, f"cia402 section: hild check refuses it: {line}")
         return
     for note in loaded.notes:
         if note.startswith("warning"):
-            report.approximated(where, f"cia402 section: hild check warns: {note}")
+            text = re.sub(rf"^warning:\s*{re.escape(str(check))}(:\d+)?:\s*", "", note)
+            report.approximated(where, f"cia402 section: hild check warns: {text}")
     report.mapped(where, "cia402 section: passes `hild check` in place of the twin")
 
 
