@@ -294,7 +294,7 @@ def _check_cia402(
         return
     for note in loaded.notes:
         if note.startswith("warning"):
-            text = re.sub(rf"^warning:\s*{re.escape(str(check))}(:\d+)?:\s*", "", note)
+            text = re.sub(rf"^{re.escape(str(check))}(:\d+)?:\s*", "", note.removeprefix("warning:").strip())
             report.approximated(where, f"cia402 section: hild check warns: {text}")
     report.mapped(where, "cia402 section: passes `hild check` in place of the twin")
 
