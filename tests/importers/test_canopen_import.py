@@ -249,8 +249,15 @@ def test_two_blocks_on_one_can_interface_are_two_masters(tmp_path: Path) -> None
     edit(ros2_control, '      <joint name="${prefix}joint2">', second + '      <joint name="${prefix}joint2">')
     result = run_import(arm, tmp_path)
     assert "'canopen_arm_wrist' is a second master on CAN interface can0" in findings(result, "unsupported")
-    text = result.config.read_text()
-    assert text.count(HEADING) == 2  # each block still gets its section, to merge by hand
+    assert result.config.read_text().count(HEADING) == 2  # each block still gets its component, to merge by hand
+    lines = result.config.read_text().splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith(HEADING))
+    body = [line[2:] for line in lines[start:] if line.startswith("# ") and not line.startswith("# ----")]
+    hardware = load_document(result.config, "\n".join(body))["hardware"]  # one hardware: for both, as YAML needs
+    assert {n: list(c["params"]["drives"]) for n, c in hardware.items()} == {
+        "canopen_arm": ["joint1"],
+        "canopen_arm_wrist": ["joint2"],
+    }
 
 
 def test_a_joint_left_out_is_a_todo_in_the_section(tmp_path: Path) -> None:

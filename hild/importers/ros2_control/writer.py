@@ -94,18 +94,24 @@ def build_document(
     cia402 = cia402 or {}
     others = [j for j in joints if j.block not in cia402]
     doc.footer = template_lines(others, can) if others else []
-    for section in cia402.values():
-        doc.footer.extend(["", *cia402_lines(section)] if doc.footer else cia402_lines(section))
+    if cia402:
+        doc.footer.extend(
+            ["", *cia402_lines(list(cia402.values()))] if doc.footer else cia402_lines(list(cia402.values()))
+        )
     return doc
 
 
-def cia402_lines(section: Cia402Section) -> list[str]:
-    """A ``cia402`` component as YAML lines (commented out by ``render``), each value with its source."""
-    root: KeyPath = ("hardware", section.name)
-    comments = {(*root, *path): text for path, text in section.comments.items()}
-    comments[root] = f"was <ros2_control name={section.block!r}> {section.plugin}"
-    lines = [*section.heading, *_block({"hardware": {section.name: section.component}}, comments, 0, ())]
-    lines.extend(f"  # TODO: {why}" for why in section.missing)  # still a comment once uncommented
+def cia402_lines(sections: Sequence[Cia402Section]) -> list[str]:
+    """The ``cia402`` components of every ros2_canopen block under one ``hardware:`` (commented out by ``render``),
+    each value with its source; joints left out are ``# TODO`` lines, comments still once uncommented."""
+    comments: dict[KeyPath, str] = {}
+    for s in sections:
+        root: KeyPath = ("hardware", s.name)
+        comments.update({(*root, *path): text for path, text in s.comments.items()})
+        comments[root] = f"was <ros2_control name={s.block!r}> {s.plugin}"
+    lines = [line for s in sections for line in s.heading]
+    lines.extend(_block({"hardware": {s.name: s.component for s in sections}}, comments, 0, ()))
+    lines.extend(f"  # TODO: {why}" for s in sections for why in s.missing)
     return lines
 
 
