@@ -238,10 +238,12 @@ class HardwareComponent(abc.ABC):
     def start_homing(self, joint: str) -> None:
         """Operator command (between cycles): start the drive's own homing of `joint` (CiA 402 mode 6).
 
-        The engine calls it only for a held, still joint; until `homing` reports the end, the component ignores
-        the servo command for that joint (the drive moves by itself), the engine lets no controller claim it and
-        hold follows the measured position. At the end the component puts the drive back in its cyclic mode,
-        aimed at where it is. Raises HardwareError when the drive cannot home."""
+        The engine calls it only for a held, still joint that no controller claims; until `homing` reports the
+        end, the component ignores the servo command for that joint (the drive moves by itself), the engine lets no
+        controller claim it and hold follows the measured position (the gate re-anchored on each reading: the
+        drive may move its origin). At the end the component puts the drive back in its cyclic mode, aimed at
+        where it is, before `homing` reports ATTAINED or FAILED: from then on the engine commands it again.
+        Raises HardwareError, in words for the operator, when the drive cannot home."""
         raise HardwareError(f"driver {type(self).__name__} cannot home its drives")
 
     def stop_homing(self, joint: str) -> None:

@@ -4,6 +4,11 @@ It mirrors the servo command into the state (optionally through a first-order la
 drive law would produce. Fault-injection hooks make the supervisor's fault paths testable: silence a servo,
 raise a drive fault code, fail reads, report a component-level problem, or corrupt readings (``glitch``).
 
+Homing (``params.homing``): like a drive's own homing, the joint travels at constant speed to its home switch
+(``switch``, in the frame it had at start) over ``duration`` s, ignoring the servo command, and then reads
+``home_offset`` there (its origin moved); ``stop_homing`` ends it FAILED where it is; a test makes the next one
+fail with the drive's words by setting ``homing_failure``.
+
 Sensors (``force_torque``, ``imu``): each reads ``sensor_values[name]`` (settable; from its params at start) plus
 seeded Gaussian noise of ``noise`` (orientation excepted), so the frozen check has something to see; tests set
 values, silence a sensor (``sensor_silent``) or make ``read_sensors`` raise (``sensor_error``).
@@ -19,8 +24,16 @@ import numpy as np
 from drivers.glitch import ReadingGlitch
 from hild.arrays import JointState, SensorValues, ServoCommand
 from hild.config.params import Field, Params
-from hild.hardware import HardwareComponent, HardwareContext, HardwareError
+from hild.hardware import HardwareComponent, HardwareContext, HardwareError, Homing
 from hild.interfaces import FORCE_TORQUE, IMU
+
+
+class MockHomingParams(Params):
+    duration: float = Field(default=1.0, gt=0.0, description="Seconds a homing takes, at constant speed.")
+    switch: dict[str, float] = Field(
+        default_factory=dict, description="Per joint, where its home switch is (rad, in its frame at start); default 0."
+    )
+    home_offset: float = Field(default=0.0, description="What a joint reads at its switch once homed (rad).")
 
 
 class MockParams(Params):
@@ -29,6 +42,9 @@ class MockParams(Params):
         default="mirror", description="mirror: state = command. first_order: state follows with time_constant."
     )
     time_constant: float = Field(default=0.02, gt=0.0, description="Seconds, for first_order dynamics.")
+    homing: MockHomingParams | None = Field(
+        default=None, description="Simulate a drive's own homing (hild ctl home); none: the mock cannot home."
+    )
 
 
 class MockSensorParams(Params):
@@ -72,6 +88,11 @@ class MockHardware(HardwareComponent):
         self.write_error: str | None = None
         self.health_problem: str | None = None
         self.glitch = ReadingGlitch(n)  # corrupts reported positions only (drivers/glitch.py)
+        self.homing_failure: str | None = None  # set: a running homing fails with these words at the next write
+        self.homing_started: list[str] = []  # the joints start_homing was called for, in order (tests read it)
+        self.homing_stopped: list[str] = []  # and stop_homing
+        self._homing: dict[int, list[float]] = {}  # joint → [switch position (frame at start), seconds left]
+        self._homing_end: dict[int, tuple[Homing, str]] = {}  # joint → its outcome, until `homing` reports it
         self.sensor_values: dict[str, np.ndarray] = {}
         self.sensor_silent: set[str] = set()
         self.sensor_error: str | None = None
@@ -93,6 +114,52 @@ class MockHardware(HardwareComponent):
     def set_zero(self, joint: str) -> None:
         """Like a drive's set-zero: the current position reads 0 from now on (the arm itself does not move)."""
         self.position[self.joints.index(joint)] = 0.0
+
+    def start_homing(self, joint: str) -> None:
+        h = self.params.homing
+        if h is None:
+            raise HardwareError("mock: no homing configured (params.homing)")
+        i = self.joints.index(joint)
+        unknown = set(h.switch) - set(self.joints)
+        if unknown:
+            raise HardwareError(f"mock: homing.switch names unknown joints {sorted(unknown)}")
+        self.homing_started.append(joint)
+        self._homing_end.pop(i, None)
+        self._homing[i] = [h.switch.get(joint, 0.0), h.duration]
+
+    def stop_homing(self, joint: str) -> None:
+        i = self.joints.index(joint)
+        self.homing_stopped.append(joint)
+        if self._homing.pop(i, None) is not None:
+            self.velocity[i] = 0.0
+            self._homing_end[i] = (Homing.FAILED, "stopped")
+
+    def homing(self, joint: str) -> tuple[Homing, str]:
+        i = self.joints.index(joint)
+        if i in self._homing:
+            return Homing.RUNNING, ""
+        return self._homing_end.pop(i, (Homing.IDLE, ""))
+
+    def _home(self, dt: float, q_all: list[float]) -> None:
+        """Advance the running homings by ``dt`` from the positions before this write (``q_all``): each joint
+        moves on toward its switch by itself, whatever it was commanded."""
+        assert self.params.homing is not None
+        for i, run in list(self._homing.items()):
+            if self.homing_failure:
+                del self._homing[i]
+                self.position[i], self.velocity[i] = q_all[i], 0.0
+                self._homing_end[i] = (Homing.FAILED, self.homing_failure)
+                continue
+            switch, left = run
+            q = q_all[i]
+            step = (switch - q) * min(1.0, dt / left)
+            self.position[i] = q + step
+            self.velocity[i] = step / dt
+            run[1] = left - dt
+            if run[1] <= 1e-9:  # at the switch: the drive's origin moves so that it reads home_offset here
+                del self._homing[i]
+                self.position[i], self.velocity[i] = self.params.homing.home_offset, 0.0
+                self._homing_end[i] = (Homing.ATTAINED, "")
 
     def on_deactivate(self) -> None:
         self.enabled = False
@@ -147,6 +214,8 @@ class MockHardware(HardwareComponent):
         self.velocity[:] = velocities
         self.position[:] = positions
         self.effort[:] = torques
+        if self._homing:  # a homing joint ignores the command: the drive moves by itself
+            self._home(dt, q_all)
 
     def health(self) -> str | None:
         return self.health_problem

@@ -161,6 +161,18 @@ def add_ctl_parser(subparsers: Any) -> None:
     zero = sub.add_parser("set-zero", parents=[common], help="make a held joint's current position its drive zero")
     zero.add_argument("joint")
     zero.add_argument("--confirm", action="store_true", help="required: the joint's position origin moves")
+    home = sub.add_parser(
+        "home",
+        parents=[common],
+        help="run the drive's own homing of a held joint and wait for its end (exit 0: attained)",
+        description=HOME_DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    home.add_argument("joint")
+    home.add_argument("--no-wait", action="store_true", help="return once it has started (hild ctl status: its end)")
+    home.add_argument(
+        "--wait", type=float, default=HOME_WAIT, metavar="S", help=f"give up waiting after S s (default {HOME_WAIT:g})"
+    )
     goal = argparse.ArgumentParser(add_help=False)
     goal.add_argument("--controller", help="default: the robot's only joint_trajectory controller")
     goal.add_argument("--no-wait", action="store_true", help="print the goal id and return once it is accepted")
@@ -212,6 +224,21 @@ def add_ctl_parser(subparsers: Any) -> None:
     watch.add_argument("--once", action="store_true", help="print one table and exit")
     watch.add_argument("--rate", type=float, default=10.0, help="redraws per second (default 10)")
 
+
+HOME_WAIT = 120.0  # s: homing methods that search for a switch at creep speed take minutes on long axes
+HOME_POLL = 0.1  # s between two looks at the status while waiting
+HOME_DESCRIPTION = """\
+Start the drive's own homing of JOINT (a CiA 402 drive: homing mode, the method its config names) and wait for
+its end. The drive moves the joint by itself: the joint must be held and still (no controller claims it, no
+fault, no e-stop), no controller may claim it until the homing ends, and the daemon's hold follows it wherever
+the drive takes it. An e-stop, a fault of the joint or of its hardware, or stopping the daemon stop the homing:
+it ends failed where the drive halted. Once attained the joint's position origin may have moved; hold latches
+the new reading.
+
+Exit code 0 when the drive reports it attained its home; 1 when it failed, was refused, or is still homing after
+--wait (the homing goes on; Ctrl-C stops the waiting, not the homing: e-stop stops it). docs/operations.md,
+"Homing".
+"""
 
 PUB_DESCRIPTION = """\
 Stream one sample per period to a controller's input: forward_command's commands ({"values": [...]}) or
@@ -397,6 +424,52 @@ def _set_zero(client: HildClient, args: argparse.Namespace, as_json: bool) -> in
     else:
         print(f"hild ctl: set-zero: {reply.get('error')}", file=sys.stderr)
     return EXIT_OK if reply.get("ok") else EXIT_SERVICE
+
+
+def _home(client: HildClient, args: argparse.Namespace, as_json: bool) -> int:
+    """Start the homing, then wait for the status to show its end; exit 0 only when attained."""
+    reply = client.call("home", {"joint": args.joint}, check=False)
+    if not reply.get("ok"):
+        return _fail(HildError(f"home: {reply.get('error')}"), as_json, EXIT_SERVICE)
+    attempt = reply["attempt"]
+    if args.no_wait:
+        started = f"{args.joint}: homing started (attempt {attempt}); hild ctl status shows its end, e-stop stops it"
+        print(json.dumps(reply) if as_json else started)
+        return EXIT_OK
+    if not as_json:
+        print(
+            f"{args.joint}: homing (attempt {attempt}); Ctrl-C stops waiting, e-stop stops the homing", file=sys.stderr
+        )
+    try:
+        entry = _homing_end(client, args.joint, attempt, args.wait)
+    except KeyboardInterrupt:
+        entry = None
+    if entry is None:
+        waiting = f"home: {args.joint} is still homing: it goes on (hild ctl status shows it; e-stop stops it)"
+        return _fail(HildError(waiting), as_json, EXIT_SERVICE)
+    attained = entry["state"] == "attained"
+    if as_json:
+        print(json.dumps({"ok": attained, "error": None if attained else entry["detail"], **entry}, indent=2))
+    elif attained:
+        print(f"{args.joint}: homed; it reads {entry['position']:+.4f} rad at its home")
+    else:
+        print(f"hild ctl: home: {args.joint} failed: {entry['detail']}", file=sys.stderr)
+    return EXIT_OK if attained else EXIT_SERVICE
+
+
+def _homing_end(client: HildClient, joint: str, attempt: int, wait: float) -> dict[str, Any] | None:
+    """The status's ``homing`` entry of ``joint`` once ``attempt`` has ended; None after ``wait`` s."""
+    deadline = time.monotonic() + wait
+    while True:
+        entry = next((h for h in client.status().get("homing", []) if h.get("joint") == joint), None)
+        if entry is not None and entry.get("attempt") == attempt and entry.get("state") != "running":
+            return dict(entry)
+        if entry is not None and int(entry.get("attempt", 0)) > attempt:  # another homing followed it unseen
+            later = f"attempt {attempt} ended unseen: attempt {entry['attempt']} replaced it"
+            return {**entry, "attempt": attempt, "state": "failed", "detail": later, "position": None}
+        if time.monotonic() >= deadline:
+            return None
+        time.sleep(HOME_POLL)
 
 
 def _move_to(client: HildClient, args: argparse.Namespace, as_json: bool) -> int:
@@ -701,6 +774,7 @@ COMMANDS: dict[str, Callable[[HildClient, argparse.Namespace, bool], int]] = {
     "pub": _pub,
     "deadman": _deadman,
     "set-zero": _set_zero,
+    "home": _home,
     "enable": _service(
         "enable", lambda r: f"enabled {r.get('enabled') or []}; each holds once its drive confirms", _enable_request
     ),

@@ -21,6 +21,7 @@ SERVICES = (
     "estop",
     "reset",
     "set_zero",
+    "home",
     "enable",
     "set_hardware_state",
     "list_controller_types",

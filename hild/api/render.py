@@ -44,9 +44,19 @@ def _mode(joint: dict[str, Any]) -> str:
 
 
 def status_text(status: dict[str, Any]) -> str:
+    homing = {h["joint"] for h in status.get("homing", []) if h.get("state") == "running"}  # its drive moves it
     joints = table(
         ["JOINT", "MODE", "OWNER", "LIMITS", "FAULT"],
-        [[j["name"], _mode(j), j.get("owner"), _limits(j), j.get("fault")] for j in status.get("joints", [])],
+        [
+            [
+                j["name"],
+                _mode(j) + (" (homing)" if j["name"] in homing else ""),
+                j.get("owner"),
+                _limits(j),
+                j.get("fault"),
+            ]
+            for j in status.get("joints", [])
+        ],
     )
     hardware = table(
         ["HARDWARE", "DRIVER", "STATE", "FAULT"],

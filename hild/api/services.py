@@ -43,7 +43,7 @@ from hild.api.parameters import ControllerParameters
 from hild.api.queries import LargePayloadWorker, clip
 from hild.api.record import RecorderFace, RecordServices
 from hild.api.teach import TeachService
-from hild.crossing.requests import Enable, Estop, Refused, Request, Reset, SetHardwareState, SetZero, Switch
+from hild.crossing.requests import Enable, Estop, Home, Refused, Request, Reset, SetHardwareState, SetZero, Switch
 from hild.daemon.link import CycleLink
 from hild.record.events import reply_event, request_event
 from hild.record.model import RecordedEvent
@@ -102,6 +102,7 @@ class Services:
             "estop": Service({}, self._estop),
             "reset": Service({}, self._reset),
             "set_zero": Service({"joint": joint_name, "confirm": boolean}, self._set_zero),
+            "home": Service({"joint": joint_name}, self._home),
             "enable": Service({"joints": names}, self._enable),
             "set_hardware_state": Service({"name": text, "state": text}, self._set_hardware_state),
         }
@@ -282,6 +283,13 @@ class Services:
         if request.get("confirm") is not True:
             raise RequestError('set-zero redefines the joint\'s position: confirm it with "confirm": true')
         return dict(await self.on_cycle(SetZero(request["joint"])))
+
+    async def _home(self, request: dict[str, Any]) -> Reply:
+        """Starts the drive's homing and answers at once (it takes longer than a reply may wait): the status's
+        ``homing`` entry of the joint, and the events, tell how it ends (docs/protocol.md, ``home``)."""
+        if "joint" not in request:
+            raise RequestError('give the joint: {"joint": NAME}')
+        return dict(await self.on_cycle(Home(request["joint"])))
 
     async def _enable(self, request: dict[str, Any]) -> Reply:
         return dict(await self.on_cycle(Enable(tuple(request.get("joints", ())))))

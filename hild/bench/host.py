@@ -336,7 +336,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description="A hild bench scenario's daemon process (run by hild bench).")
     parser.add_argument("config")
     parser.add_argument("--listen", required=True, action="append")
-    parser.add_argument("--rig", help="a rig from hild.bench.rigs (mit_can)")
+    parser.add_argument("--rig", help="a rig from hild.bench.rigs (mit_can, cia402)")
     parser.add_argument(
         "--can-bridge",
         action="store_true",
@@ -365,7 +365,7 @@ def main(argv: list[str] | None = None) -> int:
         if rig is not None and args.can_bridge and not args.stock_bridge:
             from hild.bench.rigs.can_process import CanRigProcess
 
-            rig = CanRigProcess()  # the drives and their loopback servers in a process of their own
+            rig = CanRigProcess(args.rig)  # the drives and their loopback servers in a process of their own
             loaded = load_config(rig.serve(Path(args.config)))  # the same robot, its buses served over loopback
         elif rig is not None:
             rig.start(loaded)  # the drives must be there before the daemon configures them

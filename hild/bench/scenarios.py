@@ -11,6 +11,9 @@ joint, the joint_state_broadcaster at 100 Hz, and telemetry recording to a file 
   runs there: the drives then run in a process of their own, ``hild.bench.rigs.can_process``, or with
   ``--stock-can-bridge`` as before behind python-can-remote's stock server, ``hild.bench.rigs.can_bridge``); these
   also measure the command → frame and reply → sample latencies.
+* ``cia402_6@500`` — six CANopen CiA 402 drives in CSP (``hild.bench.rigs.cia402``, the emulated drive of
+  ``hild emulate``) on one 1 Mbit/s bus at 500 Hz, hild producing SYNC: the cycle and the bus figures (the load
+  ``hild check`` computes from the PDO layout beside the frames that crossed), plus the same latencies as can6.
 * ``can6@1000-virtual`` — can6 at 1 kHz with the cycle a thread of the daemon and the emulated drives on the
   in-process virtual bus (no loopback bridge, whatever the layout of the others): the command → frame figure of
   hild's own path, reported beside can6@1000's across the bridge (docs/performance.md, "The command path: the
@@ -78,7 +81,7 @@ JTC = "joint_trajectory"
 FORWARD = "forward_position"
 JTC_ARM = "joint_trajectory_arm"
 SERVO_WRIST = "servo_wrist"
-CAN_RIG = "mit_can"
+CAN_RIGS = {"can": "mit_can", "cia402": "cia402"}  # a scenario's kind → the rig emulating its drives
 REQUEST_TIMEOUT = 30.0  # s for one host request
 PROBE_DELTA_LSB = 3  # the command probe's step in position LSBs: clear of quantization, far below one cycle's slew
 PROBE_TOL_LSB = 1.5
@@ -91,12 +94,17 @@ VIRTUAL = "-virtual"
 
 @dataclass(frozen=True)
 class Scenario:
-    base: str  # mock6, twin6, can3, can6
-    kind: str  # mock, twin, can
+    base: str  # mock6, twin6, can3, can6, cia402_6
+    kind: str  # mock, twin, can (MIT drives), cia402 (CANopen CiA 402 drives)
     joints: int
     rate: float
     spin_us: int | None = None  # realtime.spin_us for this scenario (None: the config's or --spin-us)
     virtual_bus: bool = False  # the cycle a thread of the daemon, the drives on its in-process virtual bus
+
+    @property
+    def rig(self) -> str | None:
+        """The bench rig that emulates this scenario's drives (``hild.bench.rigs``), None without CAN."""
+        return CAN_RIGS.get(self.kind)
 
     @property
     def name(self) -> str:
@@ -111,6 +119,7 @@ SCENARIOS = (
     Scenario("twin6", "twin", 6, 500.0, spin_us=0),
     Scenario("can6", "can", 6, 500.0, spin_us=0),
     Scenario("can6", "can", 6, 1000.0, virtual_bus=True),
+    Scenario("cia402_6", "cia402", 6, 500.0),
 )
 INTERFERENCE = Scenario("twin6", "twin", 6, 1000.0)
 
@@ -245,8 +254,8 @@ def scenario_config(
     replace top-level sections (e.g. ``recording``)."""
     rig: str | None = None
     scale = 1.0
-    if scenario.kind == "can":
-        rig = CAN_RIG
+    if scenario.rig is not None:
+        rig = scenario.rig
         cls = rig_class(rig)
         data = cls.robot_config(scenario.joints, scenario.rate)
         scale = float(cls.trajectory_scale)
@@ -413,7 +422,7 @@ def run_scenario(scenario: Scenario, workdir: Path, settings: Settings) -> tuple
         time.sleep(settings.warmup)
         window = s.window(settings.seconds)
         latency = None
-        if scenario.kind == "can" and settings.latency_probes > 0:
+        if scenario.rig is not None and settings.latency_probes > 0:
             keeper.stopping.set()
             s.client.switch(activate=[FORWARD], deactivate=[JTC])  # aborts the goal in flight
             keeper.stop()
@@ -432,8 +441,8 @@ def run_scenario(scenario: Scenario, workdir: Path, settings: Settings) -> tuple
             "lost": window["lost"],
             "cycle_process": window["cycle_process"],
             "cycle_python_threads": window["cycle_python_threads"],
-            "can_bus": can_bus(s.host) if scenario.kind == "can" else None,
-            "can_bridge": can_bridge(s.host) if scenario.kind == "can" else None,
+            "can_bus": can_bus(s.host) if scenario.rig is not None else None,
+            "can_bridge": can_bridge(s.host) if scenario.rig is not None else None,
             "cpu": window["cpu"],
             "goals": dict(keeper.results),
             "mode": window["mode"],

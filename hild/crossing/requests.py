@@ -48,6 +48,14 @@ class SetZero:
 
 
 @dataclass(frozen=True, slots=True)
+class Home:
+    """Start the drive's own homing of a held, still joint (``hild ctl home``). It takes seconds, longer than a
+    request may wait for its reply: the reply says it started, the status's ``homing`` and the events how it ends."""
+
+    joint: str
+
+
+@dataclass(frozen=True, slots=True)
 class SetHardwareState:
     """An operator takes a hardware component out of the controllers' reach (``inactive``: still read, its joints
     held by the supervisor, its command interfaces unavailable) or gives it back (``active``)."""
@@ -109,4 +117,4 @@ class SetParams:
 
 # Applied after a cycle's write, one per cycle: a controller's own code never delays a command.
 LifecycleRequest = Load | Configure | Cleanup | Unload | SetParams
-Request = Switch | Estop | Reset | Enable | SetZero | SetHardwareState | LifecycleRequest
+Request = Switch | Estop | Reset | Enable | SetZero | Home | SetHardwareState | LifecycleRequest

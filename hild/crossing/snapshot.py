@@ -27,3 +27,5 @@ class Snapshot:
     walls: dict[str, Any] | None = None  # safety.walls on: the tool frame and the walls engaged now
     # every owner code the engine ever gave → its controller's name (the cycle log's owner column; never reused)
     controller_codes: dict[int, str] = field(default_factory=dict)
+    # per joint homed since start (hild/cycle/homing.py): joint, state, attempt, detail, position
+    homing: tuple[dict[str, Any], ...] = ()

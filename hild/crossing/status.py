@@ -38,4 +38,5 @@ def render_status(
         "realtime": dict(snapshot.realtime),
         "sensors": [{k: s[k] for k in SENSOR_STATUS_FIELDS} for s in snapshot.sensors],
         "walls": snapshot.walls,
+        "homing": [dict(h) for h in snapshot.homing],
     }

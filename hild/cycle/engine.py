@@ -47,6 +47,7 @@ from hild.crossing.requests import (
     Cleanup,
     Configure,
     Enable,
+    Home,
     LifecycleRequest,
     Load,
     Refused,
@@ -63,6 +64,7 @@ from hild.crossing.stats import LoopStats
 from hild.crossing.status import loop_status, render_status
 from hild.cycle.contact import ContactMonitor, ContactSettings
 from hild.cycle.contact_force import ToolForce
+from hild.cycle.homing import HOME_MAX_SPEED, HOMING_SETTLE, RESERVED, STOP_CONFIRM, HomingRun, Homings
 from hild.cycle.manager import ControllerManager, SwitchError, SwitchResult
 from hild.cycle.sensor_gate import SensorGate
 from hild.cycle.supervisor import Action, Fault, JointGains, SafetySettings, Supervisor, limit_names
@@ -240,6 +242,8 @@ class Engine:
         self._rearm: dict[int, int] = {}  # joint → cycle by which its drive must confirm an operator enable
         self._estop_waiters: deque[concurrent.futures.Future[Any]] = deque(maxlen=256)
         self._deferred: list[tuple[Deferred, concurrent.futures.Future[Any], bool]] = []  # …, clears an e-stop
+        self.homings = Homings(self.joints)  # drives homing on an operator's command (hild/cycle/homing.py)
+        self._homing_confirm = max(1, round(STOP_CONFIRM * self.update_rate))  # cycles a drive has to confirm a stop
         self._health_every = max(1, round(self.update_rate / HEALTH_POLL_HZ))
         self.tuning = ManagerParams.of(cfg)  # the daemon's own parameters (hold gains): set_parameters changes them
         self.tuning_floor = [j.soft_margin for j in self.tuning.joints.values()]  # the config's soft margins
@@ -640,6 +644,7 @@ class Engine:
         if not self.started:
             return False
         self.manager.deactivate_all("shutdown")
+        self._stop_homing("the daemon is stopping")
         if self.stop_descent > 0.0:
             self.supervisor.begin_descent(self.stop_descent)
             return True
@@ -667,6 +672,9 @@ class Engine:
                 self.step(self.t + self.period, self.period)  # one last cycle: every joint in hold
             except Exception as exc:
                 self.events.emit("error", "engine", f"final hold cycle failed: {type(exc).__name__}: {exc}")
+        self._stop_homing("the daemon is stopping")
+        for run in self.homings.abandon(self.state.position):  # its drive never reported the end: released anyway
+            self._homing_ended(run)
         self._release_hardware()
         self.events.emit("info", "engine", "stopped: hardware released")
 
@@ -706,6 +714,8 @@ class Engine:
         sup.check(self.state, dt)
         if self._rearm:
             self._confirm_enabled()
+        if self.homings.runs:
+            self._poll_homing()
         if self._deferred:
             self._poll_deferred()
         if self.cycle % self._health_every == 0:
@@ -895,7 +905,7 @@ class Engine:
             if not self._lifecycle.offer((request, future)):
                 future.set_exception(Refused("too many pending requests; try again"))
             return future
-        if isinstance(request, Switch | Reset | Enable | SetZero | SetHardwareState):
+        if isinstance(request, Switch | Reset | Enable | SetZero | Home | SetHardwareState):
             return self.submit(lambda: self.apply(request), clears_estop=isinstance(request, Reset))
         return self.request_estop()
 
@@ -915,6 +925,8 @@ class Engine:
                 return _refused_if_error(self.enable(joints))  # type: ignore[return-value]
             case SetZero(joint):
                 return _refused_if_error(self.set_zero(joint))  # type: ignore[return-value]
+            case Home(joint):
+                return _refused_if_error(self.home(joint))  # type: ignore[return-value]
             case SetHardwareState(name, state):
                 return _refused_if_error(self.set_hardware_state(name, state))  # type: ignore[return-value]
         return self.estop()
@@ -1126,6 +1138,8 @@ class Engine:
         if joint not in self.joints:
             return {"error": f"unknown joint {joint!r} (joints: {', '.join(self.joints)})"}
         i = self.joints.index(joint)
+        if i in self.homings.runs:
+            return {"error": f"joint {joint} {RESERVED}"}
         if self.supervisor.mode[i] != JointMode.HOLD:
             mode = JointMode(self.supervisor.mode[i]).name.lower()
             return {"error": f"joint {joint} is in {mode}: set-zero needs it held (no controller, no fault)"}
@@ -1141,6 +1155,93 @@ class Engine:
         self.events.emit("warning", "engine", f"set-zero: {joint}'s current position is now its drive zero")
         return {"joint": joint}
 
+    def home(self, joint: str) -> dict[str, Any]:
+        """Operator command (between cycles): start the drive's own homing of ``joint`` (hild/cycle/homing.py).
+
+        Only for a held, still joint that nothing else commands; the reply says it started, with the attempt number
+        the status's ``homing`` entry of the joint carries until it ends (events say the end too)."""
+        if joint not in self.joints:
+            return {"error": f"unknown joint {joint!r} (joints: {', '.join(self.joints)})"}
+        i = self.joints.index(joint)
+        refusal = self._home_refusal(i)
+        if refusal:
+            return {"error": f"joint {joint} {refusal}"}
+        slot = self.hardware[self._joint_slot[i]]
+        try:
+            run = self.homings.begin(i, slot.name, slot.component)
+        except HardwareError as exc:
+            return {"error": f"{slot.name}: {exc}"}
+        self.manager.reserved[i] = RESERVED
+        self.supervisor.follow_measured(i, 1, new_frame=True)  # from this cycle: the drive moves it by itself
+        self.events.emit(
+            "warning", "engine", f"homing {joint}: started (attempt {run.attempt}); its drive moves it, e-stop stops it"
+        )
+        return {"joint": joint, "attempt": run.attempt, "state": "running"}
+
+    def _home_refusal(self, i: int) -> str:
+        """Why joint ``i`` cannot start homing now, naming what commands it; empty when it can."""
+        sup = self.supervisor
+        if (run := self.homings.runs.get(i)) is not None:
+            return f"is already being homed (attempt {run.attempt})"
+        if not self.started or sup.descent_started:
+            return "cannot be homed: the daemon is stopping"
+        if sup.estop:
+            return "cannot be homed while the e-stop is engaged: reset first"
+        if sup.fault.item(i):
+            return f"is in fault ({sup.fault_text[i]}): reset (and enable) first"
+        owner = int(self.manager.masks.owner[i])
+        if owner >= 0:
+            name = next((c.name for c in self.manager.snapshot if c.slot == owner), f"slot {owner}")
+            return f"is commanded by controller {name}: deactivate it first (homing needs the joint held)"
+        if sup.mode[i] != JointMode.HOLD:
+            return f"is in {JointMode(sup.mode[i]).name.lower()}: homing needs it held (no controller, no fault)"
+        if i in self._rearm:
+            return "waits for its drive to confirm enable: home once it holds"
+        slot = self.hardware[self._joint_slot[i]]
+        if slot.lifecycle is not Lifecycle.ACTIVE:
+            return f"cannot be homed: its hardware {slot.name} is {slot.lifecycle}"
+        speed = abs(float(self.state.velocity[i]))
+        if not speed < HOME_MAX_SPEED:
+            return f"moves at {speed:.3g} rad/s: homing needs it still"
+        return ""
+
+    def _poll_homing(self) -> None:
+        """Each cycle while a drive homes: hold follows its joint's reading (in a frame the drive may move), and a
+        homing that must stop (e-stop, a fault) is stopped; one that ended is latched where it stopped."""
+        confirm = self._homing_confirm
+        for run in self.homings.poll(self.cycle, self.state.position, self._homing_must_stop, confirm):
+            self._homing_ended(run)
+        for i in self.homings.runs:
+            self.supervisor.follow_measured(i, 1, new_frame=True)
+
+    def _homing_must_stop(self, run: HomingRun) -> str:
+        sup = self.supervisor
+        if sup.estop:
+            return "e-stop"
+        if sup.fault.item(run.joint):
+            return f"fault: {sup.fault_text[run.joint]}"
+        if not self.started:
+            return "the daemon is stopping"
+        return ""
+
+    def _stop_homing(self, cause: str) -> None:
+        for run in list(self.homings.runs.values()):
+            if not run.stopping:
+                self.homings.stop(run, cause, self.cycle, self._homing_confirm)
+
+    def _homing_ended(self, run: HomingRun) -> None:
+        """Controllers may claim the joint again; hold follows the reading a little longer (a drive's new origin
+        may show a few replies late), then latches where the joint stopped."""
+        i = run.joint
+        self.manager.reserved.pop(i, None)
+        self.supervisor.follow_measured(i, max(1, round(HOMING_SETTLE * self.update_rate)), new_frame=True)
+        entry = self.homings.entries[i]
+        if entry["state"] == "attained":
+            where = f"{entry['position']:.4g} rad"
+            self.events.emit("info", "engine", f"homing {run.name}: attained; it reads {where} at home now")
+        else:
+            self.events.emit("error", "engine", f"homing {run.name} failed: {entry['detail']}")
+
     def _ring(self) -> None:
         self.wake_client()
 
@@ -1148,7 +1249,8 @@ class Engine:
     @property
     def change_seq(self) -> int:
         walls = self.walls.change_seq if self.walls is not None else 0
-        return self.supervisor.change_seq + self.manager.change_seq + self.sensor_gate.change_seq + walls
+        sup, manager, homings = self.supervisor, self.manager, self.homings
+        return sup.change_seq + manager.change_seq + self.sensor_gate.change_seq + walls + homings.change_seq
 
     def overall_mode(self) -> str:
         sup = self.supervisor
@@ -1209,6 +1311,7 @@ class Engine:
             ),
             walls=self.walls.status() if self.walls is not None else None,
             controller_codes=dict(self.controller_codes),
+            homing=self.homings.status(),
         )
 
     def _sensor_available(self, k: int) -> bool:

@@ -121,6 +121,7 @@ class ControllerManager:
         self.snapshot: tuple[ControllerInfo, ...] = ()
         self.change_seq = 0
         self.unavailable: dict[str, str] = {}  # interface → the inactive hardware component it belongs to
+        self.reserved: dict[int, str] = {}  # joint → why no controller may claim it now (its drive homes it)
         self.on_claims: Callable[[ClaimMasks], None] = lambda masks: None  # the supervisor listens here
         # Per joint, who moves it (hild.modes.Source, as float64: the engine points this at its cycle-log row's
         # ``source`` view). Worked out at each switch and when an active controller's ``source`` changes.
@@ -359,6 +360,9 @@ class ControllerManager:
             elif blocked := [c for c in rec.claims if c in self.unavailable]:
                 owners = sorted({self.unavailable[c] for c in blocked})
                 problems.append(f"{name} claims {blocked}, of inactive hardware {owners} (set it active first)")
+            elif self.reserved and (taken := [i for i in rec.joint_index.tolist() if i in self.reserved]):
+                why = "; ".join(f"{self.joints[i]} {self.reserved[i]}" for i in taken)
+                problems.append(f"{name} claims joints no controller may command now: {why}")
             elif rec.chain_to and rec.chain_to not in self.records:
                 problems.append(f"{name} chains to {rec.chain_to!r}, which is not loaded")
             else:

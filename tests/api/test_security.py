@@ -229,6 +229,9 @@ def test_observer_reads_but_cannot_command(
     refused(secure_daemon, observer.reset)
     refused(secure_daemon, lambda: observer.call("enable", {"joints": []}))
     refused(secure_daemon, lambda: observer.call("set_zero", {"joint": "a", "confirm": True}))
+    refused(secure_daemon, lambda: observer.call("home", {"joint": "a"}))
+    # The operator's reaches the daemon (whose mock cannot home: the driver's refusal is the reply).
+    assert "no homing configured" in operator.call("home", {"joint": "a"}, check=False)["error"]
     status = operator.status()
     assert status["mode"] == "hold"
     assert {c["name"]: c["state"] for c in status["controllers"]}["traj"] == "inactive"

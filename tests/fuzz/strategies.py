@@ -358,6 +358,7 @@ SERVICE_FIELDS: dict[str, tuple[str, ...]] = {
     "estop": (),
     "reset": (),
     "set_zero": ("joint", "confirm"),
+    "home": ("joint",),
     "enable": ("joints",),
     "set_hardware_state": ("name", "state"),
     "list_controller_types": (),

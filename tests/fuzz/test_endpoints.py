@@ -41,6 +41,7 @@ NAMED = {"name": controller_name}
 FIELDS = {
     "switch_controllers": {"activate": names, "deactivate": names, "strict": boolean},
     "set_zero": {"joint": joint_name, "confirm": boolean},
+    "home": {"joint": joint_name},
     "enable": {"joints": names},
     "set_hardware_state": {"name": text, "state": text},
     "load_controller": {

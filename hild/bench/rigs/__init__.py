@@ -1,9 +1,10 @@
 """Rigs: what a bench scenario adds to the daemon's process so a robot's hardware is there without a robot.
 
 ``mit_can`` (:mod:`hild.bench.rigs.mit_can`) emulates Damiao drives on python-can virtual channels in the
-daemon's process; with the cycle in a process of its own :mod:`hild.bench.rigs.can_process` runs them in a process
-of theirs instead, each bus served over loopback by their own loop (``--stock-can-bridge``: as before [teleop],
-in the daemon's process behind python-can-remote's stock server, :mod:`hild.bench.rigs.can_bridge`).
+daemon's process, ``cia402`` (:mod:`hild.bench.rigs.cia402`) CANopen CiA 402 drives the same way; with the cycle in
+a process of its own :mod:`hild.bench.rigs.can_process` runs them in a process of theirs instead, each bus served
+over loopback by their own loop (``--stock-can-bridge``: as before [teleop], in the daemon's process behind
+python-can-remote's stock server, :mod:`hild.bench.rigs.can_bridge`).
 :mod:`hild.bench.rigs.bridge_stall` measures those two servers alone. The measuring room may
 import python-can, like the tests (docs/architecture.md, "Rooms"), so a rig is found by name here, not through an
 entry-point group.
@@ -36,7 +37,7 @@ class BenchRig(Protocol):
     def stop(self) -> None: ...
 
 
-RIGS = ("mit_can",)
+RIGS = ("mit_can", "cia402")
 
 
 def rig_class(name: str) -> type[BenchRig]:
@@ -45,4 +46,8 @@ def rig_class(name: str) -> type[BenchRig]:
         from hild.bench.rigs.mit_can import CanBenchRig
 
         return CanBenchRig
+    if name == "cia402":
+        from hild.bench.rigs.cia402 import Cia402BenchRig
+
+        return Cia402BenchRig
     raise LookupError(f"no bench rig {name!r} (known: {', '.join(RIGS)})")

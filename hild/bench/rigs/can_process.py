@@ -42,11 +42,12 @@ REQUEST_TIMEOUT = 120.0  # s for one control request (listen off returns every p
 STOP_TIMEOUT = 10.0
 
 
-def serve(config: str, out: IO[str]) -> int:
-    """The rig process: serve the config's virtual channels, answer control lines until ``stop`` or stdin's end."""
+def serve(config: str, out: IO[str], rig_name: str = "mit_can") -> int:
+    """The rig process: serve the config's virtual channels with the drives of rig ``rig_name``, answer control
+    lines until ``stop`` or stdin's end."""
     from drivers.can.bus import BusSpec
     from drivers.can.emulator.remote_host import RemoteServerBus
-    from hild.bench.rigs.mit_can import CanBenchRig
+    from hild.bench.rigs import rig_class
     from hild.config.loader import load_config
 
     served: dict[str, str] = {}
@@ -56,7 +57,7 @@ def serve(config: str, out: IO[str]) -> int:
         served[str(spec.channel)] = f"ws://{bus.address[0]}:{bus.address[1]}/"
         return bus
 
-    rig = CanBenchRig(open_served)
+    rig: Any = rig_class(rig_name)(open_served)  # type: ignore[call-arg]  # a CAN rig: CanBenchRig or a subclass
     rig.start(load_config(config))
     try:
         out.write(json.dumps({"event": "ready", "pid": os.getpid(), "channels": served}) + "\n")
@@ -80,22 +81,23 @@ def serve(config: str, out: IO[str]) -> int:
 
 
 class CanRigProcess:
-    """The ``mit_can`` rig as the bench host sees it when the buses are bridged (a ``BenchRig``, plus
-    ``serve`` and ``processes``): the drives in a child process, reached over loopback."""
+    """A CAN rig (``mit_can``, ``cia402``) as the bench host sees it when the buses are bridged (a ``BenchRig``,
+    plus ``serve`` and ``processes``): the drives in a child process, reached over loopback."""
 
-    trajectory_scale = 0.5  # as CanBenchRig's
+    def __init__(self, rig_name: str = "mit_can") -> None:
+        from hild.bench.rigs import rig_class
 
-    def __init__(self) -> None:
+        self.rig_name = rig_name
+        self.trajectory_scale = rig_class(rig_name).trajectory_scale
         self.process: subprocess.Popen[str] | None = None
         self.drivers: list[Any] = []
         self._lines: queue.Queue[str] = queue.Queue()
         self._lock = threading.Lock()  # one request at a time (listen runs in a worker thread of the host)
 
-    @staticmethod
-    def robot_config(joints: int, rate: float) -> dict[str, Any]:
-        from hild.bench.rigs.mit_can import robot_config
+    def robot_config(self, joints: int, rate: float) -> dict[str, Any]:
+        from hild.bench.rigs import rig_class
 
-        return robot_config(joints, rate)
+        return rig_class(self.rig_name).robot_config(joints, rate)
 
     def serve(self, config: Path) -> Path:
         """Start the rig process on ``config``'s virtual channels; write and return the daemon's config (the same
@@ -103,7 +105,7 @@ class CanRigProcess:
         data: dict[str, Any] = load_document(config)
         if not virtual_channels(data):
             raise ValueError(f"{config}: no hardware component on a virtual CAN channel to bridge")
-        command = [sys.executable, "-m", "hild.bench.rigs.can_process", str(config)]
+        command = [sys.executable, "-m", "hild.bench.rigs.can_process", str(config), "--rig", self.rig_name]
         self.process = subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, bufsize=1)
         threading.Thread(
             target=self._read, args=(self.process.stdout,), name="bench-can-rig-reader", daemon=True
@@ -179,10 +181,11 @@ class CanRigProcess:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description="The CAN bench rig's process (run by hild.bench.host).")
     parser.add_argument("config")
+    parser.add_argument("--rig", default="mit_can", help="the CAN rig whose drives to serve (mit_can, cia402)")
     args = parser.parse_args(argv)
     out = os.fdopen(os.dup(1), "w", buffering=1)  # the control channel
     os.dup2(2, 1)  # anything else printed goes to the log
-    return serve(args.config, out)
+    return serve(args.config, out, args.rig)
 
 
 if __name__ == "__main__":

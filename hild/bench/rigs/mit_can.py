@@ -26,14 +26,14 @@ import os
 import threading
 import time
 import uuid
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 import can
 
 from drivers.can.bus import BusSpec, frame_bits, open_bus
-from drivers.can.emulator import Emulator, MotorPlant
+from drivers.can.emulator import Emulator, MotorFirmware, MotorPlant, Plant
 from drivers.can.emulator.runtime import build_firmware
 from drivers.can.mit_driver import MotorWiring, wire_motors
 from drivers.can.params import MitCanParams
@@ -169,6 +169,36 @@ class FrameTap:
         self.bus.shutdown()
 
 
+class Probe(Protocol):
+    """What the bench's latency probes watch on the first drive: its frames' ids, and their positions decoded."""
+
+    joint: str
+    ids: set[int]
+    lsb: float  # the command's position resolution, rad
+
+    def decode(self, arbitration_id: int, data: bytes) -> tuple[str, float] | None:
+        """("command", rad) for a command frame, ("reply", rad) for a reply carrying the position, else None."""
+        ...
+
+
+class MitProbe:
+    """A Damiao motor's MIT command and its reply."""
+
+    def __init__(self, wiring: MotorWiring) -> None:
+        self.wiring = wiring
+        self.joint = wiring.joint
+        self.ids = {wiring.command_id, wiring.reply_id}
+        self.lsb = 2 * wiring.ranges.p_max / ((1 << POSITION_BITS) - 1)
+
+    def decode(self, arbitration_id: int, data: bytes) -> tuple[str, float] | None:
+        w = self.wiring
+        if arbitration_id == w.command_id and len(data) == 8 and special_kind(data) is None:
+            return "command", decode_command(data, w.ranges).p
+        if arbitration_id == w.reply_id and len(data) == 8 and (data[0] & 0xF) == (w.id & 0xF):
+            return "reply", decode_state(data[1:6], w.ranges)[0]
+        return None
+
+
 def wall_to_perf_offset_ns() -> int:
     """``time.time_ns() − perf_counter_ns()`` from the tightest of a few back-to-back readings."""
     best: tuple[int, int] | None = None
@@ -195,7 +225,7 @@ class CanBenchRig:
         self._open_channel = open_channel
         self.emulators: list[Emulator] = []
         self.tap: FrameTap | None = None
-        self.first: MotorWiring | None = None
+        self.probe: Probe | None = None
         self.drivers: list[Any] = []
         self._thread: threading.Thread | None = None
         self._thread_id = 0
@@ -208,24 +238,13 @@ class CanBenchRig:
 
     def start(self, loaded: LoadedConfig) -> None:
         """Open the emulated drives on the config's buses and start serving them (before the daemon configures)."""
-        components = [(n, p) for n, p in loaded.driver_params.items() if isinstance(p, MitCanParams)]
-        if not components:
-            raise ValueError("the CAN bench rig needs a mit_can hardware component")
-        motor = 0
         try:
-            for name, params in components:
-                joints = list(loaded.config.hardware[name].joints)
-                wiring, problems = wire_motors(params, joints)
-                if problems:
-                    raise ValueError("; ".join(problems))
-                bus: Any = self._open_channel(params.bus)
-                if self.tap is None:  # the first motor's bus carries the latency probes
-                    self.first = wiring[0]
-                    bus = self.tap = FrameTap(bus, {wiring[0].command_id, wiring[0].reply_id})
-                starts = START_POSITIONS[motor : motor + len(joints)]
-                motor += len(joints)
-                plant = MotorPlant(len(joints), inertia=0.05, damping=0.05, positions=starts)
-                self.emulators.append(Emulator(bus, build_firmware(params, joints), plant))
+            for spec, firmware, plant, probe in self.drives(loaded):
+                bus: Any = self._open_channel(spec)
+                if self.tap is None:  # the first drive's bus carries the latency probes
+                    self.probe = probe
+                    bus = self.tap = FrameTap(bus, probe.ids)
+                self.emulators.append(Emulator(bus, firmware, plant))
         except BaseException:
             self._close_buses()
             raise
@@ -234,6 +253,22 @@ class CanBenchRig:
         self._thread.start()
         while not self._thread_id:
             time.sleep(0.001)
+
+    def drives(self, loaded: LoadedConfig) -> Iterator[tuple[BusSpec, list[MotorFirmware], Plant, Probe]]:
+        """Per ``mit_can`` component: its bus, its emulated motors, their plant, and its first motor's probe."""
+        components = [(n, p) for n, p in loaded.driver_params.items() if isinstance(p, MitCanParams)]
+        if not components:
+            raise ValueError("the CAN bench rig needs a mit_can hardware component")
+        motor = 0
+        for name, params in components:
+            joints = list(loaded.config.hardware[name].joints)
+            wiring, problems = wire_motors(params, joints)
+            if problems:
+                raise ValueError("; ".join(problems))
+            starts = START_POSITIONS[motor : motor + len(joints)]
+            motor += len(joints)
+            plant = MotorPlant(len(joints), inertia=0.05, damping=0.05, positions=starts)
+            yield params.bus, build_firmware(params, joints), plant, MitProbe(wiring[0])
 
     def _serve(self) -> None:
         """``Emulator.run`` for several emulators: one service of each every period, on an absolute grid."""
@@ -272,29 +307,24 @@ class CanBenchRig:
         return out
 
     def listen(self, on: bool) -> dict[str, Any]:
-        """Start (``on``) or stop recording the first motor's frames. Both return its joint and ``lsb`` (the
+        """Start (``on``) or stop recording the first drive's frames. Both return its joint and ``lsb`` (the
         position resolution, rad); stopping also returns the frames decoded: ``command``/``reply`` =
         [[perf_counter_ns, position rad], …]."""
-        tap, first = self.tap, self.first
-        assert tap is not None and first is not None
-        ranges = first.ranges
-        lsb = 2 * ranges.p_max / ((1 << POSITION_BITS) - 1)
+        tap, probe = self.tap, self.probe
+        assert tap is not None and probe is not None
         if on:
             tap.frames = []
             tap.recording = True
-            return {"joint": first.joint, "lsb": lsb}
+            return {"joint": probe.joint, "lsb": probe.lsb}
         tap.recording = False
         frames, tap.frames = tap.frames, []
         offset = wall_to_perf_offset_ns()
-        commands: list[list[float]] = []
-        replies: list[list[float]] = []
+        decoded: dict[str, list[list[float]]] = {"command": [], "reply": []}
         for stamp, arbitration_id, data in frames:
-            t_ns = round(stamp * 1e9) - offset
-            if arbitration_id == first.command_id and len(data) == 8 and special_kind(data) is None:
-                commands.append([t_ns, decode_command(data, ranges).p])
-            elif arbitration_id == first.reply_id and len(data) == 8 and (data[0] & 0xF) == (first.id & 0xF):
-                replies.append([t_ns, decode_state(data[1:6], ranges)[0]])
-        return {"joint": first.joint, "lsb": lsb, "command": commands, "reply": replies}
+            seen = probe.decode(arbitration_id, data)
+            if seen is not None:
+                decoded[seen[0]].append([round(stamp * 1e9) - offset, seen[1]])
+        return {"joint": probe.joint, "lsb": probe.lsb, **decoded}
 
     def stop(self) -> None:
         self._stop.set()

@@ -14,6 +14,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from hild.importers.ros2_control.canopen import is_canopen
 from hild.importers.ros2_control.mapping import JointPlan
 from hild.importers.ros2_control.report import Report, SourceRef
 from hild.importers.ros2_control.urdf import Robot
@@ -61,6 +62,8 @@ def read_can_facts(robot: Robot, report: Report) -> dict[str, CanFacts]:
     """Per ``<ros2_control>`` block (by name), the CAN facts its params give; each one read is reported."""
     out: dict[str, CanFacts] = {}
     for block in robot.ros2_control:
+        if is_canopen(block.plugin):  # ros2_canopen's params name a bus.yml: canopen.py reads them
+            continue
         facts = CanFacts(block.plugin or "")
         params = {name.lower(): (name, value, where) for name, (value, where) in block.params.items()}
         for key, names in BUS_PARAMS.items():

@@ -43,6 +43,10 @@ FORWARD_GROUPS = {
     "velocity_controllers/JointVelocityController": "velocity",
     "effort_controllers/JointEffortController": "effort",
 }
+CANOPEN_DRIVE_CONTROLLERS = (
+    "canopen_ros2_controllers/Cia402RobotController",
+    "canopen_ros2_controllers/Cia402DeviceController",
+)
 EFFORT_POSITION_PID = "effort_controllers/JointPositionController"
 # Gripper action controllers → parallel_gripper, serving the ROS action the original served.
 GRIPPERS = {
@@ -314,6 +318,14 @@ class _Reader:
             return self.gripper(c)
         if c.ros_type == FORCE_TORQUE_BROADCASTER:
             return self.wrench_broadcaster(c)
+        if c.ros_type in CANOPEN_DRIVE_CONTROLLERS:
+            self.report.approximated(
+                c.type_where,
+                f"controller {c.name!r} ({c.ros_type}): not needed: its services (init, halt, recover, mode "
+                "switches) are what hild's cia402 component does on activate, stop and reset, in one cyclic mode "
+                "per drive; its params are not read",
+            )
+            return None
         self.report.dropped(c.type_where, f"controller {c.name!r}: type {c.ros_type} has no hild counterpart")
         return None
 

@@ -13,6 +13,7 @@ step — or a partial import the user did not accept — leaves nothing behind.
 from __future__ import annotations
 
 import contextlib
+import copy
 import os
 import re
 import shutil
@@ -27,6 +28,7 @@ from hild.dynamics.inspection import finger_spread
 from hild.importers.ros2_control import controllers as ctl
 from hild.importers.ros2_control import mapping, twin, writer
 from hild.importers.ros2_control.can_template import read_can_facts
+from hild.importers.ros2_control.canopen import HARDWARE_PARAMS, Cia402Section, commanded_interfaces, plan_canopen
 from hild.importers.ros2_control.contacts import excluded_contacts
 from hild.importers.ros2_control.gains import GRIPPER_DEFAULT_EFFORT, GainLimits, grasp_gains
 from hild.importers.ros2_control.inertia import joint_inertias
@@ -87,7 +89,17 @@ def import_ros2_control(request: ImportRequest) -> ImportResult:
     catalog = mapping.catalog(robot, selected, sensors)
     plan = ctl.read_controllers(files, catalog, report, request.args, request.namespace)
     can = read_can_facts(robot, report)
-    mapping.report_hardware(robot, {name: facts.used for name, facts in can.items()}, report)
+    cia402 = plan_canopen(
+        robot,
+        _joints_by_block(selected),
+        commanded_interfaces(plan),
+        packages,
+        config_path.parent,
+        plan.update_rate,
+        report,
+    )
+    used = {name: facts.used for name, facts in can.items()} | {name: set(HARDWARE_PARAMS) for name in cia402}
+    mapping.report_hardware(robot, used, report)
     mimics = mapping.plan_mimic_joints(robot, selected, report)
     mapping.check_limits(selected)
     twin.check_inertias(robot)
@@ -119,9 +131,11 @@ def import_ros2_control(request: ImportRequest) -> ImportResult:
             exclusions,
             mimics,
             sensors,
+            cia402,
         )
         staged_config.write_text(writer.render(doc))
         _relay_check_warnings(_hild_check(staged_config, config_path), joints, robot, report)
+        _check_cia402(doc, cia402, robot, staging, config_path.parent, report)
         if report.partial and not request.allow_partial:  # last: every real error in the input comes first
             raise report.partial_failure()
         if request.tracking_check:
@@ -134,6 +148,15 @@ def import_ros2_control(request: ImportRequest) -> ImportResult:
     if report.partial:
         report.notes.insert(1, f"partial import (--allow-partial): {len(report.partial)} left out, see Not supported")
     return ImportResult(config_path, urdf_path, report)
+
+
+def _joints_by_block(selected: Sequence[mapping.Selected]) -> dict[str, list[str]]:
+    """The joints hild commands, per <ros2_control> block name."""
+    out: dict[str, list[str]] = {}
+    for s in selected:
+        if s.block is not None:
+            out.setdefault(s.block.name, []).append(s.joint.name)
+    return out
 
 
 def _read_urdf(
@@ -225,6 +248,55 @@ def _hild_check(staged_config: Path, config_path: Path) -> list[str]:
         detail = str(exc).replace(str(staged_config), str(config_path))
         raise ImportFailure(f"the imported config does not pass `hild check` (please report):\n{detail}") from None
     return loaded.notes
+
+
+def _check_cia402(
+    doc: writer.Document,
+    sections: Mapping[str, Cia402Section],
+    robot: Robot,
+    staging: Path,
+    config_dir: Path,
+    report: Report,
+) -> None:
+    """The config with the cia402 sections in place of the twin, checked as `hild check` checks it (the driver's
+    params, its review of node ids, EDS and scaling, the bus load): what it refuses or warns about is reported at
+    the <ros2_control> block, so the commented section is known to work before anyone uncomments it."""
+    if not sections:
+        return
+    blocks = {b.name: b for b in robot.ros2_control}
+    where = blocks[next(iter(sections))].where
+    covered = {j for s in sections.values() for j in s.component["joints"]}
+    if covered != set(doc.data["joints"]):
+        report.approximated(where, "cia402 section not checked: it drives only some of the joints (mixed hardware)")
+        return
+    hardware = {}
+    for s in sections.values():
+        component = copy.deepcopy(s.component)
+        params = component["params"]
+        for holder in (params, *params["drives"].values()):
+            if "eds" in holder:
+                holder["eds"] = str((config_dir / holder["eds"]).resolve())
+        hardware[s.name] = component
+    check = staging / "cia402_check.yaml"
+    check.write_text(writer.render(writer.Document({**doc.data, "hardware": hardware})))
+    try:
+        loaded = load_config(check)
+        check_with_model(loaded)
+    except ConfigError as exc:
+        detail = str(exc)
+        if "unknown driver 'cia402'" in detail:
+            report.approximated(where, "cia402 section not checked: no cia402 driver is installed")
+            return
+        for line in detail.splitlines():
+            line = re.sub(rf"^\s*{re.escape(str(check))}(:\d+)?:\s*", "", line).strip()  # lines of the check file
+            if line:
+                report.unsupported(where, f"cia402 section: hild check refuses it: {line}")
+        return
+    for note in loaded.notes:
+        if note.startswith("warning"):
+            text = re.sub(rf"^{re.escape(str(check))}(:\d+)?:\s*", "", note.removeprefix("warning:").strip())
+            report.approximated(where, f"cia402 section: hild check warns: {text}")
+    report.mapped(where, "cia402 section: passes `hild check` in place of the twin")
 
 
 @contextlib.contextmanager

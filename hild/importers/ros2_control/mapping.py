@@ -11,6 +11,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
+from hild.importers.ros2_control.canopen import CANOPEN_SYSTEM, DRIVE_PLUGINS
 from hild.importers.ros2_control.controllers import JointCatalog, Pid
 from hild.importers.ros2_control.gains import GainLimits, hold_gains, round4
 from hild.importers.ros2_control.inertia import JointInertia
@@ -206,6 +207,18 @@ def report_hardware(robot: Robot, read: Mapping[str, set[str]], report: Report) 
         elif plugin is None:
             report.unsupported(
                 block.where, f"<ros2_control> {block.name!r} names no hardware plugin; the twin stands in"
+            )
+        elif plugin in DRIVE_PLUGINS:
+            report.mapped(
+                block.plugin_where,
+                f"{plugin} (ros2_canopen, CiA 402) → the commented cia402 section at the end, from its bus.yml; "
+                "the MuJoCo twin stands in until it replaces the twin",
+            )
+        elif plugin == CANOPEN_SYSTEM:
+            report.unsupported(
+                block.plugin_where,
+                f"{plugin}: ros2_canopen's CiA 301 system (raw PDO/NMT interfaces, no drive profile) has no hild "
+                "driver (hild's CANopen driver is cia402): the MuJoCo twin stands in",
             )
         else:
             report.unsupported(

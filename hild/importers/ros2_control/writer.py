@@ -17,6 +17,7 @@ from typing import Any
 
 from hild.config.stop_review import SUGGESTED_DESCENT
 from hild.importers.ros2_control.can_template import CanFacts, template_lines
+from hild.importers.ros2_control.canopen import Cia402Section
 from hild.importers.ros2_control.controllers import ControllerPlan, ControllersPlan
 from hild.importers.ros2_control.mapping import JointPlan, MimicPlan, SensorPlan
 
@@ -47,6 +48,7 @@ def build_document(
     exclude_contacts: Sequence[tuple[str, str]] = (),
     mimic_joints: Sequence[MimicPlan] = (),
     sensors: Sequence[SensorPlan] = (),
+    cia402: Mapping[str, Cia402Section] | None = None,  # per ros2_canopen block: its cia402 section
 ) -> Document:
     twin_params: dict[str, Any] = {"model": urdf_name, "substeps": substeps}
     initial = {j.name: j.initial_position for j in joints if j.initial_position is not None}
@@ -89,8 +91,28 @@ def build_document(
         "Hardware is the MuJoCo twin over the URDF beside this file. Read the import report (approximations) and",
         "check limits and gains before running on hardware; the CAN section at the end is a template to fill in.",
     ]
-    doc.footer = template_lines(joints, can)
+    cia402 = cia402 or {}
+    others = [j for j in joints if j.block not in cia402]
+    doc.footer = template_lines(others, can) if others else []
+    if cia402:
+        doc.footer.extend(
+            ["", *cia402_lines(list(cia402.values()))] if doc.footer else cia402_lines(list(cia402.values()))
+        )
     return doc
+
+
+def cia402_lines(sections: Sequence[Cia402Section]) -> list[str]:
+    """The ``cia402`` components of every ros2_canopen block under one ``hardware:`` (commented out by ``render``),
+    each value with its source; joints left out are ``# TODO`` lines, comments still once uncommented."""
+    comments: dict[KeyPath, str] = {}
+    for s in sections:
+        root: KeyPath = ("hardware", s.name)
+        comments.update({(*root, *path): text for path, text in s.comments.items()})
+        comments[root] = f"was <ros2_control name={s.block!r}> {s.plugin}"
+    lines = [line for s in sections for line in s.heading]
+    lines.extend(_block({"hardware": {s.name: s.component for s in sections}}, comments, 0, ()))
+    lines.extend(f"  # TODO: {why}" for s in sections for why in s.missing)
+    return lines
 
 
 def render(doc: Document) -> str:
