@@ -354,7 +354,8 @@ class Cia402Driver(CanComponent):
         self._homing_phase = [_IDLE] * n
         self._homing_cycles = [0] * n
         self._homing_elapsed = [0.0] * n
-        self._homing_result: list[tuple[Homing, str] | None] = [None] * n
+        self._homing_result: list[tuple[Homing, str] | None] = [None] * n  # the end, reported once
+        self._homing_outcome: list[tuple[Homing, str] | None] = [None] * n  # the end, until cyclic again
         self._sdo_requests = [self._sdo_request(node, HOMING_MODE) for node in self.nodes]
         self._sdo_returns = [
             self._sdo_request(node, MODE_CODES[m]) for node, m in zip(self.nodes, self.modes, strict=True)
@@ -853,17 +854,14 @@ class Cia402Driver(CanComponent):
                 self._homing_phase[k] = _RUNNING
                 self._homing_cycles[k] = 0
             else:
-                self._homing_phase[k] = _IDLE
+                self._homing_ended(k, self._homing_outcome[k])
         elif command == RESPONSE_ABORTED:
             (abort,) = _SDO_ABORT_CODE.unpack_from(data, 4)
             if phase == _MODE_REQUESTED:
                 self._finish_homing(k, Homing.FAILED, f"the drive refused homing mode (SDO abort {abort:#010x})")
             else:
-                self._homing_phase[k] = _IDLE
-                self._homing_result[k] = (
-                    Homing.FAILED,
-                    f"the drive refused its cyclic mode again (SDO abort {abort:#010x}): disable and reconfigure",
-                )
+                words = f"the drive refused its cyclic mode again (SDO abort {abort:#010x}): disable and reconfigure"
+                self._homing_ended(k, (Homing.FAILED, words))
 
     def _homing_step(self, dt: float) -> None:
         for k, phase in enumerate(self._homing_phase):
@@ -885,14 +883,23 @@ class Cia402Driver(CanComponent):
                     self._finish_homing(k, Homing.FAILED, f"not attained within {timeout:g} s")
             elif phase == _MODE_REQUESTED and self._homing_elapsed[k] > self._wait:
                 self._finish_homing(k, Homing.FAILED, "the drive did not answer the homing-mode request")
-            elif phase == _RETURNING and self._homing_elapsed[k] > timeout + self._wait:
-                self._homing_phase[k] = _IDLE  # the command stays held; the next TPDOs say where it is
+            elif phase == _RETURNING and self._homing_elapsed[k] > self._wait:
+                _outcome, detail = self._homing_outcome[k] or (Homing.FAILED, "")
+                words = f"the drive did not confirm its cyclic mode (0x6060) after homing{': ' if detail else ''}"
+                self._homing_ended(k, (Homing.FAILED, words + detail))
 
     def _finish_homing(self, k: int, outcome: Homing, detail: str) -> None:
-        """Report the outcome and go back to the cyclic mode (0x6060 by SDO), held at the actual position."""
-        self._homing_result[k] = (outcome, detail)
+        """Back to the cyclic mode (0x6060 by SDO), halted and held at the actual position; the outcome is
+        reported once the drive acknowledges the mode (the contract: cyclic again before the end is reported)."""
+        self._homing_outcome[k] = (outcome, detail)
         self._homing_phase[k] = _RETURNING
+        self._homing_elapsed[k] = 0.0
         self.link.send(self._sdo_returns[k])
+
+    def _homing_ended(self, k: int, result: tuple[Homing, str] | None) -> None:
+        self._homing_phase[k] = _IDLE
+        self._homing_outcome[k] = None
+        self._homing_result[k] = result or (Homing.FAILED, "")
 
     def start_homing(self, joint: str) -> None:
         (k,) = self._joint_indices(joint)
@@ -922,7 +929,7 @@ class Cia402Driver(CanComponent):
         if result is not None:
             self._homing_result[k] = None
             return result
-        if self._homing_phase[k] in (_MODE_REQUESTED, _RUNNING):
+        if self._homing_phase[k] != _IDLE:
             return Homing.RUNNING, ""
         return Homing.IDLE, ""
 

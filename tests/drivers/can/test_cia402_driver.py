@@ -394,10 +394,15 @@ def test_homing_switches_mode_by_sdo_and_starts_on_a_rising_edge(rigs: Any) -> N
     rise = bits.index(0x10)
     assert rise > 0 and bits[rise - 1] == 0 and bits[-1] == 0x10  # low in homing mode first, then high
     rig.drives[0].statusword = OE | 1 << 12 | 1 << 10  # attained, target reached
-    rig.cycle(2)
-    assert rig.driver.homing("hip") == (Homing.ATTAINED, "")
-    rig.cycle(3)
-    assert _sdo(rig, 0, 0x6060) == 8  # back in CSP
+    outcome = Homing.RUNNING
+    for _ in range(10):
+        rig.cycle()
+        outcome, _detail = rig.driver.homing("hip")
+        if outcome is not Homing.RUNNING:
+            break
+        assert rig.drives[0].controlwords[-1] & 0x100 or _sdo(rig, 0, 0x6060) == 6  # halted while returning
+    assert outcome is Homing.ATTAINED
+    assert _sdo(rig, 0, 0x6060) == 8  # back in CSP before the end is reported
     assert rig.driver.homing("hip") == (Homing.IDLE, "")
 
 
@@ -519,3 +524,36 @@ def test_a_nan_position_target_holds_the_actual_position_and_says_so(rigs: Any) 
     rig.cycle(3)
     assert rig.drives[0].targets[-1][0x607A] == 777
     assert sum("0x607a target nan" in msg for _, msg in rig.events) == 1
+
+
+def test_stop_homing_halts_and_reports_stopped_once_cyclic_again(rigs: Any) -> None:
+    rig = rigs({"hip": 3}, drives={"hip": {"node_id": 3, "homing": {"method": 37}}})
+    rig.start()
+    rig.hold()
+    rig.driver.start_homing("hip")
+    rig.cycle(4)
+    rig.driver.stop_homing("hip")
+    assert rig.driver.homing("hip") == (Homing.RUNNING, "")  # not cyclic yet
+    rig.cycle()
+    assert rig.drives[0].controlwords[-1] & 0x100  # halt
+    rig.cycle(2)
+    assert rig.driver.homing("hip") == (Homing.FAILED, "stopped")
+    assert _sdo(rig, 0, 0x6060) == 8
+    rig.cycle()
+    assert rig.drives[0].controlwords[-1] == 0x0F  # operating on the command again
+
+
+def test_a_drive_that_never_answers_the_mode_request_fails_the_homing(rigs: Any) -> None:
+    rig = rigs({"hip": 3}, drives={"hip": {"node_id": 3, "homing": {"method": 37}}})
+    rig.start()
+    rig.hold()
+    rig.slaves.network.unsubscribe(0x603)  # the SDO server goes deaf
+    rig.driver.start_homing("hip")
+    outcome, detail = Homing.RUNNING, ""
+    for _ in range(400):
+        rig.cycle()
+        outcome, detail = rig.driver.homing("hip")
+        if outcome is not Homing.RUNNING:
+            break
+    assert outcome is Homing.FAILED
+    assert "did not confirm its cyclic mode" in detail and "did not answer the homing-mode request" in detail

@@ -26,10 +26,12 @@ START = (0.2, -0.3)
 
 
 class EngineRig(Lockstep):
-    def __init__(self, mode: str = "csp") -> None:
+    def __init__(self, mode: str = "csp", homing: dict[str, Any] | None = None) -> None:
         self._dir = tempfile.TemporaryDirectory(prefix="hild-cia402-")
         self.channel = f"cia402-{uuid.uuid4().hex[:10]}"
         config = robot(2, mode=mode)
+        if homing is not None:
+            config["hardware"]["arm"]["params"]["drives"]["j1"]["homing"] = homing
         config["hardware"]["arm"]["params"]["bus"]["channel"] = self.channel
         config["controllers"] = {
             JTC: {
@@ -138,3 +140,24 @@ def test_a_rebooted_drive_faults_and_is_not_re_enabled(rig: Any) -> None:
     assert any("left NMT OPERATIONAL" in w or "not OPERATION ENABLED" in w for w in words), words
     rig.seconds(0.2)
     assert rig.firmwares[1].state != "OPERATION ENABLED"
+
+
+def test_home_runs_the_drives_own_homing_and_hold_takes_over_in_its_new_frame() -> None:
+    rig = EngineRig(homing={"method": 37, "offset": 0.05})
+    try:
+        rig.seconds(0.1)
+        reply = rig.request(lambda: rig.engine.home("j1"))
+        assert reply.get("state") == "running", reply
+
+        def entry() -> dict[str, Any]:
+            return next(h for h in rig.engine.status()["homing"] if h["joint"] == "j1")
+
+        rig.until(lambda: entry()["state"] != "running", 2.0, "the homing's end")
+        assert entry()["state"] == "attained", entry()
+        assert rig.firmwares[0].mode == 8  # back in CSP
+        rig.seconds(1.2)  # past the engine's settle window
+        assert rig.engine.state.position[0] == pytest.approx(0.05, abs=2e-3)  # the drive's new frame: home = offset
+        assert rig.engine.state.position[1] == pytest.approx(START[1], abs=5e-3)  # the other joint held
+        assert not rig.any_fault()
+    finally:
+        rig.close()
