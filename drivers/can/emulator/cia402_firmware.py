@@ -540,9 +540,22 @@ class Cia402Firmware(MotorFirmware):
             return
         if 0x1600 <= index <= 0x1603 or 0x1A00 <= index <= 0x1A03:
             self._check_mapping(index, subindex, int(value))
+        elif (0x1400 <= index <= 0x1403 or 0x1800 <= index <= 0x1803) and subindex == 1:
+            self._check_cob_id(index, int(value))
         self._dirty = True  # a parameter: stored by the node, cached by `_reload` once the request is done
 
+    def _check_cob_id(self, index: int, value: int) -> None:
+        """CiA 301: a valid PDO's COB-ID changes only by way of invalid (bit 31) first."""
+        current = self._value(index, 1)
+        if not current & _PDO_NOT_VALID and not value & _PDO_NOT_VALID and (current ^ value) & 0x1FFFFFFF:
+            raise SdoAbortedError(_ABORT_VALUE_RANGE)
+
     def _check_mapping(self, index: int, subindex: int, value: int) -> None:
+        """CiA 301: a mapping changes only while its PDO is invalid and, for the entries, while sub 0 is 0."""
+        if not self._value(index - 0x200, 1) & _PDO_NOT_VALID:
+            raise SdoAbortedError(_ABORT_WRONG_STATE)
+        if subindex != 0 and self._value(index, 0) != 0:
+            raise SdoAbortedError(_ABORT_WRONG_STATE)
         if subindex == 0:
             entries = [self._mapped(index, sub) for sub in range(1, value + 1)]
             if sum(bits for _, _, bits in entries) > 64 * 8:
@@ -638,8 +651,11 @@ class Cia402Firmware(MotorFirmware):
         transmission = self._value(comm, 2)
         if 241 <= transmission <= 253:
             return None  # reserved / RTR-only: not emulated
+        entries = self._value(mapping, 0)
+        if entries == 0:
+            return None  # nothing mapped: nothing to send or receive
         codes, getters, setters = ["<"], [], []
-        for sub in range(1, self._value(mapping, 0) + 1):
+        for sub in range(1, entries + 1):
             index, subindex, _bits = self._mapped(mapping, sub)
             variable = self._variable(index, subindex)
             if variable is None:

@@ -206,13 +206,12 @@ def test_over_temperature_faults_with_emcy_4310(rig: Cia402Rig) -> None:
 
 
 def test_reboot_boots_up_again_in_pre_operational_with_ram_settings_lost(rig: Cia402Rig) -> None:
-    states: list[int] = []
-    rig.node.nmt.add_heartbeat_callback(states.append)
     rig.node.sdo[0x6065].raw = 1234
     operational(rig)
     enable(rig, 8)
+    booted = rig.booted_again()
     rig.on_drive(rig.firmware.reboot)
-    wait_until(lambda: 0 in states, "the boot-up frame")
+    wait_until(booted, "the boot-up frame")
     assert rig.firmware.nmt_state == NmtState.PRE_OPERATIONAL
     assert rig.node.state == "SWITCH ON DISABLED"
     assert rig.node.sdo[0x6065].raw == 0xFFFFFFFF
