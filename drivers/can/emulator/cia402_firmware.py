@@ -858,8 +858,7 @@ class Cia402Firmware(MotorFirmware):
             self._fault(EMCY_FOLLOWING_ERROR)
 
     def _watchdog_expired(self, now: float) -> bool:
-        if self.nmt_state != NmtState.OPERATIONAL:
-            return False
+        """Counts in every NMT state (a drive left outside operational starves), fed only while operational."""
         if self._sync_period > 0.0:
             if self._last_feed is None:
                 self._last_feed = now

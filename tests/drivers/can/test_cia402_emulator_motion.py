@@ -231,6 +231,20 @@ def test_sync_watchdog_faults_with_emcy_8130(rig: Cia402Rig) -> None:
     assert rig.node.state == "FAULT"
 
 
+def test_leaving_nmt_operational_starves_the_sync_watchdog(rig: Cia402Rig) -> None:
+    rig.node.sdo[0x1006].raw = 2000  # 2 ms: 40 ms without a feed
+    operational(rig)
+    enable(rig, 10)
+    rig.advance(0.1, each=rig.network.sync.transmit)
+    rig.node.nmt.state = "PRE-OPERATIONAL"
+    wait_until(lambda: rig.firmware.nmt_state == NmtState.PRE_OPERATIONAL, "pre-operational")
+    rig.advance(0.035, each=rig.network.sync.transmit)  # SYNC goes on, but PDO traffic has stopped
+    assert rig.firmware.state == "OPERATION ENABLED"
+    rig.advance(0.01, each=rig.network.sync.transmit)
+    emcy(rig, 0x8130)
+    assert rig.node.state == "FAULT"
+
+
 def test_consumer_heartbeat_watchdog_faults_with_emcy_8130(rig: Cia402Rig) -> None:
     rig.node.sdo[0x1016][1].raw = (0x7F << 16) | 50  # the master, node 127, every ≤ 50 ms
     operational(rig)
