@@ -338,9 +338,9 @@ class Cia402Firmware(MotorFirmware):
         state = self.state
         if state == OPERATION_ENABLED:
             tau = self._law(position, velocity)
-        elif state == QUICK_STOP:
+        elif state == QUICK_STOP:  # the velocity loop brakes to standstill, then the position loop holds
             tau = self.position_gain * (self._hold - position) if self._stopped else 0.0
-            tau -= self.velocity_gain * velocity * (1.0 if self._stopped else 10.0)
+            tau -= self.velocity_gain * velocity
         else:
             self.applied_torque = 0.0
             self.limited = False
@@ -459,6 +459,8 @@ class Cia402Firmware(MotorFirmware):
             self._latched[cob_id] = data
         else:
             self._apply(rpdo, data)
+            if self._dirty:
+                self._reload()
         return self._outbox.take()
 
     def _sync(self, now: float) -> None:
@@ -472,6 +474,8 @@ class Cia402Firmware(MotorFirmware):
                 if rpdo is not None:
                     self._apply(rpdo, data)
             self._latched.clear()
+            if self._dirty:
+                self._reload()
         for pdo in self._sync_tpdos:
             if pdo.type == 0:
                 data = self._sample(pdo)
@@ -681,7 +685,7 @@ class Cia402Firmware(MotorFirmware):
 
         def store(value: int | float) -> None:
             self.node.data_store.setdefault(index, {})[subindex] = variable.encode_raw(value)
-            self._reload()
+            self._dirty = True  # a parameter mapped into an RPDO: re-cached once the frame is done
 
         return store
 

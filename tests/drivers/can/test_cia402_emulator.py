@@ -333,3 +333,20 @@ def test_a_glitch_corrupts_the_reported_position_not_the_law(rig: Cia402Rig) -> 
     assert tpdo["Position actual value"].raw == pytest.approx(0.2 * cpr, abs=2)
     assert rig.plant.positions[0] == 0.0
     assert rig.node.sdo[0x60F4].raw == 0  # the drive's own following error sees the truth
+
+
+def test_event_driven_tpdo_goes_out_on_its_event_timer(rig: Cia402Rig) -> None:
+    rig.node.tpdo.read()
+    tpdo = rig.node.tpdo[3]
+    tpdo.clear()
+    tpdo.add_variable(0x6041)
+    tpdo.trans_type = 254
+    tpdo.event_timer = 10
+    tpdo.enabled = True
+    tpdo.save()
+    operational(rig)
+    rig.sniffed()
+    rig.advance(0.1)
+    frames = [m for m in rig.sniffed() if m.arbitration_id == 0x380 + NODE]
+    assert 9 <= len(frames) <= 11  # every 10 ms of sim time, no SYNC needed
+    assert {struct.unpack("<H", m.data)[0] & 0x4F for m in frames} == {0x40}
