@@ -16,7 +16,8 @@ Behaviour:
   are latched and applied at the next SYNC, 254/255 on reception; an RPDO of the wrong length is ignored and
   counted (``wrong_length``). TPDOs of type 1–240 go out on every Nth SYNC with values sampled at that SYNC,
   type 0 at a SYNC when their data changed, 254/255 on their event timer (0x18xx:5). A mapping longer than 8
-  bytes goes out as a CAN FD frame. Configuration is compiled once per change, never per SYNC.
+  bytes goes out as a CAN FD frame, padded to the next valid FD length (an RPDO may come padded the same way).
+  Configuration is compiled once per change, never per SYNC.
 * Watchdog (the analogue of a Damiao CAN timeout), armed only in Operation Enabled and fed only while NMT
   operational: no SYNC and no RPDO for more than `sync_timeout_periods` × 0x1006 (when 0x1006 ≠ 0), or the
   heartbeat of the node in 0x1016:1 missing for longer than its time (once a first one was heard) → FAULT with
@@ -141,6 +142,14 @@ def _i32(value: float) -> int:
     return ((round(value) + (1 << 31)) & 0xFFFFFFFF) - (1 << 31)
 
 
+_FD_LENGTHS = (12, 16, 20, 24, 32, 48, 64)
+
+
+def fd_length(size: int) -> int:
+    """The CAN FD frame length that carries `size` bytes (the controller pads up to the next valid DLC)."""
+    return size if size <= 8 else next(n for n in _FD_LENGTHS if n >= size)
+
+
 def _saturate(value: float, code: str) -> int:
     low, high = _LIMITS[code]
     return low if value < low else high if value > high else int(value)
@@ -154,6 +163,8 @@ class _Outbox:
 
     def send_message(self, can_id: int, data: bytes | bytearray | list[int], remote: bool = False) -> None:
         payload = bytes(data)
+        if len(payload) > 8:
+            payload = payload.ljust(fd_length(len(payload)), b"\x00")  # what a CAN FD controller puts on the bus
         self.frames.append(
             can.Message(
                 arbitration_id=can_id,
@@ -451,7 +462,7 @@ class Cia402Firmware(MotorFirmware):
         rpdo = self._rpdos.get(cob_id)
         if rpdo is None or nmt != NmtState.OPERATIONAL:
             return self._ignore()
-        if len(data) != rpdo.size:
+        if len(data) != rpdo.size and not (msg.is_fd and rpdo.size > 8 and len(data) == fd_length(rpdo.size)):
             self.counters["wrong_length"] += 1
             return []
         self._last_feed = now
@@ -489,7 +500,7 @@ class Cia402Firmware(MotorFirmware):
                 self._transmit(pdo)
 
     def _apply(self, rpdo: _Pdo, data: bytes) -> None:
-        for setter, value in zip(rpdo.setters, rpdo.codec.unpack(data), strict=True):
+        for setter, value in zip(rpdo.setters, rpdo.codec.unpack_from(data), strict=True):
             setter(value)
 
     def _sample(self, pdo: _Pdo) -> bytes:

@@ -284,7 +284,29 @@ def test_a_mapping_over_8_bytes_goes_out_as_a_can_fd_frame(rig: Cia402Rig) -> No
         return next((m for m in seen if m.arbitration_id == 0x280 + NODE), None)
 
     frame = wait_until(fd_frame, "the TPDO2 frame")
-    assert frame.is_fd and len(frame.data) == 2 + 4 + 4 + 2 + 1
+    assert frame.is_fd and len(frame.data) == 16  # 2 + 4 + 4 + 2 + 1 = 13 bytes, padded to a valid FD length
+    wait_until(lambda: tpdo.is_received, "canopen's decoding of TPDO2")
+    assert tpdo["Modes of operation display"].raw == 0
+    assert tpdo["Statusword"].raw & 0x4F == 0x40
+
+
+def test_an_fd_rpdo_padded_to_a_valid_length_is_applied(rig: Cia402Rig) -> None:
+    rig.node.rpdo.read()
+    rpdo = rig.node.rpdo[2]
+    rpdo.clear()
+    for index in (0x6040, 0x607A, 0x60B1, 0x60B2, 0x6060):  # 13 bytes
+        rpdo.add_variable(index)
+    rpdo.trans_type = 255
+    rpdo.enabled = True
+    rpdo.save()
+    operational(rig)
+    data = struct.pack("<HiihB", 0x06, 4242, 7, -3, 10).ljust(16, b"\x00")
+    rig.network.bus.send(can.Message(arbitration_id=0x300 + NODE, data=data, is_extended_id=False, is_fd=True))
+    wait_until(lambda: rig.firmware.target_position == 4242, "the FD RPDO applied")
+    assert (rig.firmware.velocity_offset, rig.firmware.torque_offset, rig.firmware.mode_display) == (7, -3, 10)
+    assert rig.firmware.state == "READY TO SWITCH ON"
+    rig.network.bus.send(can.Message(arbitration_id=0x300 + NODE, data=data[:14], is_extended_id=False, is_fd=True))
+    wait_until(lambda: rig.firmware.counters["wrong_length"] == 1, "a 14-byte frame counted as the wrong length")
 
 
 def test_nmt_and_sync_broadcasts_reach_every_drive_on_the_bus() -> None:
