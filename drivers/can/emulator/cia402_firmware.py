@@ -228,7 +228,8 @@ class Cia402Firmware(MotorFirmware):
     """One CiA 402 drive (one CANopen node) for the joint `wiring` describes.
 
     `position_gain` (N·m/rad) and `velocity_gain` (N·m·s/rad) are the drive's own loop gains in actuator space
-    (default 30 × and 1 × the rated torque per rad); `sync_timeout_periods` scales 0x1006 into the watchdog;
+    (default 30 × and 1 × the rated torque per rad); `sync_timeout_periods` scales 0x1006 into the watchdog
+    (default 50: the stale bound the loopback rig allows its two processes);
     `index_position` (rad, shaft) is where the emulated index pulse sits in every revolution.
     """
 
@@ -240,7 +241,7 @@ class Cia402Firmware(MotorFirmware):
         thermal: ThermalModel | None = None,
         position_gain: float | None = None,
         velocity_gain: float | None = None,
-        sync_timeout_periods: float = 20.0,
+        sync_timeout_periods: float = 50.0,
         index_position: float = 0.0,
     ) -> None:
         super().__init__(rated_torque=wiring.rated_torque, seed=seed, thermal=thermal)
