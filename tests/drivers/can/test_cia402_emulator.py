@@ -14,7 +14,7 @@ import pytest
 from canopen.nmt import NmtError
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
-from drivers.can.emulator.cia402_firmware import NmtState
+from drivers.can.emulator.canopen_node import NmtState
 from tests.drivers.can.cia402_rig import Cia402Rig, wait_until
 
 NODE = 3

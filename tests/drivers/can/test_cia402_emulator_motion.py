@@ -17,7 +17,7 @@ import canopen
 import pytest
 from canopen.profiles.p402 import BaseNode402, State402
 
-from drivers.can.emulator.cia402_firmware import NmtState
+from drivers.can.emulator.canopen_node import NmtState
 from drivers.can.emulator.runtime import build_runtime, describe
 from drivers.can.params import Cia402Params
 from hild.config.loader import LoadedConfig
