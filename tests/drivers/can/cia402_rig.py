@@ -58,16 +58,30 @@ class Cia402Rig:
         self.sniffer = can.Bus(interface="virtual", channel=self.channel)
         self.emulator = Emulator(self.bus, self.firmwares, self.plant)
         self.network = canopen.Network()
+        self.network.NOTIFIER_CYCLE = 0.05  # how long closing waits for the notifier thread
         self.network.connect(interface="virtual", channel=self.channel)
         self.nodes = [self.network.add_node(BaseNode402(n, str(EDS))) for n in node_ids]
         self.node: BaseNode402 = self.nodes[0]
-        for node in self.nodes:
+        self.boot_ups = [0] * len(self.nodes)
+        """Boot-up frames canopen's NMT master heard from each node (from before the drive's first one)."""
+        for k, node in enumerate(self.nodes):
             node.sdo.RESPONSE_TIMEOUT = 2.0
+            node.nmt.add_heartbeat_callback(lambda state, k=k: self._heard(k, state))
         self.now = 0.0
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._serve, name="cia402-emulator", daemon=True)
         self._thread.start()
+        wait_until(lambda: all(self.boot_ups), "every drive's boot-up")
+
+    def _heard(self, k: int, state: int) -> None:
+        if state == 0:
+            self.boot_ups[k] += 1
+
+    def booted_again(self, k: int = 0) -> Callable[[], bool]:
+        """A condition: node k's boot-up has been heard once more than now."""
+        count = self.boot_ups[k]
+        return lambda: self.boot_ups[k] > count
 
     def _serve(self) -> None:
         while not self._stop.is_set():

@@ -14,7 +14,7 @@ import pytest
 from canopen.nmt import NmtError
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
-from drivers.can.emulator.cia402_firmware import NmtState
+from drivers.can.emulator.canopen_node import NmtState
 from tests.drivers.can.cia402_rig import Cia402Rig, wait_until
 
 NODE = 3
@@ -65,19 +65,28 @@ def test_sdo_aborts_with_the_standard_codes(rig: Cia402Rig) -> None:
     assert sdo[0x6061].raw == 0  # the display stayed
     sdo[0x6060].raw = 10
     assert sdo[0x6061].raw == 10  # a supported mode is displayed at once
+    with pytest.raises(SdoAbortedError) as valid:
+        sdo[0x1A01][1].raw = 0x60640020  # TPDO2 is valid: its mapping is locked
+    assert valid.value.code == 0x08000022
+    sdo[0x1801][1].raw = (0x280 + NODE) | 1 << 31
     with pytest.raises(SdoAbortedError) as unmappable:
         sdo[0x1A01][1].raw = 0x60760020  # rated torque is not PDO-mappable
     assert unmappable.value.code == 0x06040041
+    with pytest.raises(SdoAbortedError) as length:
+        sdo[0x1A01][1].raw = 0x60640010  # 16 bits of a 32-bit object
+    assert length.value.code == 0x06040041
+    with pytest.raises(SdoAbortedError) as moved:
+        sdo[0x1800][1].raw = 0x1F0  # a valid PDO's COB-ID changes only through invalid
+    assert moved.value.code == 0x06090030
 
 
 # ---- NMT and heartbeat ----------------------------------------------------------------------------------------------
 
 
 def test_nmt_boot_up_state_changes_and_heartbeat(rig: Cia402Rig) -> None:
-    states: list[int] = []
-    rig.node.nmt.add_heartbeat_callback(states.append)
+    booted = rig.booted_again()
     rig.on_drive(rig.firmware.reboot)
-    wait_until(lambda: 0 in states, "the boot-up frame")  # (0x700 + n, [0x00])
+    wait_until(booted, "the boot-up frame")  # (0x700 + n, [0x00])
     assert rig.node.nmt.state == "PRE-OPERATIONAL"
 
     rig.node.sdo[0x1017].raw = 50
@@ -89,9 +98,7 @@ def test_nmt_boot_up_state_changes_and_heartbeat(rig: Cia402Rig) -> None:
 
     operational(rig)
     rig.advance(0.1)
-    assert rig.node.nmt.wait_for_heartbeat(timeout=2.0) in ("OPERATIONAL", "PRE-OPERATIONAL")
-    rig.advance(0.1)
-    assert rig.node.nmt.state == "OPERATIONAL"
+    wait_until(lambda: rig.node.nmt.state == "OPERATIONAL", "the heartbeat to carry OPERATIONAL")
 
     rig.node.nmt.state = "STOPPED"
     rig.advance(0.1)
@@ -109,18 +116,17 @@ def test_nmt_boot_up_state_changes_and_heartbeat(rig: Cia402Rig) -> None:
 def test_reset_node_restores_the_eds_defaults_and_reset_communication_only_the_communication_area(
     rig: Cia402Rig,
 ) -> None:
-    states: list[int] = []
-    rig.node.nmt.add_heartbeat_callback(states.append)
     sdo = rig.node.sdo
     sdo[0x1017].raw = 20
     sdo[0x6065].raw = 777
+    booted = rig.booted_again()
     rig.node.nmt.send_command(0x82)  # reset communication
-    wait_until(lambda: 0 in states, "boot-up after reset communication")
+    wait_until(booted, "boot-up after reset communication")
     assert sdo[0x1017].raw == 0  # communication area back to the EDS
     assert sdo[0x6065].raw == 777  # the application area kept
-    states.clear()
+    booted = rig.booted_again()
     rig.node.nmt.send_command(0x81)  # reset node
-    wait_until(lambda: 0 in states, "boot-up after reset node")
+    wait_until(booted, "boot-up after reset node")
     assert sdo[0x6065].raw == 0xFFFFFFFF
 
 
@@ -278,4 +284,91 @@ def test_a_mapping_over_8_bytes_goes_out_as_a_can_fd_frame(rig: Cia402Rig) -> No
         return next((m for m in seen if m.arbitration_id == 0x280 + NODE), None)
 
     frame = wait_until(fd_frame, "the TPDO2 frame")
-    assert frame.is_fd and len(frame.data) == 2 + 4 + 4 + 2 + 1
+    assert frame.is_fd and len(frame.data) == 16  # 2 + 4 + 4 + 2 + 1 = 13 bytes, padded to a valid FD length
+    wait_until(lambda: tpdo.is_received, "canopen's decoding of TPDO2")
+    assert tpdo["Modes of operation display"].raw == 0
+    assert tpdo["Statusword"].raw & 0x4F == 0x40
+
+
+def test_an_fd_rpdo_padded_to_a_valid_length_is_applied(rig: Cia402Rig) -> None:
+    rig.node.rpdo.read()
+    rpdo = rig.node.rpdo[2]
+    rpdo.clear()
+    for index in (0x6040, 0x607A, 0x60B1, 0x60B2, 0x6060):  # 13 bytes
+        rpdo.add_variable(index)
+    rpdo.trans_type = 255
+    rpdo.enabled = True
+    rpdo.save()
+    operational(rig)
+    data = struct.pack("<HiihB", 0x06, 4242, 7, -3, 10).ljust(16, b"\x00")
+    rig.network.bus.send(can.Message(arbitration_id=0x300 + NODE, data=data, is_extended_id=False, is_fd=True))
+    wait_until(lambda: rig.firmware.target_position == 4242, "the FD RPDO applied")
+    assert (rig.firmware.velocity_offset, rig.firmware.torque_offset, rig.firmware.mode_display) == (7, -3, 10)
+    assert rig.firmware.state == "READY TO SWITCH ON"
+    rig.network.bus.send(can.Message(arbitration_id=0x300 + NODE, data=data[:14], is_extended_id=False, is_fd=True))
+    wait_until(lambda: rig.firmware.counters["wrong_length"] == 1, "a 14-byte frame counted as the wrong length")
+
+
+def test_nmt_and_sync_broadcasts_reach_every_drive_on_the_bus() -> None:
+    rig = Cia402Rig((5, 6))
+    try:
+        received = []
+        for node in rig.nodes:
+            node.tpdo.read()
+            tpdo = node.tpdo[1]
+            tpdo.clear()
+            tpdo.add_variable(0x6064)
+            tpdo.trans_type = 1
+            tpdo.enabled = True
+            tpdo.save()
+            received.append(Received(tpdo))
+        rig.network.nmt.send_command(0x01)  # start, node 0: every node
+        wait_until(lambda: all(fw.nmt_state == NmtState.OPERATIONAL for fw in rig.firmwares), "both operational")
+        rig.network.sync.transmit()
+        wait_until(lambda: [r.count for r in received] == [1, 1], "a TPDO from each drive")
+    finally:
+        rig.close()
+
+
+def test_a_silent_drive_sends_no_heartbeat_and_answers_nothing(rig: Cia402Rig) -> None:
+    rig.node.sdo[0x1017].raw = 20
+    rig.on_drive(lambda: setattr(rig.firmware, "silent", True))
+    rig.sniffed()
+    rig.advance(0.2)
+    assert not [m for m in rig.sniffed() if m.arbitration_id == 0x700 + NODE]
+    rig.node.sdo.RESPONSE_TIMEOUT = 0.3
+    with pytest.raises(SdoCommunicationError):
+        rig.node.sdo.upload(0x1000, 0)
+    rig.on_drive(lambda: setattr(rig.firmware, "silent", False))
+    rig.advance(0.1)
+    assert len([m for m in rig.sniffed() if m.arbitration_id == 0x700 + NODE]) >= 4
+
+
+def test_a_glitch_corrupts_the_reported_position_not_the_law(rig: Cia402Rig) -> None:
+    tpdo = configure_feedback(rig)
+    received = Received(tpdo)
+    operational(rig)
+    cpr = rig.firmware.wiring.counts_per_rad
+    rig.on_drive(lambda: rig.firmware.glitch.set(0, offset=0.2))
+    rig.network.sync.transmit()
+    wait_until(lambda: received.count == 1, "the TPDO")
+    assert tpdo["Position actual value"].raw == pytest.approx(0.2 * cpr, abs=2)
+    assert rig.plant.positions[0] == 0.0
+    assert rig.node.sdo[0x60F4].raw == 0  # the drive's own following error sees the truth
+
+
+def test_event_driven_tpdo_goes_out_on_its_event_timer(rig: Cia402Rig) -> None:
+    rig.node.tpdo.read()
+    tpdo = rig.node.tpdo[3]
+    tpdo.clear()
+    tpdo.add_variable(0x6041)
+    tpdo.trans_type = 254
+    tpdo.event_timer = 10
+    tpdo.enabled = True
+    tpdo.save()
+    operational(rig)
+    rig.sniffed()
+    rig.advance(0.1)
+    frames = [m for m in rig.sniffed() if m.arbitration_id == 0x380 + NODE]
+    assert 9 <= len(frames) <= 11  # every 10 ms of sim time, no SYNC needed
+    assert {struct.unpack("<H", m.data)[0] & 0x4F for m in frames} == {0x40}

@@ -7,18 +7,22 @@ See tests/drivers/can/cia402_rig.py for how time passes (only in `advance`, in s
 from __future__ import annotations
 
 import math
+import threading
+import uuid
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import canopen
 import pytest
-from canopen.profiles.p402 import State402
+from canopen.profiles.p402 import BaseNode402, State402
 
-from drivers.can.emulator.cia402_firmware import NmtState
-from drivers.can.emulator.runtime import build_runtime
+from drivers.can.emulator.canopen_node import NmtState
+from drivers.can.emulator.runtime import build_runtime, describe
 from drivers.can.params import Cia402Params
 from hild.config.loader import LoadedConfig
 from hild.config.model import RobotConfig
+from tests.conftest import CONFIGS
 from tests.drivers.can.cia402_rig import EDS, Cia402Rig, wait_until
 
 NODE = 3
@@ -206,13 +210,12 @@ def test_over_temperature_faults_with_emcy_4310(rig: Cia402Rig) -> None:
 
 
 def test_reboot_boots_up_again_in_pre_operational_with_ram_settings_lost(rig: Cia402Rig) -> None:
-    states: list[int] = []
-    rig.node.nmt.add_heartbeat_callback(states.append)
     rig.node.sdo[0x6065].raw = 1234
     operational(rig)
     enable(rig, 8)
+    booted = rig.booted_again()
     rig.on_drive(rig.firmware.reboot)
-    wait_until(lambda: 0 in states, "the boot-up frame")
+    wait_until(booted, "the boot-up frame")
     assert rig.firmware.nmt_state == NmtState.PRE_OPERATIONAL
     assert rig.node.state == "SWITCH ON DISABLED"
     assert rig.node.sdo[0x6065].raw == 0xFFFFFFFF
@@ -220,14 +223,28 @@ def test_reboot_boots_up_again_in_pre_operational_with_ram_settings_lost(rig: Ci
 
 
 def test_sync_watchdog_faults_with_emcy_8130(rig: Cia402Rig) -> None:
-    rig.node.sdo[0x1006].raw = 1000  # 1 ms: the watchdog is 20 periods
+    rig.node.sdo[0x1006].raw = 1000  # 1 ms: the watchdog is 50 periods
     operational(rig)
     enable(rig, 10)
     rig.advance(0.2, each=rig.network.sync.transmit)
     assert rig.node.state == "OPERATION ENABLED"
-    rig.advance(0.019)
-    assert rig.firmware.state == "OPERATION ENABLED"  # 19 ms of silence: still inside
+    rig.advance(0.049)
+    assert rig.firmware.state == "OPERATION ENABLED"  # 49 ms of silence: still inside
     rig.advance(0.003)
+    emcy(rig, 0x8130)
+    assert rig.node.state == "FAULT"
+
+
+def test_leaving_nmt_operational_starves_the_sync_watchdog(rig: Cia402Rig) -> None:
+    rig.node.sdo[0x1006].raw = 1000  # 1 ms: 50 ms without a feed
+    operational(rig)
+    enable(rig, 10)
+    rig.advance(0.1, each=rig.network.sync.transmit)
+    rig.node.nmt.state = "PRE-OPERATIONAL"
+    wait_until(lambda: rig.firmware.nmt_state == NmtState.PRE_OPERATIONAL, "pre-operational")
+    rig.advance(0.045, each=rig.network.sync.transmit)  # SYNC goes on, but PDO traffic has stopped
+    assert rig.firmware.state == "OPERATION ENABLED"
+    rig.advance(0.01, each=rig.network.sync.transmit)
     emcy(rig, 0x8130)
     assert rig.node.state == "FAULT"
 
@@ -308,42 +325,90 @@ def test_halt_interrupts_homing(rig: Cia402Rig) -> None:
 # ---- runtime ---------------------------------------------------------------------------------------------------------
 
 
-def test_build_runtime_serves_cia402_sections(tmp_path: Path) -> None:
-    params = {
-        "bus": {"interface": "virtual", "channel": "cia402-runtime"},
-        "eds": str(EDS),
-        "drives": {"a": {"node_id": 1}, "b": {"node_id": 2, "mode": "cst"}},
-    }
+def cia402_config(tmp_path: Path, bus: dict[str, str], joints: dict[str, dict[str, Any]], **robot: str) -> LoadedConfig:
+    """A config with one cia402 section, loaded by hand: the emulator does not need the cia402 host driver."""
+    drives = {name: {"node_id": k + 1, **joints[name].pop("drive", {})} for k, name in enumerate(joints)}
+    params = {"bus": bus, "eds": str(EDS), "drives": drives}
     data = {
-        "robot": {"name": "two"},
+        "robot": {"name": "cia402", **robot},
         "update_rate": 500,
         "clock": {"source": "sim", "real_time_factor": 0},
-        "hardware": {"arm": {"driver": "cia402", "params": params, "joints": {"a": {}, "b": {"reduction": 2.0}}}},
+        "hardware": {"arm": {"driver": "cia402", "params": params, "joints": joints}},
         "joints": {
             name: {
                 "limits": {"position": {"lower": -3.0, "upper": 3.0}, "velocity": 2.0, "effort": 20.0},
                 "hold": {"kp": 50.0, "kd": 2.0},
             }
-            for name in ("a", "b")
+            for name in joints
         },
     }
-    # built by hand: the cia402 host driver is not needed to emulate its drives
-    loaded = LoadedConfig(
+    return LoadedConfig(
         path=tmp_path / "robot.yaml",
         config=RobotConfig.model_validate(data),
         driver_params={"arm": Cia402Params.model_validate(params)},
     )
+
+
+def test_build_runtime_serves_cia402_sections(tmp_path: Path) -> None:
+    bus = {"interface": "virtual", "channel": f"cia402-{uuid.uuid4().hex[:10]}"}
+    loaded = cia402_config(tmp_path, bus, {"a": {}, "b": {"reduction": 2.0, "drive": {"mode": "cst"}}})
     runtime = build_runtime(loaded)
     firmwares = [j.firmware for j in runtime.joints]
     assert [fw.node_id for fw in firmwares] == [1, 2]
     assert [fw.wiring.mode for fw in firmwares] == ["csp", "cst"]
     assert runtime.joints[1].reduction == 2.0
+    assert describe(runtime)[0].endswith(": 2 drives (a=cia402 node 1, b=cia402 node 2)")
     runtime.open()
     try:
         runtime.service(0.0)
-        reply = runtime.handle({"op": "fault", "joint": "b", "code": 0x3210})
-        assert reply["ok"], reply
-        status = runtime.status()
-        assert [j["fault"] for j in status["joints"]] == [0, 0x3210]
+        assert runtime.handle({"op": "fault", "joint": "b", "code": 0x3210})["ok"]
+        assert [j["fault"] for j in runtime.status()["joints"]] == [0, 0x3210]
+        reply = runtime.handle({"op": "fault", "joint": "a", "code": 0x12345})
+        assert not reply["ok"] and "EMCY error code" in reply["error"]
+        assert runtime.handle({"op": "clear"})["ok"]
+        assert [j["fault"] for j in runtime.status()["joints"]] == [0, 0]
     finally:
+        runtime.close()
+
+
+def test_the_twin_plant_sits_behind_cia402_drives(tmp_path: Path) -> None:
+    bus = {"interface": "virtual", "channel": f"cia402-{uuid.uuid4().hex[:10]}"}
+    names = ["shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3"]
+    loaded = cia402_config(tmp_path, bus, {name: {} for name in names}, model=str(CONFIGS / "arm6.xml"))
+    runtime = build_runtime(loaded)
+    assert runtime.plant_kind == "twin" and len(runtime.joints) == 6
+    runtime.open()
+    try:
+        for k in range(20):
+            runtime.service(0.002 * k)
+        status = runtime.status()
+        assert all(j["braked"] and not j["enabled"] for j in status["joints"])  # disabled drives: brakes hold
+    finally:
+        runtime.close()
+
+
+def test_canopen_reaches_the_drives_over_the_served_remote_bus(tmp_path: Path) -> None:
+    loaded = cia402_config(tmp_path, {"interface": "remote", "channel": "ws://127.0.0.1:54701/"}, {"a": {}})
+    runtime = build_runtime(loaded)
+    runtime.open(serve_remote=("127.0.0.1", 0))
+    thread = threading.Thread(target=runtime.run, args=(0.0005,), daemon=True)
+    thread.start()
+    network = canopen.Network()
+    network.NOTIFIER_CYCLE = 0.05
+    try:
+        address = runtime.remote_address
+        assert address is not None
+        network.connect(interface="remote", channel=f"ws://127.0.0.1:{address[1]}/", receive_own_messages=False)
+        node = network.add_node(BaseNode402(1, str(EDS)))
+        node.sdo.RESPONSE_TIMEOUT = 2.0
+        assert node.sdo[0x1008].raw == "hild generic CiA 402 drive"
+        node.sdo[0x1017].raw = 10
+        node.nmt.state = "OPERATIONAL"
+        wait_until(lambda: node.nmt.state == "OPERATIONAL", "the heartbeat carrying OPERATIONAL")
+        node.state = "OPERATION ENABLED"
+        assert runtime.status()["joints"][0]["enabled"]
+    finally:
+        network.disconnect()
+        runtime.stop_event.set()
+        thread.join(10)
         runtime.close()
