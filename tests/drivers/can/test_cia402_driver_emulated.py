@@ -25,7 +25,7 @@ class Rig(LockstepRig):
     def __init__(self, nodes: dict[str, int], *, positions: list[float] | None = None, **params: Any) -> None:
         super().__init__("cia402", tuple(nodes), RATE, wait_step=5e-4)
         raw = {
-            "bus": {"interface": "virtual", "channel": self.channel},
+            "bus": {"interface": "virtual", **params.pop("bus", {}), "channel": self.channel},
             "eds": "cia402_generic.eds",
             "drives": {joint: {"node_id": node} for joint, node in nodes.items()},
             "reply_timeout_ms": 300,  # SDO answers under load; lockstep otherwise
@@ -155,3 +155,19 @@ def test_csv_follows_the_velocity_command(rigs: Any) -> None:
     assert rig.firmwares[0].target_velocity == round(0.5 * w.velocity_per_rad_s)
     assert rig.state.velocity[0] == pytest.approx(0.5, abs=0.02)  # derived from the SYNC-latched positions
     assert not rig.state.fault.any()
+
+
+def test_fd_layout_against_the_emulated_drive(rigs: Any) -> None:
+    rig = rigs({"shoulder": 1}, positions=[0.1], bus={"fd": True})
+    rig.start()
+    rig.hold()
+    rig.command.position[:] = 0.3
+    speeds = []
+    for _ in range(300):
+        rig.cycle()
+        speeds.append(float(rig.state.velocity[0]))
+    assert max(speeds) > 0.5  # the drive's own velocity actual while it moves
+    assert rig.state.position[0] == pytest.approx(0.3, abs=5e-3)
+    assert rig.state.velocity[0] == pytest.approx(0.0, abs=0.05)  # 0x606C from the drive, in the one FD TPDO
+    assert not rig.state.fault.any() and rig.state.fresh.all()
+    assert rig.driver.statistics.get("ignored wrong length", 0) == 0
