@@ -157,6 +157,12 @@ def _problems(params: Cia402Params, joints: Sequence[str], config_dir: Path) -> 
     return wiring, problems
 
 
+def _mappable(w: DriveWiring) -> Callable[[int], bool]:
+    """Index → the drive's EDS lets it be mapped into a PDO."""
+    od = load_dictionary(w.eds, w.node_id)
+    return lambda index: index in od and bool(getattr(od[index], "pdo_mappable", False))
+
+
 def _layouts(params: Cia402Params) -> dict[str, Layout]:
     return {
         joint: layout_for(drive.mode or params.mode, params.velocity_feedback, params.bus.fd)
@@ -249,6 +255,20 @@ class Cia402Driver(CanComponent):
         wiring, problems = wire_drives(params, joints, config_dir)
         findings = [Finding("error", p) for p in problems if not any(x in p for x in _REVIEWED)]
         for w in wiring:
+            mappable = _mappable(w)
+            full = layout_for(w.mode, params.velocity_feedback, params.bus.fd)
+            for entry in full.entries():
+                if mappable(entry.index):
+                    continue
+                if entry in pdo.OPTIONAL:
+                    what = "effort (the torque offset) is not applied" if entry == pdo.TORQUE_OFFSET else "not read"
+                    findings.append(
+                        Finding("warning", f"{w.joint}: the EDS does not let {entry.index:#06x} be mapped: {what}")
+                    )
+                else:
+                    findings.append(
+                        Finding("error", f"{w.joint}: the EDS does not let {entry.index:#06x} be mapped into a PDO")
+                    )
             step = 1.0 / w.counts_per_rad
             if w.mode == "csp" and step > POSITION_STEP_LIMIT:
                 findings.append(
@@ -308,9 +328,14 @@ class Cia402Driver(CanComponent):
         self.nodes = [w.node_id for w in wiring]
         n = len(wiring)
         self.modes = [w.mode for w in wiring]
-        fields: frozenset[str] = frozenset().union(*(MODE_FIELDS[m] for m in self.modes))
-        self.COMMAND_FIELDS = fields  # type: ignore[misc]  # this instance's drives' modes, narrower than the class's
-        self.layouts = [layout_for(w.mode, params.velocity_feedback, params.bus.fd) for w in wiring]
+        self.layouts = [layout_for(w.mode, params.velocity_feedback, params.bus.fd, _mappable(w)) for w in wiring]
+        fields: frozenset[str] = frozenset().union(
+            *(
+                MODE_FIELDS[m] if m == "cst" or layout.has_torque_offset else MODE_FIELDS[m] - {"effort"}
+                for m, layout in zip(self.modes, self.layouts, strict=True)
+            )
+        )
+        self.COMMAND_FIELDS = fields  # type: ignore[misc]  # what this instance's drives apply
         self._produce_sync = params.sync == "produce"
         self._period = context.period
         self._heartbeat_timeout = params.heartbeat_timeout

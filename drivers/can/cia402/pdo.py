@@ -15,6 +15,7 @@ its preallocated RPDO frames in place and unpacks TPDOs with them, so the cycle 
 from __future__ import annotations
 
 import struct
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from drivers.can.params import Cia402Mode
@@ -55,6 +56,8 @@ TARGET_TORQUE = Entry(0x6071, 16, "h")
 TORQUE_OFFSET = Entry(0x60B2, 16, "h")
 
 TARGETS: dict[str, Entry] = {"csp": TARGET_POSITION, "csv": TARGET_VELOCITY, "cst": TARGET_TORQUE}
+OPTIONAL = frozenset({TORQUE_OFFSET, ERROR_CODE})
+"""Left out of the layout when the drive cannot map them (the effort offset, the FD error code)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -93,18 +96,28 @@ class Layout:
     def has_error_code(self) -> bool:
         return any(ERROR_CODE in p.entries for p in self.tpdos)
 
+    def entries(self) -> tuple[Entry, ...]:
+        return self.rpdo.entries + tuple(e for p in self.tpdos for e in p.entries)
+
     def frame_sizes(self) -> list[int]:
         """Payload bytes of every PDO one cycle carries (RPDO first), as sent (FD lengths rounded up)."""
         sizes = [self.rpdo.size, *(p.size for p in self.tpdos)]
         return [fd_length(s) for s in sizes] if self.fd else sizes
 
 
-def layout_for(mode: Cia402Mode, velocity_feedback: str, fd: bool) -> Layout:
-    """The layout of one drive: see the module docstring."""
+def layout_for(
+    mode: Cia402Mode, velocity_feedback: str, fd: bool, mappable: Callable[[int], bool] | None = None
+) -> Layout:
+    """The layout of one drive: see the module docstring. `mappable` (index → the drive can map it) drops the
+    optional entries a drive lacks; without it every entry is assumed mappable (the larger, worst-case layout)."""
     target = TARGETS[mode]
     rpdo = (CONTROLWORD, target) if mode == "cst" else (CONTROLWORD, target, TORQUE_OFFSET)
+    if mappable is not None:
+        rpdo = tuple(e for e in rpdo if e not in OPTIONAL or mappable(e.index))
     if fd:
         tpdo = (STATUSWORD, POSITION_ACTUAL, TORQUE_ACTUAL, VELOCITY_ACTUAL, ERROR_CODE)
+        if mappable is not None:
+            tpdo = tuple(e for e in tpdo if e not in OPTIONAL or mappable(e.index))
         return Layout(Pdo(1, rpdo), (Pdo(1, tpdo),), fd=True)
     tpdos = [Pdo(1, (STATUSWORD, POSITION_ACTUAL, TORQUE_ACTUAL))]
     if velocity_feedback == "pdo":

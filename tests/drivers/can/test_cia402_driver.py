@@ -37,13 +37,13 @@ EDS = CONFIGS / "cia402_generic.eds"
 class Rig:
     """One cia402 driver and its scripted slaves on a private virtual channel, stepped in lockstep."""
 
-    def __init__(self, nodes: dict[str, int], **params: Any) -> None:
+    def __init__(self, nodes: dict[str, int], *, eds: Path = EDS, **params: Any) -> None:
         self.channel = f"cia402-{uuid.uuid4().hex[:10]}"
         self.events: list[tuple[str, str]] = []
         self.joints = tuple(nodes)
         raw = {
             "bus": {"interface": "virtual", **params.pop("bus", {}), "channel": self.channel},
-            "eds": "cia402_generic.eds",
+            "eds": str(eds),
             "drives": {joint: {"node_id": node} for joint, node in nodes.items()},
             "reply_timeout_ms": 300,  # SDO answers under load; lockstep otherwise
             **params,
@@ -52,7 +52,7 @@ class Rig:
         context = HardwareContext(
             "arm", self.joints, CONFIGS, RATE, "sim", lambda level, msg: self.events.append((level, msg))
         )
-        self.slaves = Slaves(self.channel, list(nodes.values()), EDS)
+        self.slaves = Slaves(self.channel, list(nodes.values()), eds)
         self.driver = Cia402Driver(context, self.params)
         self.driver.serve_while_waiting = self.serve
         self.now = 0.0
@@ -557,3 +557,26 @@ def test_a_drive_that_never_answers_the_mode_request_fails_the_homing(rigs: Any)
             break
     assert outcome is Homing.FAILED
     assert "did not confirm its cyclic mode" in detail and "did not answer the homing-mode request" in detail
+
+
+def test_a_drive_that_cannot_map_the_torque_offset_gets_a_layout_without_it(rigs: Any, tmp_path: Path) -> None:
+    text = EDS.read_text()
+    section = text.index("[60B2]")
+    end = text.index("[", section + 1)
+    eds = tmp_path / "no_offset.eds"
+    eds.write_text(text[:section] + text[section:end].replace("PDOMapping=0x1", "PDOMapping=0x0") + text[end:])
+    rig = rigs({"hip": 3}, eds=eds)
+    assert sorted(rig.driver.COMMAND_FIELDS) == ["position"]  # effort would be ignored: not offered
+    rig.driver.on_configure()
+    rig.slaves.service(rig.now)
+    assert [v.index for v in rig.drives[0].node.rpdo[1].map] == [0x6040, 0x607A]
+    rig.driver.read(0.0, DT, rig.state)
+    rig.driver.on_activate()
+    rig.command.position[:] = 0.01
+    rig.command.effort[:] = 3.0
+    rig.cycle()
+    assert set(rig.drives[0].targets[-1]) == {0x6040, 0x607A}
+    findings = Cia402Driver.review_files(rig.params, ["hip"], RATE, CONFIGS)
+    assert [(f.level, f.message) for f in findings] == [
+        ("warning", "hip: the EDS does not let 0x60b2 be mapped: effort (the torque offset) is not applied")
+    ]
