@@ -65,7 +65,11 @@ class Cia402Rig:
         self.boot_ups = [0] * len(self.nodes)
         """Boot-up frames canopen's NMT master heard from each node (from before the drive's first one)."""
         for k, node in enumerate(self.nodes):
-            node.sdo.RESPONSE_TIMEOUT = 2.0
+            node.sdo.RESPONSE_TIMEOUT = 2.0  # canopen's waits are wall-clock: room for a loaded machine
+            node.TIMEOUT_SWITCH_STATE_FINAL = 5.0
+            node.TIMEOUT_SWITCH_STATE_SINGLE = 2.0
+            node.TIMEOUT_SWITCH_OP_MODE = 2.0
+            node.TIMEOUT_CHECK_TPDO = 1.0
             node.nmt.add_heartbeat_callback(lambda state, k=k: self._heard(k, state))
         self.now = 0.0
         self.error: BaseException | None = None
