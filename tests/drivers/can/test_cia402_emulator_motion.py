@@ -358,6 +358,14 @@ def test_halt_interrupts_homing(rig: Cia402Rig) -> None:
     assert abs(rig.plant.velocities[0]) < 0.05
 
 
+def test_an_unsupported_homing_method_reports_a_homing_error(rig: Cia402Rig) -> None:
+    rig.node.sdo[0x6098].raw = 17  # a limit-switch method this drive has no switches for
+    enable(rig, 6)
+    rig.node.sdo[0x6040].raw = 0x1F
+    assert rig.node.sdo[0x6041].raw & 0x3400 == 0x2400  # homing error, at standstill
+    assert rig.firmware.state == "OPERATION ENABLED"  # an error of the procedure, not a drive fault
+
+
 # ---- runtime ---------------------------------------------------------------------------------------------------------
 
 
