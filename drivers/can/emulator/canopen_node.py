@@ -275,6 +275,9 @@ class CanopenFirmware(MotorFirmware):
             self._nmt(data)
             self._boot_if_due(now)
             return self._outbox.take()
+        if cob_id == self._consumer_id:  # NMT error control: heard in every state
+            self._consumer_seen = now
+            return []
         nmt = self.nmt_state
         if nmt == NmtState.STOPPED or nmt == NmtState.INITIALISING:
             return self._ignore()
@@ -288,9 +291,6 @@ class CanopenFirmware(MotorFirmware):
         if cob_id == self._sync_id:
             self._sync(now)
             return self._outbox.take()
-        if cob_id == self._consumer_id:
-            self._consumer_seen = now
-            return []
         rpdo = self._rpdos.get(cob_id)
         if rpdo is None or nmt != NmtState.OPERATIONAL:
             return self._ignore()

@@ -65,9 +65,15 @@ class Cia402Rig:
         self.boot_ups = [0] * len(self.nodes)
         """Boot-up frames canopen's NMT master heard from each node (from before the drive's first one)."""
         for k, node in enumerate(self.nodes):
-            node.sdo.RESPONSE_TIMEOUT = 2.0
+            node.sdo.RESPONSE_TIMEOUT = 2.0  # canopen's waits are wall-clock: room for a loaded machine
+            node.TIMEOUT_SWITCH_STATE_FINAL = 5.0
+            node.TIMEOUT_SWITCH_STATE_SINGLE = 2.0
+            node.TIMEOUT_SWITCH_OP_MODE = 2.0
+            node.TIMEOUT_CHECK_TPDO = 1.0
             node.nmt.add_heartbeat_callback(lambda state, k=k: self._heard(k, state))
         self.now = 0.0
+        self.error: BaseException | None = None
+        """What ended the server thread, if anything did."""
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._serve, name="cia402-emulator", daemon=True)
@@ -84,10 +90,14 @@ class Cia402Rig:
         return lambda: self.boot_ups[k] > count
 
     def _serve(self) -> None:
-        while not self._stop.is_set():
-            with self._lock:
-                self.emulator.service(self.now)
-            self._stop.wait(0.0005)
+        try:
+            while not self._stop.is_set():
+                with self._lock:
+                    self.emulator.service(self.now)
+                self._stop.wait(0.0005)
+        except BaseException as exc:  # surfaced by `close`: a waiting test would only see its deadline pass
+            self.error = exc
+            raise
 
     def advance(self, seconds: float, step: float = 0.001, each: Callable[[], None] | None = None) -> None:
         """Let `seconds` of sim time pass in `step`s; `each` runs (on the master side) before every step."""
@@ -116,3 +126,5 @@ class Cia402Rig:
         self.network.disconnect()
         self.bus.shutdown()
         self.sniffer.shutdown()
+        if self.error is not None:
+            raise AssertionError("the emulator's server thread failed") from self.error

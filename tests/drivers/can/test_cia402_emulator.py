@@ -372,3 +372,25 @@ def test_event_driven_tpdo_goes_out_on_its_event_timer(rig: Cia402Rig) -> None:
     frames = [m for m in rig.sniffed() if m.arbitration_id == 0x380 + NODE]
     assert 9 <= len(frames) <= 11  # every 10 ms of sim time, no SYNC needed
     assert {struct.unpack("<H", m.data)[0] & 0x4F for m in frames} == {0x40}
+
+
+def test_acyclic_synchronous_tpdo_goes_out_at_a_sync_only_when_its_data_changed(rig: Cia402Rig) -> None:
+    tpdo = configure_feedback(rig, transmission=0)
+    received = Received(tpdo)
+    operational(rig)
+
+    def tpdos_after_sync(count: int) -> int:
+        """TPDO1 frames on the bus once the drive has fully served SYNC number `count`."""
+        rig.network.sync.transmit()
+        wait_until(lambda: rig.firmware.counters["sync"] == count, f"SYNC {count} at the drive")
+        rig.on_drive(lambda: None)  # that service is over: its frames are on the bus
+        return len([m for m in rig.sniffed() if m.arbitration_id == 0x180 + NODE])
+
+    rig.sniffed()
+    assert tpdos_after_sync(1) == 1
+    assert tpdos_after_sync(2) == 0
+    assert tpdos_after_sync(3) == 0
+    rig.node.sdo[0x6040].raw = 0x06  # Ready To Switch On: the statusword changes
+    assert tpdos_after_sync(4) == 1
+    wait_until(lambda: received.count == 2, "canopen's decoding of both")
+    assert tpdo["Statusword"].raw & 0x6F == 0x21

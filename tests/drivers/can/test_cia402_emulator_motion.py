@@ -90,6 +90,42 @@ def test_the_402_state_machine_walked_by_canopen(rig: Cia402Rig) -> None:
     assert node.state == "SWITCH ON DISABLED"
     node.sdo[0x6040].raw = 0x0F  # enable operation from Switch On Disabled: no transition exists
     assert node.state == "SWITCH ON DISABLED"
+    node.state = "OPERATION ENABLED"
+    node.state = "SWITCH ON DISABLED"  # transition 9
+    assert not rig.firmware.enabled
+
+
+def test_the_402_state_machine_over_pdos_as_canopen_sets_it_up(rig: Cia402Rig) -> None:
+    """canopen's BaseNode402 on PDOs: controlword and mode in an RPDO, statusword and display in a TPDO, on SYNC."""
+    node = rig.node
+    node.tpdo.read()
+    node.rpdo.read()
+    tpdo, rpdo = node.tpdo[1], node.rpdo[1]
+    tpdo.clear()
+    tpdo.add_variable(0x6041)
+    tpdo.add_variable(0x6061)
+    tpdo.trans_type = 1
+    tpdo.enabled = True
+    tpdo.save()
+    rpdo.clear()
+    rpdo.add_variable(0x6040)
+    rpdo.add_variable(0x6060)
+    rpdo.trans_type = 1
+    rpdo.enabled = True
+    rpdo.save()
+    node.setup_402_state_machine(read_pdos=False)
+    operational(rig)
+    rpdo.start(0.005)  # the master's cyclic RPDO and SYNC (wall clock; the drive acts on each SYNC at once)
+    rig.network.sync.start(0.005)
+    try:
+        node.op_mode = "CYCLIC SYNCHRONOUS TORQUE"
+        node.state = "OPERATION ENABLED"
+        assert rig.firmware.state == "OPERATION ENABLED" and rig.firmware.mode_display == 10
+        node.state = "SWITCH ON DISABLED"
+        assert rig.firmware.state == "SWITCH ON DISABLED"
+    finally:
+        rig.network.sync.stop()
+        rpdo.stop()
 
 
 def test_quick_stop_option_6_stays_in_quick_stop_active_and_enables_again(rig: Cia402Rig) -> None:
@@ -320,6 +356,14 @@ def test_halt_interrupts_homing(rig: Cia402Rig) -> None:
     rig.advance(0.3)
     assert rig.node.sdo[0x6041].raw & 0x3400 == 0x0400  # interrupted
     assert abs(rig.plant.velocities[0]) < 0.05
+
+
+def test_an_unsupported_homing_method_reports_a_homing_error(rig: Cia402Rig) -> None:
+    rig.node.sdo[0x6098].raw = 17  # a limit-switch method this drive has no switches for
+    enable(rig, 6)
+    rig.node.sdo[0x6040].raw = 0x1F
+    assert rig.node.sdo[0x6041].raw & 0x3400 == 0x2400  # homing error, at standstill
+    assert rig.firmware.state == "OPERATION ENABLED"  # an error of the procedure, not a drive fault
 
 
 # ---- runtime ---------------------------------------------------------------------------------------------------------
