@@ -235,6 +235,11 @@ class HardwareComponent(abc.ABC):
         """Make the drive's current position its zero. Only ever called on an explicit operator command."""
         raise HardwareError(f"driver {type(self).__name__} cannot set a zero position")
 
+    def gains_applied(self) -> list[bool]:
+        """Per joint of this component: does the command's kp/kd reach the joint's torque (``APPLIES_GAINS`` for
+        all by default)? A driver whose joints differ (CiA 402: CST yes, CSP/CSV no) says so per joint."""
+        return [self.APPLIES_GAINS] * len(self.joints)
+
     def start_homing(self, joint: str) -> None:
         """Operator command (between cycles): start the drive's own homing of `joint` (CiA 402 mode 6).
 

@@ -418,7 +418,7 @@ class Engine:
         """Per joint: does its drive apply the command's kp/kd (so the supervisor can predict its torque)?"""
         applies = np.ones(len(self.joints), dtype=bool)
         for slot in self.hardware:
-            applies[slot.index] = slot.component.APPLIES_GAINS
+            applies[slot.index] = slot.component.gains_applied()
         return applies
 
     def _transmissions(self, cfg: Any, index: dict[str, int]) -> Transmissions:

@@ -15,8 +15,10 @@ a node that left NMT operational (rebooted), and EMCY/0x603F error codes by thei
 (``errors.py``). FAULT and QUICK STOP ACTIVE are never left automatically: ``clear_faults`` sends the fault-reset
 edge and waits for the statusword; only ``enable`` (an operator command) walks a drive back to Operation Enabled.
 
-The drive runs its own position/velocity loops: ``APPLIES_GAINS`` is False and ``COMMAND_FIELDS`` says what the
-mode applies (CSP: position + effort as 0x60B2 torque offset; CSV: velocity + effort; CST: effort).
+In CSP and CSV the drive runs its own loops (its joints' ``gains_applied`` are False) and ``COMMAND_FIELDS`` says
+what the mode applies (CSP: position + effort as 0x60B2 torque offset; CSV: velocity + effort). In CST this driver
+applies the whole servo command on the torque path: kp·(p − q) + kd·(v − q̇) + effort from the latest SYNC sample,
+at the cycle rate.
 """
 
 from __future__ import annotations
@@ -69,9 +71,12 @@ _NMT_SHIFT = 32
 MODE_FIELDS: dict[str, frozenset[str]] = {
     "csp": frozenset({"position", "effort"}),
     "csv": frozenset({"velocity", "effort"}),
-    "cst": frozenset({"effort"}),
+    "cst": frozenset({"position", "velocity", "effort", "kp", "kd"}),
 }
-"""The servo-command fields each cyclic synchronous mode applies (effort: 0x60B2 torque offset, CST's target)."""
+"""The servo-command fields each cyclic synchronous mode applies (effort: 0x60B2 torque offset). CST applies the
+whole servo law, hild-side at the cycle rate: the target torque is kp·(p − q) + kd·(v − q̇) + effort on the
+drive's latest SYNC sample, so hold and position controllers work on a torque-mode drive (one cycle late, so
+with a cycle-rate bandwidth: docs/drivers.md, "cia402")."""
 
 SW_TARGET_REACHED = 1 << 10
 SW_HOMING_ATTAINED = 1 << 12
@@ -175,7 +180,7 @@ class Cia402Driver(CanComponent):
 
     Params = Cia402Params
     COMMAND_FIELDS = frozenset({"position", "velocity", "effort"})  # the union; each drive applies its mode's
-    APPLIES_GAINS = False  # CSP/CSV run the drive's own loops: hild's kp/kd never reach it
+    APPLIES_GAINS = False  # CSP/CSV run the drive's own loops: hild's kp/kd never reach it (CST: gains_applied)
 
     # ---- config review (class level) -----------------------------------------------------------------------
     @classmethod
@@ -749,6 +754,10 @@ class Cia402Driver(CanComponent):
             code |= FAULT_NMT | nmt << _NMT_SHIFT
         return code
 
+    def gains_applied(self) -> list[bool]:
+        """CST joints get kp/kd applied (by this driver, on the torque path); CSP/CSV joints run the drive's own."""
+        return [mode == "cst" for mode in self.modes]
+
     def write(self, t: float, dt: float, command: ServoCommand) -> None:
         send, rpdo, pack, has_offset = self.link.send, self._rpdo, self._pack, self._has_offset
         counts_per_rad, velocity_per_rad_s, permille = (
@@ -757,8 +766,16 @@ class Cia402Driver(CanComponent):
             self._permille_per_nm,
         )
         ranges, offsets = self._target_range, self._offset_range
-        for k, (p, v, ff) in enumerate(
-            zip(command.position.tolist(), command.velocity.tolist(), command.effort.tolist(), strict=True)
+        position, velocity = self.position, self.velocity
+        for k, (p, v, ff, kp, kd) in enumerate(
+            zip(
+                command.position.tolist(),
+                command.velocity.tolist(),
+                command.effort.tolist(),
+                command.kp.tolist(),
+                command.kd.tolist(),
+                strict=True,
+            )
         ):
             cw = self._controlword(k)
             mode = self.modes[k]
@@ -770,8 +787,9 @@ class Cia402Driver(CanComponent):
                     target = ranges[k](k, p * counts_per_rad[k], actual)
                 elif mode == "csv":
                     target = ranges[k](k, v * velocity_per_rad_s[k], 0)
-                else:
-                    target = ranges[k](k, ff * permille[k], 0)
+                else:  # CST: the servo law on the latest sample (a NaN anywhere gives no torque)
+                    tau = ff + kp * (p - position[k]) + kd * (v - velocity[k])
+                    target = ranges[k](k, tau * permille[k], 0)
                 if has_offset[k]:
                     pack[k](rpdo[k].data, 0, cw, target, offsets(k, ff * permille[k], 0))
                 else:

@@ -65,8 +65,14 @@ def test_a_csp_config_loads_and_reports_its_bus_load(tmp_path: Path) -> None:
 
 def test_a_controller_claiming_what_the_mode_ignores_is_refused(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match=r"claims 'j1/position', which driver 'cia402' does not offer \(it applies "
-                       r"effort for j1\)"):  # fmt: skip
-        load(tmp_path, robot(mode="cst"))
+                       r"effort, velocity for j1\)"):  # fmt: skip
+        load(tmp_path, robot(mode="csv"))
+
+
+def test_cst_takes_the_whole_servo_command_on_the_torque_path(tmp_path: Path) -> None:
+    """CST applies kp·(p − q) + kd·(v − q̇) + effort hild-side, so a position controller may claim a CST joint."""
+    loaded = load(tmp_path, robot(mode="cst"))
+    assert "forward_position" in loaded.config.controllers
 
 
 def test_per_drive_modes_give_per_joint_fields() -> None:
@@ -79,7 +85,11 @@ def test_per_drive_modes_give_per_joint_fields() -> None:
         }
     )
     fields = Cia402Driver.command_fields(params, ["a", "b", "c"])
-    assert fields == {"a": {"position", "effort"}, "b": {"velocity", "effort"}, "c": {"effort"}}
+    assert fields == {
+        "a": {"position", "effort"},
+        "b": {"velocity", "effort"},
+        "c": {"position", "velocity", "effort", "kp", "kd"},
+    }
 
 
 def test_six_drives_at_500_hz_fit_classic_can_and_1_khz_does_not(tmp_path: Path) -> None:

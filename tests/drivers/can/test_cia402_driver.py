@@ -6,6 +6,8 @@ store, its PDO layout from the PDO maps canopen reads from that store, its RPDOs
 
 from __future__ import annotations
 
+import math
+
 import threading
 import uuid
 from collections.abc import Iterator
@@ -222,11 +224,33 @@ def test_velocity_is_derived_from_sync_latched_positions(rigs: Any) -> None:
     assert rig.state.velocity[0] == pytest.approx(step / w.counts_per_rad / DT, rel=1e-6)
 
 
+def test_cst_applies_the_servo_law_on_the_latest_sample(rigs: Any) -> None:
+    """CST: target torque = kp·(p − q) + kd·(v − q̇) + effort, from the reading of the last SYNC (hold works)."""
+    rig = rigs({"hip": 3}, mode="cst")
+    rig.start()
+    rig.cycle(2)
+    w = rig.driver.wiring[0]
+    q, dq = rig.state.position[0], rig.state.velocity[0]
+    rig.command.position[:] = q + 0.01
+    rig.command.velocity[:] = dq + 0.5
+    rig.command.kp[:] = 200.0
+    rig.command.kd[:] = 2.0
+    rig.command.effort[:] = 0.5
+    rig.cycle()
+    expected = 200.0 * 0.01 + 2.0 * 0.5 + 0.5  # N·m
+    assert rig.drives[0].targets[-1][0x6071] == round(expected * 1000.0 / w.rated_torque)
+    rig.command.position[:] = math.nan  # a NaN anywhere: no torque, never a wrapped value
+    rig.cycle()
+    assert rig.drives[0].targets[-1][0x6071] == 0
+
+
 def test_cst_sends_torque_and_its_range_is_clamped_not_wrapped(rigs: Any) -> None:
     rig = rigs({"hip": 3}, mode="cst")
     rig.start()
     w = rig.driver.wiring[0]
-    assert sorted(rig.driver.COMMAND_FIELDS) == ["effort"]
+    assert sorted(rig.driver.COMMAND_FIELDS) == ["effort", "kd", "kp", "position", "velocity"]
+    assert rig.driver.gains_applied() == [True]
+    rig.command.kp[:] = rig.command.kd[:] = 0.0
     rig.command.effort[:] = 2.0
     rig.cycle()
     assert rig.drives[0].targets[-1][0x6071] == round(2.0 * 1000.0 / w.rated_torque)
