@@ -155,6 +155,8 @@ class CanProcesses:
     HOST = "127.0.0.1"
     CONFIG = "arm6_can_loopback.yaml"
     MODEL = "arm6.xml"  # the config's robot.model, made absolute in the copy the daemon runs
+    EDS: str | None = None  # a cia402 config's EDS (``eds:``), made absolute likewise
+    SERVED = "ws://127.0.0.1:54701/"  # the bus channel the config names, replaced by the free port's
     EMULATOR_PRIORITY = 50
 
     def __init__(self, directory: Path, emulator_args: Sequence[str] = ()) -> None:
@@ -173,11 +175,12 @@ class CanProcesses:
             self.wait(self._answers, "the emulator's control socket", START_TIMEOUT)
             text = (CONFIGS / self.CONFIG).read_text()
             self.config = directory / self.CONFIG
-            self.config.write_text(
-                text.replace("ws://127.0.0.1:54701/", f"ws://{bus}/").replace(
-                    f"model: {self.MODEL}", f"model: {CONFIGS / self.MODEL}"
-                )
+            text = text.replace(self.SERVED, f"ws://{bus}/").replace(
+                f"model: {self.MODEL}", f"model: {CONFIGS / self.MODEL}"
             )
+            if self.EDS is not None:
+                text = text.replace(f"eds: {self.EDS}", f"eds: {CONFIGS / self.EDS}")
+            self.config.write_text(text)
         except BaseException:
             self.close()
             raise

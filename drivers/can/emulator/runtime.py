@@ -25,7 +25,8 @@ every emulated joint.
   ``torque`` (actuator space), ``enabled``, ``fault``, ``braked``, ``temperature_rotor``/``temperature_mos``,
   ``command_step`` (MIT drives: the largest step of the commanded position since the drive was enabled, joint
   space; 0 elsewhere), ``longest_command_gap_ms`` (MIT drives: the longest silence their watchdog saw since the
-  drive was enabled; 0 elsewhere).
+  drive was enabled; 0 elsewhere); CiA 402 drives add ``cia402_state`` (e.g. "OPERATION ENABLED"), ``nmt_state``
+  (5 operational, 127 pre-operational, 4 stopped), ``mode`` (0x6061) and ``error_code`` (0x603F).
 * ``{"op": "fault", "joint": J, "code": C}`` — latch a drive fault (Damiao 0x5…0xE, T-Motor 1…6, MyActuator
   flags, ODrive axis error bits, CiA 402 EMCY error codes such as 0x2310 overcurrent, 0x3210 DC link
   overvoltage, 0x4310 over-temperature, 0x5530 hardware, 0x8611 following error: the drive goes to FAULT,
@@ -563,6 +564,7 @@ class EmulatorRuntime:
                         "longest_command_gap_ms": round(1000.0 * float(getattr(fw, "longest_command_gap", 0.0)), 3),
                         "temperature_rotor": round(float(fw.temperature_rotor), 2),
                         "temperature_mos": round(float(fw.temperature_mos), 2),
+                        **(_cia402_status(fw) if isinstance(fw, Cia402Firmware) else {}),
                     }
                 )
         buses = [
@@ -705,6 +707,12 @@ def describe(runtime: EmulatorRuntime) -> list[str]:
     brakes = any(isinstance(rig.plant, BrakedPlant) for rig in runtime.rigs)
     lines.append(f"plant: {plant}, holding brakes {'on' if brakes else 'off'}")
     return lines
+
+
+def _cia402_status(fw: Cia402Firmware) -> dict[str, Any]:
+    """A CiA 402 drive's own words: its 402 state, NMT state, mode display and latched error code (0x603F)."""
+    return {"cia402_state": fw.state, "nmt_state": int(fw.nmt_state), "mode": int(fw.mode_display),
+            "error_code": int(fw.error_code)}  # fmt: skip
 
 
 def _ident(fw: MotorFirmware) -> str:

@@ -161,3 +161,20 @@ def test_home_runs_the_drives_own_homing_and_hold_takes_over_in_its_new_frame() 
         assert not rig.any_fault()
     finally:
         rig.close()
+
+
+def test_in_cst_hold_keeps_the_arm_still_and_a_trajectory_arrives() -> None:
+    """CST: the drive takes torque only; hild applies hold's and the trajectory's servo law on the torque path."""
+    rig = EngineRig(mode="cst")
+    try:
+        assert all(fw.mode == 10 for fw in rig.firmwares)
+        rig.seconds(0.5)
+        np.testing.assert_allclose(rig.engine.state.position, START, atol=5e-3)  # held where it was: no jump
+        assert not rig.any_fault()
+        rig.switch([JTC])
+        result = rig.finish(rig.move([0.3, -0.2]))
+        assert result.status == "succeeded", result
+        np.testing.assert_allclose(rig.engine.state.position, [0.5, -0.5], atol=0.01)
+        assert not rig.any_fault()
+    finally:
+        rig.close()
