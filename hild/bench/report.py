@@ -656,6 +656,21 @@ def _hild_lines(report: dict[str, Any]) -> list[str]:
         )
         lines.append("")
 
+    buses = [r for r in scenarios if r.get("bus")]
+    if buses:
+        lines.append("CAN BUS (% of the buses' bitrate; check = hild check's worst case from the drivers' layouts)")
+        w = (12, 6, 9, 10, 10, 12)
+        lines.append(_row(["scenario", "rate", "bitrate", "check %", "crossed %", "frames/s"], w))
+        for r in buses:
+            b = r["bus"]
+            cells = [r["name"], f"{r['rate_hz']:g}", f"{b['buses_bitrate'] / 1e6:g} M", b["check_load_pct"]]
+            lines.append(_row([*cells, b["measured_load_pct"], b["frames_per_s"]], w))
+        lines.append(
+            "(crossed = every frame on the emulated buses in the window, both ways, in the same worst-case bits: "
+            "RPDOs/commands, SYNC, TPDOs/replies, heartbeats)"
+        )
+        lines.append("")
+
     latency = report.get("latency", [])
     if latency:
         lines.append("LATENCY (cross-process, CLOCK_MONOTONIC; n = matched / sent)")

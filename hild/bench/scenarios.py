@@ -72,6 +72,7 @@ from hild.bench.probes.zenoh_loopback import Decoy
 from hild.bench.report import loop_figures, rise_pct, summarize_ns
 from hild.bench.rigs import rig_class
 from hild.config.documents import load_document
+from hild.config.loader import load_config
 from hild.crossing.stats import percentiles
 
 ARM6 = CONFIGS / "arm6_twin.yaml"
@@ -282,6 +283,7 @@ class HostProcess(LoggedChild):
 
     def __init__(self, config: Path, log: Path, rig: str | None, bridge: bool = False, stock: bool = False) -> None:
         self.endpoint = free_endpoint()
+        self.config = config
         self.cycle_pid: int | None = None
         self.bridged = bool(rig and bridge)
         self.stock_bridge = self.bridged and stock
@@ -443,6 +445,7 @@ def run_scenario(scenario: Scenario, workdir: Path, settings: Settings) -> tuple
             "cycle_python_threads": window["cycle_python_threads"],
             "can_bus": can_bus(s.host) if scenario.rig is not None else None,
             "can_bridge": can_bridge(s.host) if scenario.rig is not None else None,
+            "bus": bus_figures(s.host.config, window["counters"], window["seconds"]) if scenario.rig else None,
             "cpu": window["cpu"],
             "goals": dict(keeper.results),
             "mode": window["mode"],
@@ -513,6 +516,28 @@ def measure_latency(s: Session, settings: Settings) -> dict[str, Any]:
         "control_clock_lag_us": round(history[-1][1] / 1e3, 1) if history else 0.0,
         "can_bus": can_bus(s.host),
         "can_bridge": can_bridge(s.host),
+    }
+
+
+def bus_figures(config: Path, counters: dict[str, int], seconds: float) -> dict[str, Any]:
+    """The CAN buses' load: what ``hild check`` computes from the drivers' frame layouts (worst case, bit stuffing
+    included) beside what crossed the emulated buses in the window (the same worst-case bits, every frame both
+    ways), each in % of the summed bitrates."""
+    loaded = load_config(config)
+    check, capacity = 0.0, 0.0
+    for name, hw in loaded.config.hardware.items():
+        cls, params = loaded.driver_classes[name], loaded.driver_params[name]
+        for usage in cls.bus_usage(params, list(hw.joints), loaded.config.update_rate):
+            check += usage.bits_per_second
+            capacity += usage.capacity
+    if capacity <= 0.0:
+        return {}
+    frames, bits = counters.get("bus frames", 0), counters.get("bus bits", 0)
+    return {
+        "buses_bitrate": capacity,
+        "check_load_pct": round(100.0 * check / capacity, 1),
+        "measured_load_pct": round(100.0 * bits / seconds / capacity, 1) if seconds > 0 else None,
+        "frames_per_s": round(frames / seconds) if seconds > 0 else None,
     }
 
 

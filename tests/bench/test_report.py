@@ -352,3 +352,14 @@ def test_command_to_frame_with_no_probe_matched_is_a_miss_not_a_gap() -> None:
     frame = _rt(report)[("Zenoh command → CAN frame p99", "can6@1000")]
     assert frame["measured"] is None and frame["status"] == "MISS"
     assert "150 of 300 probes never matched a frame" in frame["detail"]
+
+
+def test_a_can_scenario_prints_its_bus_figures_beside_hild_checks() -> None:
+    report = _report()
+    row = _scenario("cia402_6", 500.0, 300.0, 40.0, 0.0, 30.0)
+    row["bus"] = {"buses_bitrate": 1e6, "check_load_pct": 84.1, "measured_load_pct": 83.9, "frames_per_s": 6547}
+    report["scenarios"].append(row)
+    text = format_report(report)
+    lines = [line for line in text.splitlines() if line.startswith("cia402_6@500")]
+    assert any("84.1" in line and "83.9" in line and "6547" in line for line in lines), text
+    assert "CAN BUS" in text

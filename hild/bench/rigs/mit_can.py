@@ -145,25 +145,36 @@ def robot_config(motors: int, rate: float) -> dict[str, Any]:
 
 
 class FrameTap:
-    """The emulator's bus, recording the frames of ``watched`` ids while ``recording`` (emulator thread only)."""
+    """The emulator's bus, counting every frame and its worst-case bits (the bus figures), and recording the frames
+    of ``watched`` ids while ``recording`` (emulator thread only)."""
 
     def __init__(self, bus: can.BusABC, watched: set[int]) -> None:
         self.bus = bus
         self.watched = watched
         self.recording = False
         self.frames: list[tuple[float, int, bytes]] = []
+        self.frame_count = 0
+        self.bits = 0.0
 
     def recv(self, timeout: float | None = None) -> can.Message | None:
         msg = self.bus.recv(timeout)
-        if msg is not None and self.recording and msg.arbitration_id in self.watched:
-            self.frames.append((msg.timestamp, msg.arbitration_id, bytes(msg.data)))
+        if msg is not None:
+            self._count(msg)
+            if self.recording and msg.arbitration_id in self.watched:
+                self.frames.append((msg.timestamp, msg.arbitration_id, bytes(msg.data)))
         return msg
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         stamp = time.time()
         self.bus.send(msg, timeout)
+        self._count(msg)
         if self.recording and msg.arbitration_id in self.watched:
             self.frames.append((stamp, msg.arbitration_id, bytes(msg.data)))
+
+    def _count(self, msg: can.Message) -> None:
+        if not msg.is_error_frame:
+            self.frame_count += 1
+            self.bits += frame_bits(len(msg.data), fd=msg.is_fd, extended=msg.is_extended_id)
 
     def shutdown(self) -> None:
         self.bus.shutdown()
@@ -225,6 +236,7 @@ class CanBenchRig:
         self._open_channel = open_channel
         self.emulators: list[Emulator] = []
         self.tap: FrameTap | None = None
+        self.taps: list[FrameTap] = []  # every bus, for the bus figures
         self.probe: Probe | None = None
         self.drivers: list[Any] = []
         self._thread: threading.Thread | None = None
@@ -240,11 +252,12 @@ class CanBenchRig:
         """Open the emulated drives on the config's buses and start serving them (before the daemon configures)."""
         try:
             for spec, firmware, plant, probe in self.drives(loaded):
-                bus: Any = self._open_channel(spec)
-                if self.tap is None:  # the first drive's bus carries the latency probes
-                    self.probe = probe
-                    bus = self.tap = FrameTap(bus, probe.ids)
-                self.emulators.append(Emulator(bus, firmware, plant))
+                first = self.tap is None  # the first drive's bus carries the latency probes
+                tap = FrameTap(self._open_channel(spec), probe.ids if first else set())
+                if first:
+                    self.probe, self.tap = probe, tap
+                self.taps.append(tap)
+                self.emulators.append(Emulator(tap, firmware, plant))
         except BaseException:
             self._close_buses()
             raise
@@ -304,6 +317,8 @@ class CanBenchRig:
         for driver in self.drivers:
             for key, value in driver.statistics.items():
                 out[f"driver {key}"] = out.get(f"driver {key}", 0) + value
+        out["bus frames"] = sum(tap.frame_count for tap in self.taps)  # every bus, both ways
+        out["bus bits"] = round(sum(tap.bits for tap in self.taps))  # worst case (bit stuffing included)
         return out
 
     def listen(self, on: bool) -> dict[str, Any]:
@@ -336,3 +351,4 @@ class CanBenchRig:
         for emulator in self.emulators:
             emulator.bus.shutdown()
         self.emulators = []
+        self.taps = []

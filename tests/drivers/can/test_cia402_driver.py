@@ -7,7 +7,6 @@ store, its PDO layout from the PDO maps canopen reads from that store, its RPDOs
 from __future__ import annotations
 
 import math
-
 import threading
 import uuid
 from collections.abc import Iterator
