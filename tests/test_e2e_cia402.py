@@ -4,8 +4,9 @@ in cyclic synchronous position, hild producing SYNC.
 
 What issue [cia402] asks of the loopback rig, in one run: start holds without a jump, a trajectory arrives, an EMCY
 fault latches with its standard name and reset confirms it from the statusword (not re-enabled), enable brings the
-drive back, a drive that falls silent faults within the stale bound, and Ctrl-C ends in a confirmed Switch On
-Disabled on every drive. Every wait is for a condition with a generous timeout; both processes are always killed.
+drive back, `home` runs a drive's own homing and it returns to CSP, a drive that falls silent faults within the
+stale bound, and Ctrl-C ends in a confirmed Switch On Disabled on every drive. Every wait is for a condition with a
+generous timeout; both processes are always killed.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import signal
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -94,6 +96,18 @@ def test_the_cia402_loopback_rig_runs_the_tour(rig: Cia402Processes) -> None:
         arm.call("enable", {"joints": ["wrist_3"]})
         wait_for(lambda: rig.drives()[5]["cia402_state"] == ENABLED, 10.0, "wrist_3 enabled again")
         wait_for(lambda: faults() == [None] * 6, 10.0, "every joint healthy again")
+
+        # Homing (the drive's own, mode 6, method 37 here): `home` answers at once, the status says how it ends.
+        assert arm.call("home", {"joint": "wrist_3"})["state"] == "running"
+
+        def homing() -> dict[str, Any]:
+            return next(h for h in arm.status()["homing"] if h["joint"] == "wrist_3")
+
+        wait_for(lambda: homing()["state"] != "running", 15.0, "the homing's end")
+        assert homing()["state"] == "attained", homing()
+        assert rig.drives()[5]["mode"] == 8 and rig.drives()[5]["cia402_state"] == ENABLED  # back in CSP
+        wait_for(lambda: abs(measured()[5]) < 2e-3, 10.0, "wrist_3 read at its new home (0)")
+        assert faults() == [None] * 6, faults()
 
         # Silence (the transceiver cut: no TPDO, no heartbeat): the joint goes stale within the configured bound
         # (25 missed cycles and 0.2 s, plus a cycle; here also the wall time of two processes on a shared machine).

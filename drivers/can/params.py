@@ -203,6 +203,12 @@ class Cia402Params(CanDriverParams):
         description="disable: drives go to Switch On Disabled on stop (confirmed). hold: they stay in Operation "
         "Enabled at their last target.",
     )
+    brakes: bool = Field(
+        default=False,
+        description="The motors have holding brakes the drives apply themselves when they leave Operation Enabled "
+        "(CiA 402 brake control): disabling never drops the arm, so hild check does not ask for stop_descent "
+        "(which a CSP/CSV drive cannot follow: it holds whatever position it is sent).",
+    )
 
     @property
     def heartbeat_timeout(self) -> float:

@@ -192,6 +192,12 @@ class Cia402Driver(CanComponent):
         }
 
     @classmethod
+    def holds_at_stop(cls, params: Params) -> bool:
+        """Drives left holding (``on_deactivate: hold``), or motors whose brakes the drives apply on disable."""
+        assert isinstance(params, Cia402Params)
+        return params.on_deactivate == "hold" or params.brakes
+
+    @classmethod
     def files(cls, params: Params) -> dict[str, str]:
         assert isinstance(params, Cia402Params)
         named = {"eds": params.eds}

@@ -157,3 +157,11 @@ def test_a_missing_eds_is_refused_at_load(tmp_path: Path) -> None:
     config["hardware"]["arm"]["params"]["eds"] = "nowhere.eds"
     with pytest.raises(ConfigError, match=r"hardware\.arm\.params\.eds: file not found: .*nowhere\.eds"):
         load(tmp_path, config)
+
+
+def test_drives_that_brake_on_disable_hold_at_stop() -> None:
+    """hild check's stop review asks for stop_descent only where disabling drops the arm."""
+    raw = robot(2)["hardware"]["arm"]["params"]
+    assert not Cia402Driver.holds_at_stop(Cia402Params.model_validate(raw))
+    assert Cia402Driver.holds_at_stop(Cia402Params.model_validate({**raw, "brakes": True}))
+    assert Cia402Driver.holds_at_stop(Cia402Params.model_validate({**raw, "on_deactivate": "hold"}))
