@@ -19,7 +19,7 @@ from drivers.can.emulator import MotorFirmware, MotorPlant, Plant
 from drivers.can.emulator.cia402_firmware import Cia402Firmware
 from drivers.can.emulator.runtime import build_firmware
 from drivers.can.params import Cia402Params
-from hild.bench.rigs.mit_can import START_POSITIONS, CanBenchRig, Probe
+from hild.bench.rigs.mit_can import START_POSITIONS, CanBenchRig, Probe, bench_controllers
 from hild.config.loader import LoadedConfig
 
 EDS = Path(__file__).resolve().parents[3] / "configs" / "cia402_generic.eds"
@@ -74,21 +74,7 @@ def robot_config(drives: int, rate: float) -> dict[str, Any]:
             }
             for name in names
         },
-        "controllers": {
-            "joint_state_broadcaster": {
-                "type": "joint_state_broadcaster",
-                "params": {"publish_rate": 100},
-                "autostart": True,
-            },
-            "joint_trajectory": {
-                "type": "joint_trajectory",
-                "params": {"joints": names, "command_interfaces": ["position"]},  # CSP: no velocity offset
-            },
-            "forward_position": {
-                "type": "forward_command",
-                "params": {"joints": names, "interface": "position", "command_timeout": 0.5},
-            },
-        },
+        "controllers": bench_controllers(names, ["position"]),  # CSP: no velocity offset in the 8-byte RPDO
         "safety": {"fault_action": "hold", "estop_action": "hold", "stale_feedback_cycles": STALE_FEEDBACK_CYCLES},
     }
 

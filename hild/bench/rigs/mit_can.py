@@ -123,24 +123,30 @@ def robot_config(motors: int, rate: float) -> dict[str, Any]:
         "clock": {"source": "wall"},
         "hardware": hardware,
         "joints": joints,
-        "controllers": {
-            "joint_state_broadcaster": {
-                "type": "joint_state_broadcaster",
-                "params": {"publish_rate": 100},
-                "autostart": True,
-            },
-            "joint_trajectory": {
-                "type": "joint_trajectory",
-                "params": {"joints": names, "command_interfaces": ["position", "velocity"]},
-            },
-            "forward_position": {
-                "type": "forward_command",
-                "params": {"joints": names, "interface": "position", "command_timeout": 0.5},
-            },
-        },
+        "controllers": bench_controllers(names, ["position", "velocity"]),
         # The emulated drives share the daemon's GIL: on a loaded 2-core machine their thread can miss 10 ms, which
         # the default (10 cycles) would report as a drive that stopped answering. Real drives do not pause so.
         "safety": {"fault_action": "hold", "estop_action": "hold", "stale_feedback_cycles": STALE_FEEDBACK_CYCLES},
+    }
+
+
+def bench_controllers(names: list[str], trajectory_interfaces: list[str]) -> dict[str, Any]:
+    """Every CAN rig's controllers: ``joint_state_broadcaster`` (100 Hz, autostart), ``joint_trajectory`` on
+    ``trajectory_interfaces`` (the bench's trajectory) and ``forward_position`` (the latency probes)."""
+    return {
+        "joint_state_broadcaster": {
+            "type": "joint_state_broadcaster",
+            "params": {"publish_rate": 100},
+            "autostart": True,
+        },
+        "joint_trajectory": {
+            "type": "joint_trajectory",
+            "params": {"joints": names, "command_interfaces": trajectory_interfaces},
+        },
+        "forward_position": {
+            "type": "forward_command",
+            "params": {"joints": names, "interface": "position", "command_timeout": 0.5},
+        },
     }
 
 
