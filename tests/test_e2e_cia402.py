@@ -46,6 +46,21 @@ def rig(tmp_path: Path) -> Iterator[Cia402Processes]:
         rigs.close()
 
 
+def run_trajectory(arm: Any, rig: CanProcesses, home: np.ndarray) -> None:
+    """The standard trajectory (half size) from ``home``, to its end: succeeded, and the plant back at ``home``."""
+    goal = standard_trajectory([j["name"] for j in arm.status()["joints"]], home.tolist(), scale=0.5)
+    with arm.send_goal("joint_trajectory", goal) as handle:
+        deadline = time.monotonic() + 60.0
+        while True:
+            try:
+                result = handle.wait(0.2)
+                break
+            except HildError:
+                assert time.monotonic() < deadline, f"no result after 60 s\n{rig.logs()}"
+    assert result["status"] == "succeeded", f"{result}\n{rig.logs()}"
+    wait_for(lambda: np.abs(rig.positions() - home).max() < 0.01, 15.0, "the arm back home")
+
+
 def test_the_cia402_loopback_rig_runs_the_tour(rig: Cia402Processes) -> None:
     before = rig.positions()  # where the unpowered (braked) arm rests
     assert {d["cia402_state"] for d in rig.drives()} == {DISABLED}
@@ -68,17 +83,12 @@ def test_the_cia402_loopback_rig_runs_the_tour(rig: Cia402Processes) -> None:
         home = measured()
 
         arm.switch(activate=["joint_trajectory"])
-        goal = standard_trajectory(list(states.last()["name"]), home.tolist(), scale=0.5)  # type: ignore[index]
-        with arm.send_goal("joint_trajectory", goal) as handle:
-            deadline = time.monotonic() + 60.0
-            while True:
-                try:
-                    result = handle.wait(0.2)
-                    break
-                except HildError:
-                    assert time.monotonic() < deadline, f"no result after 60 s\n{rig.logs()}"
+        # move_to within the goal tolerance (0.01 rad per joint: the config's constraints), checked on the plant.
+        target = home + np.array([0.2, -0.15, 0.2, 0.3, -0.3, 0.4])
+        result = arm.move_to("joint_trajectory", target.tolist(), timeout=60.0)
         assert result["status"] == "succeeded", f"{result}\n{rig.logs()}"
-        wait_for(lambda: np.abs(rig.positions() - home).max() < 0.01, 15.0, "the arm back home")
+        assert np.abs(rig.positions() - target).max() < 0.01, (rig.positions(), target)
+        run_trajectory(arm, rig, home)
         arm.switch(deactivate=["joint_trajectory"])
 
         def faults() -> list[str | None]:
@@ -125,3 +135,28 @@ def test_the_cia402_loopback_rig_runs_the_tour(rig: Cia402Processes) -> None:
     assert all(d["cia402_state"] == DISABLED or d["name"] == "wrist_2" for d in drives), drives
     assert request(rig.control, {"op": "stop"}) == {"ok": True}
     assert rig.emulator.wait(30) == 0, rig.logs()
+
+
+class CstProcesses(Cia402Processes):
+    """The same rig with the daemon's drives in cyclic synchronous torque: hild closes the servo law over the bus."""
+
+    PATCHES = (("      mode: csp ", "      mode: cst "),)
+
+
+def test_in_cst_the_arm_holds_and_a_trajectory_arrives_over_the_loopback_bus(tmp_path: Path) -> None:
+    rig = CstProcesses(tmp_path)
+    try:
+        before = rig.positions()
+        with rig.start_daemon() as arm:
+            drives = rig.drives()
+            assert all(d["cia402_state"] == ENABLED and d["mode"] == 10 for d in drives), drives
+            time.sleep(0.5)
+            assert np.abs(rig.positions() - before).max() < 5e-3, (rig.positions(), before)  # held: no jump, no sag
+            states = Recorder()
+            arm.subscribe("joint_states", states)
+            wait_for(lambda: states.last() is not None, 10.0, "joint_states")
+            arm.switch(activate=["joint_trajectory"])
+            run_trajectory(arm, rig, np.array(states.last()["position"]))  # type: ignore[index]
+            assert all(j["fault"] is None for j in arm.status()["joints"]), arm.status()["joints"]
+    finally:
+        rig.close()

@@ -157,6 +157,7 @@ class CanProcesses:
     MODEL = "arm6.xml"  # the config's robot.model, made absolute in the copy the daemon runs
     EDS: str | None = None  # a cia402 config's EDS (``eds:``), made absolute likewise
     SERVED = "ws://127.0.0.1:54701/"  # the bus channel the config names, replaced by the free port's
+    PATCHES: tuple[tuple[str, str], ...] = ()  # (text, replacement) in the daemon's copy (e.g. another mode)
     EMULATOR_PRIORITY = 50
 
     def __init__(self, directory: Path, emulator_args: Sequence[str] = ()) -> None:
@@ -180,6 +181,10 @@ class CanProcesses:
             )
             if self.EDS is not None:
                 text = text.replace(f"eds: {self.EDS}", f"eds: {CONFIGS / self.EDS}")
+            for old, new in self.PATCHES:
+                if old not in text:
+                    raise ValueError(f"{self.CONFIG} has no {old!r} to patch")
+                text = text.replace(old, new)
             self.config.write_text(text)
         except BaseException:
             self.close()
