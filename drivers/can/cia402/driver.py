@@ -34,10 +34,10 @@ import canopen
 from canopen.nmt import NMT_STATES
 from canopen.sdo.constants import EXPEDITED, REQUEST_DOWNLOAD, RESPONSE_ABORTED, RESPONSE_DOWNLOAD, SIZE_SPECIFIED
 
-from drivers.can.bus import bits_per_second, frame_bits
-from drivers.can.cia402 import pdo, state
+from drivers.can.cia402 import pdo, review, state
 from drivers.can.cia402.errors import describe_error_code, emcy_code
 from drivers.can.cia402.pdo import Layout, layout_for
+from drivers.can.cia402.review import EMCY_BASE, HEARTBEAT_BASE, SDO_REQUEST_BASE, SDO_RESPONSE_BASE
 from drivers.can.cia402.sdo import LinkNetwork, run_transfers
 from drivers.can.cia402.wiring import MODE_CODES, DriveWiring, load_dictionary, wire_drives
 from drivers.can.component import CanComponent
@@ -87,10 +87,6 @@ NMT_BOOT_UP = 0x00
 NMT_RESET_COMMUNICATION = 0x82
 NMT_START = 0x01
 HOMING_MODE = 6
-HEARTBEAT_BASE = 0x700
-EMCY_BASE = 0x80
-SDO_RESPONSE_BASE = 0x580
-SDO_REQUEST_BASE = 0x600
 RESET_EDGE_TIME = 0.002  # s each controlword level of the fault-reset edge is held (a 1 ms drive loop sees both)
 RESET_CONFIRM_TIME = 0.4  # s the statusword has to leave FAULT after the edge (within the engine's 0.5 s)
 MIN_LIFECYCLE_WAIT = 0.05  # s: a walk through the state machine needs several SYNC exchanges
@@ -102,13 +98,7 @@ _SDO_DOWNLOAD_1 = REQUEST_DOWNLOAD | EXPEDITED | SIZE_SPECIFIED | (3 << 2)  # 0x
 _SDO_ABORT_CODE = struct.Struct("<I")
 _VELOCITY_UNPACK = pdo.Pdo(2, (pdo.VELOCITY_ACTUAL,)).layout.unpack_from
 
-# Thresholds of review's resolution warnings (at the actuator): a command step coarser than this is noticeable.
-POSITION_STEP_LIMIT = 1e-4  # rad: one position unit above 0.1 mrad
-VELOCITY_STEP_LIMIT = 1e-3  # rad/s: one velocity unit above 1 mrad/s
-TORQUE_STEP_LIMIT = 0.05  # N·m: one per mille of rated torque above 50 mN·m (rated torque above 50 N·m)
-
 _OPERATE = state.HOLD_CW[state.OPERATION_ENABLED]
-_REVIEWED = ("configured for joints", "is also used by")  # wire_drives problems `review` already reports
 # Homing phases of one drive.
 _IDLE, _MODE_REQUESTED, _RUNNING, _RETURNING = range(4)
 
@@ -141,38 +131,10 @@ class _IntegerRange:
         return clamped
 
 
-def interpolation_period(period: float) -> tuple[int, int] | None:
-    """0x60C2 (value, exponent) with value × 10^exponent = `period` s, value 1..255; None when none is exact."""
-    for exponent in range(0, -7, -1):
-        value = period / 10.0**exponent
-        if 1 <= round(value) <= 255 and abs(value - round(value)) <= 1e-6 * value:
-            return round(value), exponent
-    return None
-
-
 def _problems(params: Cia402Params, joints: Sequence[str], config_dir: Path) -> tuple[list[DriveWiring], list[str]]:
+    """Every reason the params cannot work (what ``hild check`` reports as errors), with the wiring."""
     wiring, problems = wire_drives(params, joints, config_dir)
-    if params.heartbeat_ms and params.heartbeat_timeout * 1000.0 <= params.heartbeat_ms:
-        problems.append(
-            f"heartbeat_timeout_ms {params.heartbeat_timeout * 1000.0:g} must exceed heartbeat_ms {params.heartbeat_ms}"
-        )
-    for joint, drive in params.drives.items():
-        if 0x80 + drive.node_id == params.sync_id:
-            problems.append(f"{joint}: node {drive.node_id}'s EMCY id {0x80 + drive.node_id:#x} is the SYNC id")
-    return wiring, problems
-
-
-def _mappable(w: DriveWiring) -> Callable[[int], bool]:
-    """Index → the drive's EDS lets it be mapped into a PDO."""
-    od = load_dictionary(w.eds, w.node_id)
-    return lambda index: index in od and bool(getattr(od[index], "pdo_mappable", False))
-
-
-def _layouts(params: Cia402Params) -> dict[str, Layout]:
-    return {
-        joint: layout_for(drive.mode or params.mode, params.velocity_feedback, params.bus.fd)
-        for joint, drive in params.drives.items()
-    }
+    return wiring, problems + [p for p in review.static_problems(params, joints) if p not in problems]
 
 
 class Cia402Driver(CanComponent):
@@ -182,14 +144,11 @@ class Cia402Driver(CanComponent):
     COMMAND_FIELDS = frozenset({"position", "velocity", "effort"})  # the union; each drive applies its mode's
     APPLIES_GAINS = False  # CSP/CSV run the drive's own loops: hild's kp/kd never reach it (CST: gains_applied)
 
-    # ---- config review (class level) -----------------------------------------------------------------------
+    # ---- config review (class level: drivers/can/cia402/review.py) ---------------------------------------------
     @classmethod
     def command_fields(cls, params: Params, joints: Sequence[str]) -> dict[str, frozenset[str]]:
         assert isinstance(params, Cia402Params)
-        return {
-            j: MODE_FIELDS[(params.drives[j].mode or params.mode) if j in params.drives else params.mode]
-            for j in joints
-        }
+        return {j: MODE_FIELDS[review.mode_of(params, j)] for j in joints}
 
     @classmethod
     def holds_at_stop(cls, params: Params) -> bool:
@@ -206,127 +165,18 @@ class Cia402Driver(CanComponent):
 
     @classmethod
     def review(cls, params: Params, joints: Sequence[str], update_rate: float) -> list[Finding]:
-        """What needs no file: heartbeat settings, ids, the interpolation period, FD vs the layout."""
         assert isinstance(params, Cia402Params)
-        findings: list[Finding] = []
-        if params.heartbeat_ms and params.heartbeat_timeout * 1000.0 <= params.heartbeat_ms:
-            findings.append(
-                Finding(
-                    "error",
-                    f"heartbeat_timeout_ms {params.heartbeat_timeout * 1000.0:g} must exceed heartbeat_ms "
-                    f"{params.heartbeat_ms}",
-                )
-            )
-        if params.heartbeat_ms == 0:
-            findings.append(Finding("warning", "heartbeat_ms 0: a silent drive is noticed only by its missing TPDOs"))
-        elif params.heartbeat_timeout > 0.5:
-            findings.append(
-                Finding("warning", f"heartbeat timeout {params.heartbeat_timeout:g} s: a dead node is noticed late")
-            )
-        seen: dict[int, str] = {}
-        for joint, drive in params.drives.items():
-            if drive.node_id in seen:
-                findings.append(
-                    Finding("error", f"{joint}: node id {drive.node_id} is also used by {seen[drive.node_id]}")
-                )
-            seen.setdefault(drive.node_id, joint)
-            if EMCY_BASE + drive.node_id == params.sync_id:
-                findings.append(
-                    Finding(
-                        "error",
-                        f"{joint}: node {drive.node_id}'s EMCY id {EMCY_BASE + drive.node_id:#x} is the SYNC id",
-                    )
-                )
-        missing = [j for j in joints if j not in params.drives]
-        if missing:
-            findings.append(Finding("error", f"no drive configured for joints {missing}"))
-        extra = [j for j in params.drives if j not in joints]
-        if extra:
-            findings.append(Finding("error", f"drives configured for joints this component does not drive: {extra}"))
-        if interpolation_period(1.0 / update_rate) is None:
-            findings.append(
-                Finding(
-                    "warning",
-                    f"0x60C2 interpolation period cannot express the cycle period {1000.0 / update_rate:.6g} ms "
-                    "exactly (value 1..255 × 10^n s): the drives interpolate with a rounded period",
-                )
-            )
-        if params.bus.fd and params.velocity_feedback == "derived":
-            findings.append(
-                Finding("info", "bus.fd: velocity (0x606C) and error code (0x603F) travel in the one FD TPDO")
-            )
-        if not params.bus.fd and params.velocity_feedback == "pdo":
-            findings.append(Finding("info", "velocity_feedback: pdo on classic CAN: a second TPDO per drive and cycle"))
-        return findings
+        return review.review(params, joints, update_rate)
 
     @classmethod
     def review_files(cls, params: Params, joints: Sequence[str], update_rate: float, config_dir: Path) -> list[Finding]:
-        """What needs the EDS: wiring problems, modes the drive lacks, and scales coarser than a joint needs."""
         assert isinstance(params, Cia402Params)
-        wiring, problems = wire_drives(params, joints, config_dir)
-        findings = [Finding("error", p) for p in problems if not any(x in p for x in _REVIEWED)]
-        for w in wiring:
-            mappable = _mappable(w)
-            full = layout_for(w.mode, params.velocity_feedback, params.bus.fd)
-            for entry in full.entries():
-                if mappable(entry.index):
-                    continue
-                if entry in pdo.OPTIONAL:
-                    what = "effort (the torque offset) is not applied" if entry == pdo.TORQUE_OFFSET else "not read"
-                    findings.append(
-                        Finding("warning", f"{w.joint}: the EDS does not let {entry.index:#06x} be mapped: {what}")
-                    )
-                else:
-                    findings.append(
-                        Finding("error", f"{w.joint}: the EDS does not let {entry.index:#06x} be mapped into a PDO")
-                    )
-            step = 1.0 / w.counts_per_rad
-            if w.mode == "csp" and step > POSITION_STEP_LIMIT:
-                findings.append(
-                    Finding(
-                        "warning",
-                        f"{w.joint}: one position unit is {step * 1000:.3g} mrad at the actuator (coarser than "
-                        f"{POSITION_STEP_LIMIT * 1000:g} mrad): raise counts_per_rev if the drive has the resolution",
-                    )
-                )
-            vstep = 1.0 / w.velocity_per_rad_s
-            if w.mode == "csv" and vstep > VELOCITY_STEP_LIMIT:
-                findings.append(
-                    Finding(
-                        "warning",
-                        f"{w.joint}: one velocity unit is {vstep * 1000:.3g} mrad/s (coarser than "
-                        f"{VELOCITY_STEP_LIMIT * 1000:g} mrad/s): lower velocity_factor's unit if the drive allows",
-                    )
-                )
-            tstep = w.rated_torque / 1000.0
-            if tstep > TORQUE_STEP_LIMIT:
-                findings.append(
-                    Finding(
-                        "warning",
-                        f"{w.joint}: one per mille of rated torque is {tstep * 1000:.3g} mN·m (coarser than "
-                        f"{TORQUE_STEP_LIMIT * 1000:g} mN·m): torque commands move in steps of that size",
-                    )
-                )
-        return findings
+        return review.review_files(params, joints, config_dir)
 
     @classmethod
     def bus_usage(cls, params: Params, joints: Sequence[str], update_rate: float) -> list[BusUsage]:
-        """Every PDO of the layout at the cycle rate, SYNC (produced or not, it is on the bus), heartbeats."""
         assert isinstance(params, Cia402Params)
-        frames: list[tuple[int, float]] = []
-        ids: set[int] = set()
-        for joint, layout in _layouts(params).items():
-            node = params.drives[joint].node_id
-            frames.extend((size, update_rate) for size in layout.frame_sizes())
-            ids.add(pdo.rpdo_cob_id(layout.rpdo.number, node))
-            ids.update(pdo.tpdo_cob_id(p.number, node) for p in layout.tpdos)
-            ids.update({EMCY_BASE + node, HEARTBEAT_BASE + node, SDO_REQUEST_BASE + node, SDO_RESPONSE_BASE + node})
-        bps = bits_per_second(params.bus, frames)
-        bps += update_rate * frame_bits(0)  # SYNC: a classic frame without counter, also on an FD bus
-        if params.heartbeat_ms:  # classic 1-byte frames
-            bps += len(params.drives) * 1000.0 / params.heartbeat_ms * frame_bits(1)
-        ids.add(params.sync_id)
-        return [BusUsage(params.bus.name, bps, float(params.bus.bitrate), frozenset(ids))]
+        return review.bus_usage(params, update_rate)
 
     # ---- construction --------------------------------------------------------------------------------------
     def __init__(self, context: HardwareContext, params: Cia402Params) -> None:
@@ -339,7 +189,7 @@ class Cia402Driver(CanComponent):
         self.nodes = [w.node_id for w in wiring]
         n = len(wiring)
         self.modes = [w.mode for w in wiring]
-        self.layouts = [layout_for(w.mode, params.velocity_feedback, params.bus.fd, _mappable(w)) for w in wiring]
+        self.layouts = [layout_for(w.mode, params.velocity_feedback, params.bus.fd, review.mappable(w)) for w in wiring]
         fields: frozenset[str] = frozenset().union(
             *(
                 MODE_FIELDS[m] if m == "cst" or layout.has_torque_offset else MODE_FIELDS[m] - {"effort"}
@@ -521,7 +371,7 @@ class Cia402Driver(CanComponent):
         sdo[0x6060].raw = MODE_CODES[w.mode]
         self._map_pdos(node.rpdo, layout, w.node_id, receive=True)
         self._map_pdos(node.tpdo, layout, w.node_id, receive=False)
-        ipp = interpolation_period(self._period)
+        ipp = review.interpolation_period(self._period)
         if ipp is not None and 0x60C2 in od:
             sdo[0x60C2][1].raw, sdo[0x60C2][2].raw = ipp
         if self._produce_sync and 0x1006 in od:

@@ -22,8 +22,8 @@ from drivers.can.cia402.driver import (
     FAULT_NOT_ENABLED,
     FAULT_STATE,
     Cia402Driver,
-    interpolation_period,
 )
+from drivers.can.cia402.review import interpolation_period
 from drivers.can.params import Cia402Params
 from hild.arrays import JointState, ServoCommand
 from hild.hardware import HardwareContext, HardwareError, Homing
