@@ -33,7 +33,7 @@ from hild.crossing.ring import RingReader
 G = TypeVar("G")
 
 CLIENT_KEY = "client"  # optional key of a goal body: the sender's liveliness id
-_CLIENT_ID = re.compile(r"^[A-Za-z0-9_\-.]{1,64}$")  # one Zenoh key chunk, bounded
+_CLIENT_ID = re.compile(r"[A-Za-z0-9_\-.]{1,64}")  # one Zenoh key chunk, bounded (fullmatch: no final "\n")
 
 
 class GoalEndpoint(Generic[G]):
@@ -188,7 +188,7 @@ def split_client(payload: Any) -> tuple[Any, str | None]:
     if not isinstance(payload, dict) or CLIENT_KEY not in payload:
         return payload, None
     client = payload[CLIENT_KEY]
-    if not isinstance(client, str) or not _CLIENT_ID.match(client):
+    if not isinstance(client, str) or not _CLIENT_ID.fullmatch(client):
         raise GoalRejected(f"{CLIENT_KEY} must be the sender's liveliness id (1–64 of A-Z a-z 0-9 _ - .)")
     return {key: value for key, value in payload.items() if key != CLIENT_KEY}, client
 

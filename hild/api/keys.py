@@ -43,12 +43,12 @@ RESERVED = frozenset(
     {ALIVE, STATUS, EVENTS, "srv", "ctrl", "client", "daemon"}
 )  # client: goal senders' liveliness tokens
 
-_CHUNK = re.compile(r"^[A-Za-z0-9_\-.]+$")
+_CHUNK = re.compile(r"[A-Za-z0-9_\-.]+")  # the whole name (fullmatch: `$` would let a final "\n" by)
 
 
 def check_chunk(name: str, what: str) -> str:
     """A name used as one key-expression chunk: no ``/``, no wildcards, no ``$``/``?``/``#``."""
-    if not isinstance(name, str) or not _CHUNK.match(name) or name in (".", ".."):
+    if not isinstance(name, str) or not _CHUNK.fullmatch(name) or name in (".", ".."):
         raise ValueError(f"{what} {name!r} cannot be used in a Zenoh key (allowed: letters, digits, _ - .)")
     return name
 

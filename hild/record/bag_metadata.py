@@ -13,7 +13,7 @@ from typing import Any
 
 VERSION = 9  # rosbag2 Jazzy's metadata version
 DISTRO = "jazzy"
-_PLAIN = re.compile(r"^[A-Za-z_/][A-Za-z0-9_/.\-]*$")
+_PLAIN = re.compile(r"[A-Za-z_/][A-Za-z0-9_/.\-]*")  # whole text only (fullmatch: `$` would let a final "\n" by)
 _RESERVED = {"true", "false", "yes", "no", "on", "off", "null", "y", "n"}
 
 # The offered QoS of every topic: the face's publishers' (hild.api.ros2.wire.DEFAULT_QOS: reliable, volatile,
@@ -98,7 +98,7 @@ def _scalar(value: Any) -> str:
     if isinstance(value, int):
         return str(value)
     if isinstance(value, str):
-        plain = _PLAIN.match(value) and value.lower() not in _RESERVED
+        plain = _PLAIN.fullmatch(value) and value.lower() not in _RESERVED
         return value if plain else _quoted(value)
     raise TypeError(f"cannot write {type(value).__name__} to metadata.yaml")
 

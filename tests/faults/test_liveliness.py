@@ -23,7 +23,8 @@ def test_a_goal_names_its_client_and_the_body_goes_on_without_it() -> None:
     assert split_client({"positions": [1.0], "client": "c-1.x_Y"}) == ({"positions": [1.0]}, "c-1.x_Y")
     assert split_client({"positions": [1.0]}) == ({"positions": [1.0]}, None)
     assert split_client([1, 2]) == ([1, 2], None)
-    for bad in ("", "a/b", "*", "x" * 65, 7, None):
+    # "c-1\n": a final newline slipped past the pattern's `$` (a key chunk with a newline in it)
+    for bad in ("", "a/b", "*", "x" * 65, 7, None, "c-1\n"):
         with pytest.raises(GoalRejected, match="liveliness id"):
             split_client({"positions": [1.0], "client": bad})
     assert GoalEndpoint.of(server()).submit({"positions": [1.0], "client": "a/b"})["ok"] is False

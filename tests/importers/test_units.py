@@ -127,3 +127,9 @@ def test_gains_beyond_max_substeps_are_lowered_and_reported() -> None:
     (finding,) = report.findings
     assert finding.kind == "approximated" and str(finding.where) == "robot.urdf:7"
     assert "j: gains kp 1000, kd 100 need a physics step below" in finding.text
+
+
+def test_yaml_writer_quotes_a_string_that_ends_in_a_newline() -> None:
+    """`$` in the plain-scalar pattern matched before a final newline: "base\n" went out plain and came back "base"."""
+    data = {"name": "base\n", "list": ["link\n", "plain"]}
+    assert yaml.safe_load(render(Document(data))) == data

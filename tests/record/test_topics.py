@@ -8,7 +8,7 @@ from fractions import Fraction
 import numpy as np
 import pytest
 import yaml
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
@@ -202,6 +202,7 @@ def test_events_are_json_lines_with_an_unknown_time_as_null() -> None:
 
 
 @given(st.dictionaries(st.text(st.characters(codec="ascii", categories=["L"]), min_size=1), names | st.integers()))
+@example({"A": "A\n"})  # found by the CI of stop 39: a trailing newline passed as a plain scalar and was lost
 def test_the_yaml_writer_says_what_it_was_given(node: dict) -> None:
     assert yaml.safe_load(dump({"top": node, "list": list(node.values())})) == {
         "top": node,

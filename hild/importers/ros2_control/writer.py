@@ -22,7 +22,7 @@ from hild.importers.ros2_control.controllers import ControllerPlan, ControllersP
 from hild.importers.ros2_control.mapping import JointPlan, MimicPlan, SensorPlan
 
 KeyPath = tuple[str, ...]
-_PLAIN = re.compile(r"^[A-Za-z_][A-Za-z0-9_\-./]*$")
+_PLAIN = re.compile(r"[A-Za-z_][A-Za-z0-9_\-./]*")  # the whole text (fullmatch: not before a final "\n")
 _YAML_WORDS = {"true", "false", "yes", "no", "on", "off", "y", "n", "null", "~"}
 FLOW_WIDTH = 118
 
@@ -170,7 +170,7 @@ def _scalar(value: Any) -> str:
     if isinstance(value, float):
         return _number(value)
     text = str(value)
-    if _PLAIN.match(text) and text.lower() not in _YAML_WORDS:
+    if _PLAIN.fullmatch(text) and text.lower() not in _YAML_WORDS:
         return text
     return json.dumps(text, ensure_ascii=False)
 
