@@ -168,6 +168,8 @@ def run(args: argparse.Namespace) -> int:
     from hild.cli import setup_logging
 
     setup_logging(args.log_level)
+    if logging.getLogger().level > logging.DEBUG:  # canopen's SDO server logs a line per transfer at INFO
+        logging.getLogger("canopen").setLevel(logging.WARNING)
     sys.setswitchinterval(0.0005)  # the control and handshake threads must not wait 5 ms for the emulator loop
     if args.rate is not None and not args.rate > 0.0:
         print("--rate must be positive", file=sys.stderr)
