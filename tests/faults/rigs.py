@@ -201,36 +201,20 @@ class Lockstep:
         self.engine.stop()
 
 
-class CanRig(Lockstep):
-    """``n`` emulated drives of one flavour on one virtual bus, driven by the real CAN driver in the engine.
+class EmulatedBusRig(Lockstep):
+    """The real engine and CAN driver against emulated drives on one private virtual bus, in lockstep: the drives are
+    serviced after every cycle, and every 0.1 ms of their own clock while a lifecycle hook waits for them."""
 
-    With ``brakes`` (the default, as in ``hild emulate``) a joint whose drive is off stays where it is; without,
-    it coasts."""
+    def _workspace(self, prefix: str) -> Path:
+        """A temporary directory for the config and a private channel name (``self.channel``)."""
+        self._dir = tempfile.TemporaryDirectory(prefix=f"hild-{prefix}-")
+        self.channel = f"{prefix}-{uuid.uuid4().hex[:10]}"
+        return Path(self._dir.name)
 
-    def __init__(
-        self,
-        flavour: str = "damiao",
-        n: int = 3,
-        *,
-        rate: float = 1000.0,
-        params: dict[str, Any] | None = None,
-        safety: dict[str, Any] | None = None,
-        brakes: bool = True,
-    ) -> None:
-        self._dir = tempfile.TemporaryDirectory(prefix="hild-faults-")
-        self.channel = f"faults-{uuid.uuid4().hex[:10]}"
-        path = Path(self._dir.name) / "robot.yaml"
-        path.write_text(yaml.safe_dump(can_robot(flavour, n, self.channel, rate, params, safety), sort_keys=False))
-        loaded = load_config(path)
-        driver_params = loaded.driver_params["arm"]
-        assert isinstance(driver_params, MitCanParams | ODriveCanParams)
-        self.flavour = flavour
-        self.firmwares: list[MotorFirmware] = build_firmware(driver_params, list(loaded.config.hardware["arm"].joints))
-        inertia = 0.002 if flavour == "odrive" else 0.05  # ODrive: its own gains (pos_gain 20, vel_gain 0.16) fit this
-        self.motors = MotorPlant(n, inertia=inertia, damping=inertia, positions=START[:n])
-        self.plant = BrakedPlant(self.motors, self.firmwares) if brakes else self.motors
+    def _start(self, loaded: LoadedConfig, firmwares: list[MotorFirmware], plant: Any) -> None:
+        """Serve ``firmwares`` with ``plant`` behind them on the channel, then build and start the engine."""
         self.bus = can.Bus(interface="virtual", channel=self.channel, receive_own_messages=False)
-        self.emulator = Emulator(self.bus, self.firmwares, self.plant)
+        self.emulator = Emulator(self.bus, firmwares, plant)
         self.now = 0.0
         try:
             engine = Engine(loaded)
@@ -252,6 +236,42 @@ class CanRig(Lockstep):
         self.now += self.engine.period
         self.emulator.service(self.now)
 
+    def close(self) -> None:
+        try:
+            super().close()
+        finally:
+            self.bus.shutdown()
+            self._dir.cleanup()
+
+
+class CanRig(EmulatedBusRig):
+    """``n`` emulated drives of one flavour on one virtual bus, driven by the real CAN driver in the engine.
+
+    With ``brakes`` (the default, as in ``hild emulate``) a joint whose drive is off stays where it is; without,
+    it coasts."""
+
+    def __init__(
+        self,
+        flavour: str = "damiao",
+        n: int = 3,
+        *,
+        rate: float = 1000.0,
+        params: dict[str, Any] | None = None,
+        safety: dict[str, Any] | None = None,
+        brakes: bool = True,
+    ) -> None:
+        path = self._workspace("faults") / "robot.yaml"
+        path.write_text(yaml.safe_dump(can_robot(flavour, n, self.channel, rate, params, safety), sort_keys=False))
+        loaded = load_config(path)
+        driver_params = loaded.driver_params["arm"]
+        assert isinstance(driver_params, MitCanParams | ODriveCanParams)
+        self.flavour = flavour
+        self.firmwares: list[MotorFirmware] = build_firmware(driver_params, list(loaded.config.hardware["arm"].joints))
+        inertia = 0.002 if flavour == "odrive" else 0.05  # ODrive: its own gains (pos_gain 20, vel_gain 0.16) fit this
+        self.motors = MotorPlant(n, inertia=inertia, damping=inertia, positions=START[:n])
+        self.plant = BrakedPlant(self.motors, self.firmwares) if brakes else self.motors
+        self._start(loaded, self.firmwares, self.plant)
+
     def _meanwhile(self, duration: float) -> None:
         """The drives run on alone, serviced every 0.1 ms: their watchdogs fire, their replies queue on the bus."""
         for _ in range(round(duration / 1e-4)):
@@ -263,13 +283,6 @@ class CanRig(Lockstep):
 
     def drives_enabled(self) -> list[bool]:
         return [fw.enabled for fw in self.firmwares]
-
-    def close(self) -> None:
-        try:
-            super().close()
-        finally:
-            self.bus.shutdown()
-            self._dir.cleanup()
 
 
 class MockRig(Lockstep):

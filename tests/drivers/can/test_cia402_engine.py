@@ -4,31 +4,25 @@ ends in a confirmed Switch On Disabled."""
 
 from __future__ import annotations
 
-import tempfile
-import uuid
-from pathlib import Path
 from typing import Any
 
-import can
 import numpy as np
 import pytest
 import yaml
 
 from drivers.can.cia402.driver import Cia402Driver
-from drivers.can.emulator import Emulator, MotorPlant
+from drivers.can.emulator import MotorPlant
 from drivers.can.emulator.runtime import build_firmware
 from hild.config.loader import load_config
-from hild.cycle.engine import Engine
 from tests.drivers.can.test_cia402_config import robot
-from tests.faults.rigs import JTC, Lockstep
+from tests.faults.rigs import JTC, EmulatedBusRig
 
 START = (0.2, -0.3)
 
 
-class EngineRig(Lockstep):
+class EngineRig(EmulatedBusRig):
     def __init__(self, mode: str = "csp", homing: dict[str, Any] | None = None) -> None:
-        self._dir = tempfile.TemporaryDirectory(prefix="hild-cia402-")
-        self.channel = f"cia402-{uuid.uuid4().hex[:10]}"
+        path = self._workspace("cia402") / "robot.yaml"
         config = robot(2, mode=mode)
         if homing is not None:
             config["hardware"]["arm"]["params"]["drives"]["j1"]["homing"] = homing
@@ -47,41 +41,12 @@ class EngineRig(Lockstep):
             }
         }
         config["safety"]["stale_feedback_cycles"] = 10
-        path = Path(self._dir.name) / "robot.yaml"
         path.write_text(yaml.safe_dump(config, sort_keys=False))
         loaded = load_config(path)
         self.firmwares = build_firmware(loaded.driver_params["arm"], ["j1", "j2"], loaded.directory)  # type: ignore[arg-type]
         self.plant = MotorPlant(2, inertia=0.05, damping=0.05, positions=START)
-        self.bus = can.Bus(interface="virtual", channel=self.channel)
-        self.emulator = Emulator(self.bus, self.firmwares, self.plant)
-        self.now = 0.0
-        try:
-            engine = Engine(loaded)
-            self.driver: Any = engine.hardware[0].component
-            assert isinstance(self.driver, Cia402Driver)
-            self.driver.serve_while_waiting = self.serve_while_waiting
-            engine.start()
-        except BaseException:
-            self.bus.shutdown()
-            self._dir.cleanup()
-            raise
-        super().__init__(engine)
-
-    def serve_while_waiting(self) -> None:
-        self.now += 1e-4
-        self.emulator.service(self.now)
-
-    def step(self) -> None:
-        self.engine.run_cycles(1)
-        self.now += self.engine.period
-        self.emulator.service(self.now)
-
-    def close(self) -> None:
-        try:
-            super().close()
-        finally:
-            self.bus.shutdown()
-            self._dir.cleanup()
+        self._start(loaded, self.firmwares, self.plant)
+        assert isinstance(self.driver, Cia402Driver)
 
 
 @pytest.fixture
