@@ -20,6 +20,7 @@ from canopen.profiles.p402 import BaseNode402
 
 from drivers.can.cia402.wiring import DriveWiring, wire_drives
 from drivers.can.emulator import Cia402Firmware, Emulator, MotorPlant
+from drivers.can.emulator.canopen_node import NmtState
 from drivers.can.params import Cia402Params
 from tests.conftest import CONFIGS
 
@@ -128,3 +129,9 @@ class Cia402Rig:
         self.sniffer.shutdown()
         if self.error is not None:
             raise AssertionError("the emulator's server thread failed") from self.error
+
+
+def operational(rig: Cia402Rig) -> None:
+    """canopen's NMT master starts the node; wait until the emulated drive is operational."""
+    rig.node.nmt.state = "OPERATIONAL"
+    wait_until(lambda: rig.firmware.nmt_state == NmtState.OPERATIONAL, "NMT operational")

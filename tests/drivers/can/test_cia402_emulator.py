@@ -15,7 +15,7 @@ from canopen.nmt import NmtError
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from drivers.can.emulator.canopen_node import NmtState
-from tests.drivers.can.cia402_rig import Cia402Rig, wait_until
+from tests.drivers.can.cia402_rig import Cia402Rig, operational, wait_until
 
 NODE = 3
 
@@ -25,11 +25,6 @@ def rig() -> Iterator[Cia402Rig]:
     made = Cia402Rig((NODE,))
     yield made
     made.close()
-
-
-def operational(rig: Cia402Rig) -> None:
-    rig.node.nmt.state = "OPERATIONAL"
-    wait_until(lambda: rig.firmware.nmt_state == NmtState.OPERATIONAL, "NMT operational")
 
 
 # ---- SDO ------------------------------------------------------------------------------------------------------------

@@ -23,7 +23,7 @@ from drivers.can.params import Cia402Params
 from hild.config.loader import LoadedConfig
 from hild.config.model import RobotConfig
 from tests.conftest import CONFIGS
-from tests.drivers.can.cia402_rig import EDS, Cia402Rig, wait_until
+from tests.drivers.can.cia402_rig import EDS, Cia402Rig, operational, wait_until
 
 NODE = 3
 
@@ -33,11 +33,6 @@ def rig() -> Iterator[Cia402Rig]:
     made = Cia402Rig((NODE,))
     yield made
     made.close()
-
-
-def operational(rig: Cia402Rig) -> None:
-    rig.node.nmt.state = "OPERATIONAL"
-    wait_until(lambda: rig.firmware.nmt_state == NmtState.OPERATIONAL, "NMT operational")
 
 
 def command_pdo(rig: Cia402Rig) -> canopen.pdo.PdoMap:
