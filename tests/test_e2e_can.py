@@ -104,7 +104,7 @@ class GripperProcesses(CanProcesses):
     """The same rig on configs/arm6_gripper_can_loopback.yaml: seven drives, the DM4310 gripper motor among them."""
 
     CONFIG = "arm6_gripper_can_loopback.yaml"
-    MODEL = "arm6_gripper.xml"
+    FILES = ("arm6_gripper.xml",)
 
 
 def test_the_gripper_motor_moves_the_finger_over_the_loopback_bus(tmp_path: Path) -> None:

@@ -33,7 +33,7 @@ DISABLED = "SWITCH ON DISABLED"
 
 class Cia402Processes(CanProcesses):
     CONFIG = "arm6_cia402_loopback.yaml"
-    EDS = "cia402_generic.eds"
+    FILES = ("arm6.xml", "cia402_generic.eds")
     SERVED = "ws://127.0.0.1:54702/"
 
 

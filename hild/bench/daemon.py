@@ -142,7 +142,7 @@ class HildRun(LoggedChild):
 
 class CanProcesses:
     """``hild emulate`` (Damiao drives and the arm6 twin behind them, holding brakes on) and ``hild run`` on
-    configs/arm6_can_loopback.yaml (``CONFIG``, ``MODEL``: a subclass may name another loopback config) with free
+    configs/arm6_can_loopback.yaml (``CONFIG``, ``FILES``: a subclass may name another loopback config) with free
     loopback ports: the emulator at once, daemons on demand
     (``start_daemon``). The emulator outlives a daemon, so one can be killed and restarted against an arm that
     stayed where it was.
@@ -154,8 +154,8 @@ class CanProcesses:
 
     HOST = "127.0.0.1"
     CONFIG = "arm6_can_loopback.yaml"
-    MODEL = "arm6.xml"  # the config's robot.model, made absolute in the copy the daemon runs
-    EDS: str | None = None  # a cia402 config's EDS (``eds:``), made absolute likewise
+    FILES: tuple[str, ...] = ("arm6.xml",)  # files the config names relative to configs/ (robot.model, an EDS):
+    # made absolute in the copy the daemon runs
     SERVED = "ws://127.0.0.1:54701/"  # the bus channel the config names, replaced by the free port's
     PATCHES: tuple[tuple[str, str], ...] = ()  # (text, replacement) in the daemon's copy (e.g. another mode)
     EMULATOR_PRIORITY = 50
@@ -176,11 +176,9 @@ class CanProcesses:
             self.wait(self._answers, "the emulator's control socket", START_TIMEOUT)
             text = (CONFIGS / self.CONFIG).read_text()
             self.config = directory / self.CONFIG
-            text = text.replace(self.SERVED, f"ws://{bus}/").replace(
-                f"model: {self.MODEL}", f"model: {CONFIGS / self.MODEL}"
-            )
-            if self.EDS is not None:
-                text = text.replace(f"eds: {self.EDS}", f"eds: {CONFIGS / self.EDS}")
+            text = text.replace(self.SERVED, f"ws://{bus}/")
+            for name in self.FILES:
+                text = text.replace(f": {name}", f": {CONFIGS / name}")
             for old, new in self.PATCHES:
                 if old not in text:
                     raise ValueError(f"{self.CONFIG} has no {old!r} to patch")
