@@ -39,7 +39,7 @@ from drivers.can.cia402.errors import describe_error_code, emcy_code
 from drivers.can.cia402.pdo import Layout, layout_for
 from drivers.can.cia402.review import EMCY_BASE, HEARTBEAT_BASE, SDO_REQUEST_BASE, SDO_RESPONSE_BASE
 from drivers.can.cia402.sdo import LinkNetwork, run_transfers
-from drivers.can.cia402.wiring import MODE_CODES, DriveWiring, load_dictionary, wire_drives
+from drivers.can.cia402.wiring import MODE_CODES, DriveWiring, load_dictionary, mode_of, wire_drives
 from drivers.can.component import CanComponent
 from drivers.can.params import Cia402Params
 from hild.arrays import JointState, ServoCommand
@@ -148,7 +148,7 @@ class Cia402Driver(CanComponent):
     @classmethod
     def command_fields(cls, params: Params, joints: Sequence[str]) -> dict[str, frozenset[str]]:
         assert isinstance(params, Cia402Params)
-        return {j: MODE_FIELDS[review.mode_of(params, j)] for j in joints}
+        return {j: MODE_FIELDS[mode_of(params, j)] for j in joints}
 
     @classmethod
     def holds_at_stop(cls, params: Params) -> bool:

@@ -13,9 +13,9 @@ from pathlib import Path
 from drivers.can.bus import bits_per_second, frame_bits
 from drivers.can.cia402 import pdo
 from drivers.can.cia402.pdo import Layout, layout_for
-from drivers.can.cia402.wiring import DriveWiring, load_dictionary, wire_drives
+from drivers.can.cia402.wiring import DriveWiring, load_dictionary, mode_of, wire_drives
 from drivers.can.component import coverage_problems
-from drivers.can.params import Cia402Mode, Cia402Params
+from drivers.can.params import Cia402Params
 from hild.hardware import BusUsage, Finding
 
 __all__ = [
@@ -26,7 +26,6 @@ __all__ = [
     "bus_usage",
     "interpolation_period",
     "mappable",
-    "mode_of",
     "review",
     "review_files",
     "static_problems",
@@ -41,11 +40,6 @@ SDO_REQUEST_BASE = 0x600
 POSITION_STEP_LIMIT = 1e-4  # rad: one position unit above 0.1 mrad
 VELOCITY_STEP_LIMIT = 1e-3  # rad/s: one velocity unit above 1 mrad/s
 TORQUE_STEP_LIMIT = 0.05  # N·m: one per mille of rated torque above 50 mN·m (rated torque above 50 N·m)
-
-
-def mode_of(params: Cia402Params, joint: str) -> Cia402Mode:
-    drive = params.drives.get(joint)
-    return (drive.mode if drive is not None else None) or params.mode
 
 
 def interpolation_period(period: float) -> tuple[int, int] | None:

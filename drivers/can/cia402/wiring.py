@@ -20,7 +20,7 @@ from canopen.objectdictionary import ObjectDictionary
 from drivers.can.component import coverage_problems
 from drivers.can.params import Cia402DriveParams, Cia402Mode, Cia402Params
 
-__all__ = ["DriveWiring", "dictionary_path", "load_dictionary", "wire_drives"]
+__all__ = ["DriveWiring", "dictionary_path", "load_dictionary", "mode_of", "wire_drives"]
 
 TAU = 2.0 * math.pi
 ENCODER_RESOLUTION = 0x608F  # sub 1 encoder increments, sub 2 motor revolutions
@@ -94,6 +94,12 @@ def counts_per_rev_from(od: ObjectDictionary) -> float | None:
     return increments / motor_revs * gear
 
 
+def mode_of(params: Cia402Params, joint: str) -> Cia402Mode:
+    """A joint's cyclic synchronous mode: its drive's own, else the component's."""
+    drive = params.drives.get(joint)
+    return (drive.mode if drive is not None else None) or params.mode
+
+
 def wire_drives(params: Cia402Params, joints: Sequence[str], config_dir: Path) -> tuple[list[DriveWiring], list[str]]:
     """Resolve every joint's drive; also return every reason the params cannot work (empty when they can)."""
     problems = coverage_problems("drive", "drives", params.drives, joints)
@@ -113,7 +119,7 @@ def wire_drives(params: Cia402Params, joints: Sequence[str], config_dir: Path) -
         except (OSError, ValueError, KeyError) as exc:
             problems.append(f"{joint}: cannot read the EDS/DCF {path}: {exc}")
             continue
-        mode = drive.mode or params.mode
+        mode = mode_of(params, joint)
         supported = _default(od, 0x6502)
         if supported is not None and not int(supported) & SUPPORTED_MODE_BITS[mode]:
             problems.append(f"{joint}: the drive's EDS ({path.name}) does not list {mode} in 0x6502 supported modes")
