@@ -222,6 +222,7 @@ def test_tau_ext_is_published_in_joint_states(tmp_path: Path) -> None:
     assert "tau_ext" in ring.fields
     assert np.allclose(fields["tau_ext"], engine.contact.tau_ext, atol=0.5)
     assert abs(fields["tau_ext"][1]) > 3.0  # the push shows on shoulder_lift
+    assert engine.realtime_report["contact_observer"] == "compiled"  # the status says which update runs
 
 
 def test_without_the_observer_tau_ext_is_null(tmp_path: Path) -> None:

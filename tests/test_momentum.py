@@ -48,11 +48,14 @@ def swing(q: float, qd: float, tau: float, period: float = PERIOD, substeps: int
     return q, qd
 
 
-@pytest.fixture
-def observer(tmp_path: Path) -> MomentumObserver:
+@pytest.fixture(params=[True, False], ids=["compiled", "python"])
+def observer(tmp_path: Path, request: pytest.FixtureRequest) -> MomentumObserver:
+    """Each case on both updates: the compiled one (hild/dynamics/_momentum.c) and the Python path."""
     path = tmp_path / "pendulum.xml"
     path.write_text(PENDULUM)
-    return MomentumObserver(path, ["swing"], GAIN, PERIOD)
+    built = MomentumObserver(path, ["swing"], GAIN, PERIOD, compiled=request.param)
+    assert built.implementation.startswith("compiled" if request.param else "python")
+    return built
 
 
 def test_its_mass_matrix_and_momentum_are_the_pendulums(observer: MomentumObserver) -> None:
@@ -155,7 +158,8 @@ def test_the_stages_it_runs_give_the_figures_of_the_full_forward_pass_to_the_bit
     from tests.conftest import CONFIGS
 
     joints = ["shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3"]
-    staged, full = (MomentumObserver(CONFIGS / "arm6.xml", joints, 150.0, 0.001) for _ in range(2))
+    staged = MomentumObserver(CONFIGS / "arm6.xml", joints, 150.0, 0.001, compiled=False)
+    full = MomentumObserver(CONFIGS / "arm6.xml", joints, 150.0, 0.001, compiled=False)
     assert staged._staged
     full._staged = False
     rng = np.random.default_rng(5)

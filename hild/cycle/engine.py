@@ -316,6 +316,7 @@ class Engine:
         observer = MomentumObserver(
             path, self.joints, c.observer_gain, self.period, gravity=shares_gravity, residual=tau_ext
         )
+        self.realtime_report["contact_observer"] = observer.implementation  # compiled, or python and why
         if shares_gravity:
             from hild.dynamics.gravity import SharedGravity
 

@@ -28,6 +28,12 @@ the memory a cycle touches, which on the cycle costs more than the arithmetic). 
 Python floats: a numpy call on a 6-element array costs about a microsecond, more than the arithmetic (the supervisor
 does the same).
 
+Compiled, where it could be built: the same steps in one C call (``hild/dynamics/_momentum.c``, on MuJoCo's own C
+functions), which on the cycle costs about half as much — the Python path pays the bindings' conversion on every
+MuJoCo call and the interpreter on every sum. It is used only after it gave this module's figures to the bit on
+readings of this very model (checked at construction); otherwise, and where no C compiler built it, the Python
+path below runs, and ``implementation`` says which and why.
+
 Runs on the cycle thread: every array is allocated here, and ``update`` allocates no array.
 """
 
@@ -35,6 +41,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -60,11 +67,13 @@ class MomentumObserver:
         *,
         gravity: bool = False,
         residual: np.ndarray | None = None,
+        compiled: bool = True,
     ) -> None:
         """``gravity``: also compute the gravity torque at each reading it evaluates (``gravity``, `gravity_at`), for
         the supervisor's feed-forward: one evaluation of the arm's dynamics per cycle serves both. ``residual``: the
         array to keep ``r`` in (one entry per joint; written in place, never rebound), e.g. where the contact monitor
-        publishes its estimate — no copy per cycle."""
+        publishes its estimate — no copy per cycle. ``compiled``: use the compiled update when it was built and
+        agrees with this module to the bit (False: the Python path, e.g. to compare them)."""
         if not gain > 0.0:
             raise ValueError(f"observer gain {gain} must be > 0 (1/s)")
         if gain * period >= 1.0:
@@ -118,6 +127,10 @@ class MomentumObserver:
         self._r = [0.0] * n  # the residual as floats: the recursion's state
         self._bias_prev = [0.0] * n  # qfrc_bias and qfrc_passive at the interval's start
         self._passive_prev = [0.0] * n
+        self._kernel: Any = None
+        self.implementation = "python (not asked for the compiled update)"
+        if compiled:
+            self._kernel, self.implementation = self._compiled()
 
     def __len__(self) -> int:
         return len(self.joint_names)
@@ -131,6 +144,11 @@ class MomentumObserver:
 
     def reset(self, q: np.ndarray, qd: np.ndarray) -> None:
         """Start again at this reading: ``p̂ = p``, ``r = 0``."""
+        if self._kernel is not None:
+            self._kernel.reset(q, qd)
+            if self._with_gravity:
+                self.evaluated_at = q.tolist()
+            return
         self._evaluate(q, qd)
         self._bias_prev = self._joints(self._bias, "_bias_j")
         self._passive_prev = self._joints(self._passive, "_passive_j")
@@ -142,6 +160,11 @@ class MomentumObserver:
 
         ``tau``: the joint torque that acted over the interval, net of friction the model does not hold (the
         caller subtracts the identified friction)."""
+        if self._kernel is not None:
+            self._kernel.update(q, qd, tau, dt)
+            if self._with_gravity:
+                self.evaluated_at = q.tolist()
+            return self.residual
         m, d = self.model, self.data
         if self._blocks:  # the velocity step, while the data still holds the previous reading
             np.subtract(qd, self._qvel_j, out=self._step_j)
@@ -203,6 +226,50 @@ class MomentumObserver:
             return False
         out[:] = self.gravity
         return True
+
+    def _compiled(self) -> tuple[Any, str]:
+        """The compiled update on this observer's arrays, if it was built and agrees with the Python path to the bit
+        on a few readings of this model; else None, and why (``implementation``)."""
+        from hild.dynamics.compiled import momentum_kernel  # the C side's plumbing: addresses, not arithmetic
+
+        kernel, why = momentum_kernel(self)
+        if kernel is None:
+            return None, f"python ({why})"
+        disagreement = self._compare(kernel)
+        if disagreement:
+            return None, f"python (the compiled update disagreed with it: {disagreement})"
+        return kernel, "compiled"
+
+    def _compare(self, kernel: Any) -> str:
+        """Run the Python path and ``kernel`` over the same readings from a reset; '' if every residual and gravity
+        torque is identical to the bit, else the first difference. Leaves the observer to be reset by its user."""
+        rng = np.random.default_rng(0)
+        n, dt = len(self), 1e-3
+        low, high = self.model.jnt_range[[self.model.joint(j).id for j in self.joint_names]].T
+        span = np.where(high > low, high - low, 2.0)
+        centre = np.where(high > low, 0.5 * (high + low), 0.0)
+        readings = [
+            (centre + span * rng.uniform(-0.4, 0.4, n), rng.uniform(-2.0, 2.0, n), rng.uniform(-20.0, 20.0, n))
+            for _ in range(4)
+        ]
+        kept = self.residual.copy(), self.gravity.copy()  # the residual may be the cycle log's: left as found
+        runs = []
+        for use in (None, kernel):
+            self._kernel = use
+            self.reset(readings[0][0], readings[0][1])
+            out = []
+            for q, qd, tau in readings[1:]:
+                out.append((self.update(q, qd, tau, dt).copy(), self.gravity.copy()))
+            runs.append(out)
+        self._kernel = None
+        self.residual[:], self.gravity[:] = kept
+        self.evaluated_at = []
+        for k, ((r_py, g_py), (r_c, g_c)) in enumerate(zip(*runs, strict=True)):
+            if r_py.tobytes() != r_c.tobytes():
+                return f"residual at reading {k + 1}: {r_c.tolist()} vs {r_py.tolist()}"
+            if self._with_gravity and g_py.tobytes() != g_c.tobytes():
+                return f"gravity at reading {k + 1}: {g_c.tolist()} vs {g_py.tolist()}"
+        return ""
 
     def _joints(self, full: np.ndarray, view: str) -> list[float]:
         """The joints' entries of a per-dof array, as floats (set-up and reset: not every cycle)."""
