@@ -21,7 +21,7 @@ LIBRARY_ROOMS = {
     "mujoco": ("drivers/mujoco", "hild/dynamics"),
     "can": ("drivers/can",),
     "canopen": ("drivers/can",),
-    "ruckig": ("hild/motion", "hild/controllers"),
+    "ruckig": ("hild/motion",),
     "rerun": ("hild/telemetry",),
     "simpleeval": ("hild/api/expressions.py",),
     "ruamel": ("hild/config/tuned.py",),

@@ -32,7 +32,6 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
-from ruckig import ControlInterface, InputParameter, OutputParameter, Result, Ruckig, RuckigError, Synchronization
 
 from hild.arrays import JointState, ServoCommand
 from hild.config.params import Field, Params, dynamic, model_validator
@@ -40,6 +39,15 @@ from hild.controller import ControllerContext, and_more, unknown_keys
 from hild.controllers.servo import Phase, ServoController, ServoParams, ServoTarget, stopping_distance
 from hild.modes import Source
 from hild.motion.chunks import clip_target
+from hild.motion.online import (
+    ControlInterface,
+    InputParameter,
+    OutputParameter,
+    Result,
+    Ruckig,
+    RuckigError,
+    Synchronization,
+)
 
 # The velocity scale changes ruckig's limits only when it moved by this much: no new limits on every cycle.
 SPEED_STEP = 0.02

@@ -26,7 +26,6 @@ from dataclasses import dataclass
 from typing import Any, Literal, NamedTuple
 
 import numpy as np
-from ruckig import ControlInterface, InputParameter, OutputParameter, Result, Ruckig, RuckigError, Synchronization
 
 from hild.arrays import JointState, ServoCommand
 from hild.config.params import Field, Params, dynamic, model_validator
@@ -35,6 +34,15 @@ from hild.controllers.motion_common import PlansMotion, first_taken_over
 from hild.crossing.mailboxes import LatestNumbers
 from hild.modes import Source
 from hild.motion.chunks import CHUNK_LEAD, ChunkPlayer, ChunkRecord, Verdict, clip_target, parse_chunk
+from hild.motion.online import (
+    ControlInterface,
+    InputParameter,
+    OutputParameter,
+    Result,
+    Ruckig,
+    RuckigError,
+    Synchronization,
+)
 
 # Plan a hair inside the limits, so rounding in ruckig's profiles never trips the supervisor's velocity, slew
 # or soft position limits (which compare with no tolerance and would report a limit that is not really hit).

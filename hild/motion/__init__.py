@@ -2,5 +2,6 @@
 
 A pure library: no daemon, no threads. ``segments``, ``tables`` (many segments as a few arrays: how a long plan
 crosses to the cycle process) and ``trajectory`` are plain numpy and cheap to sample on the cycle thread;
-``planning`` is the one module that talks to ruckig.
+``planning`` (whole plans) and ``online`` (the per-cycle generator's types, for the streaming controllers) are
+the only modules that import ruckig.
 """
