@@ -15,11 +15,11 @@ from pathlib import Path
 from typing import Any
 
 from drivers.can.bus import BusSpec
-from drivers.can.emulator import MotorFirmware, MotorPlant, Plant
+from drivers.can.emulator import MotorFirmware, Plant
 from drivers.can.emulator.cia402_firmware import Cia402Firmware
 from drivers.can.emulator.runtime import build_firmware
 from drivers.can.params import Cia402Params
-from hild.bench.rigs.mit_can import START_POSITIONS, CanBenchRig, Probe, bench_controllers
+from hild.bench.rigs.mit_can import START_POSITIONS, CanBenchRig, Probe, bench_controllers, components_with_plants
 from hild.config.loader import LoadedConfig
 
 EDS = Path(__file__).resolve().parents[3] / "configs" / "cia402_generic.eds"
@@ -90,16 +90,8 @@ class Cia402BenchRig(CanBenchRig):
 
     def drives(self, loaded: LoadedConfig) -> Iterator[tuple[BusSpec, list[MotorFirmware], Plant, Probe]]:
         """Per ``cia402`` component: its bus, its emulated drives, their plant, and its first drive's probe."""
-        components = [(n, p) for n, p in loaded.driver_params.items() if isinstance(p, Cia402Params)]
-        if not components:
-            raise ValueError("the CiA 402 bench rig needs a cia402 hardware component")
-        first = 0
-        for name, params in components:
-            joints = list(loaded.config.hardware[name].joints)
+        for params, joints, plant in components_with_plants(loaded, Cia402Params, "the CiA 402 bench rig", "cia402"):
             firmware = build_firmware(params, joints, loaded.directory)
-            starts = START_POSITIONS[first : first + len(joints)]
-            first += len(joints)
-            plant = MotorPlant(len(joints), inertia=0.05, damping=0.05, positions=starts)
             drive = firmware[0]
             assert isinstance(drive, Cia402Firmware)
             yield params.bus, list(firmware), plant, PdoProbe(drive)

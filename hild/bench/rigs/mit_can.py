@@ -28,7 +28,7 @@ import time
 import uuid
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any, Protocol, TypeVar
 
 import can
 
@@ -41,6 +41,7 @@ from drivers.can.protocol.mit import POSITION_BITS, decode_command, decode_state
 from hild.config.loader import LoadedConfig
 
 EMULATOR_PERIOD = 0.0002  # s between services: a reply within ~0.2 ms, like a drive's
+P = TypeVar("P")
 START_POSITIONS = (0.2, -0.3, 0.4, -0.1, 0.3, -0.2)  # rad, where the emulated motors power up
 BITRATE = 1_000_000
 BUS_LOAD = 0.9  # of the bit time a bus may carry
@@ -229,6 +230,22 @@ def wall_to_perf_offset_ns() -> int:
     return best[1]
 
 
+def components_with_plants(
+    loaded: LoadedConfig, kind: type[P], rig: str, driver: str
+) -> Iterator[tuple[P, list[str], MotorPlant]]:
+    """Each hardware component whose params are a ``kind``: its params, its joints, and a plant for them that powers
+    up at ``START_POSITIONS`` (consecutive over the components, so no two motors start alike)."""
+    components = [(n, p) for n, p in loaded.driver_params.items() if isinstance(p, kind)]
+    if not components:
+        raise ValueError(f"{rig} needs a {driver} hardware component")
+    first = 0
+    for name, params in components:
+        joints = list(loaded.config.hardware[name].joints)
+        starts = START_POSITIONS[first : first + len(joints)]
+        first += len(joints)
+        yield params, joints, MotorPlant(len(joints), inertia=0.05, damping=0.05, positions=starts)
+
+
 class CanBenchRig:
     """The ``mit_can`` rig (a ``hild.bench.rigs.BenchRig``): see the module docstring.
 
@@ -275,18 +292,10 @@ class CanBenchRig:
 
     def drives(self, loaded: LoadedConfig) -> Iterator[tuple[BusSpec, list[MotorFirmware], Plant, Probe]]:
         """Per ``mit_can`` component: its bus, its emulated motors, their plant, and its first motor's probe."""
-        components = [(n, p) for n, p in loaded.driver_params.items() if isinstance(p, MitCanParams)]
-        if not components:
-            raise ValueError("the CAN bench rig needs a mit_can hardware component")
-        motor = 0
-        for name, params in components:
-            joints = list(loaded.config.hardware[name].joints)
+        for params, joints, plant in components_with_plants(loaded, MitCanParams, "the CAN bench rig", "mit_can"):
             wiring, problems = wire_motors(params, joints)
             if problems:
                 raise ValueError("; ".join(problems))
-            starts = START_POSITIONS[motor : motor + len(joints)]
-            motor += len(joints)
-            plant = MotorPlant(len(joints), inertia=0.05, damping=0.05, positions=starts)
             yield params.bus, build_firmware(params, joints), plant, MitProbe(wiring[0])
 
     def _serve(self) -> None:
