@@ -137,31 +137,27 @@ def test_no_heartbeat_when_the_producer_time_is_zero(rig: Cia402Rig) -> None:
 # ---- PDOs -----------------------------------------------------------------------------------------------------------
 
 
+def configure_pdo(maps: canopen.pdo.PdoBase, variables: tuple[int, ...], transmission: int) -> canopen.pdo.PdoMap:
+    """The first PDO of ``maps`` (a node's TPDOs or RPDOs) mapped to ``variables``, on every `transmission`th SYNC."""
+    maps.read()
+    pdo = maps[1]
+    pdo.clear()
+    for index in variables:
+        pdo.add_variable(index)
+    pdo.trans_type = transmission
+    pdo.enabled = True
+    pdo.save()
+    return pdo
+
+
 def configure_feedback(rig: Cia402Rig, transmission: int = 1) -> canopen.pdo.PdoMap:
-    """TPDO1: statusword, position actual, torque actual (8 bytes) on every `transmission`th SYNC."""
-    rig.node.tpdo.read()
-    tpdo = rig.node.tpdo[1]
-    tpdo.clear()
-    tpdo.add_variable(0x6041)
-    tpdo.add_variable(0x6064)
-    tpdo.add_variable(0x6077)
-    tpdo.trans_type = transmission
-    tpdo.enabled = True
-    tpdo.save()
-    return tpdo
+    """TPDO1: statusword, position actual, torque actual (8 bytes)."""
+    return configure_pdo(rig.node.tpdo, (0x6041, 0x6064, 0x6077), transmission)
 
 
 def configure_command(rig: Cia402Rig, transmission: int = 1) -> canopen.pdo.PdoMap:
     """RPDO1: controlword and target position (6 bytes)."""
-    rig.node.rpdo.read()
-    rpdo = rig.node.rpdo[1]
-    rpdo.clear()
-    rpdo.add_variable(0x6040)
-    rpdo.add_variable(0x607A)
-    rpdo.trans_type = transmission
-    rpdo.enabled = True
-    rpdo.save()
-    return rpdo
+    return configure_pdo(rig.node.rpdo, (0x6040, 0x607A), transmission)
 
 
 class Received:
