@@ -20,6 +20,7 @@ __all__ = [
     "free_endpoint",
     "free_port",
     "heavier_plant",
+    "rig_joint",
     "running",
     "serve",
     "until",
@@ -45,6 +46,21 @@ def component(engine: Any, kind: type[C], index: int = 0) -> C:
     found = engine.hardware[index].component
     assert isinstance(found, kind), type(found)
     return found
+
+
+def rig_joint() -> dict[str, Any]:
+    """A joint of the small CAN test rigs, as a config writes it: ±3 rad, 4 rad/s, 9 N·m, hold gains 30 / 1."""
+    return {
+        "limits": {
+            "position": {"lower": -3.0, "upper": 3.0},
+            "soft_margin": 0.05,
+            "velocity": 4.0,
+            "acceleration": 12.0,
+            "jerk": 120.0,
+            "effort": 9.0,
+        },
+        "hold": {"kp": 30.0, "kd": 1.0},
+    }
 
 
 def heavier_plant(model: Path, directory: Path, scale: float) -> Path:

@@ -46,7 +46,7 @@ from hild.crossing.events import Event
 from hild.cycle.engine import MAX_STEP_PERIODS, Engine
 from hild.modes import MODE_NAMES
 from tests.conftest import CONFIGS
-from tests.helpers import free_endpoint
+from tests.helpers import free_endpoint, rig_joint
 from tests.test_engine import JumpGuard
 
 JTC = "joint_trajectory"
@@ -365,23 +365,12 @@ def can_robot(
     else:
         hardware_params |= {"axes": {j: motor(k) for k, j in enumerate(names)}}
     hardware_params |= params or {}
-    joint = {
-        "limits": {
-            "position": {"lower": -3.0, "upper": 3.0},
-            "soft_margin": 0.05,
-            "velocity": 4.0,
-            "acceleration": 12.0,
-            "jerk": 120.0,
-            "effort": 9.0,
-        },
-        "hold": {"kp": 30.0, "kd": 1.0},
-    }
     return {
         "robot": {"name": f"faults_{flavour}"},
         "update_rate": rate,
         "clock": {"source": "sim", "real_time_factor": 0},
         "hardware": {"arm": {"driver": driver, "params": hardware_params, "joints": {j: {} for j in names}}},
-        "joints": {j: joint for j in names},
+        "joints": {j: rig_joint() for j in names},
         "controllers": {
             JTC: {
                 "type": "joint_trajectory",

@@ -12,6 +12,7 @@ from drivers.can.bus import frame_bits
 from drivers.can.cia402.driver import Cia402Driver
 from drivers.can.params import Cia402Params
 from hild.config.loader import ConfigError, load_config
+from tests.helpers import rig_joint
 
 EDS = Path(__file__).resolve().parents[3] / "configs" / "cia402_generic.eds"
 NAMES = [f"j{k + 1}" for k in range(6)]
@@ -25,23 +26,12 @@ def robot(n: int = 2, rate: float = 500.0, **params: Any) -> dict[str, Any]:
         "drives": {j: {"node_id": k + 1} for k, j in enumerate(names)},
         **params,
     }
-    joint = {
-        "limits": {
-            "position": {"lower": -3.0, "upper": 3.0},
-            "soft_margin": 0.05,
-            "velocity": 4.0,
-            "acceleration": 12.0,
-            "jerk": 120.0,
-            "effort": 9.0,
-        },
-        "hold": {"kp": 30.0, "kd": 1.0},
-    }
     return {
         "robot": {"name": "cia402"},
         "update_rate": rate,
         "clock": {"source": "sim", "real_time_factor": 0},
         "hardware": {"arm": {"driver": "cia402", "params": hardware, "joints": {j: {} for j in names}}},
-        "joints": {j: joint for j in names},
+        "joints": {j: rig_joint() for j in names},
         "controllers": {
             "forward_position": {
                 "type": "forward_command",
