@@ -80,7 +80,9 @@ def register(subparsers: Any) -> None:
         "--rate",
         type=float,
         metavar="HZ",
-        help="emulator service rate (default: twice the config's update_rate): replies leave within 1/rate",
+        help="emulator service rate (default: twice the config's update_rate): the drives' timers and the plant run "
+        "at it, and replies leave within 1/rate; on socketcan and --serve-remote buses a frame also wakes the loop, "
+        "so its reply leaves at once",
     )
     p.add_argument(
         "--serve-remote",

@@ -7,14 +7,19 @@ broadcasts), run the drives' timers, send what they answer. Called with sim time
 lockstep tests can interleave host writes, `service(t)` and host reads.
 `bus_off(now, duration)` takes the bus down for a while (fault injection): an error frame of the bus-off class to
 every node, then no frame passes either way until it is back, when an error frame of the restarted class follows.
+`serve_on_grid` runs services on the wall clock: on a fixed grid, and — on buses with a file to wait on (socketcan,
+`RemoteServerBus`; `frame_wakeup`) — also the moment a frame arrives, so a reply leaves when the command is on the
+wire, not up to a grid period later.
 """
 
 from __future__ import annotations
 
 import math
+import select
 import threading
 import time
 from collections.abc import Callable, Sequence
+from typing import Any, Protocol
 
 import can
 import numpy as np
@@ -107,16 +112,8 @@ class Emulator:
             self.counters["lost_bus_off"] += len(motor.tick(now))
 
     def run(self, stop: threading.Event, period: float, clock: Callable[[], float] = time.monotonic) -> None:
-        """Serve on the wall clock every `period` s until `stop` is set (for a thread or `hild emulate`)."""
-        deadline = clock()
-        while not stop.is_set():
-            self.service(clock())
-            deadline += period
-            delay = deadline - clock()
-            if delay < 0.0:
-                deadline = clock()  # overran: restart the grid instead of bursting to catch up
-            elif stop.wait(delay):
-                break
+        """Serve on the wall clock every `period` s, and whenever a frame arrives, until `stop` is set."""
+        serve_on_grid(self.service, period, stop, wake=frame_wakeup([self.bus]), clock=clock)
 
     def stats(self) -> dict[str, int]:
         """Emulator counters plus the drives' counters summed."""
@@ -151,6 +148,109 @@ class Emulator:
                 self.last_send_error = str(exc)
             else:
                 self.counters["sent"] += 1
+
+
+STOP_POLL = 0.1  # s: the longest wait between two looks at the stop event, however long the grid's period
+
+
+def serve_on_grid(
+    service: Callable[[float], None],
+    period: float,
+    stop: threading.Event,
+    *,
+    wake: Callable[[float], bool] | None = None,
+    stats: dict[str, float] | None = None,
+    clock: Callable[[], float] = time.monotonic,
+) -> None:
+    """Call ``service(now)`` every ``period`` s on an absolute grid of ``clock`` until ``stop`` is set.
+
+    With ``wake`` (from `frame_wakeup`: ``wake(timeout)`` is True once a frame may wait on a bus, False after the
+    timeout) the loop also serves the moment a frame arrives between two ticks, so a drive answers a frame when it
+    is on the wire, as a drive does, rather than when the grid comes round (up to a period later); the ticks keep
+    the drives' timers and the plant going. Without it the loop sleeps to each tick (python-can's ``virtual`` bus
+    has no file to wait on). An overrun restarts the grid rather than bursting to catch up. ``stats``, when given,
+    counts ``services``, ``woken`` (of them, on a frame) and ``overruns``, and keeps ``max_late_ms`` (a tick's
+    lateness) and ``max_gap_ms`` (the longest time between two services: a service that ran long shows there).
+    """
+    wait = stop.wait if wake is None else wake
+    deadline = last = clock()
+    while not stop.is_set():
+        now = clock()
+        tick = now >= deadline
+        if stats is not None:
+            stats["services"] += 1
+            if not tick:
+                stats["woken"] += 1
+            elif now - deadline > stats["max_late_ms"] / 1000.0:
+                stats["max_late_ms"] = (now - deadline) * 1000.0
+            if now - last > stats["max_gap_ms"] / 1000.0:
+                stats["max_gap_ms"] = (now - last) * 1000.0
+        last = now
+        service(now)
+        if tick:
+            deadline += period
+            if deadline <= clock():  # overran: restart the grid instead of bursting to catch up
+                if stats is not None:
+                    stats["overruns"] += 1
+                deadline = clock()
+                continue
+        while (delay := deadline - clock()) > 0.0:  # a woken service that reached the deadline: the tick follows
+            if wait(min(delay, STOP_POLL)) or stop.is_set():
+                break
+
+
+def loop_stats() -> dict[str, float]:
+    """Fresh counters for `serve_on_grid`."""
+    return {"services": 0, "woken": 0, "overruns": 0, "max_late_ms": 0.0, "max_gap_ms": 0.0}
+
+
+class Waitable(Protocol):
+    """A bus whose files change while it runs (`RemoteServerBus`: a socket per client, and its arrivals)."""
+
+    def waitables(self) -> list[tuple[Any, int]]:
+        """What to wait on now, each with its ``select.poll`` event mask."""
+        ...
+
+
+def frame_wakeup(buses: Sequence[Any]) -> Callable[[float], bool] | None:
+    """``wake(timeout)`` for `serve_on_grid` over ``buses``: True as soon as any of them may hold a frame (or has
+    room for what waits to go out), False after ``timeout`` s. None when one of them has no file to wait on
+    (python-can's ``virtual``): then the loop polls on its grid."""
+    fixed: list[int] = []
+    served: list[Waitable] = []
+    for bus in buses:
+        if hasattr(bus, "waitables"):
+            served.append(bus)
+            continue
+        try:
+            fd = bus.fileno()  # socketcan: its socket
+        except (NotImplementedError, AttributeError, OSError):
+            return None
+        if not isinstance(fd, int) or fd < 0:
+            return None
+        fixed.append(fd)
+
+    def wake(timeout: float) -> bool:
+        readable: list[Any] = list(fixed)
+        writable: list[Any] = []
+        for bus in served:
+            for file, events in bus.waitables():
+                if events & select.POLLIN:
+                    readable.append(file)
+                if events & select.POLLOUT:
+                    writable.append(file)
+        try:
+            ready = select.select(readable, writable, (), timeout)  # to the µs: poll and epoll round up to a ms
+            return bool(ready[0] or ready[1])
+        except ValueError:  # a descriptor past FD_SETSIZE: wait with poll, to the millisecond
+            poller = select.poll()
+            for file in {*readable, *writable}:
+                poller.register(
+                    file, (select.POLLIN if file in readable else 0) | (select.POLLOUT if file in writable else 0)
+                )
+            return bool(poller.poll(timeout * 1000.0))
+
+    return wake
 
 
 def _error_frame(error_class: int) -> can.Message:

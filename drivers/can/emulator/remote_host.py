@@ -25,6 +25,7 @@ import json
 import logging
 import mimetypes
 import queue
+import select
 import socket
 import struct
 import threading
@@ -210,6 +211,10 @@ class RemoteServerBus(can.BusABC):
         self._arrivals: queue.SimpleQueue[Client] = queue.SimpleQueue()
         self._received: collections.deque[can.Message] = collections.deque()
         self._closed = threading.Event()
+        # the handshake thread's word to a loop waiting on the clients' sockets (`waitables`): a client arrived
+        self._arrived, self._announce = socket.socketpair()
+        for end in (self._arrived, self._announce):
+            end.setblocking(False)
         self._thread = threading.Thread(target=self._accept, name="emulate-remote-handshake", daemon=True)
         self._thread.start()
         super().__init__(channel=f"ws://{self.address[0]}:{self.address[1]}/", **kwargs)
@@ -231,8 +236,19 @@ class RemoteServerBus(can.BusABC):
         """To every client, at once (what a slow client cannot take waits in its outbox)."""
         self._deliver(msg, source=None)
 
+    def waitables(self) -> list[tuple[socket.socket, int]]:
+        """What the loop waits on between two services (`drivers.can.emulator.core.frame_wakeup`): every client's
+        socket for its frames (and for room, when output waits), and the handshake thread's word of a new client."""
+        files = [(self._arrived, select.POLLIN)]
+        for client in self.clients:
+            files.append((client.sock, select.POLLIN | (select.POLLOUT if client.outbox else 0)))
+        return files
+
     def pump(self) -> None:
         """Take new clients, read every client's frames into the receive queue, write what waits."""
+        with contextlib.suppress(BlockingIOError, OSError):
+            while self._arrived.recv(4096):
+                pass
         while True:
             try:
                 self.clients.append(self._arrivals.get_nowait())
@@ -326,6 +342,8 @@ class RemoteServerBus(can.BusABC):
                 while client.sock.recv(READ_SIZE):
                     pass
             self._drop(client)
+        self._arrived.close()
+        self._announce.close()
         super().shutdown()
 
     # ---- the handshake thread -----------------------------------------------------------------------------------
@@ -349,6 +367,8 @@ class RemoteServerBus(can.BusABC):
                 continue
             log.info("remote client %s connected (%s)", name, _PROTOCOLS[0] if client.binary else _PROTOCOLS[1])
             self._arrivals.put(client)
+            with contextlib.suppress(BlockingIOError, OSError):  # full: a word is already waiting
+                self._announce.send(b"!")
 
     def _handshake(self, sock: socket.socket, name: str) -> Client | None:
         """The HTTP upgrade and the bus request, blocking (this thread only); None when a web page was served."""

@@ -72,7 +72,7 @@ from drivers.can.bus import BusSpec, open_bus
 from drivers.can.cia402.wiring import wire_drives
 from drivers.can.emulator.base import MotorFirmware
 from drivers.can.emulator.cia402_firmware import Cia402Firmware
-from drivers.can.emulator.core import Emulator
+from drivers.can.emulator.core import Emulator, frame_wakeup, loop_stats, serve_on_grid
 from drivers.can.emulator.disturbances import Obstacle, PlantMismatch, Push
 from drivers.can.emulator.mit_firmware import DamiaoFirmware, MitFirmware, MyActuatorFirmware, TMotorFirmware
 from drivers.can.emulator.odrive_firmware import ODriveFirmware
@@ -249,9 +249,9 @@ class EmulatorRuntime:
         self._control: socketserver.ThreadingTCPServer | None = None
         self._control_thread: threading.Thread | None = None
         self.stop_event = threading.Event()
-        self.loop_stats: dict[str, float] = {"services": 0, "overruns": 0, "max_late_ms": 0.0, "max_gap_ms": 0.0}
-        """Wall-clock loop (`run`): services, periods overrun, worst lateness of a service against its deadline,
-        longest time between the starts of two services."""
+        self.loop_stats = loop_stats()
+        """Wall-clock loop (`run`): services, of them woken by a frame, periods overrun, worst lateness of a tick
+        against its deadline, longest time between the starts of two services."""
 
     # ---- lifecycle ------------------------------------------------------------------------------------------
     def open(self, serve_remote: tuple[str, int] | None = None) -> None:
@@ -338,27 +338,10 @@ class EmulatorRuntime:
                 rig.emulator.service(now)
 
     def run(self, period: float, clock: Callable[[], float] = time.monotonic) -> None:
-        """Serve every ``period`` s on ``clock`` until `stop_event` is set (a stop request or a signal)."""
-        stop = self.stop_event
-        loop = self.loop_stats
-        deadline = last = clock()
-        while not stop.is_set():
-            now = clock()
-            late, last = now - deadline, now - last
-            if late > loop["max_late_ms"] / 1000.0:
-                loop["max_late_ms"] = late * 1000.0
-            if last > loop["max_gap_ms"] / 1000.0:  # a service that ran long shows here, not in the lateness
-                loop["max_gap_ms"] = last * 1000.0
-            last = now
-            self.service(now)
-            loop["services"] += 1
-            deadline += period
-            delay = deadline - clock()
-            if delay < 0.0:
-                loop["overruns"] += 1
-                deadline = clock()  # overran: restart the grid rather than burst to catch up
-            elif stop.wait(delay):
-                break
+        """Serve every ``period`` s on ``clock``, and whenever a frame arrives on a bus that can be waited on (see
+        `serve_on_grid`), until `stop_event` is set (a stop request or a signal)."""
+        wake = frame_wakeup([rig.bus for rig in self.rigs if rig.bus is not None])
+        serve_on_grid(self.service, period, self.stop_event, wake=wake, stats=self.loop_stats, clock=clock)
         self._apply_requests()  # answer whatever arrived with the stop
 
     # ---- control ------------------------------------------------------------------------------------------------

@@ -3,7 +3,8 @@
 A ``hild bench`` scenario runs the real daemon in a child process (``hild.bench.host``); for MIT-CAN scenarios
 this rig (``hild.bench.rigs.rig_class("mit_can")``) adds to that process what a robot would
 have on the wire: n Damiao drives (DM4340 at the base, DM4310 at the wrist, firmware-faithful, ``drivers.can.
-emulator``) behind independent motor plants, serviced by one thread every ``EMULATOR_PERIOD``. The motors are
+emulator``) behind independent motor plants, serviced by one thread every ``EMULATOR_PERIOD`` (bridged: every
+``WOKEN_PERIOD``, and at once when a frame arrives — ``drivers.can.emulator.core.serve_on_grid``). The motors are
 spread over as many 1 Mbit/s buses as their traffic needs (``hild check`` refuses an over-full bus): 3 per bus
 at 1 kHz, 6 at 500 Hz, one ``mit_can`` component per bus, as a real arm would be wired.
 
@@ -16,7 +17,8 @@ bench compares them with stamps taken in its own process.
 In one process the emulator thread competes with the cycle for the GIL (real drives answer from their own
 silicon), so CAN cycle figures are an upper bound; its CPU is reported apart from the daemon's. With the cycle in a
 process of its own the rig runs in a process of its own too (:mod:`hild.bench.rigs.can_process`), each bus a
-loopback server its loop reads: the frames are then stamped when that loop reads them off the socket.
+loopback server its loop reads: the frames are then stamped when that loop reads them off the socket, which a
+frame's arrival wakes (no poll period between the wire and the stamp).
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ import can
 
 from drivers.can.bus import BusSpec, frame_bits, open_bus
 from drivers.can.emulator import Emulator, MotorFirmware, MotorPlant, Plant
+from drivers.can.emulator.core import frame_wakeup, serve_on_grid
 from drivers.can.emulator.runtime import build_firmware
 from drivers.can.mit_driver import MotorWiring, wire_motors
 from drivers.can.params import MitCanParams
@@ -41,6 +44,7 @@ from drivers.can.protocol.mit import POSITION_BITS, decode_command, decode_state
 from hild.config.loader import LoadedConfig
 
 EMULATOR_PERIOD = 0.0002  # s between services: a reply within ~0.2 ms, like a drive's
+WOKEN_PERIOD = 0.001  # s between services when a frame wakes the loop (bridged buses): the grid keeps timers going
 P = TypeVar("P")
 START_POSITIONS = (0.2, -0.3, 0.4, -0.1, 0.3, -0.2)  # rad, where the emulated motors power up
 BITRATE = 1_000_000
@@ -299,23 +303,20 @@ class CanBenchRig:
             yield params.bus, build_firmware(params, joints), plant, MitProbe(wiring[0])
 
     def _serve(self) -> None:
-        """``Emulator.run`` for several emulators: one service of each every period, on an absolute grid."""
+        """``Emulator.run`` for several emulators: one service of each every period, on an absolute grid, and when a
+        frame arrives on a bridged bus."""
         self._thread_id = threading.get_native_id()
         if self._priority > 0:  # below a SCHED_FIFO cycle, or the drives starve behind it and their watchdogs fire
             with contextlib.suppress(OSError):  # the daemon's real-time report says whether FIFO is permitted
                 os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self._priority))
-        clock = time.monotonic
-        deadline = clock()
-        while not self._stop.is_set():
-            now = clock()
-            for emulator in self.emulators:
+        emulators = self.emulators
+
+        def service(now: float) -> None:
+            for emulator in emulators:
                 emulator.service(now)
-            deadline += EMULATOR_PERIOD
-            delay = deadline - clock()
-            if delay < 0.0:
-                deadline = clock()  # overran: restart the grid instead of bursting to catch up
-            elif self._stop.wait(delay):
-                break
+
+        wake = frame_wakeup([tap.bus for tap in self.taps])  # across the loopback bridge: a frame wakes the drives
+        serve_on_grid(service, EMULATOR_PERIOD if wake is None else WOKEN_PERIOD, self._stop, wake=wake)
 
     def attach(self, engine: Any) -> None:
         """Keep the daemon's CAN drivers for their frame counters."""
