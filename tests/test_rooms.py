@@ -6,6 +6,7 @@ is imported only in its room (docs/architecture.md, "Rules")."""
 from __future__ import annotations
 
 import ast
+import functools
 from pathlib import Path
 
 from tests.conftest import REPO
@@ -30,7 +31,8 @@ LIBRARY_ROOMS = {
 }
 
 
-def imports(path: Path) -> set[str]:
+@functools.cache  # each module is parsed once, whatever the number of libraries asked about
+def imports(path: Path) -> frozenset[str]:
     """Fully qualified modules ``path`` imports (absolute imports only: relative ones stay in their package)."""
     names: set[str] = set()
     for node in ast.walk(ast.parse(path.read_text(), str(path))):
@@ -38,7 +40,7 @@ def imports(path: Path) -> set[str]:
             names |= {alias.name for alias in node.names}
         elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
             names.add(node.module)
-    return names
+    return frozenset(names)
 
 
 def product_modules() -> list[Path]:

@@ -4,12 +4,12 @@ never loads them."""
 
 from __future__ import annotations
 
-import ast
 import subprocess
 import sys
 from pathlib import Path
 
 from tests.conftest import REPO
+from tests.test_rooms import imports
 
 ROOM = REPO / "hild" / "api" / "ros2"
 ROOM_LIBRARIES = ("rosbags", "xxhash")
@@ -18,13 +18,7 @@ EXEMPT = REPO / "hild" / "bench"  # the measuring room may import anything, like
 
 
 def imported_roots(path: Path) -> set[str]:
-    roots: set[str] = set()
-    for node in ast.walk(ast.parse(path.read_text(), str(path))):
-        if isinstance(node, ast.Import):
-            roots |= {alias.name.split(".")[0] for alias in node.names}
-        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
-            roots.add(node.module.split(".")[0])
-    return roots
+    return {module.split(".")[0] for module in imports(path)}
 
 
 def test_ros2_libraries_are_imported_only_in_their_room() -> None:
