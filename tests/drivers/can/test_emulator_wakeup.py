@@ -13,7 +13,7 @@ from __future__ import annotations
 import socket
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 
 import can
@@ -129,15 +129,6 @@ def test_a_bus_with_a_file_wakes_the_loop_when_it_has_something_to_read() -> Non
         assert wake(0.0) is False
         wire.send(b"frame")
         assert wake(AN_HOUR) is True
-
-
-@pytest.fixture
-def served() -> Iterator[RemoteServerBus]:
-    bus = RemoteServerBus("127.0.0.1", 0)
-    try:
-        yield bus
-    finally:
-        bus.shutdown()
 
 
 def looping(target: Callable[[], None]) -> threading.Thread:

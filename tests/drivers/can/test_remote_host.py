@@ -69,15 +69,6 @@ def looping(step: Callable[[], None]) -> Iterator[None]:
         thread.join(WAIT)
 
 
-@pytest.fixture
-def served() -> Iterator[RemoteServerBus]:
-    bus = RemoteServerBus("127.0.0.1", 0)
-    try:
-        yield bus
-    finally:
-        bus.shutdown()
-
-
 def close(step: Callable[[], None], *clients: can.BusABC) -> None:
     """Shut the clients down while ``step`` runs as the emulator loop would."""
     with looping(step):
