@@ -207,8 +207,8 @@ def loop_stats() -> dict[str, float]:
 class Waitable(Protocol):
     """A bus whose files change while it runs (`RemoteServerBus`: a socket per client, and its arrivals)."""
 
-    def waitables(self) -> list[tuple[Any, int]]:
-        """What to wait on now, each with its ``select.poll`` event mask."""
+    def waitables(self) -> tuple[list[Any], list[Any]]:
+        """What to wait on now: the files that may bring a frame, and those with output waiting for room."""
         ...
 
 
@@ -234,11 +234,9 @@ def frame_wakeup(buses: Sequence[Any]) -> Callable[[float], bool] | None:
         readable: list[Any] = list(fixed)
         writable: list[Any] = []
         for bus in served:
-            for file, events in bus.waitables():
-                if events & select.POLLIN:
-                    readable.append(file)
-                if events & select.POLLOUT:
-                    writable.append(file)
+            more, room = bus.waitables()
+            readable += more
+            writable += room
         try:
             ready = select.select(readable, writable, (), timeout)  # to the µs: poll and epoll round up to a ms
             return bool(ready[0] or ready[1])

@@ -25,7 +25,6 @@ import json
 import logging
 import mimetypes
 import queue
-import select
 import socket
 import struct
 import threading
@@ -236,13 +235,12 @@ class RemoteServerBus(can.BusABC):
         """To every client, at once (what a slow client cannot take waits in its outbox)."""
         self._deliver(msg, source=None)
 
-    def waitables(self) -> list[tuple[socket.socket, int]]:
+    def waitables(self) -> tuple[list[socket.socket], list[socket.socket]]:
         """What the loop waits on between two services (`drivers.can.emulator.core.frame_wakeup`): every client's
-        socket for its frames (and for room, when output waits), and the handshake thread's word of a new client."""
-        files = [(self._arrived, select.POLLIN)]
-        for client in self.clients:
-            files.append((client.sock, select.POLLIN | (select.POLLOUT if client.outbox else 0)))
-        return files
+        socket and the handshake thread's word of a new client for reading; the clients whose output waits, for
+        room."""
+        readable = [self._arrived, *(client.sock for client in self.clients)]
+        return readable, [client.sock for client in self.clients if client.outbox]
 
     def pump(self) -> None:
         """Take new clients, read every client's frames into the receive queue, write what waits."""
